@@ -1,0 +1,40 @@
+"""evaaa: a TorchRL-native benchmark for homeostatic, internally motivated reinforcement learning.
+
+>>> import evaaa
+>>> env = evaaa.make_env("1-1", num_envs=4, seed=0)
+>>> td = env.rollout(100)
+"""
+
+from __future__ import annotations
+
+import os
+
+# Headless rendering: these must be set before mujoco is first imported (MuJoCo reads MUJOCO_GL at import, Mesa
+# reads LP_NUM_THREADS when the context is made).  LP_NUM_THREADS=0 makes llvmpipe draw in the calling thread,
+# which is faster for 64x64 frames and keeps parallel workers from fighting over cores.
+os.environ.setdefault("MUJOCO_GL", "egl")
+os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
+os.environ.setdefault("LP_NUM_THREADS", "0")
+
+from .env import EvaaaEnv, make_env  # noqa: E402
+from .physiology import END_TYPES, EV_NAMES, REWARDS  # noqa: E402
+from .sensors import MODALITIES  # noqa: E402
+from .sim import ACTION_NAMES  # noqa: E402
+from .spec import LEVELS, TESTBEDS, Level, LevelError, load_level  # noqa: E402
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "ACTION_NAMES",
+    "END_TYPES",
+    "EV_NAMES",
+    "EvaaaEnv",
+    "LEVELS",
+    "Level",
+    "LevelError",
+    "MODALITIES",
+    "REWARDS",
+    "TESTBEDS",
+    "load_level",
+    "make_env",
+]

@@ -1,0 +1,166 @@
+"""``EvaaaEnv``: the TorchRL environment over the batched simulator.
+
+Specs are built once; ``batch_size=(num_envs,)`` holds several worlds in one process; partial resets follow the
+``"_reset"`` mask; ``terminated`` (an EV left its range, or a single-trial resource was consumed) is kept apart
+from ``truncated`` (``episode.max_steps`` reached); diagnostics live under the nested ``"info"`` key.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+import numpy as np
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+from .sim import NUM_ACTIONS, Simulator
+from .spec import Level, load_level
+
+_TORCH_DTYPE = {np.dtype(np.float32): torch.float32, np.dtype(np.uint8): torch.uint8}
+
+#: Entries of ``"info"``: name -> (shape per world, dtype).
+INFO_FIELDS: dict[str, tuple[tuple[int, ...], torch.dtype]] = {
+    "position": ((3,), torch.float32),
+    "yaw": ((1,), torch.float32),
+    "satiation": ((1,), torch.float32),
+    "hydration": ((1,), torch.float32),
+    "temperature": ((1,), torch.float32),
+    "damage": ((1,), torch.float32),
+    "food_eaten": ((1,), torch.int64),
+    "water_eaten": ((1,), torch.int64),
+    "collision": ((1,), torch.bool),
+    "damage_taken": ((1,), torch.float32),
+    "step_count": ((1,), torch.int64),
+    "end_type": ((1,), torch.int64),
+}
+
+
+class EvaaaEnv(EnvBase):
+    """A homeostatic survival task in a 3-D MuJoCo world.
+
+    Args:
+        level: a level name (``evaaa.LEVELS`` / ``evaaa.TESTBEDS``) or a loaded :class:`~evaaa.spec.Level`.
+        num_envs: independent worlds stepped together in this process (the env's batch size).
+        seed: seed for the worlds' generators; same seed and actions give the same trajectories.
+        modalities: observation keys to emit (default all): ``pixels``, ``interoception``, ``olfaction``,
+            ``thermoception``, ``collision``.  A dropped modality's key is absent, not zeroed.
+        device: where the returned tensors live.
+        overrides: dotted-path changes to the level (``{"agent.move_speed": 10}``).
+    """
+
+    # numpy does the work; the output tensordicts are assembled once per call
+    _has_dynamic_specs = False
+    batch_locked = True
+
+    def __init__(
+        self,
+        level: str | Level = "1-1",
+        *,
+        num_envs: int = 1,
+        seed: int | None = None,
+        modalities: Iterable[str] | str | None = None,
+        device: str | torch.device = "cpu",
+        overrides: Mapping[str, Any] | None = None,
+    ):
+        spec = level if isinstance(level, Level) else load_level(level, overrides)
+        if isinstance(level, Level) and overrides:
+            spec = load_level(level.name, overrides)
+        self.sim = Simulator(spec, num_envs, modalities, seed=seed)
+        super().__init__(batch_size=torch.Size([num_envs]), device=device)
+        self.level = spec
+        self.num_envs = num_envs
+        self._make_specs()
+        self._seed_value = seed
+
+    # ---------------------------------------------------------------------------------------------- specs
+    def _make_specs(self) -> None:
+        n = self.num_envs
+        obs = {}
+        for key, (shape, dtype) in self.sim.observation_shapes.items():
+            if dtype == np.uint8:
+                obs[key] = Bounded(0, 255, shape=(n, *shape), dtype=torch.uint8, device=self.device)
+            else:
+                obs[key] = Unbounded(shape=(n, *shape), dtype=_TORCH_DTYPE[np.dtype(dtype)], device=self.device)
+        info = {}
+        for key, (shape, dtype) in INFO_FIELDS.items():
+            if dtype is torch.bool:
+                info[key] = Categorical(2, shape=(n, *shape), dtype=torch.bool, device=self.device)
+            else:
+                info[key] = Unbounded(shape=(n, *shape), dtype=dtype, device=self.device)
+        obs["info"] = Composite(info, shape=(n,), device=self.device)
+        self.observation_spec = Composite(obs, shape=(n,), device=self.device)
+        self.action_spec = Categorical(NUM_ACTIONS, shape=(n,), dtype=torch.int64, device=self.device)
+        self.reward_spec = Unbounded(shape=(n, 1), dtype=torch.float32, device=self.device)
+        done = Categorical(2, shape=(n, 1), dtype=torch.bool, device=self.device)
+        self.done_spec = Composite(done=done.clone(), terminated=done.clone(), truncated=done.clone(),
+                                   shape=(n,), device=self.device)
+
+    # ---------------------------------------------------------------------------------------------- plumbing
+    def _to_td(self, obs: dict[str, np.ndarray], info: dict[str, np.ndarray], extra: dict[str, torch.Tensor]):
+        device = self.device
+        on_cpu = device.type == "cpu"
+        source: dict[str, Any] = {k: torch.from_numpy(v) for k, v in obs.items()}
+        info_td = {k: torch.from_numpy(v) for k, v in info.items()}
+        source.update(extra)
+        if not on_cpu:
+            source = {k: v.to(device, non_blocking=True) for k, v in source.items()}
+            info_td = {k: v.to(device, non_blocking=True) for k, v in info_td.items()}
+        # the tensors are fresh, well-shaped and on the env's device: skip tensordict's per-entry validation
+        source["info"] = TensorDict._new_unsafe(info_td, batch_size=self.batch_size, device=device)
+        return TensorDict._new_unsafe(source, batch_size=self.batch_size, device=device)
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        mask = None
+        if tensordict is not None:
+            reset = tensordict.get("_reset", None)
+            if reset is not None:
+                mask = reset.reshape(self.num_envs).cpu().numpy()
+        obs = self.sim.reset(mask)
+        false = torch.zeros((self.num_envs, 1), dtype=torch.bool)
+        return self._to_td(obs, self.sim.last_info, {"done": false, "terminated": false.clone(),
+                                                    "truncated": false.clone()})
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        action = tensordict.get("action")
+        if action.dtype.is_floating_point:
+            raise ValueError(f"action must be an integer tensor in 0..{NUM_ACTIONS - 1}, got dtype {action.dtype}")
+        obs, reward, terminated, truncated, info = self.sim.step(action.reshape(self.num_envs).cpu().numpy())
+        term = torch.from_numpy(terminated).unsqueeze(-1)
+        trunc = torch.from_numpy(truncated).unsqueeze(-1)
+        return self._to_td(obs, info, {
+            "reward": torch.from_numpy(reward).unsqueeze(-1),
+            "done": term | trunc,
+            "terminated": term,
+            "truncated": trunc,
+        })
+
+    def _set_seed(self, seed: int | None) -> None:
+        self.sim.seed(seed)
+        self._seed_value = seed
+
+    def close(self, *, raise_if_closed: bool = True) -> None:
+        sim = self.__dict__.get("sim")
+        if sim is not None:
+            sim.close()
+        super().close(raise_if_closed=raise_if_closed)
+
+
+def make_env(
+    name: str = "1-1",
+    *,
+    num_envs: int = 1,
+    seed: int | None = None,
+    modalities: Iterable[str] | str | None = None,
+    device: str | torch.device = "cpu",
+    **overrides: Any,
+) -> EvaaaEnv:
+    """Build the TorchRL env of a level or testbed.
+
+    Overrides reach any level field by dotted path, e.g.
+    ``make_env("1-1", **{"agent.move_speed": 10, "episode.max_steps": 1000})``, or as nested dicts,
+    ``make_env("1-1", episode={"max_steps": 1000})``.
+    """
+    return EvaaaEnv(name, num_envs=num_envs, seed=seed, modalities=modalities, device=device, overrides=overrides)

@@ -1,0 +1,164 @@
+"""Essential variables (EVs): their dynamics, the episode end rules and the reward functions.
+
+Pure, batched numpy over worlds: every function takes arrays whose first axis is the world, and nothing here
+touches MuJoCo, so the dynamics can be checked analytically.  EVs are ordered as :data:`EV_NAMES`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .spec import Level
+
+EV_NAMES: tuple[str, ...] = ("satiation", "hydration", "temperature", "damage")
+SATIATION, HYDRATION, TEMPERATURE, DAMAGE = range(4)
+
+#: How an episode ended; index 0 means it has not ended.  Stored as an integer in ``info["end_type"]``.
+END_TYPES: tuple[str, ...] = (
+    "None",
+    "ResourceConsumed",
+    "FoodOutOfRange",
+    "WaterOutOfRange",
+    "TemperatureOutOfRange",
+    "DamageTooHigh",
+    "MaxStepReached",
+)
+END_NONE, END_RESOURCE, END_FOOD, END_WATER, END_TEMPERATURE, END_DAMAGE, END_MAX_STEPS = range(7)
+#: End types that mean the animal died (an EV left its viable range).
+DEATHS = (END_FOOD, END_WATER, END_TEMPERATURE, END_DAMAGE)
+_IS_DEATH = np.isin(np.arange(len(END_TYPES)), DEATHS)
+
+REWARDS: tuple[str, ...] = ("squared", "drive_reduction", "neg_distance", "sparse")
+
+
+@dataclass(frozen=True)
+class PhysiologyParams:
+    """A level's physiology and reward settings as arrays, ready for the batched functions below."""
+
+    start: np.ndarray  # (4,)
+    low: np.ndarray  # (4,)
+    high: np.ndarray  # (4,)
+    setpoint: np.ndarray  # (4,)
+    decay: np.ndarray  # (4,) per decision; temperature's entry is 0 (it follows the thermal field)
+    thermal_coupling: float
+    food_value: float
+    water_value: float
+    reward: str
+    weights: np.ndarray  # (4,)
+    terminal_penalty: float
+    penalize_truncation: bool
+
+    @classmethod
+    def from_level(cls, level: Level) -> "PhysiologyParams":
+        p, r = level.physiology, level.reward
+
+        def vec(evs) -> np.ndarray:
+            return np.array([getattr(evs, n) for n in EV_NAMES], dtype=np.float64)
+
+        bounds = np.array([getattr(p.bounds, n) for n in EV_NAMES], dtype=np.float64)
+        return cls(
+            start=vec(p.start),
+            low=bounds[:, 0],
+            high=bounds[:, 1],
+            setpoint=vec(p.setpoint),
+            decay=np.array([p.decay.satiation, p.decay.hydration, 0.0, p.decay.damage]),
+            thermal_coupling=p.thermal_coupling,
+            food_value=p.food_value,
+            water_value=p.water_value,
+            reward=r.name,
+            weights=vec(r.weights),
+            terminal_penalty=r.terminal_penalty,
+            penalize_truncation=r.penalize_truncation,
+        )
+
+
+def step_evs(
+    ev: np.ndarray,
+    params: PhysiologyParams,
+    *,
+    food_eaten: np.ndarray,
+    water_eaten: np.ndarray,
+    thermal_sum: np.ndarray,
+    damage_taken: np.ndarray,
+) -> np.ndarray:
+    """One decision of EV dynamics.
+
+    ``ev`` is (N, 4); ``food_eaten``/``water_eaten`` are (N,) booleans (an item of that kind was consumed this
+    decision; several items count once), ``thermal_sum`` is sum_i (T_i - temperature) over the thermal sensors
+    and ``damage_taken`` the collision damage of this decision.  Damage never falls below its lower bound (the
+    agent cannot be healthier than unhurt); nothing else is clamped, so overeating past the upper bound kills.
+    """
+    new = ev + params.decay
+    new[:, SATIATION] += params.food_value * food_eaten
+    new[:, HYDRATION] += params.water_value * water_eaten
+    new[:, TEMPERATURE] += params.thermal_coupling * thermal_sum
+    new[:, DAMAGE] = np.maximum(new[:, DAMAGE] + damage_taken, params.low[DAMAGE])
+    return new
+
+
+def end_types(
+    ev: np.ndarray,
+    params: PhysiologyParams,
+    *,
+    resource_consumed: np.ndarray,
+    single_trial: bool,
+    steps: np.ndarray,
+    max_steps: int,
+) -> np.ndarray:
+    """The end type of each world after a decision (``END_NONE`` while it goes on).
+
+    Precedence: a single-trial consumption, then satiation, hydration, temperature and damage leaving their
+    ranges, then reaching ``max_steps`` (a truncation, reported only if nothing else ended the episode).
+    """
+    out = np.zeros(len(ev), dtype=np.int64)
+    outside = (ev < params.low) | (ev > params.high)
+    outside[:, DAMAGE] = ev[:, DAMAGE] > params.high[DAMAGE]
+    # assign from lowest to highest precedence so that the highest wins
+    out[steps >= max_steps] = END_MAX_STEPS
+    for column, end in ((DAMAGE, END_DAMAGE), (TEMPERATURE, END_TEMPERATURE), (HYDRATION, END_WATER),
+                        (SATIATION, END_FOOD)):
+        out[outside[:, column]] = end
+    if single_trial:
+        out[resource_consumed] = END_RESOURCE
+    return out
+
+
+def drive(ev: np.ndarray, params: PhysiologyParams) -> np.ndarray:
+    """Weighted squared deviation from the set points, sum_i w_i (EV_i - s_i)^2, per world."""
+    return ((ev - params.setpoint) ** 2 * params.weights).sum(axis=-1)
+
+
+def reward(
+    ev_before: np.ndarray,
+    ev_after: np.ndarray,
+    end: np.ndarray,
+    params: PhysiologyParams,
+) -> np.ndarray:
+    """Reward of a decision from the internal state alone.
+
+    * ``squared`` (default): ``-drive(EV_after)`` — what the original baselines trained on.
+    * ``drive_reduction``: ``drive(EV_before) - drive(EV_after)`` — reward for moving toward the set points.
+    * ``neg_distance``: ``-|| (EV_after - s) / sigma ||_2`` with sigma_i the largest distance from the set point
+      to a bound of EV i.
+    * ``sparse``: 0.
+
+    The terminal penalty is added where an EV left its range (and on truncation if ``penalize_truncation``).
+    """
+    if params.reward == "squared":
+        r = -drive(ev_after, params)
+    elif params.reward == "drive_reduction":
+        r = drive(ev_before, params) - drive(ev_after, params)
+    elif params.reward == "neg_distance":
+        sigma = np.maximum(np.abs(params.high - params.setpoint), np.abs(params.low - params.setpoint))
+        sigma = np.where(sigma > 0, sigma, 1.0)
+        r = -np.sqrt((((ev_after - params.setpoint) / sigma) ** 2).sum(axis=-1))
+    elif params.reward == "sparse":
+        r = np.zeros(len(ev_after))
+    else:  # the level schema makes this unreachable; guard against direct construction
+        raise ValueError(f"reward.name must be one of {', '.join(REWARDS)}, got {params.reward!r}")
+    penalised = _IS_DEATH[end]
+    if params.penalize_truncation:
+        penalised = penalised | (end == END_MAX_STEPS)
+    return (r + params.terminal_penalty * penalised).astype(np.float32)

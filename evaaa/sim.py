@@ -1,0 +1,363 @@
+"""The batched simulator: N worlds of one level in one process, stepped together.
+
+This is the engine under both the TorchRL env and the gymnasium adapter.  It owns one compiled MuJoCo model,
+one ``MjData`` per world, one shared renderer and the per-world state arrays (pose, EVs, resources, thermal
+field).  Work that is the same for every world runs once over the batch in numpy; only the MuJoCo calls (the
+physics substeps, the rays and the render) loop over worlds.
+
+One decision:
+1. the action sets the body's velocity or heading (Eat raises the eat intent);
+2. five physics substeps of 0.02 s; contact impulses on the body become collision damage;
+3. with eat intent, every item overlapping the eating sphere is consumed (its EV effect counts once) and
+   respawns per its group's rule;
+4. the thermal sensors are read at the new pose, the EVs advance, the episode end is decided, the reward is
+   computed from the EVs;
+5. the enabled sensors are read.
+"""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+
+from . import physiology as phys
+from .render import BatchRenderer
+from .scene import GROUP_AGENT, build_model
+from .sensors import SENSORS, resolve_modalities
+from .spec import Level
+from .thermal import FieldSampler, build_field, hotspot_cells
+from .worldgen import AGENT_HALF, FOOD, PARKED_Z, WATER, ResourcePool, place_resources, sample_agent_start
+
+NUM_ACTIONS = 5
+ACTION_NAMES: tuple[str, ...] = ("none", "forward", "left", "right", "eat")
+NONE, FORWARD, LEFT, RIGHT, EAT = range(NUM_ACTIONS)
+SUBSTEPS = 5
+#: the eating sphere's centre sits this far below the body centre
+EAT_DROP = 0.065
+
+
+class Simulator:
+    """N worlds of one level.  Arrays are indexed by world first.
+
+    Args:
+        level: a validated level.
+        num_worlds: worlds stepped together.
+        modalities: observation keys to produce (None: all).
+        seed: seed of the per-world generators (None: fresh entropy).
+    """
+
+    def __init__(self, level: Level, num_worlds: int = 1, modalities=None, seed: int | None = None):
+        if not isinstance(num_worlds, int) or isinstance(num_worlds, bool) or num_worlds < 1:
+            raise ValueError(f"num_envs must be a positive integer, got {num_worlds!r}")
+        self.level = level
+        self.n = num_worlds
+        self.modalities = resolve_modalities(modalities)
+        self.params = phys.PhysiologyParams.from_level(level)
+        self.pool = ResourcePool.from_level(level)
+        self.model, self.index = build_model(level, self.pool)
+        self.datas = [mujoco.MjData(self.model) for _ in range(num_worlds)]
+        self.dt = float(self.model.opt.timestep)
+        self.sampler = FieldSampler(level)
+        self.agent_z = AGENT_HALF
+        self._renderer: BatchRenderer | None = None
+        self._top_renderer: BatchRenderer | None = None
+
+        n, p = num_worlds, self.pool.size_total
+        a = level.agent
+        self.turn_rad = math.radians(a.turn_degrees)
+        self.move_speed = a.move_speed
+        self.eat_radius2 = a.eat_radius**2
+        self.eat_offset = a.eat_offset
+        self.res_half = self.pool.size / 2
+        self.res_is_food = self.pool.kind == FOOD
+        self.res_is_water = self.pool.kind == WATER
+        dmg = a.collision_damage
+        self._damage_rule = (dmg.constant, dmg.rate, dmg.offset, dmg.cap, dmg.event_threshold)
+
+        # per-world state
+        self.pos = np.zeros((n, 2))
+        self.heading_rad = np.zeros(n)  # compass heading
+        self.ev = np.tile(self.params.start, (n, 1))
+        self.steps = np.zeros(n, dtype=np.int64)
+        self.res_xy = np.zeros((n, p, 2))
+        self.res_present = np.zeros((n, p), dtype=bool)
+        self.fields = np.zeros((n, *level.thermal.grid))
+        self.thermal_readings = np.zeros((n, 8))
+        self.last_obs: dict[str, np.ndarray] = {}
+        self._res_d2: np.ndarray | None = None
+        self._all = np.arange(n)
+        self._zeros_bool = np.zeros(n, dtype=bool)
+        self._agent_z_col = np.full((n, 1), AGENT_HALF)
+        # vertical gap between the eating sphere's centre and each item's box (it sits a little below the eye)
+        self._eat_dz2 = np.maximum(np.abs(AGENT_HALF - EAT_DROP - self.pool.centre_z()) - self.res_half, 0.0) ** 2
+
+        self.sensors = [SENSORS[k](self) for k in self.modalities]
+        if "pixels" in self.modalities:
+            self._make_renderer()
+        self.seed(seed)
+
+    # ------------------------------------------------------------------------------------------------ set-up
+    def _make_renderer(self) -> None:
+        v = self.level.sensors.vision
+        self._renderer = BatchRenderer(self.model, v.height, v.width, hidden_groups=(GROUP_AGENT,))
+
+    def seed(self, seed: int | None) -> None:
+        """Give every world its own generator, derived from ``seed`` (None: fresh entropy)."""
+        children = np.random.SeedSequence(seed).spawn(self.n)
+        self.rngs = [np.random.default_rng(s) for s in children]
+
+    @property
+    def observation_shapes(self) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
+        return {s.key: (s.shape, s.dtype) for s in self.sensors}
+
+    # ------------------------------------------------------------------------------------------------ reset
+    def reset(self, mask: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """Start new episodes in the worlds where ``mask`` is True (all if None); return every world's observation."""
+        if mask is None or not self.last_obs:  # the first reset starts every world
+            worlds = np.arange(self.n)
+        else:
+            worlds = np.flatnonzero(np.asarray(mask).reshape(self.n))
+        for w in worlds:
+            self._reset_world(int(w))
+        self._res_d2 = None
+        obs = self._observe(worlds)
+        self._info_reset(worlds)
+        return obs
+
+    def _reset_world(self, w: int) -> None:
+        level, pool, rng = self.level, self.pool, self.rngs[w]
+        self.fields[w] = build_field(level, hotspot_cells(level, rng))
+        self.res_xy[w] = place_resources(pool, rng)
+        self.res_present[w] = True
+        xy, heading = sample_agent_start(level, rng, self.res_xy[w], self.res_half)
+        self.pos[w] = xy
+        self.heading_rad[w] = math.radians(heading)
+        self.ev[w] = self.params.start
+        self.steps[w] = 0
+        data = self.datas[w]
+        mujoco.mj_resetData(self.model, data)
+        data.qpos[:3] = (xy[0], xy[1], math.pi / 2 - self.heading_rad[w])
+        self._write_resources(w)
+        mujoco.mj_forward(self.model, data)
+        self.thermal_readings[w] = self.sampler.sample(self.fields[w: w + 1], self.pos[w: w + 1],
+                                                       self.heading_rad[w: w + 1])[0]
+
+    def _write_resources(self, w: int) -> None:
+        z = np.where(self.res_present[w], self.pool.centre_z(), PARKED_Z)
+        mocap = self.datas[w].mocap_pos
+        ids = self.index.resource_mocap
+        mocap[ids, 0] = self.res_xy[w, :, 0]
+        mocap[ids, 1] = self.res_xy[w, :, 1]
+        mocap[ids, 2] = z
+
+    # ------------------------------------------------------------------------------------------------ step
+    def step(self, actions: np.ndarray):
+        """Advance every world by one decision.
+
+        Returns ``(obs, reward, terminated, truncated, info)``: dict of (N, ...) arrays, (N,) float32, (N,) bool,
+        (N,) bool, dict of (N, ...) arrays.
+        """
+        actions = self._check_actions(actions)
+        self.apply_actions(actions)
+        return self._advance(actions)
+
+    def apply_actions(self, actions: np.ndarray) -> None:
+        """Set each world's heading and velocity from its (validated) action; physics has not run yet."""
+        turn = (actions == RIGHT).astype(np.float64) - (actions == LEFT)
+        heading = (self.heading_rad + self.turn_rad * turn) % (2 * math.pi)
+        self.heading_rad = heading
+        speed = self.move_speed * (actions == FORWARD)
+        vx, vy = (speed * np.sin(heading)).tolist(), (speed * np.cos(heading)).tolist()
+        psi = (math.pi / 2 - heading).tolist()
+        for w, data in enumerate(self.datas):
+            data.qpos[2] = psi[w]
+            qvel = data.qvel
+            qvel[0] = vx[w]
+            qvel[1] = vy[w]
+            qvel[2] = 0.0
+
+    def _advance(self, actions: np.ndarray):
+        # 2. physics
+        damage = np.zeros(self.n)
+        collided = np.zeros(self.n, dtype=bool)
+        model, pos = self.model, self.pos
+        for w, data in enumerate(self.datas):
+            for _ in range(SUBSTEPS):
+                mujoco.mj_step(model, data)
+                if data.ncon:
+                    d, hit = self._contact_damage(data)
+                    damage[w] += d
+                    collided[w] |= hit
+            # mj_step leaves positions computed before its last integration; bring them up to date
+            mujoco.mj_kinematics(model, data)
+            mujoco.mj_camlight(model, data)
+            pos[w] = data.qpos[:2]
+        self._res_d2 = None  # distances to items changed with the pose
+
+        # 3. eating
+        eating = actions == EAT if not self.level.agent.auto_eat else np.ones(self.n, dtype=bool)
+        consumed = self._consume(eating)
+        if consumed is None:
+            food_count, water_count = np.zeros(self.n, dtype=np.int64), np.zeros(self.n, dtype=np.int64)
+            food_eaten = water_eaten = self._zeros_bool
+        else:
+            food_count = (consumed & self.res_is_food).sum(1)
+            water_count = (consumed & self.res_is_water).sum(1)
+            food_eaten, water_eaten = food_count > 0, water_count > 0
+
+        # 4. physiology
+        self.steps += 1
+        self.thermal_readings = self.sampler.sample(self.fields, pos, self.heading_rad)
+        ev_before = self.ev
+        thermal_sum = self.thermal_readings.sum(axis=1) - 8.0 * ev_before[:, 2]
+        self.ev = phys.step_evs(ev_before, self.params, food_eaten=food_eaten, water_eaten=water_eaten,
+                                thermal_sum=thermal_sum, damage_taken=damage)
+        end = phys.end_types(self.ev, self.params, resource_consumed=food_eaten | water_eaten,
+                             single_trial=self.level.episode.single_trial, steps=self.steps,
+                             max_steps=self.level.episode.max_steps)
+        reward = phys.reward(ev_before, self.ev, end, self.params)
+        truncated = end == phys.END_MAX_STEPS
+        terminated = (end != phys.END_NONE) & ~truncated
+
+        # 5. senses
+        obs = self._observe(self._all)
+        info = self._info(food=food_count, water=water_count, collided=collided, damage=damage, end=end)
+        return obs, reward, terminated, truncated, info
+
+    def _check_actions(self, actions) -> np.ndarray:
+        a = np.asarray(actions).reshape(-1)
+        if a.shape != (self.n,):
+            raise ValueError(f"expected {self.n} actions (one per world), got shape {np.shape(actions)}")
+        if a.dtype.kind not in "iu":
+            if a.dtype.kind != "f" or not np.all(a == np.round(a)):
+                raise ValueError(f"actions must be integers in 0..{NUM_ACTIONS - 1}, got {a.tolist()}")
+            a = a.astype(np.int64)
+        if not ((a >= 0) & (a < NUM_ACTIONS)).all():
+            raise ValueError(
+                f"actions must be in 0..{NUM_ACTIONS - 1} ({', '.join(ACTION_NAMES)}), got {a.tolist()}"
+            )
+        return a
+
+    def item_distances2(self) -> np.ndarray:
+        """Squared horizontal distances (N, P) from each agent to each item slot, cached per decision."""
+        if self._res_d2 is None:
+            delta = self.res_xy - self.pos[:, None, :]
+            self._res_d2 = np.einsum("npk,npk->np", delta, delta)
+        return self._res_d2
+
+    def _contact_damage(self, data: mujoco.MjData) -> tuple[float, bool]:
+        """Collision damage of one substep: the impulse of each touching body, through the damage rule."""
+        constant, rate, offset, cap, threshold = self._damage_rule
+        agent = self.index.agent_geom
+        force = np.zeros(6)
+        per_body: dict[int, np.ndarray] = {}
+        for c in range(data.ncon):
+            contact = data.contact[c]
+            if contact.geom1 == agent:
+                other = contact.geom2
+            elif contact.geom2 == agent:
+                other = contact.geom1
+            else:
+                continue
+            mujoco.mj_contactForce(self.model, data, c, force)
+            world = force[:3] @ contact.frame.reshape(3, 3)
+            body = int(self.model.geom_bodyid[other])
+            per_body[body] = per_body.get(body, 0.0) + world
+        total, hit = 0.0, False
+        for vec in per_body.values():
+            impulse = float(np.linalg.norm(vec)) * self.dt
+            d = min(constant * math.exp(rate * (impulse - offset)), cap)
+            total += d
+            hit |= d > threshold
+        return total, hit
+
+    def _consume(self, eating: np.ndarray) -> np.ndarray | None:
+        """Items consumed this decision, (N, P) bool (None if nothing was); respawns them and updates the scene."""
+        if not eating.any() or self.pool.size_total == 0:
+            return None
+        worlds = np.flatnonzero(eating)
+        heading = self.heading_rad[worlds]
+        centre = self.pos[worlds] + self.eat_offset * np.stack([np.sin(heading), np.cos(heading)], axis=1)
+        # sphere-box overlap: distance from the sphere's centre to the nearest point of each (axis-aligned) cube
+        gap = np.maximum(np.abs(self.res_xy[worlds] - centre[:, None, :]) - self.res_half[:, None], 0.0)
+        dist2 = np.einsum("wpk,wpk->wp", gap, gap) + self._eat_dz2
+        hits = (dist2 <= self.eat_radius2) & self.res_present[worlds]
+        if not hits.any():
+            return None
+        consumed = np.zeros(self.res_present.shape, dtype=bool)
+        consumed[worlds] = hits
+        for row, w in enumerate(worlds):
+            slots = np.flatnonzero(hits[row])
+            moving = slots[self.pool.respawns[slots]]
+            if len(moving):
+                self.res_xy[w, moving] = place_resources(self.pool, self.rngs[w], moving)
+                self._write_resources(w)
+                mujoco.mj_kinematics(self.model, self.datas[w])
+        self._res_d2 = None
+        return consumed
+
+    # ------------------------------------------------------------------------------------------------ observation
+    def _observe(self, worlds: np.ndarray) -> dict[str, np.ndarray]:
+        """Read the enabled sensors for ``worlds``; other worlds keep their last observation."""
+        full = len(worlds) == self.n
+        obs = {}
+        for sensor in self.sensors:
+            reading = sensor.read(worlds)
+            if full:
+                obs[sensor.key] = reading
+            else:
+                merged = self.last_obs[sensor.key].copy()
+                merged[worlds] = reading
+                obs[sensor.key] = merged
+        self.last_obs = obs
+        return obs
+
+    def render_eye(self, worlds: np.ndarray) -> np.ndarray:
+        """The agent's view in ``worlds``, (len(worlds), H, W, 3) uint8 (a fresh array every call)."""
+        if self._renderer is None:
+            self._make_renderer()
+        datas = self.datas if len(worlds) == self.n else [self.datas[w] for w in worlds]
+        return self._renderer.render(datas, self.index.eye_camera)
+
+    def render_top(self, world: int = 0, size: int = 512) -> np.ndarray:
+        """A top-down picture of one world, (size, size, 3) uint8 (for figures and videos; not an observation)."""
+        if self._top_renderer is None or self._top_renderer.height != size:
+            if self._top_renderer is not None:
+                self._top_renderer.close()
+            self._top_renderer = BatchRenderer(self.model, size, size)
+        return self._top_renderer.render([self.datas[world]], self.index.top_camera)[0]
+
+    # ------------------------------------------------------------------------------------------------ info
+    def _info_reset(self, worlds: np.ndarray) -> None:
+        def zeros(dtype):
+            return np.zeros(self.n, dtype=dtype)
+
+        self._info(food=zeros(np.int64), water=zeros(np.int64), collided=zeros(bool), damage=zeros(np.float64),
+                   end=zeros(np.int64))
+
+    def _info(self, *, food, water, collided, damage, end) -> dict[str, np.ndarray]:
+        ev = self.ev.astype(np.float32)
+        info = {
+            "position": np.concatenate([self.pos, self._agent_z_col], axis=1).astype(np.float32),
+            "yaw": np.degrees(self.heading_rad).astype(np.float32).reshape(-1, 1),
+            "satiation": ev[:, 0:1],
+            "hydration": ev[:, 1:2],
+            "temperature": ev[:, 2:3],
+            "damage": ev[:, 3:4],
+            "food_eaten": food.reshape(-1, 1),
+            "water_eaten": water.reshape(-1, 1),
+            "collision": collided.reshape(-1, 1),
+            "damage_taken": damage.astype(np.float32).reshape(-1, 1),
+            "step_count": self.steps.reshape(-1, 1).copy(),
+            "end_type": end.reshape(-1, 1),
+        }
+        self.last_info = info
+        return info
+
+    def close(self) -> None:
+        for r in (self._renderer, self._top_renderer):
+            if r is not None:
+                r.close()
+        self._renderer = self._top_renderer = None

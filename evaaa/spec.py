@@ -1,0 +1,372 @@
+"""Level specifications: the typed schema of a level file, and loading with clear errors.
+
+A level is data (``evaaa/levels/<name>.yaml``); this module owns what a level may say and how a file, the
+files it extends and the user's overrides are merged and validated.  Every level starts from
+``levels/_defaults.yaml`` (the values common to all levels), may ``extends:`` another level, and may be changed
+by dotted-path overrides (``{"agent.move_speed": 10}``).  Any mistake raises :class:`LevelError` naming the
+field and what it accepts.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Mapping
+from importlib import resources
+from typing import Annotated, Any, Literal
+
+import yaml
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+__all__ = [
+    "Level",
+    "LevelError",
+    "LEVELS",
+    "TESTBEDS",
+    "load_level",
+    "level_names",
+]
+
+
+class LevelError(ValueError):
+    """A level name, level file or override is invalid.  The message names the field and what is allowed."""
+
+
+def _ordered(pair: tuple[float, float]) -> tuple[float, float]:
+    if pair[0] > pair[1]:
+        raise ValueError(f"expected [low, high] with low <= high, got [{pair[0]}, {pair[1]}]")
+    return pair
+
+
+#: A closed interval ``[low, high]``.
+Interval = Annotated[tuple[float, float], AfterValidator(_ordered)]
+Positive = Annotated[float, Field(gt=0)]
+NonNegative = Annotated[float, Field(ge=0)]
+
+
+class _Spec(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+# --------------------------------------------------------------------------------------------------- arena / agent
+class Arena(_Spec):
+    """The floor (centred on the origin; walking surface at z = 0) and its walls."""
+
+    size: tuple[Positive, Positive]
+    walls: bool
+    wall_height: Positive
+    floor: Literal["ground", "gray"]
+
+
+class CollisionDamage(_Spec):
+    """Damage per physics substep from a contact impulse ``I`` (N s): ``min(constant * exp(rate * (I - offset)), cap)``."""
+
+    constant: NonNegative
+    rate: NonNegative
+    offset: float
+    cap: NonNegative
+    #: a substep whose damage exceeds this counts as a collision event
+    event_threshold: NonNegative
+
+
+class Agent(_Spec):
+    mass: Positive
+    #: speed set by a Forward decision (units/s); drag and floor friction act during the 5 substeps
+    move_speed: Positive
+    turn_degrees: Annotated[float, Field(gt=0, lt=180)]
+    linear_drag: NonNegative
+    floor_friction: NonNegative
+    eat_radius: Positive
+    #: distance of the eating sphere's centre ahead of the body centre
+    eat_offset: NonNegative
+    auto_eat: bool
+    start: Literal["random", "fixed"]
+    #: sampling box of a random start (clipped to the floor); rejected where the body plus padding overlaps an entity
+    spawn_x: Interval
+    spawn_y: Interval
+    spawn_padding: NonNegative
+    start_position: tuple[float, float]
+    #: compass heading in degrees: 0 faces +y, 90 faces +x (clockwise seen from above)
+    start_heading: float
+    collision_damage: CollisionDamage
+
+
+# --------------------------------------------------------------------------------------------------- physiology
+class EVs(_Spec):
+    satiation: float
+    hydration: float
+    temperature: float
+    damage: float
+
+
+class EVBounds(_Spec):
+    satiation: Interval
+    hydration: Interval
+    temperature: Interval
+    damage: Interval
+
+
+class Decay(_Spec):
+    """Change per decision without any other input (negative: the EV falls)."""
+
+    satiation: float
+    hydration: float
+    damage: float
+
+
+class Physiology(_Spec):
+    start: EVs
+    bounds: EVBounds
+    setpoint: EVs
+    decay: Decay
+    #: temperature change per decision = coupling * sum over the 8 thermal sensors of (T_sensor - temperature)
+    thermal_coupling: NonNegative
+    food_value: float
+    water_value: float
+
+    @model_validator(mode="after")
+    def _start_inside_bounds(self) -> "Physiology":
+        for ev in EVs.model_fields:
+            lo, hi = getattr(self.bounds, ev)
+            value = getattr(self.start, ev)
+            if not lo <= value <= hi:
+                raise ValueError(f"start.{ev} = {value} lies outside bounds.{ev} = [{lo}, {hi}]")
+        return self
+
+
+# --------------------------------------------------------------------------------------------------- resources
+class ResourceGroup(_Spec):
+    """A group of identical consumable items placed uniformly in a box."""
+
+    kind: Literal["food", "water"]
+    count: Annotated[int, Field(ge=0, le=1000)]
+    #: random: a consumed item reappears uniformly in the group's box; static: never depletes
+    respawn: Literal["random", "static"]
+    x: Interval
+    y: Interval
+    #: edge length of the cube
+    size: Positive
+
+
+# --------------------------------------------------------------------------------------------------- thermal field
+class Hotspots(_Spec):
+    count: Annotated[int, Field(ge=0)]
+    #: side of the square of cells set to ``temperature`` (odd; an even size is rounded up as in the original)
+    size: Annotated[int, Field(ge=1)]
+    temperature: float
+
+
+class Thermal(_Spec):
+    grid: tuple[Annotated[int, Field(ge=1, le=1000)], Annotated[int, Field(ge=1, le=1000)]]
+    base_temperature: float
+    hotspots: Hotspots
+    #: Gaussian smoothing in cells (0: none)
+    sigma: NonNegative
+    #: thermoception reads T_sensor - body temperature instead of T_sensor
+    relative: bool
+
+
+# --------------------------------------------------------------------------------------------------- sensors
+class Vision(_Spec):
+    width: Annotated[int, Field(ge=8, le=1024)]
+    height: Annotated[int, Field(ge=8, le=1024)]
+    fovy: Annotated[float, Field(gt=0, lt=180)]
+    near: Positive
+    far: Positive
+
+
+class Olfaction(_Spec):
+    radius: Positive
+    #: distances are clamped below at this value so that an item at the nose reads large but finite
+    min_distance: Positive
+
+
+class CollisionSensor(_Spec):
+    rays: Annotated[int, Field(ge=1, le=1000)]
+    sectors: Annotated[int, Field(ge=1, le=100)]
+    range: Positive
+
+    @model_validator(mode="after")
+    def _rays_fill_sectors(self) -> "CollisionSensor":
+        if self.rays % self.sectors:
+            raise ValueError(f"rays ({self.rays}) must be a multiple of sectors ({self.sectors})")
+        return self
+
+
+class Sensors(_Spec):
+    vision: Vision
+    olfaction: Olfaction
+    collision: CollisionSensor
+
+
+# --------------------------------------------------------------------------------------------------- episode / reward
+class Episode(_Spec):
+    #: decisions before truncation
+    max_steps: Annotated[int, Field(ge=1)]
+    #: the episode ends (terminated, ResourceConsumed) once any resource is consumed
+    single_trial: bool
+
+
+class Reward(_Spec):
+    name: Literal["squared", "drive_reduction", "neg_distance", "sparse"]
+    #: added on the step an EV leaves its range
+    terminal_penalty: float
+    #: also add the terminal penalty when the episode is truncated at max_steps (the original did)
+    penalize_truncation: bool
+    #: per-EV weights w_i of the squared deviation sum_i w_i (EV_i - setpoint_i)^2 (squared, drive_reduction)
+    weights: EVs
+
+
+# --------------------------------------------------------------------------------------------------- level
+class Level(_Spec):
+    name: str
+    kind: Literal["training", "testbed"]
+    description: str
+    arena: Arena
+    agent: Agent
+    physiology: Physiology
+    resources: dict[str, ResourceGroup]
+    thermal: Thermal
+    sensors: Sensors
+    episode: Episode
+    reward: Reward
+
+    @model_validator(mode="after")
+    def _resources_inside_arena(self) -> "Level":
+        hx, hy = self.arena.size[0] / 2, self.arena.size[1] / 2
+        for name, group in self.resources.items():
+            for axis, (lo, hi), half in (("x", group.x, hx), ("y", group.y, hy)):
+                if lo < -half or hi > half:
+                    raise ValueError(
+                        f"resources.{name}.{axis} = [{lo}, {hi}] leaves the floor [{-half}, {half}]"
+                    )
+        return self
+
+
+# --------------------------------------------------------------------------------------------------- loading
+LEVELS: tuple[str, ...] = ("1-1", "1-2")
+TESTBEDS: tuple[str, ...] = ()
+
+
+def level_names() -> tuple[str, ...]:
+    """Every loadable level: the training levels, then the testbeds."""
+    return LEVELS + TESTBEDS
+
+
+def _read_yaml(name: str) -> dict[str, Any]:
+    try:
+        text = resources.files("evaaa.levels").joinpath(f"{name}.yaml").read_text()
+    except FileNotFoundError:
+        raise LevelError(f"level file '{name}.yaml' is missing from evaaa/levels") from None
+    data = yaml.safe_load(text) or {}
+    if not isinstance(data, dict):
+        raise LevelError(f"level file '{name}.yaml' must hold a mapping at the top")
+    return data
+
+
+def _deep_merge(base: dict[str, Any], update: Mapping[str, Any]) -> dict[str, Any]:
+    """Merge ``update`` into a copy of ``base``; mappings merge key by key, ``None`` deletes a key."""
+    out = copy.deepcopy(base)
+    for key, value in update.items():
+        if value is None:
+            out.pop(key, None)
+        elif isinstance(value, Mapping) and isinstance(out.get(key), dict):
+            out[key] = _deep_merge(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def _raw_level(name: str, _seen: tuple[str, ...] = ()) -> dict[str, Any]:
+    if name in _seen:
+        raise LevelError(f"level '{name}' extends itself through {' -> '.join(_seen + (name,))}")
+    data = _read_yaml(name)
+    parent = data.pop("extends", "_defaults" if name != "_defaults" else None)
+    if parent is None:
+        return data
+    return _deep_merge(_raw_level(parent, _seen + (name,)), data)
+
+
+def _set_dotted(tree: dict[str, Any], path: str, value: Any) -> None:
+    keys = path.split(".")
+    node = tree
+    for i, key in enumerate(keys[:-1]):
+        child = node.get(key)
+        if not isinstance(child, dict):
+            where = ".".join(keys[: i + 1])
+            if child is None:
+                allowed = ", ".join(sorted(node)) or "(none)"
+                raise LevelError(f"override '{path}': '{where}' is not a field; allowed here: {allowed}")
+            raise LevelError(f"override '{path}': '{where}' is a value ({child!r}), not a section")
+        node = child
+    node[keys[-1]] = value
+
+
+def _flatten_overrides(overrides: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Accept both ``{"agent.move_speed": 10}`` and ``{"agent": {"move_speed": 10}}``."""
+    flat: dict[str, Any] = {}
+    for key, value in overrides.items():
+        if not isinstance(key, str) or not key:
+            raise LevelError(f"override keys must be non-empty strings, got {key!r}")
+        path = f"{prefix}{key}"
+        if isinstance(value, Mapping) and value:
+            flat.update(_flatten_overrides(value, path + "."))
+        else:
+            flat[path] = value
+    return flat
+
+
+def _model_at(loc: tuple[Any, ...]) -> type[BaseModel] | None:
+    """The schema class that owns the field at ``loc`` (for listing allowed keys)."""
+    model: Any = Level
+    for part in loc:
+        if isinstance(model, type) and issubclass(model, BaseModel):
+            field = model.model_fields.get(str(part))
+            if field is None:
+                return None
+            model = field.annotation
+        elif getattr(model, "__origin__", None) is dict:
+            model = model.__args__[1]
+        else:
+            return None
+    if getattr(model, "__origin__", None) is dict:
+        return None
+    return model if isinstance(model, type) and issubclass(model, BaseModel) else None
+
+
+def _format_errors(name: str, err: ValidationError) -> str:
+    lines = []
+    for e in err.errors():
+        loc = tuple(e["loc"])
+        where = ".".join(str(p) for p in loc) or "(top level)"
+        if e["type"] == "extra_forbidden":
+            owner = _model_at(loc[:-1])
+            allowed = ", ".join(owner.model_fields) if owner else "?"
+            lines.append(f"{where}: unknown field; allowed: {allowed}")
+        elif e["type"] == "missing":
+            lines.append(f"{where}: required field is missing")
+        else:
+            got = e.get("input")
+            got_text = "" if isinstance(got, dict) else f" (got {got!r})"
+            msg = e["msg"].removeprefix("Value error, ")
+            lines.append(f"{where}: {msg}{got_text}")
+    return f"invalid level '{name}':\n  " + "\n  ".join(lines)
+
+
+def load_level(name: str, overrides: Mapping[str, Any] | None = None) -> Level:
+    """Load a level by name, apply dotted-path overrides and validate it.
+
+    >>> load_level("1-1", {"agent.move_speed": 10}).agent.move_speed
+    10.0
+    """
+    if not isinstance(name, str) or name not in level_names():
+        raise LevelError(f"unknown level {name!r}; available: {', '.join(level_names())}")
+    raw = _raw_level(name)
+    for path, value in _flatten_overrides(overrides or {}).items():
+        if path in ("name", "kind"):
+            raise LevelError(f"override '{path}' cannot change a level's identity")
+        _set_dotted(raw, path, value)
+    raw.setdefault("name", name)
+    try:
+        return Level.model_validate(raw)
+    except ValidationError as err:
+        raise LevelError(_format_errors(name, err)) from None

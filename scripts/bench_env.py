@@ -1,0 +1,221 @@
+"""Environment throughput against the raw MuJoCo limit of the same scene, measured in one run.
+
+For each setting the env is stepped through TorchRL (``step_and_maybe_reset``, random actions); then the same
+trajectory is replayed as raw MuJoCo work only: per world and decision, five ``mj_step`` calls and one 64x64
+render of the same states.  The ratio env/raw says how much of the possible speed the env keeps; both numbers
+come from this run on this machine, so a busy machine moves both.
+
+Also reported: the cost of a reset in steps, and resident memory over a long run.
+
+    python scripts/bench_env.py                      # level 1-1, all settings
+    python scripts/bench_env.py --level 1-2 --steps 2000 --json bench.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing as mp
+import os
+import platform
+import sys
+import time
+from functools import partial
+
+import numpy as np
+
+import evaaa  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
+import mujoco
+import torch
+from evaaa.env import make_env
+from evaaa.render import BatchRenderer
+from evaaa.sim import Simulator
+from evaaa.spec import load_level
+from evaaa.scene import GROUP_AGENT
+
+torch.set_num_threads(1)
+
+
+def rss_mb() -> float:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+# ------------------------------------------------------------------------------------------------- env side
+def random_actions(steps: int, n: int, seed: int) -> np.ndarray:
+    return np.random.default_rng(seed).integers(0, 5, size=(steps, n))
+
+
+def time_env(env, actions: np.ndarray, warmup: int = 50) -> float:
+    """Steps per second (worlds x decisions) of a TorchRL loop over ``actions`` (T, N)."""
+    td = env.reset()
+    acts = torch.from_numpy(actions).reshape(len(actions), *env.action_spec.shape)
+    for t in range(warmup):
+        td["action"] = acts[t]
+        _, td = env.step_and_maybe_reset(td)
+    start = time.perf_counter()
+    for t in range(warmup, len(actions)):
+        td["action"] = acts[t]
+        _, td = env.step_and_maybe_reset(td)
+    elapsed = time.perf_counter() - start
+    return (len(actions) - warmup) * actions.shape[1] / elapsed
+
+
+# ------------------------------------------------------------------------------------------------- raw side
+def record_states(level: str, n: int, seed: int, actions: np.ndarray) -> list[np.ndarray]:
+    """Per decision, the state (N, size) each world's physics starts from, as the env produces it."""
+    sim = Simulator(load_level(level), n, modalities=["interoception"], seed=seed)
+    sim.reset()
+    what = mujoco.mjtState.mjSTATE_INTEGRATION
+    size = mujoco.mj_stateSize(sim.model, what)
+    states = []
+    for t in range(len(actions)):
+        sim.apply_actions(actions[t])
+        frame = np.empty((n, size))
+        for w, data in enumerate(sim.datas):
+            mujoco.mj_getState(sim.model, data, frame[w], what)
+        states.append(frame)
+        _, _, term, trunc, _ = sim._advance(actions[t])
+        done = term | trunc
+        if done.any():
+            sim.reset(done)
+    sim.close()
+    return states
+
+
+def time_raw(level: str, states: list[np.ndarray], warmup: int = 50) -> float:
+    """Steps per second of the raw MuJoCo work (5 x mj_step + one render per world) over recorded states."""
+    spec = load_level(level)
+    sim = Simulator(spec, states[0].shape[0], modalities=["interoception"], seed=0)
+    model, datas = sim.model, sim.datas
+    v = spec.sensors.vision
+    renderer = BatchRenderer(model, v.height, v.width, hidden_groups=(GROUP_AGENT,))
+    cam = sim.index.eye_camera
+    what = mujoco.mjtState.mjSTATE_INTEGRATION
+    out = np.empty((1, v.height, v.width, 3), dtype=np.uint8)
+    elapsed = 0.0
+    for t, frame in enumerate(states):
+        for w, data in enumerate(datas):
+            mujoco.mj_setState(model, data, frame[w], what)
+            mujoco.mj_forward(model, data)
+            start = time.perf_counter()
+            for _ in range(5):
+                mujoco.mj_step(model, data)
+            renderer.render([data], cam, out=out)
+            if t >= warmup:
+                elapsed += time.perf_counter() - start
+    renderer.close()
+    sim.close()
+    return (len(states) - warmup) * states[0].shape[0] / elapsed
+
+
+def _raw_worker(level, states, queue):
+    queue.put(time_raw(level, states))
+
+
+def time_raw_parallel(level: str, per_worker_states: list[list[np.ndarray]]) -> float:
+    """Raw throughput of several processes replaying at once (sum of their rates)."""
+    ctx = mp.get_context("spawn")
+    queue = ctx.Queue()
+    procs = [ctx.Process(target=_raw_worker, args=(level, s, queue)) for s in per_worker_states]
+    for p in procs:
+        p.start()
+    rates = [queue.get() for _ in procs]
+    for p in procs:
+        p.join()
+    return float(sum(rates))
+
+
+# ------------------------------------------------------------------------------------------------- report
+def measure(args) -> dict:
+    from torchrl.envs import ParallelEnv
+
+    level, steps = args.level, args.steps
+    results: dict = {"level": level, "steps": steps, "machine": f"{platform.machine()}, {os.cpu_count()} cores",
+                     "settings": []}
+
+    def row(name, env_rate, raw_rate, target):
+        ratio = env_rate / raw_rate
+        results["settings"].append({"setting": name, "env_steps_per_s": env_rate, "raw_steps_per_s": raw_rate,
+                                    "ratio": ratio, "target": target})
+        print(f"{name:<24}{env_rate:>12.0f}{raw_rate:>14.0f}{ratio:>9.2f}   >= {target}", flush=True)
+
+    print(f"evaaa bench_env: level {level}, {steps} decisions per setting, {results['machine']}")
+    print(f"{'setting':<24}{'env steps/s':>12}{'raw steps/s':>14}{'ratio':>9}   target")
+
+    # one env
+    acts = random_actions(steps, 1, seed=1)
+    env = make_env(level, num_envs=1, seed=0)
+    env_rate = time_env(env, acts)
+    env.close()
+    row("1 env", env_rate, time_raw(level, record_states(level, 1, 0, acts)), 0.75)
+
+    # batched worlds in one process
+    n = args.num_envs
+    acts = random_actions(steps, n, seed=2)
+    env = make_env(level, num_envs=n, seed=0)
+    env_rate = time_env(env, acts)
+    env.close()
+    row(f"num_envs={n} (1 process)", env_rate, time_raw(level, record_states(level, n, 0, acts)), 0.85)
+
+    # two worker processes
+    acts = random_actions(steps, 2, seed=3)
+    penv = ParallelEnv(2, [partial(make_env, level, num_envs=1, seed=s) for s in (10, 11)],
+                       mp_start_method="spawn")
+    env_rate = time_env(penv, acts)
+    penv.close()
+    raw = time_raw_parallel(level, [record_states(level, 1, s, acts[:, i: i + 1]) for i, s in enumerate((10, 11))])
+    row("ParallelEnv(2)", env_rate, raw, "-")
+
+    # reset cost
+    env = make_env(level, num_envs=1, seed=0)
+    step_rate = time_env(env, random_actions(min(steps, 1000), 1, seed=4))
+    start = time.perf_counter()
+    for _ in range(args.resets):
+        env.reset()
+    reset_s = (time.perf_counter() - start) / args.resets
+    reset_steps = reset_s * step_rate
+    results["reset"] = {"seconds": reset_s, "in_steps": reset_steps, "target_steps": 20}
+    print(f"reset (1 env): {reset_s * 1e3:.2f} ms = {reset_steps:.1f} steps   (target <= 20 steps)")
+
+    # resident memory over a long run
+    td = env.reset()
+    acts = torch.from_numpy(random_actions(args.memory_steps, 1, seed=5))
+    samples = []
+    for t in range(args.memory_steps):
+        td["action"] = acts[t]
+        _, td = env.step_and_maybe_reset(td)
+        if t % 1000 == 999:
+            samples.append(rss_mb())
+    env.close()
+    base = samples[0]
+    drift = max(abs(s - base) for s in samples)
+    results["memory"] = {"steps": args.memory_steps, "rss_mb_first": base, "rss_mb_last": samples[-1],
+                         "max_drift_mb": drift, "samples_mb": samples}
+    print(f"memory over {args.memory_steps} steps: RSS {base:.1f} -> {samples[-1]:.1f} MB, "
+          f"largest drift {drift:.1f} MB   (target within 10 MB)")
+    return results
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--level", default="1-1")
+    parser.add_argument("--steps", type=int, default=3000, help="decisions per setting")
+    parser.add_argument("--num-envs", type=int, default=8, help="worlds of the batched setting")
+    parser.add_argument("--resets", type=int, default=50)
+    parser.add_argument("--memory-steps", type=int, default=20000)
+    parser.add_argument("--json", help="also write the figures to this file")
+    args = parser.parse_args(argv)
+    if args.steps <= 60:
+        parser.error("--steps must exceed the 50 warm-up decisions")
+    if args.memory_steps < 2000:
+        parser.error("--memory-steps must be at least 2000 (memory is sampled every 1000 steps)")
+    results = measure(args)
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(results, f, indent=2)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
