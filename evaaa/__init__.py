@@ -38,3 +38,8 @@ __all__ = [
     "load_level",
     "make_env",
 ]
+
+# gymnasium.make("evaaa/<level>-v0") should work after a plain `import evaaa`
+from .gym import register_envs  # noqa: E402
+
+register_envs()

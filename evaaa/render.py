@@ -26,6 +26,23 @@ def gl_error(exc: Exception) -> RuntimeError:
     )
 
 
+def _gl_context_class():
+    """The GL context class for ``MUJOCO_GL``.
+
+    MuJoCo picks its default context class once, when it is first imported; ``import torchrl.envs`` imports
+    MuJoCo, so a program that imports TorchRL before evaaa would be left with GLFW, which needs a display.
+    Choosing the class here from ``MUJOCO_GL`` (which ``import evaaa`` defaults to ``egl``) avoids that.
+    """
+    backend = os.environ.get("MUJOCO_GL", "").lower()
+    if backend == "egl":
+        from mujoco.egl import GLContext
+    elif backend == "osmesa":
+        from mujoco.osmesa import GLContext
+    else:
+        GLContext = mujoco.GLContext
+    return GLContext
+
+
 _current_context = None  # the GL context made current last in this process (making one current costs ~20 us)
 
 
@@ -36,7 +53,7 @@ class BatchRenderer:
         self.model = model
         self.height, self.width = height, width
         try:
-            self._gl = mujoco.GLContext(width, height)
+            self._gl = _gl_context_class()(width, height)
             self._make_current()
             self._context = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100)
         except Exception as exc:  # noqa: BLE001 - every GL failure gets the same explanation

@@ -152,6 +152,33 @@ class Simulator:
         mocap[ids, 1] = self.res_xy[w, :, 1]
         mocap[ids, 2] = z
 
+    # ------------------------------------------------------------------------------------------------ state editing
+    def set_agent_pose(self, world: int, xy, heading_deg: float) -> None:
+        """Move world ``world``'s agent to ``xy`` facing compass ``heading_deg`` (for tests and scripted set-ups)."""
+        self.pos[world] = xy
+        self.heading_rad[world] = math.radians(heading_deg % 360.0)
+        data = self.datas[world]
+        data.qpos[:3] = (xy[0], xy[1], math.pi / 2 - self.heading_rad[world])
+        data.qvel[:] = 0.0
+        mujoco.mj_forward(self.model, data)
+        self._res_d2 = None
+        self._refresh_observation(world)
+
+    def place_item(self, world: int, slot: int, xy, present: bool = True) -> None:
+        """Put resource ``slot`` of world ``world`` at ``xy`` (or remove it) (for tests and scripted set-ups)."""
+        self.res_xy[world, slot] = xy
+        self.res_present[world, slot] = present
+        self._write_resources(world)
+        mujoco.mj_kinematics(self.model, self.datas[world])
+        self._res_d2 = None
+        self._refresh_observation(world)
+
+    def _refresh_observation(self, world: int) -> None:
+        self.thermal_readings[world] = self.sampler.sample(self.fields[world: world + 1], self.pos[world: world + 1],
+                                                           self.heading_rad[world: world + 1])[0]
+        if self.last_obs:
+            self._observe(np.array([world]))
+
     # ------------------------------------------------------------------------------------------------ step
     def step(self, actions: np.ndarray):
         """Advance every world by one decision.

@@ -298,18 +298,23 @@ def _set_dotted(tree: dict[str, Any], path: str, value: Any) -> None:
                 raise LevelError(f"override '{path}': '{where}' is not a field; allowed here: {allowed}")
             raise LevelError(f"override '{path}': '{where}' is a value ({child!r}), not a section")
         node = child
-    node[keys[-1]] = value
+    if value is None:  # as in level files, None removes an entry (e.g. a resource group)
+        if keys[-1] not in node:
+            raise LevelError(f"override '{path}': nothing to remove; present here: {', '.join(sorted(node))}")
+        del node[keys[-1]]
+    else:
+        node[keys[-1]] = value
 
 
 def _flatten_overrides(overrides: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
-    """Accept both ``{"agent.move_speed": 10}`` and ``{"agent": {"move_speed": 10}}``."""
+    """Accept both ``{"agent.move_speed": 10}`` and ``{"agent": {"move_speed": 10}}``; ``None`` removes an entry."""
     flat: dict[str, Any] = {}
     for key, value in overrides.items():
         if not isinstance(key, str) or not key:
             raise LevelError(f"override keys must be non-empty strings, got {key!r}")
         path = f"{prefix}{key}"
-        if isinstance(value, Mapping) and value:
-            flat.update(_flatten_overrides(value, path + "."))
+        if isinstance(value, Mapping):
+            flat.update(_flatten_overrides(value, path + "."))  # an empty mapping changes nothing
         else:
             flat[path] = value
     return flat

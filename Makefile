@@ -1,0 +1,23 @@
+# The two commands of the README, and a few more. Each target sets up what it needs first (scripts/setup.sh).
+PY := .venv/bin/python
+
+.PHONY: setup demo test test-fast bench pictures
+
+setup:
+	@bash scripts/setup.sh
+
+# the main job (until training lands): a short random-policy rollout that writes a video and prints steps/s
+demo: setup
+	$(PY) scripts/demo.py
+
+test: setup
+	$(PY) -m pytest -q
+
+test-fast: setup
+	$(PY) -m pytest -q -m "not slow"
+
+bench: setup
+	$(PY) scripts/bench_env.py
+
+pictures: setup
+	$(PY) scripts/render_levels.py

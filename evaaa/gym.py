@@ -1,0 +1,110 @@
+"""The gymnasium adapter: ``EvaaaGymEnv``, one world of a level behind the ``gymnasium.Env`` API, and the
+registration of every level as ``evaaa/<name>-v0``.
+
+It sits directly on a one-world :class:`~evaaa.sim.Simulator` (not on the TorchRL env) so that third-party
+trainers get plain numpy observations without tensordict in the loop.  ``terminated`` (an EV left its range, or
+a single-trial resource was consumed) is kept apart from ``truncated`` (``episode.max_steps`` reached), as in the
+TorchRL env.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from typing import Any
+
+import gymnasium
+import numpy as np
+from gymnasium import spaces
+
+from .physiology import END_TYPES
+from .sim import ACTION_NAMES, NUM_ACTIONS, Simulator
+from .spec import level_names, load_level
+
+__all__ = ["EvaaaGymEnv", "register_envs"]
+
+_ONE_WORLD = np.arange(1)
+_RENDER_MODES = ("rgb_array",)
+
+
+class EvaaaGymEnv(gymnasium.Env[dict[str, np.ndarray], int]):
+    """A homeostatic survival task in a 3-D MuJoCo world, one world, gymnasium API.
+
+    Args:
+        level: a level name (``evaaa.LEVELS`` / ``evaaa.TESTBEDS``).
+        modalities: observation keys to emit (default all); a dropped modality's key is absent.
+        render_mode: None or ``"rgb_array"`` (``render()`` returns the agent's egocentric frame).
+        overrides: dotted-path changes to the level (``**{"episode.max_steps": 1000}``) or nested dicts.
+    """
+
+    metadata = {"render_modes": list(_RENDER_MODES), "render_fps": 10}
+
+    def __init__(
+        self,
+        level: str = "1-1",
+        modalities: Iterable[str] | str | None = None,
+        render_mode: str | None = None,
+        **overrides: Any,
+    ):
+        if render_mode is not None and render_mode not in _RENDER_MODES:
+            raise ValueError(f"render_mode must be None or one of {list(_RENDER_MODES)}, got {render_mode!r}")
+        self.level = load_level(level, overrides)
+        self.render_mode = render_mode
+        # seeded for real on the first reset, from the seed given there or from self.np_random
+        self.sim = Simulator(self.level, 1, modalities, seed=0)
+        self._sim_seeded = False
+        self.observation_space = spaces.Dict({
+            key: spaces.Box(0, 255, shape, np.uint8) if np.dtype(dtype) == np.uint8
+            else spaces.Box(-np.inf, np.inf, shape, np.float32)
+            for key, (shape, dtype) in self.sim.observation_shapes.items()
+        })
+        self.action_space = spaces.Discrete(NUM_ACTIONS)
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        super().reset(seed=seed)
+        if seed is not None:
+            self.sim.seed(seed)
+            self._sim_seeded = True
+        elif not self._sim_seeded:
+            self.sim.seed(int(self.np_random.integers(2**63)))
+            self._sim_seeded = True
+        obs = self.sim.reset()
+        return _world0(obs), _info(self.sim.last_info)
+
+    def step(self, action: int) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        if not self.action_space.contains(action):
+            raise ValueError(
+                f"action must be an integer in 0..{NUM_ACTIONS - 1} ({', '.join(ACTION_NAMES)}), got {action!r}"
+            )
+        obs, reward, terminated, truncated, info = self.sim.step(np.array([int(action)]))
+        return _world0(obs), float(reward[0]), bool(terminated[0]), bool(truncated[0]), _info(info)
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode is None:
+            gymnasium.logger.warn("render() was called with render_mode=None; pass render_mode='rgb_array'")
+            return None
+        # the simulator builds its eye renderer on first use, so this works when pixels are not observed
+        return self.sim.render_eye(_ONE_WORLD)[0]
+
+    def close(self) -> None:
+        self.sim.close()
+
+
+def _world0(obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    return {key: value[0] for key, value in obs.items()}
+
+
+def _info(info: dict[str, np.ndarray]) -> dict[str, Any]:
+    """World 0's diagnostics: one-element entries as Python scalars, the rest as arrays, plus the end's name."""
+    out = {key: value[0].item() if value[0].size == 1 else value[0] for key, value in info.items()}
+    out["end_type_name"] = END_TYPES[out["end_type"]]
+    return out
+
+
+def register_envs() -> None:
+    """Register ``evaaa/<name>-v0`` for every level; ids already registered are left alone."""
+    for name in level_names():
+        env_id = f"evaaa/{name}-v0"
+        if env_id not in gymnasium.registry:
+            gymnasium.register(env_id, entry_point="evaaa.gym:EvaaaGymEnv", kwargs={"level": name})

@@ -1,0 +1,399 @@
+"""The environment end to end: specs, the contract's keys, mechanics in the MuJoCo world, seeding, batching."""
+
+from __future__ import annotations
+
+from functools import partial
+
+import numpy as np
+import pytest
+import torch
+from torchrl.envs import SerialEnv, TransformedEnv
+from torchrl.envs.transforms import StepCounter
+from torchrl.envs.utils import check_env_specs
+
+import evaaa
+from evaaa.physiology import END_TYPES
+from evaaa.sim import EAT, FORWARD, LEFT, NONE, RIGHT, Simulator
+
+#: An empty, fixed-start version of 1-1 for controlled experiments.
+BARE = {
+    "agent.start": "fixed",
+    "agent.start_position": [0.0, 0.0],
+    "agent.start_heading": 0.0,
+    "resources.food.count": 1,
+    "resources.water.count": 1,
+}
+
+
+def bare_sim(modalities=None, **overrides) -> Simulator:
+    sim = Simulator(evaaa.load_level("1-1", {**BARE, **overrides}), 1, modalities, seed=0)
+    sim.reset()
+    # park both items far from the agent
+    sim.place_item(0, 0, (-30.0, -30.0))
+    sim.place_item(0, 1, (-30.0, 30.0))
+    return sim
+
+
+def end_name(info) -> str:
+    return END_TYPES[int(np.asarray(info["end_type"]).reshape(-1)[0])]
+
+
+# ------------------------------------------------------------------------------------------------ specs
+@pytest.mark.parametrize("level", evaaa.LEVELS)
+@pytest.mark.parametrize("num_envs", [1, 4])
+@pytest.mark.parametrize("dropped", [None, *evaaa.MODALITIES])
+def test_check_env_specs(level, num_envs, dropped):
+    modalities = None if dropped is None else [m for m in evaaa.MODALITIES if m != dropped]
+    env = evaaa.make_env(level, num_envs=num_envs, seed=0, modalities=modalities)
+    check_env_specs(env, seed=0)
+    keys = set(env.observation_spec.keys())
+    if dropped is not None:
+        assert dropped not in keys
+    assert set(modalities or evaaa.MODALITIES) | {"info"} == keys
+    env.close()
+
+
+def test_contract_shapes_and_dtypes():
+    env = evaaa.make_env("1-1", num_envs=2, seed=0)
+    td = env.reset()
+    assert td["pixels"].shape == (2, 64, 64, 3) and td["pixels"].dtype == torch.uint8
+    for key, dim in [("interoception", 4), ("olfaction", 10), ("thermoception", 8), ("collision", 10)]:
+        assert td[key].shape == (2, dim) and td[key].dtype == torch.float32
+    assert env.action_spec.n == 5
+    out = env.rand_step(td)
+    assert out["next", "reward"].shape == (2, 1)
+    assert set(out["next", "info"].keys()) >= {"position", "yaw", "satiation", "hydration", "temperature", "damage",
+                                               "food_eaten", "water_eaten", "collision", "damage_taken",
+                                               "step_count", "end_type"}
+    env.close()
+
+
+def test_resolution_is_configurable():
+    env = evaaa.make_env("1-1", seed=0, **{"sensors.vision.width": 32, "sensors.vision.height": 48})
+    assert env.reset()["pixels"].shape == (1, 48, 32, 3)
+    env.close()
+
+
+# ------------------------------------------------------------------------------------------------ physiology in the world
+def test_ev_rates_over_100_noop_steps():
+    sim = bare_sim(["interoception"], **{"thermal.hotspots.count": 0, "thermal.base_temperature": 0.0})
+    for _ in range(100):
+        obs, *_ = sim.step(np.array([NONE]))
+    satiation, hydration, temperature, damage = obs["interoception"][0]
+    assert satiation == pytest.approx(-1.35, rel=0.01)
+    assert hydration == pytest.approx(-0.9, rel=0.01)
+    assert temperature == pytest.approx(0.0, abs=1e-9)  # a field at body temperature neither warms nor cools
+    assert damage == 0.0
+
+
+def test_cold_field_cools_the_body():
+    sim = bare_sim(["interoception"], **{"thermal.hotspots.count": 0, "thermal.base_temperature": -20.0})
+    for _ in range(100):
+        obs, *_ = sim.step(np.array([NONE]))
+    expected = -20.0 * (1 - (1 - 8 * 0.0004) ** 100)
+    assert obs["interoception"][0, 2] == pytest.approx(expected, rel=1e-6)
+
+
+@pytest.mark.parametrize("slot,kind,column", [(0, "food", 0), (1, "water", 1)])
+def test_eating_an_item_in_the_zone_adds_its_value_and_respawns_it(slot, kind, column):
+    sim = bare_sim(["interoception"])
+    sim.place_item(0, slot, (0.0, 0.9))  # inside the eating sphere, 0.873 ahead
+    before = sim.ev[0].copy()
+    _, _, terminated, _, info = sim.step(np.array([EAT]))
+    after = sim.ev[0]
+    decay = {0: -0.0135, 1: -0.009}[column]
+    assert after[column] - before[column] == pytest.approx(3.0 + decay)
+    assert info[f"{kind}_eaten"][0, 0] == 1
+    assert np.linalg.norm(sim.res_xy[0, slot] - (0.0, 0.9)) > 1e-6  # moved elsewhere (random respawn)
+    assert sim.res_present[0, slot]
+    lo, hi = sim.pool.low[slot], sim.pool.high[slot]
+    assert np.all(sim.res_xy[0, slot] >= lo) and np.all(sim.res_xy[0, slot] <= hi)
+    assert not terminated[0]
+
+
+def test_eating_needs_the_eat_action_and_the_zone():
+    sim = bare_sim(["interoception"])
+    sim.place_item(0, 0, (0.0, 0.9))
+    _, _, _, _, info = sim.step(np.array([NONE]))
+    assert info["food_eaten"][0, 0] == 0  # no eat intent
+    sim.place_item(0, 0, (0.0, 2.5))
+    _, _, _, _, info = sim.step(np.array([EAT]))
+    assert info["food_eaten"][0, 0] == 0  # out of reach
+
+
+@pytest.mark.parametrize(
+    "column,value,end",
+    [(0, -14.999, "FoodOutOfRange"), (0, 14.5, "FoodOutOfRange"), (1, -14.995, "WaterOutOfRange"),
+     (2, -14.99, "TemperatureOutOfRange"), (3, 99.999, "DamageTooHigh")],
+)
+def test_an_ev_pushed_past_its_bound_terminates_with_its_end_type(column, value, end):
+    sim = bare_sim(["interoception"], **{"thermal.hotspots.count": 0})
+    sim.ev[0, column] = value
+    if column == 0 and value > 0:  # overeating: eat a cube worth 3
+        sim.place_item(0, 0, (0.0, 0.9))
+        action = EAT
+    elif column == 3:  # damage grows only by collisions; push it from 99.999 by hitting a wall
+        sim.set_agent_pose(0, (0.0, 46.0), 0.0)
+        action = FORWARD
+    else:
+        action = NONE
+    for _ in range(3):
+        _, reward, terminated, truncated, info = sim.step(np.array([action]))
+        if terminated[0]:
+            break
+    assert terminated[0] and not truncated[0]
+    assert end_name(info) == end
+    assert reward[0] < -99  # the terminal penalty
+
+
+def test_truncation_at_max_steps_is_not_termination():
+    env = evaaa.make_env("1-1", seed=0, **{"episode.max_steps": 5})
+    td = env.reset()
+    for step in range(1, 6):
+        td["action"] = torch.tensor([NONE])
+        td = env.step(td)
+        nxt = td["next"]
+        assert nxt["truncated"].item() == (step == 5)
+        assert not nxt["terminated"].item()
+        assert nxt["done"].item() == (step == 5)
+        td = td["next"].clone()
+    assert END_TYPES[nxt["info", "end_type"].item()] == "MaxStepReached"
+    assert nxt["reward"].item() > -1.0  # no terminal penalty on truncation by default
+    env.close()
+
+
+def test_reward_equals_its_terms():
+    env = evaaa.make_env("1-1", seed=3)
+    data = env.rollout(60)
+    info = data["next", "info"]
+    expected = -0.01 * (info["satiation"] ** 2 + info["hydration"] ** 2 + info["temperature"] ** 2
+                        + (0.15 * info["damage"]) ** 2)
+    torch.testing.assert_close(data["next", "reward"], expected)
+    env.close()
+
+
+# ------------------------------------------------------------------------------------------------ collisions
+def test_a_full_speed_wall_hit_adds_damage():
+    sim = bare_sim(["collision"])
+    sim.set_agent_pose(0, (0.0, 44.0), 0.0)  # 6 m from the north wall, facing it
+    damages, events = [], []
+    for _ in range(4):
+        _, _, _, _, info = sim.step(np.array([FORWARD]))
+        damages.append(info["damage_taken"][0, 0])
+        events.append(info["collision"][0, 0])
+    assert damages[0] == 0.0 and damages[1] == 0.0  # still in the open
+    assert 1.0 < max(damages) < 15.0  # a few damage points, as in the original
+    assert any(events)
+    assert sim.pos[0, 1] < 50.0 - 0.5 + 0.25  # the wall stopped the body (soft contacts yield a little)
+    # the hit does not bounce the agent back: standing still next to the wall costs nothing more
+    y = sim.pos[0, 1]
+    for _ in range(5):
+        _, _, _, _, info = sim.step(np.array([NONE]))
+        assert info["damage_taken"][0, 0] < 1e-3
+    assert abs(sim.pos[0, 1] - y) < 0.2  # only the soft contact relaxing, no rebound
+
+
+def test_walking_in_the_open_costs_no_damage():
+    sim = bare_sim(["collision"])
+    total = 0.0
+    for action in [FORWARD, FORWARD, LEFT, FORWARD, RIGHT, RIGHT, FORWARD, FORWARD, EAT, FORWARD]:
+        _, _, _, _, info = sim.step(np.array([action]))
+        total += info["damage_taken"][0, 0]
+        assert not info["collision"][0, 0]
+    assert total == 0.0
+    assert np.linalg.norm(sim.pos[0]) > 10.0
+
+
+def test_one_forward_decision_travels_about_1_9_m():
+    sim = bare_sim(["interoception"])
+    sim.step(np.array([FORWARD]))
+    assert sim.pos[0, 1] == pytest.approx(1.9, abs=0.1)
+    assert abs(sim.pos[0, 0]) < 1e-6
+
+
+def test_turns_are_24_degrees():
+    sim = bare_sim(["interoception"])
+    _, _, _, _, info = sim.step(np.array([RIGHT]))
+    assert info["yaw"][0, 0] == pytest.approx(24.0)
+    _, _, _, _, info = sim.step(np.array([LEFT]))
+    _, _, _, _, info = sim.step(np.array([LEFT]))
+    assert info["yaw"][0, 0] == pytest.approx(336.0)
+
+
+# ------------------------------------------------------------------------------------------------ senses
+def _centre_colour(sim) -> np.ndarray:
+    frame = sim.render_eye(np.arange(1))[0].astype(int)
+    h, w = frame.shape[:2]
+    return frame[h // 2 - 4: h // 2 + 4, w // 2 - 4: w // 2 + 4].reshape(-1, 3).mean(axis=0)
+
+
+def test_a_food_cube_ahead_makes_the_centre_red_and_water_blue():
+    sim = bare_sim(["pixels"])
+    sim.place_item(0, 0, (0.0, 2.0))
+    r, g, b = _centre_colour(sim)
+    assert r > 2 * g and r > 2 * b
+    sim.place_item(0, 0, (-30.0, -30.0))
+    sim.place_item(0, 1, (0.0, 2.0))
+    r, g, b = _centre_colour(sim)
+    assert b > 2 * r and b > 2 * g
+
+
+def test_pixels_change_when_the_agent_turns():
+    env = evaaa.make_env("1-1", seed=0, modalities=["pixels"])
+    td = env.reset()
+    first = td["pixels"].clone()
+    td["action"] = torch.tensor([RIGHT])
+    after = env.step(td)["next", "pixels"]
+    assert (first.float() - after.float()).abs().mean() > 1.0
+    env.close()
+
+
+def test_olfaction_smells_food_and_water_apart_and_closer_is_stronger():
+    sim = bare_sim(["olfaction"])
+    sim.place_item(0, 0, (0.0, 10.0))
+    far = sim.last_obs["olfaction"][0].copy()
+    sim.place_item(0, 0, (0.0, 3.0))
+    near = sim.last_obs["olfaction"][0].copy()
+    assert np.all(near[:5] > far[:5]) and np.allclose(near[:5], near[0])
+    assert near[5] < near[0]  # the water cube is far away
+    sim.place_item(0, 1, (3.0, 0.0))
+    both = sim.last_obs["olfaction"][0]
+    assert both[5] > near[5]
+
+
+def test_thermal_sensors_turn_with_the_agent():
+    sim = bare_sim(["thermoception"], **{"thermal.hotspots.count": 0, "thermal.sigma": 0.0})
+    sim.fields[0, :, :] = 0.0
+    sim.fields[0, 50, 51] = 40.0  # the cell just north of the agent at (0, 0)... (cells are 1 m; (0,0) is cell 50,50)
+    sim.set_agent_pose(0, (0.5, 0.5), 0.0)
+    f, b = sim.last_obs["thermoception"][0][:2]
+    assert (f, b) == (40.0, 0.0)
+    sim.set_agent_pose(0, (0.5, 2.5), 180.0)
+    f, b = sim.last_obs["thermoception"][0][:2]
+    assert (f, b) == (40.0, 0.0)
+
+
+def test_collision_rays_see_a_wall_ahead_only_when_close():
+    sim = bare_sim(["collision"])
+    sim.set_agent_pose(0, (0.0, 49.0), 0.0)  # wall 1 m ahead of the centre
+    sectors = sim.last_obs["collision"][0]
+    assert sectors[0] == 1.0 and sectors[9] == 1.0  # the two sectors either side of straight ahead
+    assert sectors[4] == 0.0 and sectors[5] == 0.0  # nothing behind
+    sim.set_agent_pose(0, (0.0, 0.0), 0.0)
+    assert not sim.last_obs["collision"][0].any()
+
+
+def test_observations_are_not_constant():
+    env = evaaa.make_env("1-1", seed=1)
+    data = env.rollout(50)
+    for key in ["pixels", "interoception", "olfaction", "thermoception"]:
+        values = data["next", key].float()
+        assert values.std(dim=1).sum() > 0, key
+    env.close()
+
+
+# ------------------------------------------------------------------------------------------------ seeding and batching
+def _trajectory(seed, steps=200):
+    env = evaaa.make_env("1-1", num_envs=2, seed=seed)
+    gen = torch.Generator().manual_seed(123)
+    actions = torch.randint(0, 5, (steps, 2), generator=gen)
+    td = env.reset()
+    out = []
+    for t in range(steps):
+        td["action"] = actions[t]
+        step, td = env.step_and_maybe_reset(td)
+        out.append(step["next"].exclude("info").clone())
+    env.close()
+    return torch.stack(out)
+
+
+def test_same_seed_same_trajectory_different_seed_different():
+    a, b, c = _trajectory(7), _trajectory(7), _trajectory(8)
+    assert (a == b).all()
+    assert torch.equal(a["pixels"], b["pixels"])
+    assert not torch.equal(a["pixels"], c["pixels"])
+    assert not torch.equal(a["interoception"], c["interoception"])
+
+
+def test_layouts_are_redrawn_each_episode_without_recompiling():
+    env = evaaa.make_env("1-1", seed=0)
+    model = env.sim.model
+    env.reset()
+    first = env.sim.res_xy[0].copy()
+    env.reset()
+    assert not np.allclose(first, env.sim.res_xy[0])
+    assert env.sim.model is model
+    env.close()
+
+
+def test_partial_reset_only_touches_masked_worlds():
+    env = evaaa.make_env("1-1", num_envs=3, seed=0)
+    td = env.reset()
+    for _ in range(5):
+        td["action"] = torch.full((3,), FORWARD)
+        td = env.step(td)["next"].clone()
+    before = td["info", "step_count"].clone()
+    pix = td["pixels"].clone()
+    td["_reset"] = torch.tensor([[False], [True], [False]])
+    out = env.reset(td)
+    assert out["info", "step_count"].flatten().tolist() == [before[0].item(), 0, before[2].item()]
+    assert torch.equal(out["pixels"][0], pix[0]) and torch.equal(out["pixels"][2], pix[2])
+    env.close()
+
+
+def test_worlds_in_a_batch_are_independent():
+    env = evaaa.make_env("1-1", num_envs=2, seed=0)
+    td = env.reset()
+    assert not torch.equal(td["pixels"][0], td["pixels"][1])
+    td["action"] = torch.tensor([FORWARD, NONE])
+    nxt = env.step(td)["next"]
+    moved = (nxt["info", "position"] - td["info", "position"]).norm(dim=-1)
+    assert moved[0] > 1.5 and moved[1] < 1e-6
+    env.close()
+
+
+def test_serial_transformed_and_collector():
+    from torchrl.collectors import Collector
+
+    serial = SerialEnv(2, lambda: evaaa.make_env("1-2", seed=0))
+    data = serial.rollout(5)
+    assert data["next", "pixels"].shape == (2, 1, 5, 64, 64, 3)
+    serial.close()
+    env = TransformedEnv(evaaa.make_env("1-1", seed=0), StepCounter())
+    check_env_specs(env, seed=0)
+    collector = Collector(env, policy=None, frames_per_batch=16, total_frames=32)
+    batches = [b for b in collector]
+    collector.shutdown()
+    assert len(batches) == 2 and batches[0]["next", "pixels"].shape[-3:] == (64, 64, 3)
+
+
+@pytest.mark.slow
+def test_parallel_env():
+    from torchrl.envs import ParallelEnv
+
+    env = ParallelEnv(2, partial(evaaa.make_env, "1-1", seed=0), mp_start_method="spawn")
+    check_env_specs(env, seed=0)
+    data = env.rollout(10)
+    assert data["next", "interoception"].shape == (2, 1, 10, 4)
+    env.close()
+
+
+# ------------------------------------------------------------------------------------------------ bad input
+def test_bad_input_gives_clear_errors():
+    with pytest.raises(evaaa.LevelError, match="available: 1-1"):
+        evaaa.make_env("9-9")
+    with pytest.raises(evaaa.LevelError, match="allowed: .*move_speed"):
+        evaaa.make_env("1-1", **{"agent.speed": 3})
+    with pytest.raises(ValueError, match="unknown modality 'smell'"):
+        evaaa.make_env("1-1", modalities=["smell"])
+    with pytest.raises(ValueError, match="num_envs must be a positive integer"):
+        evaaa.make_env("1-1", num_envs=0)
+    env = evaaa.make_env("1-1", seed=0, modalities=["interoception"])
+    td = env.reset()
+    td["action"] = torch.tensor([7])
+    with pytest.raises(ValueError, match="0..4"):
+        env.step(td)
+    td["action"] = torch.tensor([1.5])
+    with pytest.raises(ValueError, match="integer"):
+        env.step(td)
+    env.close()

@@ -1,0 +1,92 @@
+"""Smoke tests of the picture-making scripts: scripts/render_levels.py and scripts/demo.py, run in-process."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+
+import evaaa  # noqa: F401  (sets MUJOCO_GL before mujoco, and so cv2's users, load)
+import cv2
+
+SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
+
+
+def load_script(name: str):
+    """Import ``scripts/<name>.py`` as a module (the scripts directory is not a package)."""
+    path = SCRIPTS / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(f"evaaa_scripts_{name}", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def read_png(path: Path):
+    assert path.is_file(), f"{path} was not written"
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    assert img is not None, f"{path} is not a readable image"
+    return img
+
+
+def test_render_levels_writes_pictures(tmp_path, capsys):
+    render_levels = load_script("render_levels")
+    assert render_levels.main(["--levels", "1-1", "--out", str(tmp_path), "--seed", "0"]) == 0
+    printed = capsys.readouterr().out
+
+    eye = read_png(tmp_path / "1-1_eye.png")
+    assert eye.shape == (256, 256, 3)  # 64x64 upscaled x4
+    # nearest-neighbour upscaling: every 4x4 block is one colour
+    assert (eye[::4, ::4] == eye[3::4, 3::4]).all()
+    assert read_png(tmp_path / "1-1_top.png").shape == (512, 512, 3)
+    thermal = read_png(tmp_path / "1-1_thermal.png")
+    overview = read_png(tmp_path / "1-1_overview.png")
+    assert thermal.shape[0] > 200 and thermal.shape[1] > 200
+    assert overview.shape[1] > 2 * overview.shape[0]  # three panels side by side
+    for suffix in ("eye", "top", "thermal", "overview"):
+        assert f"1-1_{suffix}.png" in printed
+
+
+def test_render_levels_rejects_unknown_level(tmp_path, capsys):
+    render_levels = load_script("render_levels")
+    with pytest.raises(SystemExit) as exc:
+        render_levels.main(["--levels", "no-such-level", "--out", str(tmp_path)])
+    assert exc.value.code != 0
+    err = capsys.readouterr().err
+    assert "no-such-level" in err
+    for name in evaaa.LEVELS:
+        assert name in err, f"the error should list the available levels: {err}"
+    assert not list(tmp_path.iterdir()), "nothing should be written for an invalid level"
+
+
+def test_demo_writes_video_and_plots(tmp_path, capsys):
+    demo = load_script("demo")
+    assert demo.main(["--level", "1-1", "--steps", "40", "--num-envs", "1", "--seed", "0",
+                      "--out", str(tmp_path)]) == 0
+    printed = capsys.readouterr().out
+    assert "steps/s" in printed
+
+    video = tmp_path / "rollout.mp4"
+    assert video.is_file() and video.stat().st_size > 0, "rollout.mp4 was not written"
+    cap = cv2.VideoCapture(str(video))
+    try:
+        assert cap.isOpened(), "rollout.mp4 cannot be opened"
+        frames = 0
+        while True:
+            ok, frame = cap.read()
+            if not ok:
+                break
+            if frames == 0:
+                first_shape = frame.shape
+            frames += 1
+    finally:
+        cap.release()
+    assert frames >= 1
+    assert first_shape[0] == 256  # the eye upscaled x4 sets the height
+
+    final = read_png(tmp_path / "final_frame.png")
+    assert final.shape == first_shape
+    traces = read_png(tmp_path / "ev_traces.png")
+    assert traces.shape[0] > 200 and traces.shape[1] > 200

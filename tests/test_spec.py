@@ -1,0 +1,181 @@
+"""Level loading, inheritance, overrides and validation errors (evaaa.spec)."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+
+import evaaa
+from evaaa.spec import Level, LevelError, level_names, load_level
+
+
+# ------------------------------------------------------------------------------------------------ loading
+@pytest.mark.parametrize("name", evaaa.LEVELS)
+def test_every_level_loads(name):
+    level = load_level(name)
+    assert isinstance(level, Level)
+    assert level.name == name
+    assert level.kind == "training"
+    assert level.description
+
+
+def test_level_names_cover_levels_and_testbeds():
+    assert level_names() == evaaa.LEVELS + evaaa.TESTBEDS
+    assert "1-1" in evaaa.LEVELS and "1-2" in evaaa.LEVELS
+
+
+def test_defaults_reach_every_level():
+    level = load_level("1-1")
+    assert level.physiology.decay.satiation == pytest.approx(-0.0135)
+    assert level.physiology.decay.hydration == pytest.approx(-0.009)
+    assert level.physiology.decay.damage == pytest.approx(-0.01)
+    assert level.physiology.bounds.damage == (0.0, 100.0)
+    assert level.reward.name == "squared"
+    assert level.thermal.hotspots.count == 20
+
+
+def test_1_2_inherits_from_1_1_with_corner_cubes():
+    a, b = load_level("1-1"), load_level("1-2")
+    assert a.resources["food"].count == 50 and a.resources["water"].count == 50
+    food, water = b.resources["food"], b.resources["water"]
+    assert (food.count, water.count) == (10, 10)
+    # opposite corners: food south-west, water north-east
+    assert food.x == (-40.0, -20.0) and food.y == (-40.0, -20.0)
+    assert water.x == (20.0, 40.0) and water.y == (20.0, 40.0)
+    # what 1-2 does not state comes from 1-1 (merged key by key inside each group)
+    assert food.kind == "food" and water.kind == "water"
+    assert food.size == a.resources["food"].size and food.respawn == a.resources["food"].respawn
+    assert b.thermal == a.thermal
+    assert b.agent == a.agent
+    assert b.physiology == a.physiology
+    assert b.description != a.description
+
+
+# ------------------------------------------------------------------------------------------------ overrides
+@pytest.mark.parametrize(
+    "overrides",
+    [{"agent.move_speed": 10}, {"agent": {"move_speed": 10}}, {"agent.move_speed": "10"}],
+    ids=["dotted", "nested", "string"],
+)
+def test_overrides_apply(overrides):
+    level = load_level("1-1", overrides)
+    assert level.agent.move_speed == 10.0
+    assert isinstance(level.agent.move_speed, float)
+    assert level.agent.turn_degrees == load_level("1-1").agent.turn_degrees  # siblings untouched
+
+
+def test_overrides_do_not_leak_into_later_loads():
+    load_level("1-1", {"agent.move_speed": 10, "resources.food.count": 3})
+    fresh = load_level("1-1")
+    assert fresh.agent.move_speed == 20.0
+    assert fresh.resources["food"].count == 50
+
+
+def test_deep_overrides_and_coercion():
+    level = load_level(
+        "1-2",
+        {"physiology.decay": {"satiation": "-0.02"}, "episode.max_steps": "100", "resources.water.count": 4},
+    )
+    assert level.physiology.decay.satiation == -0.02
+    assert level.physiology.decay.hydration == pytest.approx(-0.009)  # rest of the section kept
+    assert level.episode.max_steps == 100 and isinstance(level.episode.max_steps, int)
+    assert level.resources["water"].count == 4
+    assert level.resources["water"].x == (20.0, 40.0)
+
+
+def test_reward_name_override():
+    assert load_level("1-1", {"reward.name": "neg_distance"}).reward.name == "neg_distance"
+
+
+# ------------------------------------------------------------------------------------------------ errors
+def test_level_error_is_a_value_error():
+    assert issubclass(LevelError, ValueError)
+    with pytest.raises(ValueError):
+        load_level("no-such-level")
+
+
+def test_unknown_level_lists_the_available_ones():
+    with pytest.raises(LevelError, match=r"unknown level 'no-such-level'.*available: 1-1, 1-2"):
+        load_level("no-such-level")
+
+
+@pytest.mark.parametrize(
+    "overrides, pattern",
+    [
+        # unknown field in a section: the section's allowed keys
+        ({"agent.move_sped": 10}, r"agent\.move_sped: unknown field; allowed: .*\bmove_speed\b.*\bturn_degrees\b"),
+        ({"agent": {"move_sped": 10}}, r"agent\.move_sped: unknown field; allowed: .*\bmove_speed\b"),
+        ({"resources.food.colour": "red"}, r"resources\.food\.colour: unknown field; allowed: kind, count, respawn"),
+        ({"foo": 1}, r"foo: unknown field; allowed: .*\bagent\b.*\bphysiology\b"),
+        # unknown section on the way down a dotted path
+        ({"agnt.move_speed": 10}, r"'agnt' is not a field; allowed here: .*\bagent\b"),
+        ({"resources.fruit.count": 5}, r"'resources\.fruit' is not a field; allowed here: food, water"),
+        # descending into a value
+        ({"agent.move_speed.x": 1}, r"'agent\.move_speed' is a value"),
+    ],
+)
+def test_unknown_keys_name_the_field_and_the_allowed_keys(overrides, pattern):
+    with pytest.raises(LevelError, match=pattern):
+        load_level("1-1", overrides)
+
+
+@pytest.mark.parametrize(
+    "overrides, pattern",
+    [
+        ({"agent.move_speed": "fast"}, r"agent\.move_speed: .*valid number.*'fast'"),
+        ({"episode.max_steps": 1.5}, r"episode\.max_steps: .*integer"),
+        ({"agent.auto_eat": "maybe"}, r"agent\.auto_eat: .*valid boolean"),
+        ({"arena.floor": "lava"}, r"arena\.floor: .*'ground' or 'gray'"),
+    ],
+)
+def test_wrong_type(overrides, pattern):
+    with pytest.raises(LevelError, match=pattern):
+        load_level("1-1", overrides)
+
+
+@pytest.mark.parametrize(
+    "overrides, pattern",
+    [
+        ({"agent.move_speed": -1}, r"agent\.move_speed: .*greater than 0"),
+        ({"agent.turn_degrees": 180}, r"agent\.turn_degrees: .*less than 180"),
+        ({"sensors.collision.rays": 15}, r"sensors\.collision: rays \(15\) must be a multiple of sectors \(10\)"),
+        ({"physiology.start.satiation": 20},
+         r"start\.satiation = 20\.0 lies outside bounds\.satiation = \[-15\.0, 15\.0\]"),
+        ({"physiology.start.damage": -1}, r"start\.damage = -1\.0 lies outside bounds\.damage"),
+        ({"agent.spawn_x": [10, -10]}, r"agent\.spawn_x: expected \[low, high\] with low <= high"),
+        ({"physiology.bounds.temperature": [5, -5]}, r"physiology\.bounds\.temperature: .*low <= high"),
+        ({"resources.food.x": [-60, 0]}, r"resources\.food\.x = \[-60\.0, 0\.0\] leaves the floor \[-50\.0, 50\.0\]"),
+        ({"arena.size": [40, 40]}, r"resources\.\w+\.[xy] = .* leaves the floor \[-20\.0, 20\.0\]"),
+        ({"resources.water.count": -1}, r"resources\.water\.count: .*greater than or equal to 0"),
+    ],
+)
+def test_out_of_range(overrides, pattern):
+    with pytest.raises(LevelError, match=pattern):
+        load_level("1-1", overrides)
+
+
+def test_error_names_the_level():
+    with pytest.raises(LevelError, match=r"invalid level '1-2'"):
+        load_level("1-2", {"agent.move_speed": -1})
+
+
+def test_several_errors_are_all_reported():
+    with pytest.raises(LevelError) as info:
+        load_level("1-1", {"agent.move_speed": -1, "agent.mass": 0})
+    assert "agent.move_speed" in str(info.value) and "agent.mass" in str(info.value)
+
+
+@pytest.mark.parametrize("field", ["name", "kind"])
+def test_identity_cannot_be_overridden(field):
+    with pytest.raises(LevelError, match=rf"override '{field}' cannot change a level's identity"):
+        load_level("1-1", {field: "1-2"})
+
+
+def test_reward_name_error_lists_the_four_names():
+    with pytest.raises(LevelError, match=r"reward\.name") as info:
+        load_level("1-1", {"reward.name": "dense"})
+    message = str(info.value)
+    for name in evaaa.REWARDS:
+        assert re.search(rf"'{name}'", message), name
+    assert "'dense'" in message
