@@ -138,10 +138,11 @@ def measure(args) -> dict:
         ratio = env_rate / raw_rate
         results["settings"].append({"setting": name, "env_steps_per_s": env_rate, "raw_steps_per_s": raw_rate,
                                     "ratio": ratio, "target": target})
-        print(f"{name:<24}{env_rate:>12.0f}{raw_rate:>14.0f}{ratio:>9.2f}   >= {target}", flush=True)
+        bound = f">= {target}" if target != "-" else "(report)"
+        print(f"{name:<34}{env_rate:>12.0f}{raw_rate:>14.0f}{ratio:>9.2f}   {bound}", flush=True)
 
     print(f"evaaa bench_env: level {level}, {steps} decisions per setting, {results['machine']}")
-    print(f"{'setting':<24}{'env steps/s':>12}{'raw steps/s':>14}{'ratio':>9}   target")
+    print(f"{'setting':<34}{'env steps/s':>12}{'raw steps/s':>14}{'ratio':>9}   target")
 
     # one env
     acts = random_actions(steps, 1, seed=1)
@@ -158,14 +159,18 @@ def measure(args) -> dict:
     env.close()
     row(f"num_envs={n} (1 process)", env_rate, time_raw(level, record_states(level, n, 0, acts)), 0.85)
 
-    # two worker processes
-    acts = random_actions(steps, 2, seed=3)
-    penv = ParallelEnv(2, [partial(make_env, level, num_envs=1, seed=s) for s in (10, 11)],
-                       mp_start_method="spawn")
-    env_rate = time_env(penv, acts)
-    penv.close()
-    raw = time_raw_parallel(level, [record_states(level, 1, s, acts[:, i: i + 1]) for i, s in enumerate((10, 11))])
-    row("ParallelEnv(2)", env_rate, raw, "-")
+    # two worker processes, one world each and a batch each
+    for per_worker in () if args.skip_parallel else (1, n):
+        acts = random_actions(steps, 2 * per_worker, seed=3)
+        seeds = (10, 11)
+        penv = ParallelEnv(2, [partial(make_env, level, num_envs=per_worker, seed=s) for s in seeds],
+                           mp_start_method="spawn")
+        env_rate = time_env(penv, acts)
+        penv.close()
+        states = [record_states(level, per_worker, s, acts[:, i * per_worker: (i + 1) * per_worker])
+                  for i, s in enumerate(seeds)]
+        name = "ParallelEnv(2)" if per_worker == 1 else f"ParallelEnv(2) x num_envs={per_worker}"
+        row(name, env_rate, time_raw_parallel(level, states), "-")
 
     # reset cost
     env = make_env(level, num_envs=1, seed=0)
@@ -204,10 +209,13 @@ def main(argv=None) -> int:
     parser.add_argument("--num-envs", type=int, default=8, help="worlds of the batched setting")
     parser.add_argument("--resets", type=int, default=50)
     parser.add_argument("--memory-steps", type=int, default=20000)
+    parser.add_argument("--skip-parallel", action="store_true", help="leave out the ParallelEnv settings")
     parser.add_argument("--json", help="also write the figures to this file")
     args = parser.parse_args(argv)
     if args.steps <= 60:
         parser.error("--steps must exceed the 50 warm-up decisions")
+    if args.num_envs < 1 or args.resets < 1:
+        parser.error("--num-envs and --resets must be positive")
     if args.memory_steps < 2000:
         parser.error("--memory-steps must be at least 2000 (memory is sampled every 1000 steps)")
     results = measure(args)

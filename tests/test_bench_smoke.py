@@ -1,0 +1,38 @@
+"""bench_env.py runs end to end and reports every figure (speed itself is never asserted in tests)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "bench_env.py"
+
+
+def load_bench():
+    spec = importlib.util.spec_from_file_location("bench_env", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_bench_reports_ratios_reset_cost_and_memory(tmp_path):
+    out = tmp_path / "bench.json"
+    code = load_bench().main(["--steps", "80", "--num-envs", "2", "--resets", "2", "--memory-steps", "2000",
+                              "--skip-parallel", "--json", str(out)])
+    assert code == 0
+    figures = json.loads(out.read_text())
+    names = [row["setting"] for row in figures["settings"]]
+    assert names == ["1 env", "num_envs=2 (1 process)"]
+    for row in figures["settings"]:
+        assert row["env_steps_per_s"] > 0 and row["raw_steps_per_s"] > 0
+        assert row["ratio"] == pytest.approx(row["env_steps_per_s"] / row["raw_steps_per_s"])
+    assert figures["reset"]["in_steps"] > 0
+    assert len(figures["memory"]["samples_mb"]) == 2
+
+
+def test_bench_rejects_bad_arguments():
+    with pytest.raises(SystemExit):
+        load_bench().main(["--steps", "10"])
