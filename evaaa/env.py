@@ -137,6 +137,14 @@ class EvaaaEnv(EnvBase):
             "truncated": trunc,
         })
 
+    def snapshot(self) -> dict:
+        """The full state of every world (physics, EVs, layout, generators): restore it to continue exactly."""
+        return self.sim.snapshot()
+
+    def restore(self, snapshot: dict) -> None:
+        """Continue from a :meth:`snapshot` (of an env of the same level and ``num_envs``)."""
+        self.sim.restore(snapshot)
+
     def _set_seed(self, seed: int | None) -> None:
         self.sim.seed(seed)
         self._seed_value = seed

@@ -152,6 +152,43 @@ class Simulator:
         mocap[ids, 1] = self.res_xy[w, :, 1]
         mocap[ids, 2] = z
 
+    # ------------------------------------------------------------------------------------------------ snapshots
+    #: per-world state arrays that, with the MuJoCo states and the generators, make up a simulator's state
+    _STATE_ARRAYS = ("pos", "heading_rad", "ev", "steps", "res_xy", "res_present", "fields", "thermal_readings")
+
+    def snapshot(self) -> dict:
+        """Everything needed to continue exactly from here (for checkpoints that resume mid-episode)."""
+        what = mujoco.mjtState.mjSTATE_INTEGRATION
+        size = mujoco.mj_stateSize(self.model, what)
+        physics = np.empty((self.n, size))
+        for w, data in enumerate(self.datas):
+            mujoco.mj_getState(self.model, data, physics[w], what)
+        return {
+            "level": self.level.model_dump(mode="json"),
+            "num_worlds": self.n,
+            "arrays": {name: getattr(self, name).copy() for name in self._STATE_ARRAYS},
+            "physics": physics,
+            "rngs": [rng.bit_generator.state for rng in self.rngs],
+            "last_obs": {k: v.copy() for k, v in self.last_obs.items()},
+            "last_info": {k: v.copy() for k, v in getattr(self, "last_info", {}).items()},
+        }
+
+    def restore(self, snapshot: dict) -> None:
+        """Return to a state taken by :meth:`snapshot` (same level and number of worlds)."""
+        if snapshot["num_worlds"] != self.n or snapshot["level"] != self.level.model_dump(mode="json"):
+            raise ValueError("this snapshot was taken from a simulator of another level or number of worlds")
+        for name, value in snapshot["arrays"].items():
+            setattr(self, name, value.copy())
+        what = mujoco.mjtState.mjSTATE_INTEGRATION
+        for w, data in enumerate(self.datas):
+            mujoco.mj_setState(self.model, data, snapshot["physics"][w], what)
+            mujoco.mj_forward(self.model, data)
+        for rng, state in zip(self.rngs, snapshot["rngs"]):
+            rng.bit_generator.state = state
+        self.last_obs = {k: v.copy() for k, v in snapshot["last_obs"].items()}
+        self.last_info = {k: v.copy() for k, v in snapshot["last_info"].items()}
+        self._res_d2 = None
+
     # ------------------------------------------------------------------------------------------------ state editing
     def set_agent_pose(self, world: int, xy, heading_deg: float) -> None:
         """Move world ``world``'s agent to ``xy`` facing compass ``heading_deg`` (for tests and scripted set-ups)."""

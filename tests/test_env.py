@@ -397,3 +397,32 @@ def test_bad_input_gives_clear_errors():
     with pytest.raises(ValueError, match="integer"):
         env.step(td)
     env.close()
+
+
+def test_snapshot_restore_continues_exactly():
+    env = evaaa.make_env("1-1", num_envs=2, seed=5)
+    actions = torch.randint(0, 5, (60, 2), generator=torch.Generator().manual_seed(0))
+    td = env.reset()
+    for t in range(20):
+        td["action"] = actions[t]
+        _, td = env.step_and_maybe_reset(td)
+    snap = env.snapshot()
+    saved_td = td.clone()
+
+    def run(td):
+        out = []
+        for t in range(20, 60):
+            td["action"] = actions[t]
+            step, td = env.step_and_maybe_reset(td)
+            out.append(step["next"].clone())
+        return torch.stack(out)
+
+    first = run(td)
+    env.restore(snap)
+    second = run(saved_td)
+    assert (first == second).all()
+    other = evaaa.make_env("1-2", num_envs=2, seed=5)
+    with pytest.raises(ValueError, match="another level"):
+        other.restore(snap)
+    env.close()
+    other.close()
