@@ -33,6 +33,7 @@ INFO_FIELDS: dict[str, tuple[tuple[int, ...], torch.dtype]] = {
     "water_eaten": ((1,), torch.int64),
     "collision": ((1,), torch.bool),
     "damage_taken": ((1,), torch.float32),
+    "attacked": ((1,), torch.bool),
     "step_count": ((1,), torch.int64),
     "end_type": ((1,), torch.int64),
 }

@@ -49,8 +49,13 @@ _current_context = None  # the GL context made current last in this process (mak
 class BatchRenderer:
     """Renders fixed cameras of a model for any of its ``MjData`` into (N, H, W, 3) uint8 arrays."""
 
-    def __init__(self, model: mujoco.MjModel, height: int, width: int, hidden_groups: tuple[int, ...] = ()):
+    def __init__(self, model: mujoco.MjModel, height: int, width: int, hidden_groups: tuple[int, ...] = (),
+                 adjust=None):
+        """``adjust(row, scene, context)``, if given, may change the scene (lights, flags) or the context (fog) of
+        each frame after the scene is updated and before it is drawn: worlds that share a model can still
+        differ in light."""
         self.model = model
+        self._adjust = adjust
         self.height, self.width = height, width
         try:
             self._gl = _gl_context_class()(width, height)
@@ -81,6 +86,8 @@ class BatchRenderer:
         model, scene, context, rect = self.model, self._scene, self._context, self._rect
         for row, data in enumerate(datas):
             mujoco.mjv_updateScene(model, data, self._option, None, self._camera, self._catmask, scene)
+            if self._adjust is not None:
+                self._adjust(row, scene, context)
             mujoco.mjr_render(rect, scene, context)
             mujoco.mjr_readPixels(out[row], None, rect, context)
         # OpenGL rows run bottom-up

@@ -1,11 +1,13 @@
 """The MuJoCo scene of a level: MJCF text, the compiled model, and the indices of its pooled bodies.
 
-One model serves every world of a batch: per-episode entities (resources) are mocap bodies that are moved or
-parked below the floor, so a new layout never recompiles anything.  Render settings are chosen for a CPU:
-no multisampling or shadows, coarse tessellation and a coarse floor grid (see ARCHITECTURE section 5).
+One model serves every world of a batch: per-episode entities (resources, random obstacles, predators) are
+mocap bodies that are moved or parked below the floor, so a new layout never recompiles anything; static
+obstacles are plain world geoms.  Render settings are chosen for a CPU: no multisampling or shadows, coarse
+tessellation and a coarse floor grid (see ARCHITECTURE section 5).
 
 Frames: x east, y north, z up; the floor's walking surface is z = 0; headings are compass angles (0 faces +y,
-90 faces +x).  The agent's hinge angle is the math angle psi = 90 deg - heading.
+90 faces +x).  The agent's hinge angle is the math angle psi = 90 deg - heading; a body turned to compass
+heading h is rotated by -h about z.
 """
 
 from __future__ import annotations
@@ -15,18 +17,17 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from .entities import CANOPY, OBSTACLE_KINDS, PREDATOR, RESOURCE_KINDS, Kind
 from .spec import Level
-from .worldgen import AGENT_HALF, FOOD, PARKED_Z, ResourcePool
+from .worldgen import AGENT_HALF, PARKED_Z, ObstaclePool, ResourcePool
 
 # Geom groups, so that cameras and rays can choose what they see.
-GROUP_SOLID = 0  # walls, obstacles: seen, hit by rays, collide with the agent
+GROUP_SOLID = 0  # walls, obstacles, ponds, predators: seen and hit by rays
 GROUP_RESOURCE = 1  # consumables: seen and hit by rays, no contact with the agent
 GROUP_FLOOR = 2  # seen, never hit by the horizontal rays
-GROUP_AGENT = 3  # the agent's own body: hidden from its eye
+GROUP_AGENT = 3  # the agent's own body: hidden from its eye (MuJoCo hides groups 3-5 unless asked)
 GROUP_INVISIBLE = 4  # bounds of open arenas: collide and are hit by rays, never drawn
 
-#: Colours of consumables (RGBA): pure red food and blue water, as in the original.
-KIND_RGBA = {FOOD: "0.85 0.08 0.08 1", 1: "0.1 0.25 0.95 1"}
 FLOOR_RGB = {
     "ground": ("0.42 0.38 0.27", "0.38 0.35 0.25"),
     "gray": ("0.5 0.5 0.5", "0.46 0.46 0.46"),
@@ -44,7 +45,10 @@ class SceneIndex:
     agent_geom: int
     eye_camera: int
     top_camera: int
+    sun_light: int
     resource_mocap: np.ndarray  # (P,) mocap index of each resource slot
+    obstacle_mocap: np.ndarray  # (O,) mocap index of each obstacle slot (-1 for static obstacles)
+    predator_mocap: np.ndarray  # (K,) mocap index of each predator slot
     ray_groups: np.ndarray  # (6,) uint8 geom-group mask for the collision rays
 
 
@@ -52,8 +56,81 @@ def _f(x: float) -> str:
     return f"{x:.6g}"
 
 
-def build_mjcf(level: Level, pool: ResourcePool) -> str:
-    """MJCF text of a level's scene with one mocap body per resource slot."""
+def _v(values) -> str:
+    return " ".join(_f(v) for v in values)
+
+
+def _geom(kind: Kind, extents: np.ndarray, *, group: int, solid: bool, extra: str = "") -> str:
+    """A geom of ``kind`` with ``extents`` centred on its body (whose origin sits at the kind's centre)."""
+    w, d, h = (float(e) for e in extents)
+    if kind.shape == "box":
+        shape = f'type="box" size="{_v((w / 2, d / 2, h / 2))}"'
+    elif kind.shape == "ellipsoid":
+        shape = f'type="ellipsoid" size="{_v((w / 2, d / 2, h / 2))}"'
+    elif kind.shape == "dome":
+        shape = f'type="ellipsoid" size="{_v((w / 2, d / 2, h))}"'
+    elif kind.shape == "cylinder":
+        shape = f'type="cylinder" size="{_v((max(w, d) / 2, h / 2))}"'
+    else:  # a new kind with an unknown shape is a programming error
+        raise ValueError(f"unknown shape {kind.shape!r} of kind {kind.name!r}")
+    contact = "" if solid else ' contype="0" conaffinity="0"'
+    return f'<geom {shape} rgba="{_v(kind.rgba)}" group="{group}"{contact}{extra}/>'
+
+
+def _canopy(extents: np.ndarray) -> str:
+    h = float(extents[2])
+    r = CANOPY["radius"] * h
+    return (f'<geom type="ellipsoid" size="{_v((r, r, 0.6 * r))}" pos="0 0 {_f(CANOPY["height"] * h - h / 2)}" '
+            f'rgba="{_v(CANOPY["rgba"])}" group="{GROUP_SOLID}" contype="0" conaffinity="0"/>')
+
+
+def _euler(heading_rad: float) -> str:
+    return f'euler="0 0 {_f(-heading_rad)}"'
+
+
+def _resources(pool: ResourcePool) -> str:
+    out = []
+    for j in range(pool.size_total):
+        kind = RESOURCE_KINDS[pool.kind[j]]
+        group = GROUP_SOLID if kind.solid else GROUP_RESOURCE
+        out.append(f'    <body name="res{j}" mocap="true" pos="0 0 {_f(PARKED_Z)}" {_euler(pool.heading[j])}>'
+                   f'{_geom(kind, pool.extents[j], group=group, solid=kind.solid)}</body>')
+    return "\n".join(out)
+
+
+def _obstacles(pool: ObstaclePool) -> str:
+    out = []
+    z = pool.centre_z()
+    for o in range(pool.size_total):
+        kind = OBSTACLE_KINDS[pool.kind[o]]
+        geoms = _geom(kind, pool.extents[o], group=GROUP_SOLID, solid=True)
+        if kind.name == "tree":
+            geoms += _canopy(pool.extents[o])
+        if pool.static[o]:  # never moves: a plain body welded to the world
+            pos = (pool.low[o, 0], pool.low[o, 1], z[o])
+            out.append(f'    <body name="obs{o}" pos="{_v(pos)}" {_euler(pool.heading[o])}>{geoms}</body>')
+        else:
+            out.append(f'    <body name="obs{o}" mocap="true" pos="0 0 {_f(PARKED_Z)}" '
+                       f'{_euler(pool.heading[o])}>{geoms}</body>')
+    return "\n".join(out)
+
+
+def _predators(count: int) -> str:
+    # predators are moved kinematically and never push the agent: contact is handled by their state machine
+    return "\n".join(
+        f'    <body name="pred{k}" mocap="true" pos="0 0 {_f(PARKED_Z)}">'
+        f'{_geom(PREDATOR, np.array(PREDATOR.base), group=GROUP_SOLID, solid=False)}'
+        f'<geom type="box" size="0.12 0.05 0.06" pos="0.45 0.81 0.55" rgba="0.9 0.15 0.1 1" group="{GROUP_SOLID}" '
+        f'contype="0" conaffinity="0"/>'
+        f'<geom type="box" size="0.12 0.05 0.06" pos="-0.45 0.81 0.55" rgba="0.9 0.15 0.1 1" group="{GROUP_SOLID}" '
+        f'contype="0" conaffinity="0"/></body>'
+        for k in range(count)
+    )
+
+
+def build_mjcf(level: Level, pool: ResourcePool, obstacles: ObstaclePool | None = None) -> str:
+    """MJCF text of a level's scene with one pooled body per resource, obstacle and predator slot."""
+    obstacles = obstacles if obstacles is not None else ObstaclePool.from_level(level)
     a, arena, vis = level.agent, level.arena, level.sensors.vision
     hx, hy = arena.size[0] / 2, arena.size[1] / 2
     rgb1, rgb2 = FLOOR_RGB[arena.floor]
@@ -70,12 +147,7 @@ def build_mjcf(level: Level, pool: ResourcePool) -> str:
             "s": (hx + 1, 0.5, 0, -hy - 0.5),
         }.items()
     )
-    resources = "\n".join(
-        f'    <body name="res{j}" mocap="true" pos="0 0 {_f(PARKED_Z)}">'
-        f'<geom type="box" size="{_f(s / 2)} {_f(s / 2)} {_f(s / 2)}" rgba="{KIND_RGBA[k]}" '
-        f'group="{GROUP_RESOURCE}" contype="0" conaffinity="0"/></body>'
-        for j, (k, s) in enumerate(zip(pool.kind, pool.size))
-    )
+    n_predators = sum(g.count for g in level.predators.values())
     friction = a.floor_friction * a.mass * GRAVITY  # Coulomb floor friction, as a joint friction loss
     damping = a.linear_drag * a.mass  # linear drag as joint damping
     top_height = max(hx, hy) / np.tan(np.radians(45 / 2)) + 1.0
@@ -112,23 +184,33 @@ def build_mjcf(level: Level, pool: ResourcePool) -> str:
       <geom type="box" size="0.12 0.35 0.08" pos="0.45 0 0.25" rgba="0.3 0.25 0.2 1" group="{GROUP_AGENT}" contype="0" conaffinity="0" mass="0"/>
       <camera name="eye" pos="{_f(EYE_FORWARD)} 0 {_f(EYE_HEIGHT)}" xyaxes="0 -1 0 0 0 1" fovy="{_f(vis.fovy)}"/>
     </body>
-{resources}
+{_resources(pool)}
+{_obstacles(obstacles)}
+{_predators(n_predators)}
   </worldbody>
 </mujoco>
 """
 
 
-def build_model(level: Level, pool: ResourcePool) -> tuple[mujoco.MjModel, SceneIndex]:
-    model = mujoco.MjModel.from_xml_string(build_mjcf(level, pool))
-    res_bodies = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"res{j}") for j in range(pool.size_total)]
+def build_model(level: Level, pool: ResourcePool, obstacles: ObstaclePool) -> tuple[mujoco.MjModel, SceneIndex]:
+    model = mujoco.MjModel.from_xml_string(build_mjcf(level, pool, obstacles))
+
+    def body(name: str) -> int:
+        return mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)
+
+    n_predators = sum(g.count for g in level.predators.values())
     ray_groups = np.zeros(6, dtype=np.uint8)
-    ray_groups[[GROUP_SOLID, GROUP_RESOURCE, GROUP_INVISIBLE]] = 1
+    ray_groups[[GROUP_SOLID, GROUP_INVISIBLE]] = 1  # consumables are ray-tested by the sensor itself
     index = SceneIndex(
-        agent_body=mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "agent"),
+        agent_body=body("agent"),
         agent_geom=mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "agent"),
         eye_camera=mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, "eye"),
         top_camera=mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, "top"),
-        resource_mocap=np.array([model.body_mocapid[b] for b in res_bodies], dtype=np.int64),
+        sun_light=mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_LIGHT, "sun"),
+        resource_mocap=np.array([model.body_mocapid[body(f"res{j}")] for j in range(pool.size_total)], np.int64),
+        obstacle_mocap=np.array([model.body_mocapid[body(f"obs{o}")] for o in range(obstacles.size_total)],
+                                np.int64),
+        predator_mocap=np.array([model.body_mocapid[body(f"pred{k}")] for k in range(n_predators)], np.int64),
         ray_groups=ray_groups,
     )
     return model, index

@@ -10,9 +10,10 @@ One decision:
 2. five physics substeps of 0.02 s; contact impulses on the body become collision damage;
 3. with eat intent, every item overlapping the eating sphere is consumed (its EV effect counts once) and
    respawns per its group's rule;
-4. the thermal sensors are read at the new pose, the EVs advance, the episode end is decided, the reward is
+4. predators take their decision and move (attacks add damage); the sun moves on;
+5. the thermal sensors are read at the new pose, the EVs advance, the episode end is decided, the reward is
    computed from the EVs;
-5. the enabled sensors are read.
+6. the enabled sensors are read.
 """
 
 from __future__ import annotations
@@ -22,13 +23,30 @@ import math
 import mujoco
 import numpy as np
 
+from . import daynight
 from . import physiology as phys
+from .entities import OBSTACLE_KINDS, PREDATOR, RESOURCE_KINDS, footprint_half
+from .predator import PREDATOR_HALF, NavGrid, Predators
 from .render import BatchRenderer
 from .scene import GROUP_AGENT, build_model
 from .sensors import SENSORS, resolve_modalities
 from .spec import Level
 from .thermal import FieldSampler, build_field, hotspot_cells
-from .worldgen import AGENT_HALF, FOOD, PARKED_Z, WATER, ResourcePool, place_resources, sample_agent_start
+from .worldgen import (
+    AGENT_HALF,
+    FOOD,
+    PARKED_Z,
+    WATER,
+    ObstaclePool,
+    ResourcePool,
+    draw_grouped,
+    place_landmarks,
+    place_obstacles,
+    place_resources,
+    resources_present,
+    sample_agent_start,
+    sample_predator_starts,
+)
 
 NUM_ACTIONS = 5
 ACTION_NAMES: tuple[str, ...] = ("none", "forward", "left", "right", "eat")
@@ -56,7 +74,9 @@ class Simulator:
         self.modalities = resolve_modalities(modalities)
         self.params = phys.PhysiologyParams.from_level(level)
         self.pool = ResourcePool.from_level(level)
-        self.model, self.index = build_model(level, self.pool)
+        self.obstacles = ObstaclePool.from_level(level)
+        self.model, self.index = build_model(level, self.pool, self.obstacles)
+        self.predators = Predators(level, num_worlds)
         self.datas = [mujoco.MjData(self.model) for _ in range(num_worlds)]
         self.dt = float(self.model.opt.timestep)
         self.sampler = FieldSampler(level)
@@ -70,9 +90,17 @@ class Simulator:
         self.move_speed = a.move_speed
         self.eat_radius2 = a.eat_radius**2
         self.eat_offset = a.eat_offset
-        self.res_half = self.pool.size / 2
-        self.res_is_food = self.pool.kind == FOOD
-        self.res_is_water = self.pool.kind == WATER
+        self.res_half3 = self.pool.extents / 2  # (P, 3) half-extents in each item's own frame
+        self.res_half = np.zeros((p, 2))  # (P, 2) half-sides of the axis-aligned box around each footprint
+        for kind in set(self.pool.kind):
+            m = self.pool.kind == kind
+            self.res_half[m] = footprint_half(RESOURCE_KINDS[kind], self.pool.extents[m], self.pool.heading[m])
+        self.res_cos, self.res_sin = np.cos(self.pool.heading), np.sin(self.pool.heading)
+        self.res_is_food = self.pool.feeds == FOOD
+        self.res_is_water = self.pool.feeds == WATER
+        self.res_respawns = self.pool.respawn == "random"
+        self.res_grouped = self.pool.respawn == "grouped"
+        self.res_solid = self.pool.solid
         dmg = a.collision_damage
         self._damage_rule = (dmg.constant, dmg.rate, dmg.offset, dmg.cap, dmg.event_threshold)
 
@@ -84,14 +112,28 @@ class Simulator:
         self.res_xy = np.zeros((n, p, 2))
         self.res_present = np.zeros((n, p), dtype=bool)
         self.fields = np.zeros((n, *level.thermal.grid))
+        self.field_offset = np.zeros(n)  # day/night offset added to the whole field
         self.thermal_readings = np.zeros((n, 8))
+        self.active_group = np.full(n, -1, dtype=np.int64)  # the grouped resource group holding items
+        self.obs_xy = np.zeros((n, self.obstacles.size_total, 2))
+        self.obs_present = np.zeros((n, self.obstacles.size_total), dtype=bool)
+        self.sun_angle = np.full(n, level.daynight.start_angle % 360.0)
+        self.attacked = np.zeros(n, dtype=bool)
         self.last_obs: dict[str, np.ndarray] = {}
         self._res_d2: np.ndarray | None = None
         self._all = np.arange(n)
         self._zeros_bool = np.zeros(n, dtype=bool)
         self._agent_z_col = np.full((n, 1), AGENT_HALF)
         # vertical gap between the eating sphere's centre and each item's box (it sits a little below the eye)
-        self._eat_dz2 = np.maximum(np.abs(AGENT_HALF - EAT_DROP - self.pool.centre_z()) - self.res_half, 0.0) ** 2
+        self._eat_dz2 = np.maximum(np.abs(AGENT_HALF - EAT_DROP - self.pool.centre_z()) - self.res_half3[:, 2],
+                                   0.0) ** 2
+        self._obs_z = self.obstacles.centre_z()
+        self._heat = self.obstacles.temperature != 0
+        self._heat_half = np.zeros((self.obstacles.size_total, 2))
+        for kind in set(self.obstacles.kind):
+            m = self.obstacles.kind == kind
+            self._heat_half[m] = footprint_half(OBSTACLE_KINDS[kind], self.obstacles.extents[m],
+                                                self.obstacles.heading[m])
 
         self.sensors = [SENSORS[k](self) for k in self.modalities]
         if "pixels" in self.modalities:
@@ -101,7 +143,8 @@ class Simulator:
     # ------------------------------------------------------------------------------------------------ set-up
     def _make_renderer(self) -> None:
         v = self.level.sensors.vision
-        self._renderer = BatchRenderer(self.model, v.height, v.width, hidden_groups=(GROUP_AGENT,))
+        adjust = self._light_world if self.level.daynight.enabled else None
+        self._renderer = BatchRenderer(self.model, v.height, v.width, hidden_groups=(GROUP_AGENT,), adjust=adjust)
 
     def seed(self, seed: int | None) -> None:
         """Give every world its own generator, derived from ``seed`` (None: fresh entropy)."""
@@ -128,21 +171,78 @@ class Simulator:
 
     def _reset_world(self, w: int) -> None:
         level, pool, rng = self.level, self.pool, self.rngs[w]
-        self.fields[w] = build_field(level, hotspot_cells(level, rng))
+        obstacles = self.obstacles
+        self.obs_xy[w], self.obs_present[w] = place_obstacles(obstacles, rng)
+        hot = self._heat & self.obs_present[w]
+        heat = np.column_stack([
+            self.obs_xy[w, hot, 0] - self._heat_half[hot, 0], self.obs_xy[w, hot, 0] + self._heat_half[hot, 0],
+            self.obs_xy[w, hot, 1] - self._heat_half[hot, 1], self.obs_xy[w, hot, 1] + self._heat_half[hot, 1],
+            obstacles.temperature[hot],
+        ])
+        self.fields[w] = build_field(level, hotspot_cells(level, rng), heat)
+        self.active_group[w] = draw_grouped(pool, rng)
         self.res_xy[w] = place_resources(pool, rng)
-        self.res_present[w] = True
-        xy, heading = sample_agent_start(level, rng, self.res_xy[w], self.res_half)
+        self.res_present[w] = resources_present(pool, self.active_group[w])
+        placed = self.obs_present[w]
+        blockers = np.concatenate([self.obs_xy[w, placed], self.res_xy[w, self.res_present[w]]])
+        blocker_half = np.concatenate([obstacles.half[placed], self.res_half[self.res_present[w]]])
+        xy, heading = sample_agent_start(level, rng, blockers, blocker_half)
         self.pos[w] = xy
         self.heading_rad[w] = math.radians(heading)
         self.ev[w] = self.params.start
         self.steps[w] = 0
+        dn = level.daynight
+        if dn.enabled:
+            self.sun_angle[w] = rng.uniform(0.0, 360.0) if dn.random_start else dn.start_angle % 360.0
+        self.field_offset[w] = self._temperature_offset(self.sun_angle[w: w + 1])[0]
+        if self.predators.k:
+            landmarks = place_landmarks(level, self.obs_xy[w, placed], obstacles.half[placed])
+            solid_items = self.res_present[w] & self.res_solid
+            grid = NavGrid.from_boxes(level.arena.size,
+                                      np.concatenate([self.obs_xy[w, placed], self.res_xy[w, solid_items]]),
+                                      np.concatenate([obstacles.half[placed], self.res_half[solid_items]]),
+                                      inflate=PREDATOR_HALF)
+            start_xy, start_heading = sample_predator_starts(level, rng)
+            self.predators.reset_world(w, rng, start_xy, start_heading, landmarks, grid)
+        self.attacked[w] = False
         data = self.datas[w]
         mujoco.mj_resetData(self.model, data)
         data.qpos[:3] = (xy[0], xy[1], math.pi / 2 - self.heading_rad[w])
         self._write_resources(w)
+        self._write_obstacles(w)
+        self._write_predators(w)
         mujoco.mj_forward(self.model, data)
-        self.thermal_readings[w] = self.sampler.sample(self.fields[w: w + 1], self.pos[w: w + 1],
-                                                       self.heading_rad[w: w + 1])[0]
+        self.thermal_readings[w] = self._sample_thermal(np.array([w]))[0]
+
+    def _temperature_offset(self, angle: np.ndarray) -> np.ndarray:
+        dn = self.level.daynight
+        if not dn.enabled:
+            return np.full(len(angle), dn.day_temperature)
+        return daynight.temperature_offset(daynight.hour(angle), dn.day_temperature, dn.night_temperature)
+
+    def _sample_thermal(self, worlds: np.ndarray) -> np.ndarray:
+        readings = self.sampler.sample(self.fields[worlds], self.pos[worlds], self.heading_rad[worlds])
+        return readings + self.field_offset[worlds, None]
+
+    def _write_obstacles(self, w: int) -> None:
+        moving = self.index.obstacle_mocap >= 0
+        if not moving.any():
+            return
+        ids = self.index.obstacle_mocap[moving]
+        mocap = self.datas[w].mocap_pos
+        mocap[ids, 0] = self.obs_xy[w, moving, 0]
+        mocap[ids, 1] = self.obs_xy[w, moving, 1]
+        mocap[ids, 2] = np.where(self.obs_present[w, moving], self._obs_z[moving], PARKED_Z)
+
+    def _write_predators(self, w: int) -> None:
+        if not self.predators.k:
+            return
+        data, ids = self.datas[w], self.index.predator_mocap
+        data.mocap_pos[ids, 0] = self.predators.xy[w, :, 0]
+        data.mocap_pos[ids, 1] = self.predators.xy[w, :, 1]
+        data.mocap_pos[ids, 2] = PREDATOR.base[2] / 2
+        half = -self.predators.heading[w] / 2  # a body at compass heading h is turned by -h about z
+        data.mocap_quat[ids] = np.stack([np.cos(half), np.zeros_like(half), np.zeros_like(half), np.sin(half)], 1)
 
     def _write_resources(self, w: int) -> None:
         z = np.where(self.res_present[w], self.pool.centre_z(), PARKED_Z)
@@ -154,7 +254,9 @@ class Simulator:
 
     # ------------------------------------------------------------------------------------------------ snapshots
     #: per-world state arrays that, with the MuJoCo states and the generators, make up a simulator's state
-    _STATE_ARRAYS = ("pos", "heading_rad", "ev", "steps", "res_xy", "res_present", "fields", "thermal_readings")
+    _STATE_ARRAYS = ("pos", "heading_rad", "ev", "steps", "res_xy", "res_present", "fields", "field_offset",
+                     "thermal_readings", "active_group", "obs_xy", "obs_present", "sun_angle", "attacked")
+    _PREDATOR_ARRAYS = ("xy", "heading", "state", "rest_count", "search_count", "route_age")
 
     def snapshot(self) -> dict:
         """Everything needed to continue exactly from here (for checkpoints that resume mid-episode)."""
@@ -169,6 +271,10 @@ class Simulator:
             "arrays": {name: getattr(self, name).copy() for name in self._STATE_ARRAYS},
             "physics": physics,
             "rngs": [rng.bit_generator.state for rng in self.rngs],
+            "predators": {name: getattr(self.predators, name).copy() for name in self._PREDATOR_ARRAYS}
+            | {"routes": [[None if r is None else r.copy() for r in world] for world in self.predators.routes],
+               "grids": list(self.predators.grids), "areas": list(self.predators.areas),
+               "landmarks": [p.copy() for p in self.predators.landmarks]},
             "last_obs": {k: v.copy() for k, v in self.last_obs.items()},
             "last_info": {k: v.copy() for k, v in getattr(self, "last_info", {}).items()},
         }
@@ -185,6 +291,13 @@ class Simulator:
             mujoco.mj_forward(self.model, data)
         for rng, state in zip(self.rngs, snapshot["rngs"]):
             rng.bit_generator.state = state
+        predators = snapshot["predators"]
+        for name in self._PREDATOR_ARRAYS:
+            setattr(self.predators, name, predators[name].copy())
+        self.predators.routes = [[None if r is None else r.copy() for r in world] for world in predators["routes"]]
+        self.predators.grids = list(predators["grids"])
+        self.predators.areas = list(predators["areas"])
+        self.predators.landmarks = [p.copy() for p in predators["landmarks"]]
         self.last_obs = {k: v.copy() for k, v in snapshot["last_obs"].items()}
         self.last_info = {k: v.copy() for k, v in snapshot["last_info"].items()}
         self._res_d2 = None
@@ -211,8 +324,7 @@ class Simulator:
         self._refresh_observation(world)
 
     def _refresh_observation(self, world: int) -> None:
-        self.thermal_readings[world] = self.sampler.sample(self.fields[world: world + 1], self.pos[world: world + 1],
-                                                           self.heading_rad[world: world + 1])[0]
+        self.thermal_readings[world] = self._sample_thermal(np.array([world]))[0]
         if self.last_obs:
             self._observe(np.array([world]))
 
@@ -271,9 +383,22 @@ class Simulator:
             water_count = (consumed & self.res_is_water).sum(1)
             food_eaten, water_eaten = food_count > 0, water_count > 0
 
-        # 4. physiology
+        # 4. predators and the sun
+        if self.predators.k:
+            night = daynight.is_night(self.sun_angle) if self.level.daynight.enabled else self._zeros_bool
+            attack = self.predators.step(pos, night, self.rngs)
+            self.attacked = attack > 0
+            damage = damage + attack
+            for w in range(self.n):
+                self._write_predators(w)
+                mujoco.mj_kinematics(model, self.datas[w])
+        if self.level.daynight.enabled:
+            self.sun_angle = daynight.advance(self.sun_angle, self.level.daynight.degrees_per_step)
+            self.field_offset = self._temperature_offset(self.sun_angle)
+
+        # 5. physiology
         self.steps += 1
-        self.thermal_readings = self.sampler.sample(self.fields, pos, self.heading_rad)
+        self.thermal_readings = self._sample_thermal(self._all)
         ev_before = self.ev
         thermal_sum = self.thermal_readings.sum(axis=1) - 8.0 * ev_before[:, 2]
         self.ev = phys.step_evs(ev_before, self.params, food_eaten=food_eaten, water_eaten=water_eaten,
@@ -285,7 +410,7 @@ class Simulator:
         truncated = end == phys.END_MAX_STEPS
         terminated = (end != phys.END_NONE) & ~truncated
 
-        # 5. senses
+        # 6. senses
         obs = self._observe(self._all)
         info = self._info(food=food_count, water=water_count, collided=collided, damage=damage, end=end)
         return obs, reward, terminated, truncated, info
@@ -344,9 +469,14 @@ class Simulator:
         worlds = np.flatnonzero(eating)
         heading = self.heading_rad[worlds]
         centre = self.pos[worlds] + self.eat_offset * np.stack([np.sin(heading), np.cos(heading)], axis=1)
-        # sphere-box overlap: distance from the sphere's centre to the nearest point of each (axis-aligned) cube
-        gap = np.maximum(np.abs(self.res_xy[worlds] - centre[:, None, :]) - self.res_half[:, None], 0.0)
-        dist2 = np.einsum("wpk,wpk->wp", gap, gap) + self._eat_dz2
+        # sphere-box overlap: distance from the sphere's centre to the nearest point of each item's box, measured
+        # in the item's own frame (items are turned by their fixed heading)
+        rel = centre[:, None, :] - self.res_xy[worlds]  # (W, P, 2)
+        local_x = rel[..., 0] * self.res_cos - rel[..., 1] * self.res_sin
+        local_y = rel[..., 0] * self.res_sin + rel[..., 1] * self.res_cos
+        gap_x = np.maximum(np.abs(local_x) - self.res_half3[:, 0], 0.0)
+        gap_y = np.maximum(np.abs(local_y) - self.res_half3[:, 1], 0.0)
+        dist2 = gap_x**2 + gap_y**2 + self._eat_dz2
         hits = (dist2 <= self.eat_radius2) & self.res_present[worlds]
         if not hits.any():
             return None
@@ -354,13 +484,50 @@ class Simulator:
         consumed[worlds] = hits
         for row, w in enumerate(worlds):
             slots = np.flatnonzero(hits[row])
-            moving = slots[self.pool.respawns[slots]]
+            if not len(slots):
+                continue
+            moving = slots[self.res_respawns[slots]]
             if len(moving):
                 self.res_xy[w, moving] = place_resources(self.pool, self.rngs[w], moving)
-                self._write_resources(w)
-                mujoco.mj_kinematics(self.model, self.datas[w])
+            eaten_grouped = slots[self.res_grouped[slots]]
+            if len(eaten_grouped):
+                self.res_present[w, eaten_grouped] = False
+                if not (self.res_present[w] & self.res_grouped).any():  # the group is bare: another one grows
+                    self.active_group[w] = draw_grouped(self.pool, self.rngs[w])
+                    fresh = np.flatnonzero(self.pool.group == self.active_group[w])
+                    self.res_xy[w, fresh] = place_resources(self.pool, self.rngs[w], fresh)
+                    self.res_present[w, fresh] = True
+            self._write_resources(w)
+            mujoco.mj_kinematics(self.model, self.datas[w])
         self._res_d2 = None
         return consumed
+
+    def _light_world(self, row: int, scene: mujoco.MjvScene, context: mujoco.MjrContext) -> None:
+        """Set the sun, the sky and the fog of the world being rendered (worlds share one model)."""
+        w = self._render_worlds[row]
+        h = daynight.hour(self.sun_angle[w])
+        dark = float(daynight.darkness(h))
+        direction, strength = daynight.sun(self.sun_angle[w: w + 1])
+        for i in range(scene.nlight):
+            light = scene.lights[i]
+            if light.headlight:
+                light.ambient[:] = 0.35 * (1.0 - 0.8 * dark)
+                light.diffuse[:] = 0.3 * (1.0 - 0.8 * dark)
+            else:
+                light.dir[:] = direction[0]
+                light.diffuse[:] = 0.6 * float(strength[0])
+        scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = dark < 0.5
+        scene.flags[mujoco.mjtRndFlag.mjRND_FOG] = dark > 0.0
+        dn = self.level.daynight
+        density = dn.night_fog_density * dark
+        if density > 0:
+            # exponential-squared fog of this density hides ~95% at sqrt(3)/density; MuJoCo's fog is linear
+            context.fogStart = 0.0
+            context.fogEnd = math.sqrt(3.0) / density
+            context.fogRGBA[:] = (0.02, 0.02, 0.05, 1.0)
+        far = dn.day_far + (dn.night_far - dn.day_far) * dark
+        scene.camera[0].frustum_far = far
+        scene.camera[1].frustum_far = far
 
     # ------------------------------------------------------------------------------------------------ observation
     def _observe(self, worlds: np.ndarray) -> dict[str, np.ndarray]:
@@ -383,6 +550,7 @@ class Simulator:
         if self._renderer is None:
             self._make_renderer()
         datas = self.datas if len(worlds) == self.n else [self.datas[w] for w in worlds]
+        self._render_worlds = worlds
         return self._renderer.render(datas, self.index.eye_camera)
 
     def render_top(self, world: int = 0, size: int = 512) -> np.ndarray:
@@ -414,6 +582,7 @@ class Simulator:
             "water_eaten": water.reshape(-1, 1),
             "collision": collided.reshape(-1, 1),
             "damage_taken": damage.astype(np.float32).reshape(-1, 1),
+            "attacked": self.attacked.reshape(-1, 1).copy(),
             "step_count": self.steps.reshape(-1, 1).copy(),
             "end_type": end.reshape(-1, 1),
         }

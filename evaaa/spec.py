@@ -134,17 +134,102 @@ class Physiology(_Spec):
 
 
 # --------------------------------------------------------------------------------------------------- resources
+Extents = Annotated[tuple[Positive, Positive, Positive], Field(description="width (x), depth (y), height (z)")]
+
+
 class ResourceGroup(_Spec):
     """A group of identical consumable items placed uniformly in a box."""
 
-    kind: Literal["food", "water"]
+    #: food and apple feed, water and pond water; a pond is a solid slab the body cannot enter
+    kind: Literal["food", "water", "apple", "pond"]
     count: Annotated[int, Field(ge=0, le=1000)]
-    #: random: a consumed item reappears uniformly in the group's box; static: never depletes
-    respawn: Literal["random", "static"]
+    #: random: a consumed item reappears uniformly in its group's box; static: never depletes; grouped: one
+    #: grouped group holds items at a time, and when its items are all eaten a group is drawn anew
+    respawn: Literal["random", "static", "grouped"]
     x: Interval
     y: Interval
-    #: edge length of the cube
-    size: Positive
+    #: edge of a cube, or the item's extents in metres (width, depth, height) before turning it by ``heading``
+    size: Positive | Extents
+    #: compass heading of the item's depth axis, degrees (fixed)
+    heading: float = 0.0
+
+    @property
+    def extents(self) -> tuple[float, float, float]:
+        return (self.size,) * 3 if isinstance(self.size, float) else tuple(self.size)
+
+
+# --------------------------------------------------------------------------------------------------- obstacles
+class ObstacleGroup(_Spec):
+    """Obstacles of one kind.  A group of one obstacle at a fixed spot is static (placed once, never moved);
+    the others are re-drawn every episode by rejection sampling with ``padding``."""
+
+    kind: Literal["block", "bush", "rock", "bonfire", "tree", "rockwall"]
+    count: Annotated[int, Field(ge=0, le=1000)]
+    x: Interval
+    y: Interval
+    #: compass heading of the obstacle's depth axis, degrees (fixed, not random)
+    heading: float = 0.0
+    #: per-axis scale ranges (width, depth, height) applied to the kind's base extents (see evaaa.entities)
+    scale: tuple[Interval, Interval, Interval] = ((1.0, 1.0), (1.0, 1.0), (1.0, 1.0))
+    padding: NonNegative = 2.0
+    #: cells under the obstacle are set to this temperature before smoothing (0: no heat)
+    temperature: float = 0.0
+
+    @property
+    def static(self) -> bool:
+        return self.count == 1 and self.x[0] == self.x[1] and self.y[0] == self.y[1]
+
+
+# --------------------------------------------------------------------------------------------------- predators
+class PredatorGroup(_Spec):
+    count: Annotated[int, Field(ge=0, le=50)]
+    x: Interval
+    y: Interval
+    heading: float = 0.0
+    walk_speed: Positive = 6.0
+    #: degrees per second
+    turn_speed: Positive = 180.0
+    view_angle: Annotated[float, Field(gt=0, le=360)] = 120.0
+    view_distance: Positive = 20.0
+    #: damage added per decision while attacking, capped at max_damage
+    damage: NonNegative = 5.0
+    max_damage: NonNegative = 20.0
+    max_resting_steps: Annotated[int, Field(ge=1)] = 50
+    max_searching_steps: Annotated[int, Field(ge=1)] = 150
+    #: a searching predator picks a new landmark every this many decisions
+    search_interval: Annotated[int, Field(ge=1)] = 60
+
+
+class Landmarks(_Spec):
+    """Patrol points: the floor split into a grid of cells; a cell holding n > 0 gets n x n points.
+    Rows run from the north (+y) edge southward.  The patrol area is the convex hull of the points."""
+
+    pattern: list[list[Annotated[int, Field(ge=0, le=10)]]]
+    radius: Positive = 1.5
+    padding: NonNegative = 2.0
+
+    @model_validator(mode="after")
+    def _rectangular(self) -> "Landmarks":
+        if not self.pattern or len({len(row) for row in self.pattern}) != 1 or not self.pattern[0]:
+            raise ValueError("pattern must be a non-empty rectangle of rows of equal length")
+        if sum(map(sum, self.pattern)) == 0:
+            raise ValueError("pattern places no landmark")
+        return self
+
+
+# --------------------------------------------------------------------------------------------------- day and night
+class DayNight(_Spec):
+    enabled: bool
+    #: draw the starting sun angle uniformly each episode (else start at start_angle; 90 is noon)
+    random_start: bool
+    start_angle: float
+    degrees_per_step: NonNegative
+    #: temperature offsets added to the whole field at noon and at 04:00; hours between are interpolated
+    day_temperature: float
+    night_temperature: float
+    night_fog_density: NonNegative
+    day_far: Positive
+    night_far: Positive
 
 
 # --------------------------------------------------------------------------------------------------- thermal field
@@ -225,25 +310,36 @@ class Level(_Spec):
     agent: Agent
     physiology: Physiology
     resources: dict[str, ResourceGroup]
+    obstacles: dict[str, ObstacleGroup]
+    predators: dict[str, PredatorGroup]
+    landmarks: Landmarks | None = None
+    daynight: DayNight
     thermal: Thermal
     sensors: Sensors
     episode: Episode
     reward: Reward
 
     @model_validator(mode="after")
-    def _resources_inside_arena(self) -> "Level":
+    def _inside_arena(self) -> "Level":
         hx, hy = self.arena.size[0] / 2, self.arena.size[1] / 2
-        for name, group in self.resources.items():
-            for axis, (lo, hi), half in (("x", group.x, hx), ("y", group.y, hy)):
-                if lo < -half or hi > half:
-                    raise ValueError(
-                        f"resources.{name}.{axis} = [{lo}, {hi}] leaves the floor [{-half}, {half}]"
-                    )
+        for section in ("resources", "obstacles", "predators"):
+            for name, group in getattr(self, section).items():
+                for axis, (lo, hi), half in (("x", group.x, hx), ("y", group.y, hy)):
+                    if lo < -half or hi > half:
+                        raise ValueError(
+                            f"{section}.{name}.{axis} = [{lo}, {hi}] leaves the floor [{-half}, {half}]"
+                        )
+        return self
+
+    @model_validator(mode="after")
+    def _predators_need_landmarks(self) -> "Level":
+        if any(g.count for g in self.predators.values()) and self.landmarks is None:
+            raise ValueError("predators patrol the convex hull of the landmarks: set landmarks.pattern")
         return self
 
 
 # --------------------------------------------------------------------------------------------------- loading
-LEVELS: tuple[str, ...] = ("1-1", "1-2")
+LEVELS: tuple[str, ...] = ("1-1", "1-2", "2-1", "2-2", "3-1", "3-2", "4-1", "4-2")
 TESTBEDS: tuple[str, ...] = ()
 
 

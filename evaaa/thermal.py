@@ -47,13 +47,23 @@ def hotspot_cells(level: Level, rng: np.random.Generator) -> np.ndarray:
     return np.stack([rng.integers(0, gx, n), rng.integers(0, gy, n)], axis=1)
 
 
-def build_field(level: Level, hotspots: np.ndarray) -> np.ndarray:
-    """The smoothed temperature field (grid x, grid y) for one episode."""
+def build_field(level: Level, hotspots: np.ndarray, heat: np.ndarray | None = None) -> np.ndarray:
+    """The smoothed temperature field (grid x, grid y) for one episode.
+
+    ``hotspots`` are the random warm patches' centre cells; ``heat`` rows (xmin, xmax, ymin, ymax, T) are hot
+    objects' footprints in metres: every cell they touch is set to T before smoothing.
+    """
     t = level.thermal
     field = np.full(t.grid, t.base_temperature, dtype=np.float64)
     half = t.hotspots.size // 2  # an even size grows to the next odd square, as in the original
     for ix, iy in hotspots:
         field[max(ix - half, 0): ix + half + 1, max(iy - half, 0): iy + half + 1] = t.hotspots.temperature
+    if heat is not None and len(heat):
+        sampler = FieldSampler(level)
+        lo_x, lo_y = sampler.cells(heat[:, [0, 2]])
+        hi_x, hi_y = sampler.cells(heat[:, [1, 3]])
+        for x0, x1, y0, y1, temperature in zip(lo_x, hi_x, lo_y, hi_y, heat[:, 4]):
+            field[x0: x1 + 1, y0: y1 + 1] = temperature
     return smooth(field, t.sigma)
 
 

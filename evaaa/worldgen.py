@@ -1,27 +1,26 @@
 """World generation: a level spec and a random generator in, a concrete layout out.
 
-Pure numpy; nothing here builds or touches MuJoCo.  The scene keeps one pooled body per resource slot, so a
-layout is just arrays: where every slot sits, whether it is present, where the agent starts.
+Pure numpy (and scipy for the patrol hull); nothing here builds or touches MuJoCo.  The scene keeps one pooled
+body per resource, obstacle and predator slot, so a layout is just arrays: where every slot sits and whether it
+is present, where the agent starts, where the landmarks are.
 """
 
 from __future__ import annotations
 
+import zlib
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import ConvexHull, QhullError
 
+from .entities import FEEDS, OBSTACLE_KINDS, RESOURCE_KINDS, centre_z, footprint_half
 from .spec import Level
 
 FOOD, WATER = 0, 1
-KINDS: tuple[str, ...] = ("food", "water")
-#: Odour of one item of each kind: five food channels then five water channels, scaled by 1/distance.
-ODOUR = {
-    "food": np.array([0.1] * 5 + [0.0] * 5),
-    "water": np.array([0.0] * 5 + [0.1] * 5),
-}
 #: Where hidden or unused pooled bodies wait: far below the floor, out of sight and out of reach of rays.
 PARKED_Z = -100.0
 AGENT_HALF = 0.5
+PLACEMENT_TRIES = 100
 
 
 @dataclass(frozen=True)
@@ -30,44 +29,55 @@ class ResourcePool:
 
     names: tuple[str, ...]  # group name per group
     group: np.ndarray  # (P,) group index of each slot
-    kind: np.ndarray  # (P,) FOOD or WATER
+    kind: np.ndarray  # (P,) name of each slot's kind
+    feeds: np.ndarray  # (P,) FOOD or WATER
     low: np.ndarray  # (P, 2) lower corner of the slot's placement box
     high: np.ndarray  # (P, 2)
-    size: np.ndarray  # (P,) cube edge
-    respawns: np.ndarray  # (P,) True: a consumed item reappears elsewhere; False: never depletes
+    extents: np.ndarray  # (P, 3)
+    heading: np.ndarray  # (P,) radians, compass
+    respawn: np.ndarray  # (P,) "random", "static" or "grouped"
+    solid: np.ndarray  # (P,) the body collides with it (ponds)
     odour: np.ndarray  # (P, 10)
 
     @property
     def size_total(self) -> int:
-        return len(self.kind)
+        return len(self.group)
+
+    @property
+    def size(self) -> np.ndarray:
+        """Largest extent of each slot (a cube's edge)."""
+        return self.extents.max(axis=1)
 
     @classmethod
     def from_level(cls, level: Level) -> "ResourcePool":
-        names, group, kind, low, high, size, respawns, odour = [], [], [], [], [], [], [], []
+        rows = []
         for g, (name, spec) in enumerate(level.resources.items()):
-            names.append(name)
-            for _ in range(spec.count):
-                group.append(g)
-                kind.append(KINDS.index(spec.kind))
-                low.append((spec.x[0], spec.y[0]))
-                high.append((spec.x[1], spec.y[1]))
-                size.append(spec.size)
-                respawns.append(spec.respawn == "random")
-                odour.append(ODOUR[spec.kind])
+            kind = RESOURCE_KINDS[spec.kind]
+            rows += [(g, spec.kind, FEEDS[spec.kind], (spec.x[0], spec.y[0]), (spec.x[1], spec.y[1]), spec.extents,
+                      np.radians(spec.heading), spec.respawn, kind.solid, kind.odour)] * spec.count
+        cols = list(zip(*rows)) if rows else [()] * 10
         return cls(
-            names=tuple(names),
-            group=np.array(group, dtype=np.int64),
-            kind=np.array(kind, dtype=np.int64),
-            low=np.array(low, dtype=np.float64).reshape(-1, 2),
-            high=np.array(high, dtype=np.float64).reshape(-1, 2),
-            size=np.array(size, dtype=np.float64),
-            respawns=np.array(respawns, dtype=bool),
-            odour=np.array(odour, dtype=np.float64).reshape(-1, 10),
+            names=tuple(level.resources),
+            group=np.array(cols[0], dtype=np.int64),
+            kind=np.array(cols[1], dtype=object),
+            feeds=np.array(cols[2], dtype=np.int64),
+            low=np.array(cols[3], dtype=np.float64).reshape(-1, 2),
+            high=np.array(cols[4], dtype=np.float64).reshape(-1, 2),
+            extents=np.array(cols[5], dtype=np.float64).reshape(-1, 3),
+            heading=np.array(cols[6], dtype=np.float64),
+            respawn=np.array(cols[7], dtype=object),
+            solid=np.array(cols[8], dtype=bool),
+            odour=np.array(cols[9], dtype=np.float64).reshape(-1, 10),
         )
 
     def centre_z(self) -> np.ndarray:
         """Height of each slot's centre when resting on the floor."""
-        return self.size / 2
+        return self.extents[:, 2] / 2
+
+    @property
+    def grouped_groups(self) -> np.ndarray:
+        """Indices of the groups that take turns holding items (respawn: grouped)."""
+        return np.unique(self.group[self.respawn == "grouped"])
 
 
 def place_resources(pool: ResourcePool, rng: np.random.Generator, slots: np.ndarray | None = None) -> np.ndarray:
@@ -76,18 +86,123 @@ def place_resources(pool: ResourcePool, rng: np.random.Generator, slots: np.ndar
     return rng.uniform(low, high)
 
 
+def draw_grouped(pool: ResourcePool, rng: np.random.Generator) -> int:
+    """The grouped group that holds items next (uniform over grouped groups; -1 if the level has none)."""
+    groups = pool.grouped_groups
+    return int(rng.choice(groups)) if len(groups) else -1
+
+
+def resources_present(pool: ResourcePool, active_group: int) -> np.ndarray:
+    """Which slots hold an item at the start of an episode (or after a grouped group is drawn)."""
+    return (pool.respawn != "grouped") | (pool.group == active_group)
+
+
+# ------------------------------------------------------------------------------------------------ obstacles
+@dataclass(frozen=True)
+class ObstaclePool:
+    """The fixed slots of a level's obstacles (O slots), static ones first."""
+
+    names: tuple[str, ...]
+    group: np.ndarray  # (O,)
+    kind: np.ndarray  # (O,) kind name
+    static: np.ndarray  # (O,) placed once at its fixed spot
+    low: np.ndarray  # (O, 2)
+    high: np.ndarray  # (O, 2)
+    extents: np.ndarray  # (O, 3) drawn once per level (one compiled model serves every world and episode)
+    heading: np.ndarray  # (O,) radians
+    padding: np.ndarray  # (O,)
+    temperature: np.ndarray  # (O,)
+    half: np.ndarray  # (O, 2) half-sides of the axis-aligned box around each footprint
+
+    @property
+    def size_total(self) -> int:
+        return len(self.group)
+
+    @classmethod
+    def from_level(cls, level: Level) -> "ObstaclePool":
+        # a generator of its own, so the sizes are a fixed property of the level
+        rng = np.random.default_rng(zlib.crc32(f"evaaa-obstacles-{level.name}".encode()))
+        rows = []
+        for g, (name, spec) in enumerate(level.obstacles.items()):
+            kind = OBSTACLE_KINDS[spec.kind]
+            for _ in range(spec.count):
+                scale = [rng.uniform(lo, hi) for lo, hi in spec.scale]
+                extents = np.array(kind.base) * scale
+                rows.append((g, spec.kind, spec.static, (spec.x[0], spec.y[0]), (spec.x[1], spec.y[1]), extents,
+                             np.radians(spec.heading), spec.padding, spec.temperature))
+        rows.sort(key=lambda r: not r[2])  # static obstacles first: random ones are placed around them
+        cols = list(zip(*rows)) if rows else [()] * 9
+        kinds = np.array(cols[1], dtype=object)
+        extents = np.array(cols[5], dtype=np.float64).reshape(-1, 3)
+        heading = np.array(cols[6], dtype=np.float64)
+        half = np.zeros((len(kinds), 2))
+        for k in set(kinds):
+            m = kinds == k
+            half[m] = footprint_half(OBSTACLE_KINDS[k], extents[m], heading[m])
+        return cls(
+            names=tuple(level.obstacles),
+            group=np.array(cols[0], dtype=np.int64),
+            kind=kinds,
+            static=np.array(cols[2], dtype=bool),
+            low=np.array(cols[3], dtype=np.float64).reshape(-1, 2),
+            high=np.array(cols[4], dtype=np.float64).reshape(-1, 2),
+            extents=extents,
+            heading=heading,
+            padding=np.array(cols[7], dtype=np.float64),
+            temperature=np.array(cols[8], dtype=np.float64),
+            half=half,
+        )
+
+    def centre_z(self) -> np.ndarray:
+        out = np.zeros(self.size_total)
+        for k in set(self.kind):
+            m = self.kind == k
+            out[m] = centre_z(OBSTACLE_KINDS[k], self.extents[m])
+        return out
+
+
+def _overlaps(candidates: np.ndarray, half: np.ndarray, placed_xy: np.ndarray, placed_half: np.ndarray) -> np.ndarray:
+    """Whether each candidate box (C, 2) with half-sides ``half`` (2,) overlaps any placed box."""
+    if not len(placed_xy):
+        return np.zeros(len(candidates), dtype=bool)
+    gap = np.abs(candidates[:, None, :] - placed_xy[None, :, :])  # (C, K, 2)
+    return np.any(np.all(gap < half + placed_half[None, :, :], axis=-1), axis=1)
+
+
+def place_obstacles(pool: ObstaclePool, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Positions (O, 2) and presence (O,) of the obstacles of an episode.
+
+    Static obstacles stand at their fixed spot.  Each other obstacle draws up to 100 candidates in its box and
+    takes the first whose footprint, grown by its padding, overlaps no obstacle placed before it; if none fits,
+    it sits this episode out.
+    """
+    xy = np.zeros((pool.size_total, 2))
+    present = np.zeros(pool.size_total, dtype=bool)
+    for o in range(pool.size_total):
+        if pool.static[o]:
+            xy[o], present[o] = pool.low[o], True
+            continue
+        candidates = rng.uniform(pool.low[o], pool.high[o], size=(PLACEMENT_TRIES, 2))
+        blocked = _overlaps(candidates, pool.half[o] + pool.padding[o], xy[present], pool.half[present])
+        free = np.flatnonzero(~blocked)
+        if len(free):
+            xy[o], present[o] = candidates[free[0]], True
+    return xy, present
+
+
+# ------------------------------------------------------------------------------------------------ agent
 def sample_agent_start(
     level: Level,
     rng: np.random.Generator,
     blocker_xy: np.ndarray,
     blocker_half: np.ndarray,
-    tries: int = 100,
+    tries: int = PLACEMENT_TRIES,
 ) -> tuple[np.ndarray, float]:
     """The agent's start position (2,) and compass heading (degrees).
 
     A random start is drawn uniformly in the spawn box (kept inside the floor) and rejected while a square of
-    half-side 0.5 + ``spawn_padding`` around it overlaps a blocker's square (``blocker_xy`` (B, 2) centres,
-    ``blocker_half`` (B,) half-sides); after ``tries`` rejections the fixed start is used.
+    half-side 0.5 + ``spawn_padding`` around it overlaps a blocker's box (``blocker_xy`` (B, 2) centres,
+    ``blocker_half`` (B, 2) or (B,) half-sides); after ``tries`` rejections the fixed start is used.
     """
     a = level.agent
     if a.start == "fixed":
@@ -97,12 +212,74 @@ def sample_agent_start(
     high = np.minimum([a.spawn_x[1], a.spawn_y[1]], half_floor)
     candidates = rng.uniform(low, high, size=(tries, 2))
     heading = float(rng.uniform(0.0, 360.0))
-    if len(blocker_xy):
-        reach = AGENT_HALF + a.spawn_padding + blocker_half  # (B,)
-        gap = np.abs(candidates[:, None, :] - blocker_xy[None, :, :])  # (tries, B, 2)
-        clear = ~np.any(np.all(gap < reach[None, :, None], axis=-1), axis=1)
-        free = np.flatnonzero(clear)
-        if len(free) == 0:
-            return np.array(a.start_position, dtype=np.float64), heading
-        return candidates[free[0]], heading
-    return candidates[0], heading
+    blocker_half = np.broadcast_to(np.asarray(blocker_half, dtype=np.float64).reshape(len(blocker_xy), -1),
+                                   (len(blocker_xy), 2))
+    blocked = _overlaps(candidates, np.full(2, AGENT_HALF + a.spawn_padding), blocker_xy, blocker_half)
+    free = np.flatnonzero(~blocked)
+    if len(free) == 0:
+        return np.array(a.start_position, dtype=np.float64), heading
+    return candidates[free[0]], heading
+
+
+# ------------------------------------------------------------------------------------------------ landmarks
+def landmark_candidates(level: Level) -> np.ndarray:
+    """Every landmark point the pattern asks for, (L, 2); the first pattern row is the north (+y) edge."""
+    spec = level.landmarks
+    if spec is None:
+        return np.zeros((0, 2))
+    rows, cols = len(spec.pattern), len(spec.pattern[0])
+    width, depth = level.arena.size
+    cell_w, cell_d = width / cols, depth / rows
+    points = []
+    for r, row in enumerate(spec.pattern):
+        for c, n in enumerate(row):
+            if n <= 0:
+                continue
+            x0, y1 = -width / 2 + c * cell_w, depth / 2 - r * cell_d
+            offsets = (np.arange(n) + 0.5) / n
+            for fx in offsets:
+                for fy in offsets:
+                    points.append((x0 + fx * cell_w, y1 - fy * cell_d))
+    return np.array(points, dtype=np.float64).reshape(-1, 2)
+
+
+def place_landmarks(level: Level, obstacle_xy: np.ndarray, obstacle_half: np.ndarray) -> np.ndarray:
+    """The landmark points of an episode: candidates whose square (side 2 radius, grown by the padding) is
+    clear of the episode's obstacles."""
+    spec = level.landmarks
+    candidates = landmark_candidates(level)
+    if spec is None or not len(candidates):
+        return candidates
+    half = np.full(2, spec.radius + spec.padding / 2)
+    keep = ~_overlaps(candidates, half, obstacle_xy, obstacle_half)
+    return candidates[keep] if keep.any() else candidates
+
+
+class PatrolArea:
+    """The convex hull of the landmarks: predators keep inside it."""
+
+    def __init__(self, points: np.ndarray):
+        self.points = points
+        try:
+            hull = ConvexHull(points)
+            self.equations = hull.equations  # (F, 3): inside where a.x + b.y + c <= 0
+            self.vertices = points[hull.vertices]
+        except (QhullError, ValueError):
+            # fewer than three points, or all on a line: fall back to their bounding box
+            lo, hi = points.min(axis=0) - 1.0, points.max(axis=0) + 1.0
+            self.equations = np.array([[-1, 0, lo[0]], [1, 0, -hi[0]], [0, -1, lo[1]], [0, 1, -hi[1]]], float)
+            self.vertices = np.array([lo, (hi[0], lo[1]), hi, (lo[0], hi[1])])
+
+    def contains(self, xy: np.ndarray, tolerance: float = 1e-6) -> np.ndarray:
+        xy = np.atleast_2d(xy)
+        return np.all(xy @ self.equations[:, :2].T + self.equations[:, 2] <= tolerance, axis=1)
+
+
+def sample_predator_starts(level: Level, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Start positions (K, 2) and compass headings (K,) radians of every predator slot."""
+    xy, heading = [], []
+    for spec in level.predators.values():
+        for _ in range(spec.count):
+            xy.append(rng.uniform((spec.x[0], spec.y[0]), (spec.x[1], spec.y[1])))
+            heading.append(np.radians(spec.heading))
+    return np.array(xy, dtype=np.float64).reshape(-1, 2), np.array(heading, dtype=np.float64)

@@ -1,0 +1,284 @@
+"""Predators: their state machine (Resting, Searching, Chasing, Attacking) and their navigation.
+
+Predators of every world are stepped together once per decision, after the agent moves.  Each patrols the
+convex hull of its world's landmarks: Searching picks a random landmark every ``search_interval`` decisions and
+rests after ``max_searching_steps``; Resting waits ``max_resting_steps``; seeing the agent (inside the view
+cone and distance, no occlusion test, as in the original) starts a chase; touching it starts an attack, which
+adds damage every decision.  At night every predator rests.
+
+Paths go around obstacles: each world gets an occupancy grid of 1 m cells (obstacle footprints grown by the
+predator's half-width) and a route is the shortest path on its 8-connected graph (scipy's Dijkstra), taken
+straight when the line to the goal is clear.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import dijkstra
+
+from .entities import PREDATOR
+from .spec import Level
+from .worldgen import AGENT_HALF, PatrolArea
+
+RESTING, SEARCHING, CHASING, ATTACKING = range(4)
+STATES: tuple[str, ...] = ("Resting", "Searching", "Chasing", "Attacking")
+DECISION_SECONDS = 0.1
+PREDATOR_HALF = PREDATOR.base[0] / 2
+#: centres closer than this touch (the bodies' half-widths and a hand's breadth)
+CONTACT_DISTANCE = PREDATOR_HALF + AGENT_HALF + 0.2
+#: a chase re-plans at most this often when the straight line to the agent is blocked
+REPLAN_EVERY = 5
+
+
+class NavGrid:
+    """Occupancy grid of one world's floor and shortest paths on it."""
+
+    def __init__(self, arena_size: tuple[float, float], blocked: np.ndarray):
+        self.size = np.asarray(arena_size, dtype=np.float64)
+        self.shape = blocked.shape
+        self.cell = self.size / np.array(self.shape)
+        self.origin = -self.size / 2
+        self.blocked = blocked
+        self.graph = self._graph(blocked)
+
+    @classmethod
+    def from_boxes(cls, arena_size, xy: np.ndarray, half: np.ndarray, inflate: float) -> "NavGrid":
+        """Grid of 1 m cells, blocked where a cell's centre lies inside a box (centre ``xy``, half-sides
+        ``half`` grown by ``inflate``)."""
+        size = np.asarray(arena_size, dtype=np.float64)
+        shape = tuple(int(math.ceil(s)) for s in size)
+        cell = size / np.array(shape)
+        blocked = np.zeros(shape, dtype=bool)
+        grown = np.asarray(half).reshape(-1, 2) + inflate
+        # index range of the cell centres inside each box, per axis
+        first = np.ceil((xy - grown + size / 2) / cell - 0.5).astype(int)
+        last = np.floor((xy + grown + size / 2) / cell - 0.5).astype(int)
+        first = np.clip(first, 0, np.array(shape))
+        last = np.clip(last, -1, np.array(shape) - 1)
+        for (x0, y0), (x1, y1) in zip(first, last):
+            blocked[x0: x1 + 1, y0: y1 + 1] = True
+        return cls(arena_size, blocked)
+
+    @staticmethod
+    def _graph(blocked: np.ndarray) -> sp.csr_matrix:
+        """8-connected graph of the free cells; diagonal moves may not cut the corner of a blocked cell."""
+        gx, gy = blocked.shape
+        free = ~blocked
+        x, y = np.meshgrid(np.arange(gx), np.arange(gy), indexing="ij")
+        rows, cols, weights = [], [], []
+        for dx, dy in ((1, 0), (0, 1), (1, 1), (1, -1)):
+            x2, y2 = x + dx, y + dy
+            inside = (x2 < gx) & (y2 >= 0) & (y2 < gy)
+            xa, ya, xb, yb = x[inside], y[inside], x2[inside], y2[inside]
+            ok = free[xa, ya] & free[xb, yb]
+            if dx and dy:
+                ok &= free[xb, ya] & free[xa, yb]
+            rows.append(xa[ok] * gy + ya[ok])
+            cols.append(xb[ok] * gy + yb[ok])
+            weights.append(np.full(int(ok.sum()), math.hypot(dx, dy)))
+        n = gx * gy
+        return sp.coo_matrix((np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))),
+                             shape=(n, n)).tocsr()
+
+    def cell_of(self, xy: np.ndarray) -> tuple[int, int]:
+        i = np.clip(np.floor((np.asarray(xy) - self.origin) / self.cell).astype(int), 0, np.array(self.shape) - 1)
+        return int(i[0]), int(i[1])
+
+    def centre(self, cells: np.ndarray) -> np.ndarray:
+        return self.origin + (np.asarray(cells) + 0.5) * self.cell
+
+    def clear_line(self, a: np.ndarray, b: np.ndarray) -> bool:
+        length = float(np.linalg.norm(b - a))
+        t = np.linspace(0.0, 1.0, max(2, int(length / (0.5 * self.cell.min())) + 2))
+        points = a + (b - a) * t[:, None]
+        i = np.clip(np.floor((points - self.origin) / self.cell).astype(int), 0, np.array(self.shape) - 1)
+        return not self.blocked[i[:, 0], i[:, 1]].any()
+
+    def _nearest_free(self, cell: tuple[int, int]) -> tuple[int, int]:
+        if not self.blocked[cell]:
+            return cell
+        free = np.argwhere(~self.blocked)
+        if not len(free):
+            return cell
+        return tuple(free[np.argmin(((free - np.array(cell)) ** 2).sum(1))])
+
+    def route(self, start: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        """Waypoints (M, 2) from ``start`` to ``goal``: the goal itself when the line is clear."""
+        if self.clear_line(start, goal):
+            return goal[None, :].copy()
+        gx, gy = self.shape
+        s = self._nearest_free(self.cell_of(start))
+        g = self._nearest_free(self.cell_of(goal))
+        _, pred = dijkstra(self.graph, directed=False, indices=s[0] * gy + s[1], return_predecessors=True)
+        node, cells = g[0] * gy + g[1], []
+        while node >= 0 and len(cells) <= gx * gy:
+            cells.append(divmod(node, gy))
+            node = pred[node]
+        if len(cells) <= 1 and s != g:  # unreachable: walk straight at it
+            return goal[None, :].copy()
+        path = self.centre(np.array(cells[::-1][1:], dtype=np.float64).reshape(-1, 2))
+        return np.concatenate([path, goal[None, :]]) if self.clear_line(path[-1], goal) or not len(path) else path
+
+
+class Predators:
+    """The predators of N worlds (K slots each): state, counters, pose and routes."""
+
+    def __init__(self, level: Level, n_worlds: int):
+        params = [g for g in level.predators.values() for _ in range(g.count)]
+        self.k = len(params)
+        self.n = n_worlds
+
+        def col(name):
+            return np.array([getattr(g, name) for g in params], dtype=np.float64)
+
+        self.step_length = col("walk_speed") * DECISION_SECONDS
+        self.turn_step = np.radians(col("turn_speed") * DECISION_SECONDS)
+        self.half_view = np.radians(col("view_angle") / 2)
+        self.view2 = col("view_distance") ** 2
+        self.damage = np.minimum(col("damage"), col("max_damage"))
+        self.max_rest = col("max_resting_steps").astype(np.int64)
+        self.max_search = col("max_searching_steps").astype(np.int64)
+        self.interval = col("search_interval").astype(np.int64)
+        shape = (n_worlds, self.k)
+        self.xy = np.zeros((*shape, 2))
+        self.heading = np.zeros(shape)
+        self.state = np.full(shape, SEARCHING, dtype=np.int64)
+        self.rest_count = np.zeros(shape, dtype=np.int64)
+        self.search_count = np.zeros(shape, dtype=np.int64)
+        self.routes: list[list[np.ndarray | None]] = [[None] * self.k for _ in range(n_worlds)]
+        self.route_age = np.zeros(shape, dtype=np.int64)
+        self.grids: list[NavGrid | None] = [None] * n_worlds
+        self.areas: list[PatrolArea | None] = [None] * n_worlds
+        self.landmarks: list[np.ndarray] = [np.zeros((0, 2))] * n_worlds
+
+    # ------------------------------------------------------------------------------------------ episodes
+    def reset_world(self, w: int, rng: np.random.Generator, xy: np.ndarray, heading: np.ndarray,
+                    landmarks: np.ndarray, grid: NavGrid) -> None:
+        self.xy[w], self.heading[w] = xy, heading
+        self.state[w] = SEARCHING
+        self.search_count[w] = rng.integers(0, self.interval)
+        self.rest_count[w] = rng.integers(0, np.maximum(self.max_rest // 2, 1))
+        self.routes[w] = [None] * self.k
+        self.route_age[w] = 0
+        self.landmarks[w] = landmarks
+        self.areas[w] = PatrolArea(landmarks)
+        self.grids[w] = grid
+
+    # ------------------------------------------------------------------------------------------ decisions
+    def sees(self, agent_xy: np.ndarray) -> np.ndarray:
+        """(N, K): the agent is within each predator's view distance and cone."""
+        delta = agent_xy[:, None, :] - self.xy
+        dist2 = (delta**2).sum(-1)
+        bearing = np.arctan2(delta[..., 0], delta[..., 1])  # compass angle to the agent
+        off = np.abs((bearing - self.heading + np.pi) % (2 * np.pi) - np.pi)
+        return (dist2 <= self.view2) & (off < self.half_view)
+
+    def touching(self, agent_xy: np.ndarray) -> np.ndarray:
+        return ((agent_xy[:, None, :] - self.xy) ** 2).sum(-1) <= CONTACT_DISTANCE**2
+
+    def step(self, agent_xy: np.ndarray, night: np.ndarray, rngs: list[np.random.Generator]) -> np.ndarray:
+        """Advance every predator one decision; return the damage (N,) their attacks deal to the agents."""
+        damage = np.zeros(self.n)
+        if self.k == 0:
+            return damage
+        sees = self.sees(agent_xy)
+        for w in range(self.n):
+            if night[w]:
+                self.state[w] = RESTING
+                self.rest_count[w] = 0
+                self.routes[w] = [None] * self.k
+                continue
+            area = self.areas[w]
+            outside = ~area.contains(self.xy[w])
+            for k in range(self.k):
+                self._decide(w, k, bool(sees[w, k]), bool(outside[k]), agent_xy[w], rngs[w])
+            self._move(w, agent_xy[w])
+        touching = self.touching(agent_xy) & ~night[:, None]
+        self.state[touching] = ATTACKING
+        attacking = self.state == ATTACKING
+        damage += (attacking * self.damage).sum(axis=1)
+        # an attack ends when the agent slips out of reach
+        self.state[attacking & ~touching] = SEARCHING
+        return damage
+
+    def _new_landmark(self, w: int, k: int, rng: np.random.Generator) -> None:
+        points = self.landmarks[w]
+        goal = points[rng.integers(len(points))]
+        self.routes[w][k] = self.grids[w].route(self.xy[w, k], goal)
+        self.route_age[w, k] = 0
+
+    def _decide(self, w: int, k: int, sees: bool, outside: bool, agent: np.ndarray, rng) -> None:
+        state = self.state[w, k]
+        if outside and state != CHASING:
+            self._new_landmark(w, k, rng)
+        if state == RESTING:
+            self.rest_count[w, k] += 1
+            if sees:
+                self.state[w, k] = CHASING
+            elif self.rest_count[w, k] >= self.max_rest[k]:
+                self.state[w, k], self.search_count[w, k] = SEARCHING, 0
+        elif state == SEARCHING:
+            self.search_count[w, k] += 1
+            if self.search_count[w, k] % self.interval[k] == 0:
+                self._new_landmark(w, k, rng)
+            if sees:
+                self.state[w, k] = CHASING
+            elif self.search_count[w, k] >= self.max_search[k]:
+                self.state[w, k], self.rest_count[w, k] = RESTING, 0
+                self.routes[w][k] = None
+        elif state == CHASING:
+            if outside or not sees:
+                self.state[w, k], self.search_count[w, k] = SEARCHING, 0
+                self.routes[w][k] = None
+                if outside:
+                    self._new_landmark(w, k, rng)
+            else:
+                self.route_age[w, k] += 1
+                route = self.routes[w][k]
+                stale = route is None or self.route_age[w, k] >= REPLAN_EVERY
+                if stale or self.grids[w].clear_line(self.xy[w, k], agent):
+                    self.routes[w][k] = self.grids[w].route(self.xy[w, k], agent.copy())
+                    self.route_age[w, k] = 0
+                else:
+                    route[-1] = agent  # keep heading for the agent along the planned corridor
+        elif state == ATTACKING:
+            if not sees:
+                self.state[w, k], self.search_count[w, k] = SEARCHING, 0
+                self.routes[w][k] = None
+
+    def _move(self, w: int, agent: np.ndarray) -> None:
+        for k in range(self.k):
+            route = self.routes[w][k]
+            if route is None or self.state[w, k] in (RESTING, ATTACKING):
+                continue
+            budget = self.step_length[k]
+            pos = self.xy[w, k]
+            chasing = self.state[w, k] == CHASING
+            while budget > 1e-9 and len(route):
+                target = route[0]
+                delta = target - pos
+                dist = float(np.hypot(*delta))
+                if chasing and len(route) == 1:  # stop when touching, do not walk into the agent
+                    dist = max(dist - (CONTACT_DISTANCE - 0.1), 0.0)
+                if dist <= budget:
+                    pos = pos + (delta / max(np.hypot(*delta), 1e-9)) * dist
+                    budget -= dist
+                    if len(route) > 1 or not chasing:
+                        route = route[1:]
+                    else:
+                        break
+                else:
+                    pos = pos + delta / max(np.hypot(*delta), 1e-9) * budget
+                    budget = 0.0
+            moved = pos - self.xy[w, k]
+            if moved @ moved > 1e-12:
+                self._turn(w, k, math.atan2(moved[0], moved[1]))
+            self.xy[w, k] = pos
+            self.routes[w][k] = route if len(route) else None
+
+    def _turn(self, w: int, k: int, towards: float) -> None:
+        off = (towards - self.heading[w, k] + math.pi) % (2 * math.pi) - math.pi
+        self.heading[w, k] = (self.heading[w, k] + np.clip(off, -self.turn_step[k], self.turn_step[k])) % (2 * math.pi)
