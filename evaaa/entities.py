@@ -69,3 +69,22 @@ def footprint_half(kind: Kind, extents: np.ndarray, heading_rad: np.ndarray) -> 
     hd = extents[..., 1] * kind.footprint[1] / 2
     c, s = np.abs(np.cos(heading_rad)), np.abs(np.sin(heading_rad))
     return np.stack([hw * c + hd * s, hw * s + hd * c], axis=-1)
+
+
+RECT, ELLIPSE = 0, 1
+
+
+def cross_section(kind: Kind, extents: np.ndarray, height: float) -> tuple[int, np.ndarray]:
+    """The horizontal slice of things of ``kind`` (resting on the floor) at ``height``: a shape (RECT or
+    ELLIPSE, in the thing's own frame) and its half-axes (..., 2), zero where the slice misses the thing."""
+    extents = np.asarray(extents, dtype=np.float64)
+    half = extents[..., :2] / 2
+    z = centre_z(kind, extents)
+    if kind.shape in ("box", "cylinder"):
+        inside = np.abs(height - z) <= extents[..., 2] / 2
+        if kind.shape == "cylinder":
+            half = np.repeat(half.max(axis=-1, keepdims=True), 2, axis=-1)
+        return (RECT if kind.shape == "box" else ELLIPSE), half * inside[..., None]
+    rz = extents[..., 2] if kind.shape == "dome" else extents[..., 2] / 2
+    scale = np.sqrt(np.clip(1.0 - ((height - z) / rz) ** 2, 0.0, None))
+    return ELLIPSE, half * scale[..., None]

@@ -43,6 +43,7 @@ class NavGrid:
         self.origin = -self.size / 2
         self.blocked = blocked
         self.graph = self._graph(blocked)
+        self._trees: dict[int, np.ndarray] = {}
 
     @classmethod
     def from_boxes(cls, arena_size, xy: np.ndarray, half: np.ndarray, inflate: float) -> "NavGrid":
@@ -109,18 +110,29 @@ class NavGrid:
         """Waypoints (M, 2) from ``start`` to ``goal``: the goal itself when the line is clear."""
         if self.clear_line(start, goal):
             return goal[None, :].copy()
-        gx, gy = self.shape
+        gy = self.shape[1]
         s = self._nearest_free(self.cell_of(start))
         g = self._nearest_free(self.cell_of(goal))
-        _, pred = dijkstra(self.graph, directed=False, indices=s[0] * gy + s[1], return_predecessors=True)
-        node, cells = g[0] * gy + g[1], []
-        while node >= 0 and len(cells) <= gx * gy:
+        toward = self._tree(g[0] * gy + g[1])
+        node, target, cells = s[0] * gy + s[1], g[0] * gy + g[1], []
+        while node != target and node >= 0 and len(cells) <= toward.size:
+            node = toward[node]
             cells.append(divmod(node, gy))
-            node = pred[node]
-        if len(cells) <= 1 and s != g:  # unreachable: walk straight at it
+        if not cells or cells[-1] != g:  # unreachable: walk straight at it
             return goal[None, :].copy()
-        path = self.centre(np.array(cells[::-1][1:], dtype=np.float64).reshape(-1, 2))
-        return np.concatenate([path, goal[None, :]]) if self.clear_line(path[-1], goal) or not len(path) else path
+        path = self.centre(np.array(cells[:-1], dtype=np.float64).reshape(-1, 2))
+        return np.concatenate([path, goal[None, :]])
+
+    def _tree(self, goal: int) -> np.ndarray:
+        """For every cell, the next cell on a shortest path to ``goal`` (-9999 where none); cached, since
+        predators keep returning to the same landmarks."""
+        tree = self._trees.get(goal)
+        if tree is None:
+            _, tree = dijkstra(self.graph, directed=False, indices=goal, return_predecessors=True)
+            if len(self._trees) >= 64:
+                self._trees.pop(next(iter(self._trees)))
+            self._trees[goal] = tree
+        return tree
 
 
 class Predators:

@@ -54,6 +54,7 @@ NONE, FORWARD, LEFT, RIGHT, EAT = range(NUM_ACTIONS)
 SUBSTEPS = 5
 #: the eating sphere's centre sits this far below the body centre
 EAT_DROP = 0.065
+_NIGHT_FOG = (0.02, 0.02, 0.05, 1.0)
 
 
 class Simulator:
@@ -221,7 +222,7 @@ class Simulator:
         return daynight.temperature_offset(daynight.hour(angle), dn.day_temperature, dn.night_temperature)
 
     def _sample_thermal(self, worlds: np.ndarray) -> np.ndarray:
-        readings = self.sampler.sample(self.fields[worlds], self.pos[worlds], self.heading_rad[worlds])
+        readings = self.sampler.sample(self.fields, self.pos[worlds], self.heading_rad[worlds], worlds)
         return readings + self.field_offset[worlds, None]
 
     def _write_obstacles(self, w: int) -> None:
@@ -502,30 +503,37 @@ class Simulator:
         self._res_d2 = None
         return consumed
 
+    def _plan_light(self, worlds: np.ndarray) -> None:
+        """Per world about to be rendered: sun direction and strength, darkness, fog and far plane."""
+        dn = self.level.daynight
+        angle = self.sun_angle[worlds]
+        dark = daynight.darkness(daynight.hour(angle))
+        direction, strength = daynight.sun(angle)
+        density = dn.night_fog_density * dark
+        # exponential-squared fog of this density hides ~95% at sqrt(3)/density; MuJoCo's fog is linear
+        fog_end = np.where(density > 0, np.sqrt(3.0) / np.maximum(density, 1e-9), 0.0)
+        far = dn.day_far + (dn.night_far - dn.day_far) * dark
+        self._light_plan = list(zip(dark.tolist(), direction.tolist(), (0.6 * strength).tolist(),
+                                    fog_end.tolist(), far.tolist()))
+
     def _light_world(self, row: int, scene: mujoco.MjvScene, context: mujoco.MjrContext) -> None:
         """Set the sun, the sky and the fog of the world being rendered (worlds share one model)."""
-        w = self._render_worlds[row]
-        h = daynight.hour(self.sun_angle[w])
-        dark = float(daynight.darkness(h))
-        direction, strength = daynight.sun(self.sun_angle[w: w + 1])
+        dark, direction, diffuse, fog_end, far = self._light_plan[row]
+        head = 1.0 - 0.8 * dark
         for i in range(scene.nlight):
             light = scene.lights[i]
             if light.headlight:
-                light.ambient[:] = 0.35 * (1.0 - 0.8 * dark)
-                light.diffuse[:] = 0.3 * (1.0 - 0.8 * dark)
+                light.ambient[:] = 0.35 * head
+                light.diffuse[:] = 0.3 * head
             else:
-                light.dir[:] = direction[0]
-                light.diffuse[:] = 0.6 * float(strength[0])
+                light.dir[:] = direction
+                light.diffuse[:] = diffuse
         scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = dark < 0.5
-        scene.flags[mujoco.mjtRndFlag.mjRND_FOG] = dark > 0.0
-        dn = self.level.daynight
-        density = dn.night_fog_density * dark
-        if density > 0:
-            # exponential-squared fog of this density hides ~95% at sqrt(3)/density; MuJoCo's fog is linear
+        scene.flags[mujoco.mjtRndFlag.mjRND_FOG] = fog_end > 0
+        if fog_end > 0:
             context.fogStart = 0.0
-            context.fogEnd = math.sqrt(3.0) / density
-            context.fogRGBA[:] = (0.02, 0.02, 0.05, 1.0)
-        far = dn.day_far + (dn.night_far - dn.day_far) * dark
+            context.fogEnd = fog_end
+            context.fogRGBA[:] = _NIGHT_FOG
         scene.camera[0].frustum_far = far
         scene.camera[1].frustum_far = far
 
@@ -550,7 +558,8 @@ class Simulator:
         if self._renderer is None:
             self._make_renderer()
         datas = self.datas if len(worlds) == self.n else [self.datas[w] for w in worlds]
-        self._render_worlds = worlds
+        if self.level.daynight.enabled:
+            self._plan_light(worlds)
         return self._renderer.render(datas, self.index.eye_camera)
 
     def render_top(self, world: int = 0, size: int = 512) -> np.ndarray:

@@ -93,7 +93,10 @@ class FieldSampler:
         y = pos[:, 1:2] - right * s + fwd * c
         return np.stack([x, y], axis=-1)
 
-    def sample(self, fields: np.ndarray, pos: np.ndarray, heading_rad: np.ndarray) -> np.ndarray:
-        """Temperatures (N, 8) under the thermal sensors, from per-world ``fields`` (N, gx, gy)."""
+    def sample(self, fields: np.ndarray, pos: np.ndarray, heading_rad: np.ndarray,
+               worlds: np.ndarray | None = None) -> np.ndarray:
+        """Temperatures (W, 8) under the thermal sensors of agents at ``pos`` (W, 2), read from ``fields``
+        (N, gx, gy) at rows ``worlds`` (default: row i for agent i)."""
         ix, iy = self.cells(self.sensor_points(pos, heading_rad))
-        return fields[np.arange(len(fields))[:, None], ix, iy]
+        rows = np.arange(len(pos)) if worlds is None else np.asarray(worlds)
+        return fields[rows[:, None], ix, iy]

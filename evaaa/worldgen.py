@@ -178,15 +178,26 @@ def place_obstacles(pool: ObstaclePool, rng: np.random.Generator) -> tuple[np.nd
     """
     xy = np.zeros((pool.size_total, 2))
     present = np.zeros(pool.size_total, dtype=bool)
+    placed_xy, placed_half, m = np.zeros((pool.size_total, 2)), np.zeros((pool.size_total, 2)), 0
     for o in range(pool.size_total):
         if pool.static[o]:
-            xy[o], present[o] = pool.low[o], True
-            continue
-        candidates = rng.uniform(pool.low[o], pool.high[o], size=(PLACEMENT_TRIES, 2))
-        blocked = _overlaps(candidates, pool.half[o] + pool.padding[o], xy[present], pool.half[present])
-        free = np.flatnonzero(~blocked)
-        if len(free):
-            xy[o], present[o] = candidates[free[0]], True
+            spot = pool.low[o]
+        else:
+            # all 100 tries are drawn up front (the generator's stream does not depend on how many are needed),
+            # and tested a few at a time: most obstacles fit at the first or second try
+            candidates = rng.uniform(pool.low[o], pool.high[o], size=(PLACEMENT_TRIES, 2))
+            grown = pool.half[o] + pool.padding[o]
+            spot = None
+            for chunk in (candidates[:8], candidates[8:]):
+                free = np.flatnonzero(~_overlaps(chunk, grown, placed_xy[:m], placed_half[:m]))
+                if len(free):
+                    spot = chunk[free[0]]
+                    break
+            if spot is None:
+                continue
+        xy[o], present[o] = spot, True
+        placed_xy[m], placed_half[m] = spot, pool.half[o]
+        m += 1
     return xy, present
 
 
