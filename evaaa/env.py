@@ -36,6 +36,9 @@ INFO_FIELDS: dict[str, tuple[tuple[int, ...], torch.dtype]] = {
     "attacked": ((1,), torch.bool),
     "step_count": ((1,), torch.int64),
     "end_type": ((1,), torch.int64),
+    "success": ((1,), torch.bool),
+    "trigger_crossed": ((1,), torch.bool),
+    "near_heat": ((1,), torch.bool),
 }
 
 

@@ -36,35 +36,49 @@ REPLAN_EVERY = 5
 class NavGrid:
     """Occupancy grid of one world's floor and shortest paths on it."""
 
-    def __init__(self, arena_size: tuple[float, float], blocked: np.ndarray):
+    def __init__(self, arena_size: tuple[float, float], blocked: np.ndarray, cost: np.ndarray | None = None):
+        """``cost`` (same shape, >= 0) makes a cell's edges ``1 + cost`` times longer (e.g. hot ground)."""
         self.size = np.asarray(arena_size, dtype=np.float64)
         self.shape = blocked.shape
         self.cell = self.size / np.array(self.shape)
         self.origin = -self.size / 2
         self.blocked = blocked
-        self.graph = self._graph(blocked)
+        self.cost = np.zeros(self.shape) if cost is None else np.asarray(cost, dtype=np.float64)
+        self.graph = self._graph(blocked, self.cost)
         self._trees: dict[int, np.ndarray] = {}
 
     @classmethod
-    def from_boxes(cls, arena_size, xy: np.ndarray, half: np.ndarray, inflate: float) -> "NavGrid":
-        """Grid of 1 m cells, blocked where a cell's centre lies inside a box (centre ``xy``, half-sides
-        ``half`` grown by ``inflate``)."""
+    def from_boxes(cls, arena_size, xy: np.ndarray, half: np.ndarray, heading: np.ndarray | None = None,
+                   inflate: float = 0.0, cell: float = 1.0) -> "NavGrid":
+        """Grid of ``cell``-metre cells, blocked where a cell's centre lies inside a box: centre ``xy`` (K, 2),
+        half-sides ``half`` (K, 2) in the box's own frame grown by ``inflate``, turned to compass ``heading``."""
         size = np.asarray(arena_size, dtype=np.float64)
-        shape = tuple(int(math.ceil(s)) for s in size)
-        cell = size / np.array(shape)
+        shape = tuple(int(math.ceil(s / cell)) for s in size)
+        step = size / np.array(shape)
         blocked = np.zeros(shape, dtype=bool)
-        grown = np.asarray(half).reshape(-1, 2) + inflate
-        # index range of the cell centres inside each box, per axis
-        first = np.ceil((xy - grown + size / 2) / cell - 0.5).astype(int)
-        last = np.floor((xy + grown + size / 2) / cell - 0.5).astype(int)
-        first = np.clip(first, 0, np.array(shape))
-        last = np.clip(last, -1, np.array(shape) - 1)
-        for (x0, y0), (x1, y1) in zip(first, last):
-            blocked[x0: x1 + 1, y0: y1 + 1] = True
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        grown = np.asarray(half, dtype=np.float64).reshape(-1, 2) + inflate
+        heading = np.zeros(len(xy)) if heading is None else np.asarray(heading, dtype=np.float64)
+        c, s_ = np.cos(heading), np.sin(heading)
+        reach = np.stack([grown[:, 0] * np.abs(c) + grown[:, 1] * np.abs(s_),
+                          grown[:, 0] * np.abs(s_) + grown[:, 1] * np.abs(c)], axis=1)
+        first = np.clip(np.ceil((xy - reach + size / 2) / step - 0.5).astype(int), 0, np.array(shape))
+        last = np.clip(np.floor((xy + reach + size / 2) / step - 0.5).astype(int), -1, np.array(shape) - 1)
+        for k in range(len(xy)):
+            (x0, y0), (x1, y1) = first[k], last[k]
+            if x1 < x0 or y1 < y0:
+                continue
+            ix, iy = np.meshgrid(np.arange(x0, x1 + 1), np.arange(y0, y1 + 1), indexing="ij")
+            rx = -size[0] / 2 + (ix + 0.5) * step[0] - xy[k, 0]
+            ry = -size[1] / 2 + (iy + 0.5) * step[1] - xy[k, 1]
+            # into the box's frame (a box at compass heading h is turned by -h)
+            lx, ly = rx * c[k] - ry * s_[k], rx * s_[k] + ry * c[k]
+            inside = (np.abs(lx) <= grown[k, 0]) & (np.abs(ly) <= grown[k, 1])
+            blocked[ix[inside], iy[inside]] = True
         return cls(arena_size, blocked)
 
     @staticmethod
-    def _graph(blocked: np.ndarray) -> sp.csr_matrix:
+    def _graph(blocked: np.ndarray, cost: np.ndarray) -> sp.csr_matrix:
         """8-connected graph of the free cells; diagonal moves may not cut the corner of a blocked cell."""
         gx, gy = blocked.shape
         free = ~blocked
@@ -79,7 +93,8 @@ class NavGrid:
                 ok &= free[xb, ya] & free[xa, yb]
             rows.append(xa[ok] * gy + ya[ok])
             cols.append(xb[ok] * gy + yb[ok])
-            weights.append(np.full(int(ok.sum()), math.hypot(dx, dy)))
+            extra = (cost[xa[ok], ya[ok]] + cost[xb[ok], yb[ok]]) / 2
+            weights.append(math.hypot(dx, dy) * (1.0 + extra))
         n = gx * gy
         return sp.coo_matrix((np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))),
                              shape=(n, n)).tocsr()
@@ -96,7 +111,7 @@ class NavGrid:
         t = np.linspace(0.0, 1.0, max(2, int(length / (0.5 * self.cell.min())) + 2))
         points = a + (b - a) * t[:, None]
         i = np.clip(np.floor((points - self.origin) / self.cell).astype(int), 0, np.array(self.shape) - 1)
-        return not self.blocked[i[:, 0], i[:, 1]].any()
+        return not (self.blocked[i[:, 0], i[:, 1]].any() or self.cost[i[:, 0], i[:, 1]].any())
 
     def _nearest_free(self, cell: tuple[int, int]) -> tuple[int, int]:
         if not self.blocked[cell]:

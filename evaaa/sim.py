@@ -55,6 +55,8 @@ SUBSTEPS = 5
 #: the eating sphere's centre sits this far below the body centre
 EAT_DROP = 0.065
 _NIGHT_FOG = (0.02, 0.02, 0.05, 1.0)
+#: "near heat" in the episode records: within this many metres of a hot obstacle's footprint
+NEAR_HEAT = 3.0
 
 
 class Simulator:
@@ -120,6 +122,18 @@ class Simulator:
         self.obs_present = np.zeros((n, self.obstacles.size_total), dtype=bool)
         self.sun_angle = np.full(n, level.daynight.start_angle % 360.0)
         self.attacked = np.zeros(n, dtype=bool)
+        events = list(level.events.values())
+        self._trigger_xy = np.array([(e.x, e.y) for e in events], dtype=np.float64).reshape(-1, 2)
+        self._trigger_cos = np.cos(np.radians([e.heading for e in events]))
+        self._trigger_sin = np.sin(np.radians([e.heading for e in events]))
+        # the body enters a trigger when any part of it does: grow the box by the body's half-width
+        self._trigger_half = np.array([e.size for e in events], dtype=np.float64).reshape(-1, 2) / 2 + AGENT_HALF
+        self._trigger_max = np.array([e.max_count for e in events], dtype=np.int64)
+        self._trigger_set = np.array([[np.nan if getattr(e.set, ev) is None else getattr(e.set, ev)
+                                       for ev in phys.EV_NAMES] for e in events], dtype=np.float64).reshape(-1, 4)
+        self.trigger_count = np.zeros((n, len(events)), dtype=np.int64)
+        self.trigger_inside = np.zeros((n, len(events)), dtype=bool)
+        self.triggered = np.zeros(n, dtype=bool)  # an event fired this episode
         self.last_obs: dict[str, np.ndarray] = {}
         self._res_d2: np.ndarray | None = None
         self._all = np.arange(n)
@@ -199,13 +213,19 @@ class Simulator:
         if self.predators.k:
             landmarks = place_landmarks(level, self.obs_xy[w, placed], obstacles.half[placed])
             solid_items = self.res_present[w] & self.res_solid
-            grid = NavGrid.from_boxes(level.arena.size,
-                                      np.concatenate([self.obs_xy[w, placed], self.res_xy[w, solid_items]]),
-                                      np.concatenate([obstacles.half[placed], self.res_half[solid_items]]),
-                                      inflate=PREDATOR_HALF)
+            grid = NavGrid.from_boxes(
+                level.arena.size,
+                np.concatenate([self.obs_xy[w, placed], self.res_xy[w, solid_items]]),
+                np.concatenate([obstacles.extents[placed, :2], pool.extents[solid_items, :2]]) / 2,
+                np.concatenate([obstacles.heading[placed], pool.heading[solid_items]]),
+                inflate=PREDATOR_HALF,
+            )
             start_xy, start_heading = sample_predator_starts(level, rng)
             self.predators.reset_world(w, rng, start_xy, start_heading, landmarks, grid)
         self.attacked[w] = False
+        self.trigger_count[w] = 0
+        self.triggered[w] = False
+        self.trigger_inside[w] = self._inside_triggers(self.pos[w: w + 1])[0]
         data = self.datas[w]
         mujoco.mj_resetData(self.model, data)
         data.qpos[:3] = (xy[0], xy[1], math.pi / 2 - self.heading_rad[w])
@@ -256,7 +276,8 @@ class Simulator:
     # ------------------------------------------------------------------------------------------------ snapshots
     #: per-world state arrays that, with the MuJoCo states and the generators, make up a simulator's state
     _STATE_ARRAYS = ("pos", "heading_rad", "ev", "steps", "res_xy", "res_present", "fields", "field_offset",
-                     "thermal_readings", "active_group", "obs_xy", "obs_present", "sun_angle", "attacked")
+                     "thermal_readings", "active_group", "obs_xy", "obs_present", "sun_angle", "attacked",
+                     "trigger_count", "trigger_inside", "triggered")
     _PREDATOR_ARRAYS = ("xy", "heading", "state", "rest_count", "search_count", "route_age")
 
     def snapshot(self) -> dict:
@@ -356,6 +377,7 @@ class Simulator:
             qvel[2] = 0.0
 
     def _advance(self, actions: np.ndarray):
+        previous = self.pos.copy()
         # 2. physics
         damage = np.zeros(self.n)
         collided = np.zeros(self.n, dtype=bool)
@@ -384,6 +406,8 @@ class Simulator:
             water_count = (consumed & self.res_is_water).sum(1)
             food_eaten, water_eaten = food_count > 0, water_count > 0
 
+        crossed = self._cross_triggers(previous) if len(self._trigger_max) else self._zeros_bool
+
         # 4. predators and the sun
         if self.predators.k:
             night = daynight.is_night(self.sun_angle) if self.level.daynight.enabled else self._zeros_bool
@@ -410,11 +434,60 @@ class Simulator:
         reward = phys.reward(ev_before, self.ev, end, self.params)
         truncated = end == phys.END_MAX_STEPS
         terminated = (end != phys.END_NONE) & ~truncated
+        success = self._success(end, food_eaten, water_eaten)
 
         # 6. senses
         obs = self._observe(self._all)
-        info = self._info(food=food_count, water=water_count, collided=collided, damage=damage, end=end)
+        info = self._info(food=food_count, water=water_count, collided=collided, damage=damage, end=end,
+                          success=success, crossed=crossed)
         return obs, reward, terminated, truncated, info
+
+    # ------------------------------------------------------------------------------------------------ events
+    def _inside_triggers(self, xy: np.ndarray) -> np.ndarray:
+        """(M, E) whether points ``xy`` (M, 2) lie in each trigger box (grown by the body's half-width)."""
+        rel = xy[:, None, :] - self._trigger_xy
+        local_x = rel[..., 0] * self._trigger_cos - rel[..., 1] * self._trigger_sin
+        local_y = rel[..., 0] * self._trigger_sin + rel[..., 1] * self._trigger_cos
+        return (np.abs(local_x) <= self._trigger_half[:, 0]) & (np.abs(local_y) <= self._trigger_half[:, 1])
+
+    def _cross_triggers(self, previous: np.ndarray) -> np.ndarray:
+        """Fire the triggers the bodies entered during this decision; (N,) whether one fired."""
+        # a decision covers up to 2 m: test points along the way so that a thin trigger is not stepped over
+        along = np.linspace(0.2, 1.0, 5)[:, None, None]
+        path = previous[None] + (self.pos - previous)[None] * along  # (5, N, 2)
+        inside = self._inside_triggers(path.reshape(-1, 2)).reshape(5, self.n, -1)
+        entered = inside.any(axis=0) & ~self.trigger_inside
+        self.trigger_inside = inside[-1]
+        fire = entered & (self.trigger_count < self._trigger_max)
+        fired = fire.any(axis=1)
+        for w in np.flatnonzero(fired):
+            for e in np.flatnonzero(fire[w]):
+                values = self._trigger_set[e]
+                chosen = ~np.isnan(values)
+                self.ev[w, chosen] = np.clip(values[chosen], self.params.low[chosen], self.params.high[chosen])
+                self.trigger_count[w, e] += 1
+        self.triggered |= fired
+        return fired
+
+    def _success(self, end: np.ndarray, food_eaten: np.ndarray, water_eaten: np.ndarray) -> np.ndarray:
+        """(N,) whether an episode that ends here met its level's success rule (False while it goes on)."""
+        rule = self.level.episode.success
+        if rule.rule == "survive":
+            return end == phys.END_MAX_STEPS
+        if rule.rule.startswith("consume"):
+            eaten = food_eaten if rule.resource == "food" else water_eaten
+            ok = (end == phys.END_RESOURCE) & eaten
+            return ok & self.triggered if rule.rule == "consume_after_trigger" else ok
+        return np.zeros(self.n, dtype=bool)
+
+    def near_heat(self) -> np.ndarray:
+        """(N,) whether each agent stands within 3 m of a hot obstacle's footprint."""
+        if not self._heat.any():
+            return self._zeros_bool
+        hot = self._heat & self.obs_present
+        gap = np.abs(self.pos[:, None, :] - self.obs_xy) - self._heat_half  # (N, O, 2)
+        dist = np.linalg.norm(np.maximum(gap, 0.0), axis=-1)
+        return (hot & (dist <= NEAR_HEAT)).any(axis=1)
 
     def _check_actions(self, actions) -> np.ndarray:
         a = np.asarray(actions).reshape(-1)
@@ -576,9 +649,9 @@ class Simulator:
             return np.zeros(self.n, dtype=dtype)
 
         self._info(food=zeros(np.int64), water=zeros(np.int64), collided=zeros(bool), damage=zeros(np.float64),
-                   end=zeros(np.int64))
+                   end=zeros(np.int64), success=zeros(bool), crossed=zeros(bool))
 
-    def _info(self, *, food, water, collided, damage, end) -> dict[str, np.ndarray]:
+    def _info(self, *, food, water, collided, damage, end, success, crossed) -> dict[str, np.ndarray]:
         ev = self.ev.astype(np.float32)
         info = {
             "position": np.concatenate([self.pos, self._agent_z_col], axis=1).astype(np.float32),
@@ -594,6 +667,9 @@ class Simulator:
             "attacked": self.attacked.reshape(-1, 1).copy(),
             "step_count": self.steps.reshape(-1, 1).copy(),
             "end_type": end.reshape(-1, 1),
+            "success": success.reshape(-1, 1).copy(),
+            "trigger_crossed": crossed.reshape(-1, 1).copy(),
+            "near_heat": self.near_heat().reshape(-1, 1).copy(),
         }
         self.last_info = info
         return info

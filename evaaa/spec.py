@@ -217,6 +217,27 @@ class Landmarks(_Spec):
         return self
 
 
+# --------------------------------------------------------------------------------------------------- events
+class EVAssignment(_Spec):
+    satiation: float | None = None
+    hydration: float | None = None
+    temperature: float | None = None
+    damage: float | None = None
+
+
+class EventTrigger(_Spec):
+    """An invisible box on the floor; when the agent's body enters it (at most ``max_count`` times an episode)
+    the EVs named in ``set`` are assigned those values (clamped to their ranges)."""
+
+    x: float
+    y: float
+    #: width (x) and depth (y) of the box before it is turned by ``heading``
+    size: tuple[Positive, Positive]
+    heading: float = 0.0
+    max_count: Annotated[int, Field(ge=1)] = 1
+    set: EVAssignment
+
+
 # --------------------------------------------------------------------------------------------------- day and night
 class DayNight(_Spec):
     enabled: bool
@@ -284,11 +305,31 @@ class Sensors(_Spec):
 
 
 # --------------------------------------------------------------------------------------------------- episode / reward
+class Success(_Spec):
+    """How a testbed judges an episode (reported in ``info["success"]`` on its last step).
+
+    * ``none``: no criterion (training levels).
+    * ``consume``: the episode ended by consuming ``resource`` (single-trial tasks).
+    * ``consume_after_trigger``: as ``consume``, after an event trigger was crossed (goal manipulation).
+    * ``survive``: alive when the episode reaches ``max_steps``.
+    """
+
+    rule: Literal["none", "consume", "consume_after_trigger", "survive"] = "none"
+    resource: Literal["food", "water"] | None = None
+
+    @model_validator(mode="after")
+    def _resource_when_consuming(self) -> "Success":
+        if self.rule.startswith("consume") and self.resource is None:
+            raise ValueError(f"rule '{self.rule}' needs resource: food or water")
+        return self
+
+
 class Episode(_Spec):
     #: decisions before truncation
     max_steps: Annotated[int, Field(ge=1)]
     #: the episode ends (terminated, ResourceConsumed) once any resource is consumed
     single_trial: bool
+    success: Success = Success()
 
 
 class Reward(_Spec):
@@ -314,6 +355,7 @@ class Level(_Spec):
     predators: dict[str, PredatorGroup]
     landmarks: Landmarks | None = None
     daynight: DayNight
+    events: dict[str, EventTrigger] = {}
     thermal: Thermal
     sensors: Sensors
     episode: Episode
@@ -340,7 +382,18 @@ class Level(_Spec):
 
 # --------------------------------------------------------------------------------------------------- loading
 LEVELS: tuple[str, ...] = ("1-1", "1-2", "2-1", "2-2", "3-1", "3-2", "4-1", "4-2")
-TESTBEDS: tuple[str, ...] = ()
+TESTBEDS: tuple[str, ...] = (
+    "two-resource-food",
+    "two-resource-water",
+    "two-resource-temp",
+    "collision-avoidance",
+    "risk-taking",
+    "y-maze",
+    "goal-manipulation-food-to-water",
+    "goal-manipulation-water-to-food",
+    "multi-goal-planning",
+    "predator-day-night",
+)
 
 
 def level_names() -> tuple[str, ...]:

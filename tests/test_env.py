@@ -39,9 +39,11 @@ def end_name(info) -> str:
 
 
 # ------------------------------------------------------------------------------------------------ specs
-@pytest.mark.parametrize("level", evaaa.LEVELS)
-@pytest.mark.parametrize("num_envs", [1, 4])
-@pytest.mark.parametrize("dropped", [None, *evaaa.MODALITIES])
+@pytest.mark.parametrize(
+    "level,num_envs,dropped",
+    [(name, n, None) for name in evaaa.LEVELS + evaaa.TESTBEDS for n in (1, 4)]
+    + [(name, n, m) for name in ("1-1", "1-2") for n in (1, 4) for m in evaaa.MODALITIES],
+)
 def test_check_env_specs(level, num_envs, dropped):
     modalities = None if dropped is None else [m for m in evaaa.MODALITIES if m != dropped]
     env = evaaa.make_env(level, num_envs=num_envs, seed=0, modalities=modalities)

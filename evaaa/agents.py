@@ -1,0 +1,278 @@
+"""Reference agents for evaluations: a random agent and a privileged scripted oracle.
+
+The oracle reads the simulator's true state (positions of items, obstacles, fires, predators, the EVs, the
+hour) and shows that a task is solvable as configured.  Each decision it picks the need to serve by the
+priority the task expects — the most urgent EV that has a source — plans a route on an occupancy grid (the
+predators' path finder, with hot ground counted as blocked), walks it, and for the last few metres searches
+the short action sequences that bring the item into its eating zone.  At night-sensitive tasks it waits for
+the predators to sleep.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import dijkstra
+
+from . import daynight
+from .predator import NavGrid
+from .sim import EAT, FORWARD, LEFT, NONE, NUM_ACTIONS, RIGHT, Simulator
+
+#: one Forward decision in the open moves the body this far (drag and floor friction over 5 substeps)
+FORWARD_STEP = 1.9069
+#: the oracle's occupancy grid: cell size and the room it keeps from obstacles beyond its body's half-width
+CELL = 0.5
+CLEARANCE = 0.6
+SATIATION, HYDRATION, TEMPERATURE = 0, 1, 2
+#: where the thermal sensors sit around the body (the oracle ignores their turning: it wants the average)
+#: a need is served until its EV reaches this; another need interrupts when it would run out within CRITICAL
+COMFORT = {SATIATION: 3.0, HYDRATION: 3.0, TEMPERATURE: 6.0}
+CRITICAL = 60.0
+_STENCIL = np.array([(0, 1), (0, -1), (-1, 0), (1, 0), (-1, 1), (1, 1), (-1, -1), (1, -1)], float)
+
+
+class RandomAgent:
+    """Uniformly random actions from its own generator."""
+
+    name = "random"
+
+    def __init__(self, seed: int | None = None):
+        self.rng = np.random.default_rng(seed)
+
+    def act(self, sim: Simulator) -> np.ndarray:
+        return self.rng.integers(0, NUM_ACTIONS, size=sim.n)
+
+
+class MotionPlanner:
+    """Shortest action sequences on (cell, heading) states, with the agent's own moves.
+
+    Headings are the start heading plus whole turns (turns are exact), positions are grid cells; Forward moves
+    one step along the heading if the way is free.  Every action costs one decision plus the warming the
+    ground at its end would cause, so the planner finds quick routes that skirt fires and does its turning on
+    cool ground.
+    """
+
+    def __init__(self, grid: NavGrid, heading0: float, turn: float, heat: np.ndarray):
+        self.grid = grid
+        self.k = int(round(2 * math.pi / turn))
+        self.headings = (heading0 + turn * np.arange(self.k)) % (2 * math.pi)
+        gx, gy = grid.shape
+        cells = np.argwhere(np.ones(grid.shape, bool))
+        centres = grid.centre(cells)
+        n = gx * gy * self.k
+        node = np.arange(n).reshape(gx * gy, self.k)
+        weight = 1.0 + heat.reshape(-1)  # per destination cell
+        free = ~grid.blocked.reshape(-1)
+        rows, cols, wts = [], [], []
+        for shift in (1, -1):  # turning in place
+            ok = np.repeat(free, self.k)
+            src = node.reshape(-1)[ok]
+            dst = np.roll(node, -shift, axis=1).reshape(-1)[ok]
+            rows.append(src), cols.append(dst), wts.append(weight[src // self.k])
+        for k, h in enumerate(self.headings):  # forward
+            move = FORWARD_STEP * np.array([math.sin(h), math.cos(h)])
+            ends = centres + move
+            inside = np.all(np.abs(ends) < grid.size / 2, axis=1)
+            idx = np.clip(np.floor((ends - grid.origin) / grid.cell).astype(int), 0, np.array(grid.shape) - 1)
+            dst_cell = idx[:, 0] * gy + idx[:, 1]
+            ok = free & inside & free[dst_cell]
+            for frac in (0.25, 0.5, 0.75):  # the way itself must be free
+                mid = np.clip(np.floor((centres + frac * move - grid.origin) / grid.cell).astype(int), 0,
+                              np.array(grid.shape) - 1)
+                ok &= free[mid[:, 0] * gy + mid[:, 1]]
+            src = node[np.flatnonzero(ok), k]
+            rows.append(src), cols.append(node[dst_cell[ok], k]), wts.append(weight[dst_cell[ok]])
+        self.graph = sp.coo_matrix((np.concatenate(wts), (np.concatenate(rows), np.concatenate(cols))),
+                                   shape=(n, n)).tocsr()
+        self.reverse = self.graph.T.tocsr()
+        self.centres = centres
+        self._cost_to_go: dict = {}
+
+    def state(self, pos: np.ndarray, heading: float) -> int:
+        ix, iy = self.grid.cell_of(pos)
+        k = int(np.argmin(np.abs((self.headings - heading + math.pi) % (2 * math.pi) - math.pi)))
+        return (ix * self.grid.shape[1] + iy) * self.k + k
+
+    def cost_to_go(self, key, goals: np.ndarray) -> np.ndarray:
+        """Cost from every state to the nearest of ``goals`` (state indices), cached under ``key``."""
+        if key not in self._cost_to_go:
+            if len(self._cost_to_go) > 16:
+                self._cost_to_go.pop(next(iter(self._cost_to_go)))
+            self._cost_to_go[key] = dijkstra(self.reverse, indices=goals, min_only=True) if len(goals) else None
+        return self._cost_to_go[key]
+
+    def next_action(self, pos: np.ndarray, heading: float, cost: np.ndarray) -> int | None:
+        """The move (FORWARD, LEFT or RIGHT) that goes down the cost-to-go; None if no way leads there."""
+        s = self.state(pos, heading)
+        row = self.graph.getrow(s)
+        if not row.nnz or not np.isfinite(cost[row.indices]).any():
+            return None
+        total = row.data + cost[row.indices]
+        best = row.indices[np.argmin(total)]
+        if best // self.k == s // self.k:
+            return RIGHT if (best % self.k) == (s % self.k + 1) % self.k else LEFT
+        return FORWARD
+
+
+class OracleAgent:
+    """A scripted agent with privileged access to the simulator's state."""
+
+    name = "oracle"
+
+    def __init__(self):
+        self._grids: list[NavGrid | None] = []
+        self._planners: list[MotionPlanner | None] = []
+        self._current: list[int | None] = []
+
+    # ------------------------------------------------------------------------------------------ per episode
+    def _prepare(self, sim: Simulator) -> None:
+        if len(self._grids) != sim.n:
+            self._grids, self._planners = [None] * sim.n, [None] * sim.n
+            self._current = [None] * sim.n
+        for w in range(sim.n):
+            if sim.steps[w] == 0 or self._grids[w] is None:
+                self._current[w] = None
+                self._grids[w], heat = self._grid(sim, w)
+                self._planners[w] = MotionPlanner(self._grids[w], sim.heading_rad[w],
+                                                  math.radians(sim.level.agent.turn_degrees), heat)
+
+    @staticmethod
+    def _grid(sim: Simulator, w: int) -> NavGrid:
+        """Half-metre cells: obstacles and solid items grown by the body's half-width (and a hand's breadth) are
+        blocked; hot ground costs what crossing it would heat the body, and lethal ground is blocked."""
+        placed = sim.obs_present[w]
+        solid = sim.res_present[w] & sim.res_solid
+        grid = NavGrid.from_boxes(
+            sim.level.arena.size,
+            np.concatenate([sim.obs_xy[w, placed], sim.res_xy[w, solid]]),
+            np.concatenate([sim.obstacles.extents[placed, :2], sim.pool.extents[solid, :2]]) / 2,
+            np.concatenate([sim.obstacles.heading[placed], sim.pool.heading[solid]]),
+            inflate=CLEARANCE, cell=CELL,
+        )
+        felt = OracleAgent._felt(sim, w, grid.centre(np.argwhere(np.ones(grid.shape, bool))))
+        # warming per decision of a body at 0 standing there; a degree of it weighs like 10 decisions, so fires
+        # are skirted as widely as the room allows
+        heating = (8 * sim.params.thermal_coupling * np.maximum(felt, 0.0)).reshape(grid.shape)
+        return grid, 10.0 * heating
+
+    @staticmethod
+    def _felt(sim: Simulator, w: int, xy: np.ndarray) -> np.ndarray:
+        """The temperature a body at ``xy`` relaxes toward: the mean of its 8 sensors (1 m around it)."""
+        return sum(OracleAgent._field_at(sim, w, xy + d) for d in _STENCIL) / len(_STENCIL)
+
+    @staticmethod
+    def _field_at(sim: Simulator, w: int, xy: np.ndarray) -> np.ndarray:
+        ix, iy = sim.sampler.cells(xy)
+        return sim.fields[w, ix, iy] + sim.field_offset[w]
+
+    # ------------------------------------------------------------------------------------------ decisions
+    def act(self, sim: Simulator) -> np.ndarray:
+        self._prepare(sim)
+        return np.array([self._act_world(sim, w) for w in range(sim.n)], dtype=np.int64)
+
+    def _act_world(self, sim: Simulator, w: int) -> int:
+        if sim.predators.k and sim.level.daynight.enabled and not daynight.is_night(sim.sun_angle[w]):
+            return NONE  # wait for the predators to sleep
+        need = self._need(sim, w)
+        if need is None:
+            return NONE
+        planner = self._planners[w]
+        if need == TEMPERATURE:
+            spot = self._warm_spot(sim, w)
+            if spot is None or np.linalg.norm(spot - sim.pos[w]) < 1.5:
+                return NONE  # stand where the ground is right
+            near = np.linalg.norm(planner.centres - spot, axis=1) < 1.0
+            goals = (np.flatnonzero(near)[:, None] * planner.k + np.arange(planner.k)).reshape(-1)
+            cost = planner.cost_to_go(("spot", tuple(np.round(spot))), goals)
+        else:
+            slot = self._nearest_item(sim, w, need)
+            if slot is None:
+                return NONE
+            if self._can_eat(sim, w, slot, sim.pos[w], sim.heading_rad[w]):
+                return EAT
+            item = sim.res_xy[w, slot]
+            key = ("item", slot, tuple(np.round(item, 2)))
+            if key not in planner._cost_to_go:
+                # a goal state must reach the item from anywhere in its cell, not only from the cell's centre
+                reach = np.ones((len(planner.centres), planner.k), dtype=bool)
+                for dx, dy in ((0, 0), (-1, -1), (-1, 1), (1, -1), (1, 1)):
+                    corner = planner.centres + 0.45 * CELL * np.array([dx, dy])
+                    reach &= self._can_eat(sim, w, slot, corner[:, None, :], planner.headings[None, :])
+                goals = np.flatnonzero(reach.reshape(-1) & np.repeat(~self._grids[w].blocked.reshape(-1),
+                                                                         planner.k))
+                planner.cost_to_go(key, goals)
+            cost = planner.cost_to_go(key, None)
+        if cost is None:
+            return NONE
+        action = planner.next_action(sim.pos[w], sim.heading_rad[w], cost)
+        return NONE if action is None else action
+
+    def _need(self, sim: Simulator, w: int) -> int | None:
+        """The EV to serve now: the most urgent one that has a source in this world."""
+        ev = sim.ev[w]
+        low = sim.params.low
+        rule = sim.level.episode.success.rule
+        feeds = {SATIATION: sim.res_present[w] & sim.res_is_food, HYDRATION: sim.res_present[w] & sim.res_is_water}
+        if rule == "survive" and sim.level.episode.single_trial:  # eating would end the trial: only keep warm
+            feeds = {e: np.zeros_like(f) for e, f in feeds.items()}
+        heat = bool((sim.obstacles.temperature > 0).any())
+        if rule.startswith("consume"):
+            # one consumption ends the trial: the needier of hunger and thirst, whose source exists
+            options = [e for e in (SATIATION, HYDRATION) if feeds[e].any()]
+            return min(options, key=lambda e: ev[e]) if options else None
+        # survival: keep serving the current need until it is comfortable, unless another runs out sooner
+        time_left = {}
+        for e in (SATIATION, HYDRATION):
+            if feeds[e].any():
+                rate = -sim.params.decay[e]
+                time_left[e] = (ev[e] - low[e]) / rate if rate > 0 else math.inf
+        if heat:
+            field_here = float(sim.thermal_readings[w].mean())
+            cooling = sim.params.thermal_coupling * 8 * (ev[TEMPERATURE] - field_here)
+            time_left[TEMPERATURE] = (ev[TEMPERATURE] - low[TEMPERATURE]) / cooling if cooling > 0 else math.inf
+        if not time_left:
+            return None
+        current = self._current[w]
+        critical = [e for e in time_left if time_left[e] < CRITICAL and e != current]
+        if current in time_left and ev[current] < COMFORT[current] and not critical:
+            return current
+        wanting = [e for e in time_left if ev[e] < COMFORT[e]]
+        if not wanting:  # all comfortable: stay on mild ground (or idle)
+            self._current[w] = TEMPERATURE if heat else None
+            return self._current[w]
+        self._current[w] = min(wanting, key=lambda e: time_left[e])
+        return self._current[w]
+
+    def _nearest_item(self, sim: Simulator, w: int, need: int) -> int | None:
+        feeds = sim.res_is_food if need == SATIATION else sim.res_is_water
+        slots = np.flatnonzero(sim.res_present[w] & feeds)
+        if not len(slots):
+            return None
+        return int(slots[np.argmin(np.linalg.norm(sim.res_xy[w, slots] - sim.pos[w], axis=1))])
+
+    def _warm_spot(self, sim: Simulator, w: int) -> np.ndarray | None:
+        """A free spot whose ground brings the body toward a comfortable temperature: hot ground while it is
+        cold, mild ground once it is warm (the body relaxes toward the ground under it)."""
+        grid = self._grids[w]
+        free = np.argwhere(~grid.blocked)
+        if not len(free):
+            return None
+        centres = grid.centre(free)
+        target = float(np.clip(8.0 - 3.0 * (sim.ev[w, TEMPERATURE] - 2.0), -5.0, 50.0))
+        felt = self._felt(sim, w, centres)
+        cost = np.abs(felt - target) + 0.5 * np.linalg.norm(centres - sim.pos[w], axis=1)
+        return centres[np.argmin(cost)]
+
+    # ------------------------------------------------------------------------------------------ eating
+    def _can_eat(self, sim: Simulator, w: int, slot: int, pos: np.ndarray, heading) -> np.ndarray:
+        """Whether the eating sphere of bodies at ``pos`` (..., 2) facing ``heading`` overlaps item ``slot``."""
+        pos = np.asarray(pos, dtype=np.float64)
+        heading = np.asarray(heading, dtype=np.float64)
+        centre = pos + sim.eat_offset * np.stack([np.sin(heading), np.cos(heading)], axis=-1)
+        rel = centre - sim.res_xy[w, slot]
+        c, s = sim.res_cos[slot], sim.res_sin[slot]
+        local = np.stack([rel[..., 0] * c - rel[..., 1] * s, rel[..., 0] * s + rel[..., 1] * c], axis=-1)
+        gap = np.maximum(np.abs(local) - sim.res_half3[slot, :2], 0.0)
+        return (gap**2).sum(-1) + sim._eat_dz2[slot] <= sim.eat_radius2
