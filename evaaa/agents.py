@@ -66,10 +66,11 @@ class MotionPlanner:
         weight = 1.0 + heat.reshape(-1)  # per destination cell
         free = ~grid.blocked.reshape(-1)
         rows, cols, wts = [], [], []
+        # moves may start in a blocked cell (the body can end up closer to a wall than planned) but never end
+        # in one
         for shift in (1, -1):  # turning in place
-            ok = np.repeat(free, self.k)
-            src = node.reshape(-1)[ok]
-            dst = np.roll(node, -shift, axis=1).reshape(-1)[ok]
+            src = node.reshape(-1)
+            dst = np.roll(node, -shift, axis=1).reshape(-1)
             rows.append(src), cols.append(dst), wts.append(weight[src // self.k])
         for k, h in enumerate(self.headings):  # forward
             move = FORWARD_STEP * np.array([math.sin(h), math.cos(h)])
@@ -77,8 +78,8 @@ class MotionPlanner:
             inside = np.all(np.abs(ends) < grid.size / 2, axis=1)
             idx = np.clip(np.floor((ends - grid.origin) / grid.cell).astype(int), 0, np.array(grid.shape) - 1)
             dst_cell = idx[:, 0] * gy + idx[:, 1]
-            ok = free & inside & free[dst_cell]
-            for frac in (0.25, 0.5, 0.75):  # the way itself must be free
+            ok = inside & free[dst_cell]
+            for frac in (0.5, 0.75):  # the way itself must be free
                 mid = np.clip(np.floor((centres + frac * move - grid.origin) / grid.cell).astype(int), 0,
                               np.array(grid.shape) - 1)
                 ok &= free[mid[:, 0] * gy + mid[:, 1]]
@@ -187,23 +188,20 @@ class OracleAgent:
             goals = (np.flatnonzero(near)[:, None] * planner.k + np.arange(planner.k)).reshape(-1)
             cost = planner.cost_to_go(("spot", tuple(np.round(spot))), goals)
         else:
-            slot = self._nearest_item(sim, w, need)
-            if slot is None:
+            slots = self._items(sim, w, need)
+            if not len(slots):
                 return NONE
-            if self._can_eat(sim, w, slot, sim.pos[w], sim.heading_rad[w]):
-                return EAT
-            item = sim.res_xy[w, slot]
-            key = ("item", slot, tuple(np.round(item, 2)))
-            if key not in planner._cost_to_go:
-                # a goal state must reach the item from anywhere in its cell, not only from the cell's centre
-                reach = np.ones((len(planner.centres), planner.k), dtype=bool)
-                for dx, dy in ((0, 0), (-1, -1), (-1, 1), (1, -1), (1, 1)):
-                    corner = planner.centres + 0.45 * CELL * np.array([dx, dy])
-                    reach &= self._can_eat(sim, w, slot, corner[:, None, :], planner.headings[None, :])
-                goals = np.flatnonzero(reach.reshape(-1) & np.repeat(~self._grids[w].blocked.reshape(-1),
-                                                                         planner.k))
-                planner.cost_to_go(key, goals)
-            cost = planner.cost_to_go(key, None)
+            for slot in slots:
+                if self._can_eat(sim, w, slot, sim.pos[w], sim.heading_rad[w]):
+                    return EAT
+            # the nearest item the planner can reach (one hard against a wall may have no standing room)
+            here = planner.state(sim.pos[w], sim.heading_rad[w])
+            cost = None
+            for slot in slots[:3]:
+                candidate = self._item_cost(sim, w, slot)
+                if candidate is not None and np.isfinite(candidate[here]):
+                    cost = candidate
+                    break
         if cost is None:
             return NONE
         action = planner.next_action(sim.pos[w], sim.heading_rad[w], cost)
@@ -245,12 +243,29 @@ class OracleAgent:
         self._current[w] = min(wanting, key=lambda e: time_left[e])
         return self._current[w]
 
-    def _nearest_item(self, sim: Simulator, w: int, need: int) -> int | None:
+    def _items(self, sim: Simulator, w: int, need: int) -> np.ndarray:
+        """Present items that serve ``need``, nearest first."""
         feeds = sim.res_is_food if need == SATIATION else sim.res_is_water
         slots = np.flatnonzero(sim.res_present[w] & feeds)
-        if not len(slots):
-            return None
-        return int(slots[np.argmin(np.linalg.norm(sim.res_xy[w, slots] - sim.pos[w], axis=1))])
+        return slots[np.argsort(np.linalg.norm(sim.res_xy[w, slots] - sim.pos[w], axis=1))]
+
+    def _item_cost(self, sim: Simulator, w: int, slot: int) -> np.ndarray | None:
+        """Cost-to-go to the states that can eat item ``slot`` (cached per item position)."""
+        planner = self._planners[w]
+        key = ("item", int(slot), tuple(np.round(sim.res_xy[w, slot], 2)))
+        if key not in planner._cost_to_go:
+            free = np.repeat(~self._grids[w].blocked.reshape(-1), planner.k)
+            # a goal state must reach the item from anywhere in its cell, not only from the cell's centre; an
+            # item with no such state (tucked against a wall) accepts states that reach it from the centre
+            reach = np.ones((len(planner.centres), planner.k), dtype=bool)
+            for dx, dy in ((0, 0), (-1, -1), (-1, 1), (1, -1), (1, 1)):
+                corner = planner.centres + 0.45 * CELL * np.array([dx, dy])
+                reach &= self._can_eat(sim, w, slot, corner[:, None, :], planner.headings[None, :])
+                goals = np.flatnonzero(reach.reshape(-1) & free)
+                if dx == 0 and dy == 0:
+                    centre_goals = goals
+            planner.cost_to_go(key, goals if len(goals) else centre_goals)
+        return planner.cost_to_go(key, None)
 
     def _warm_spot(self, sim: Simulator, w: int) -> np.ndarray | None:
         """A free spot whose ground brings the body toward a comfortable temperature: hot ground while it is

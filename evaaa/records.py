@@ -50,9 +50,16 @@ def _scalar(value) -> Any:
 class EpisodeTracker:
     """Accumulates per-world episode statistics and emits a row when a world's episode ends."""
 
-    def __init__(self, num_worlds: int, level: str, policy: str, participant: str = "", seed: int | None = None):
+    def __init__(self, num_worlds: int, level: str, policy: str, participant: str = "", seed: int | None = None,
+                 judged: bool | None = None):
+        """``judged``: whether the level has a success rule (default: looked up from the level's name)."""
         self.n = num_worlds
         self.level, self.policy, self.participant, self.seed = level, policy, participant, seed
+        if judged is None:
+            from .spec import load_level
+
+            judged = load_level(level).episode.success.rule != "none"
+        self.judged = judged
         self.episodes = 0
         self._clear(np.ones(num_worlds, dtype=bool))
 
@@ -94,7 +101,7 @@ class EpisodeTracker:
                 "steps": int(info["step_count"][w, 0]),
                 "return": float(sums["return"][w]),
                 "end_type": END_TYPES[int(info["end_type"][w, 0])],
-                "success": "" if "success" not in info else bool(info["success"][w, 0]),
+                "success": bool(info["success"][w, 0]) if self.judged and "success" in info else "",
                 "food_eaten": int(sums["food_eaten"][w]),
                 "water_eaten": int(sums["water_eaten"][w]),
                 "collisions": int(sums["collisions"][w]),

@@ -1,0 +1,167 @@
+"""From episode records to numbers and pictures: success rates, survival, outcomes, with standard errors.
+
+Works on the rows of :mod:`evaaa.records` (a pandas DataFrame read from ``episodes.csv`` files), so agents,
+reference agents and human players are summarised the same way.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .spec import LEVELS, TESTBEDS
+
+#: Outcome of an episode, in the order they are stacked in the outcome plots.
+OUTCOMES: tuple[str, ...] = (
+    "success",
+    "ate food (wrong)",
+    "drank water (wrong)",
+    "starved",
+    "dehydrated",
+    "too hot or cold",
+    "too damaged",
+    "reached max steps",
+)
+OUTCOME_COLOURS = ("#2ca02c", "#d62728", "#1f77b4", "#8c564b", "#17becf", "#ff7f0e", "#7f7f7f", "#bcbd22")
+
+
+def read_episodes(paths: Sequence[str | Path]) -> pd.DataFrame:
+    """Episode rows of several CSV files in one frame (``success`` as booleans, NaN where a level has none)."""
+    frames = [pd.read_csv(p, dtype={"participant": str, "seed": str}, keep_default_na=False) for p in paths]
+    if not frames:
+        raise ValueError("no episode files given")
+    rows = pd.concat(frames, ignore_index=True)
+    rows["success"] = rows["success"].map({"True": True, "False": False, True: True, False: False, "": np.nan})
+    return rows
+
+
+def outcome(row) -> str:
+    """The outcome category of one episode row."""
+    if row["success"] is True or row["success"] == 1.0:
+        return "success"
+    end = row["end_type"]
+    if end == "ResourceConsumed":
+        return "ate food (wrong)" if row["food_eaten"] > 0 else "drank water (wrong)"
+    return {
+        "FoodOutOfRange": "starved",
+        "WaterOutOfRange": "dehydrated",
+        "TemperatureOutOfRange": "too hot or cold",
+        "DamageTooHigh": "too damaged",
+    }.get(end, "reached max steps")
+
+
+def standard_error(values: pd.Series) -> float:
+    n = values.count()
+    return float(values.std(ddof=1) / np.sqrt(n)) if n > 1 else float("nan")
+
+
+def summarize(rows: pd.DataFrame) -> pd.DataFrame:
+    """One row per (level, policy): episodes, success rate and survival, each with its standard error."""
+    groups = rows.groupby(["level", "policy"], sort=False)
+    table = groups.agg(
+        episodes=("steps", "size"),
+        success_rate=("success", lambda s: float(s.astype(float).mean()) if s.notna().any() else np.nan),
+        success_se=("success", lambda s: standard_error(s.astype(float)) if s.notna().any() else np.nan),
+        survival=("steps", "mean"),
+        survival_se=("steps", standard_error),
+        collisions=("collisions", "mean"),
+    ).reset_index()
+    order = {name: i for i, name in enumerate(TESTBEDS + LEVELS)}
+    return table.sort_values(by="level", key=lambda c: c.map(lambda n: order.get(n, len(order))), kind="stable")
+
+
+def markdown_table(summary: pd.DataFrame) -> str:
+    """Success rate (testbeds) or mean survival (training levels) per level, one column per policy."""
+    policies = list(dict.fromkeys(summary["policy"]))
+    lines = ["| level | " + " | ".join(policies) + " |", "|---|" + "---|" * len(policies)]
+    for level, part in summary.groupby("level", sort=False):
+        cells = []
+        for policy in policies:
+            row = part[part["policy"] == policy]
+            if row.empty:
+                cells.append("–")
+                continue
+            row = row.iloc[0]
+            if not np.isnan(row["success_rate"]):
+                cells.append(f"{100 * row['success_rate']:.0f}% ± {100 * _nan0(row['success_se']):.0f} "
+                             f"(n={row['episodes']})")
+            else:
+                cells.append(f"{row['survival']:.0f} ± {_nan0(row['survival_se']):.0f} steps (n={row['episodes']})")
+        lines.append(f"| {level} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _nan0(x: float) -> float:
+    return 0.0 if np.isnan(x) else x
+
+
+def plot_bars(summary: pd.DataFrame, value: str, error: str, path: str | Path, *, ylabel: str, title: str,
+              scale: float = 1.0) -> Path:
+    """Grouped bar chart: one group per level, one bar per policy, standard errors as whiskers."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    levels = list(dict.fromkeys(summary["level"]))
+    policies = list(dict.fromkeys(summary["policy"]))
+    width = 0.8 / max(len(policies), 1)
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.1 * len(levels) + 2), 4.2))
+    x = np.arange(len(levels))
+    for i, policy in enumerate(policies):
+        part = summary[summary["policy"] == policy].set_index("level").reindex(levels)
+        ax.bar(x + (i - (len(policies) - 1) / 2) * width, scale * part[value].to_numpy(dtype=float), width,
+               yerr=scale * part[error].fillna(0.0).to_numpy(dtype=float), capsize=3, label=policy)
+    ax.set_xticks(x, levels, rotation=30, ha="right")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.legend(frameon=False, ncols=min(len(policies), 4))
+    ax.spines[["top", "right"]].set_visible(False)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def plot_outcomes(rows: pd.DataFrame, path: str | Path, *, title: str = "What happened in each episode") -> Path:
+    """Per level and policy, the share of episodes by outcome (success, wrong resource, cause of death,
+    timeout), with the mean number of collisions written above each bar."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = rows.assign(outcome=rows.apply(outcome, axis=1))
+    levels = list(dict.fromkeys(rows["level"]))
+    policies = list(dict.fromkeys(rows["policy"]))
+    fig, axes = plt.subplots(1, len(levels), figsize=(max(4.0, 1.0 + 1.3 * len(levels) * max(1, len(policies) / 2)),
+                                                      4.2), sharey=True, squeeze=False)
+    for ax, level in zip(axes[0], levels):
+        part = rows[rows["level"] == level]
+        bottom = np.zeros(len(policies))
+        for name, colour in zip(OUTCOMES, OUTCOME_COLOURS):
+            share = np.array([(part[part["policy"] == p]["outcome"] == name).mean() if (part["policy"] == p).any()
+                              else 0.0 for p in policies])
+            ax.bar(range(len(policies)), share, bottom=bottom, color=colour, label=name)
+            bottom += share
+        for i, p in enumerate(policies):
+            hits = part[part["policy"] == p]["collisions"]
+            if len(hits):
+                ax.text(i, 1.02, f"{hits.mean():.1f}", ha="center", fontsize=7)
+        ax.set_xticks(range(len(policies)), policies, rotation=45, ha="right", fontsize=8)
+        ax.set_title(level, fontsize=8)
+        ax.set_ylim(0, 1.12)
+        ax.spines[["top", "right"]].set_visible(False)
+    axes[0][0].set_ylabel("share of episodes (mean collisions above)")
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncols=4, frameon=False, fontsize=8)
+    fig.suptitle(title)
+    fig.tight_layout(rect=(0, 0.12, 1, 0.95))
+    path = Path(path)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
