@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Set up everything evaaa needs on a fresh Debian/Ubuntu machine, and check it works:
-#   1. the system libraries for headless OpenGL (EGL through Mesa; installed with apt-get when run as root),
+#   1. the system libraries for headless OpenGL (EGL through Mesa) and Debian's Chromium with its driver for the
+#      browser test of scripts/play.py (installed with apt-get when run as root),
 #   2. a virtual environment in .venv with the pinned packages of constraints.txt (torch 2.13.0 CPU build),
 #   3. one off-screen render.
 # Safe to run again: each step is skipped when already done. Called by `make demo` and `make test`.
@@ -13,19 +14,28 @@ fail() { printf '[setup] ERROR: %s\n' "$*" >&2; exit 1; }
 # ------------------------------------------------------------------------------------------ system libraries
 GL_PACKAGES=(libegl1 libegl-mesa0 libgl1-mesa-dri libglib2.0-0)
 if [ "${MUJOCO_GL:-egl}" = "osmesa" ]; then GL_PACKAGES=(libosmesa6 libglib2.0-0); fi
-if command -v dpkg-query >/dev/null 2>&1; then
-  missing=()
-  for pkg in "${GL_PACKAGES[@]}"; do
-    dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || missing+=("$pkg")
+# tests/test_play_browser.py drives the human-play page in this browser (it is skipped where chromium is missing)
+BROWSER_PACKAGES=(chromium chromium-driver)
+not_installed() {  # prints those of the named Debian packages that are not installed
+  for pkg in "$@"; do
+    dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || printf '%s\n' "$pkg"
   done
+}
+if command -v dpkg-query >/dev/null 2>&1; then
+  mapfile -t missing_gl < <(not_installed "${GL_PACKAGES[@]}")
+  mapfile -t missing_browser < <(not_installed "${BROWSER_PACKAGES[@]}")
+  missing=("${missing_gl[@]}" "${missing_browser[@]}")
   if [ ${#missing[@]} -gt 0 ]; then
     if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then
-      say "installing system packages for headless rendering: ${missing[*]}"
+      say "installing system packages for headless rendering and the browser test: ${missing[*]}"
       DEBIAN_FRONTEND=noninteractive apt-get update -qq
       DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+    elif [ ${#missing_gl[@]} -gt 0 ]; then
+      fail "missing system packages for headless rendering: ${missing_gl[*]}
+        install them with: sudo apt-get install ${missing_gl[*]}   (or set MUJOCO_GL=osmesa and install libosmesa6)"
     else
-      fail "missing system packages for headless rendering: ${missing[*]}
-        install them with: sudo apt-get install ${missing[*]}   (or set MUJOCO_GL=osmesa and install libosmesa6)"
+      say "missing system packages for the browser test (it will be skipped): ${missing_browser[*]}
+        install them with: sudo apt-get install ${missing_browser[*]}"
     fi
   fi
 else

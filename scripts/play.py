@@ -1,0 +1,470 @@
+"""Human play in the browser: a person plays a level or testbed with the keyboard, recorded like an agent.
+
+This script owns the play server: the command line, one simulator (one player per server), the JSON API that
+drives it, and the episode records.  The page it serves (``scripts/play.html``) shows the agent's 64x64 view
+enlarged, the four essential variables with their viable ranges, the step count, how each episode ended and, for
+training levels, an optional top-down map.  Every episode that ends is appended to ``<out>/episodes.csv``
+through :class:`evaaa.records.EpisodeTracker` with ``policy="human"``, the participant id and the level: the
+rows the evaluation tool writes for agents, so a report can put people beside them.
+
+    python scripts/play.py level=1-1 participant=p01                 # then open http://127.0.0.1:8000/
+    python scripts/play.py level=1-2 participant=p02 rate=5 seed=3 port=8080 out=outputs/human
+    python scripts/play.py level=1-1 episode.max_steps=200           # a dotted key overrides a level field
+
+Keys: up = forward, left/right = turn, space = eat, period = do nothing, Enter = new episode once one ended.
+Steps advance on each key press; with ``rate=R`` they advance R times a second instead, a second without a
+key doing nothing (action 0).
+
+JSON API (what the page uses; a bad request gets a 4xx answer ``{"error": "..."}``):
+
+    GET  /              the page
+    GET  /api/state     the current state (see ``PlaySession._state``)
+    POST /api/reset     {"level": name} (optional; default: the current level) -> the state of a new episode
+    POST /api/step      {"action": 0..4} (none, forward, left, right, eat) -> the state after that decision
+    GET  /map.png       the current world from above, agent marked (training levels only)
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import re
+import signal
+import socket
+import sys
+import traceback
+from collections.abc import Callable, Mapping
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+from typing import Any, NoReturn
+from urllib.parse import urlsplit
+
+import evaaa  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
+import cv2
+import numpy as np
+import yaml
+
+from evaaa.physiology import END_TYPES, EV_NAMES
+from evaaa.records import EpisodeTracker, append_rows
+from evaaa.sim import ACTION_NAMES, NUM_ACTIONS, Simulator
+from evaaa.spec import Level, LevelError, level_names, load_level
+
+# the sibling script render_levels draws the top-down view with the agent marked; make it importable however
+# this file is loaded (as a script, scripts/ is on the path already; under a test runner it is not)
+if str(Path(__file__).resolve().parent) not in sys.path:
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+from render_levels import top_image  # noqa: E402
+
+PAGE = Path(__file__).resolve().with_name("play.html")
+RECORDS_FILE = "episodes.csv"
+MAP_SIZE = 320
+MAX_RATE = 30.0
+#: requests carry a level name or an action; anything larger is not from the page
+MAX_BODY_BYTES = 4096
+#: a larger body is still read (and dropped) up to this size, so that its sender gets the refusal
+DRAIN_BYTES = 1 << 20
+#: the built-in keys and what each sets; any other key must be a dotted level override
+KEYS: dict[str, str] = {
+    "level": "level or testbed to play (default 1-1)",
+    "participant": "participant id written to every record (default anonymous)",
+    "host": "address to listen on (default 127.0.0.1: this machine only)",
+    "port": "port to listen on (default 8000; 0 picks a free one)",
+    "seed": "seed of the worlds' layouts (default 0: every participant meets the same worlds)",
+    "rate": "decisions per second; 0 (default) steps once per key press",
+    "out": "directory of the records, <out>/episodes.csv (default outputs/human)",
+}
+_PARTICIPANT = re.compile(r"[\w.@-]+")
+
+
+# ------------------------------------------------------------------------------------------------- command line
+class UsageError(ValueError):
+    """A command-line argument is invalid; the message says which and what is allowed."""
+
+
+@dataclass(frozen=True)
+class Options:
+    level: str = "1-1"
+    participant: str = "anonymous"
+    host: str = "127.0.0.1"
+    port: int = 8000
+    seed: int = 0
+    rate: float = 0.0
+    out: Path = Path("outputs/human")
+    #: dotted-path level overrides (``episode.max_steps=5``), applied to every level played
+    overrides: dict[str, Any] = field(default_factory=dict)
+
+
+def usage() -> str:
+    keys = "\n".join(f"  {key}=...{' ' * (12 - len(key))}{what}" for key, what in KEYS.items())
+    return (
+        "usage: python scripts/play.py [key=value ...]\n\n"
+        "Serve a page where a person plays an evaaa level with the keyboard; every finished episode is recorded.\n\n"
+        f"keys:\n{keys}\n"
+        "  a.b.c=value     override a level field by dotted path (value read as YAML), e.g. episode.max_steps=200\n\n"
+        f"levels: {', '.join(level_names())}\n"
+        "example: python scripts/play.py level=1-1 participant=p01 rate=5"
+    )
+
+
+def _number(key: str, text: str, low: int | float, high: int | float) -> int | float:
+    """``text`` as a number of the type of ``low`` and ``high``, inside [low, high]."""
+    kind = type(low)
+    try:
+        value = kind(text)
+    except ValueError:
+        raise UsageError(f"{key}={text}: expected {'an integer' if kind is int else 'a number'}") from None
+    if not low <= value <= high:
+        raise UsageError(f"{key}={text}: expected a value in [{low:g}, {high:g}]" if kind is float
+                         else f"{key}={text}: expected a value in [{low}, {high}]")
+    return value
+
+
+def parse_args(argv: list[str]) -> Options:
+    """Read Hydra-style ``key=value`` arguments; a dotted key is a level override.  Raises :class:`UsageError`."""
+    given: dict[str, Any] = {}
+    overrides: dict[str, Any] = {}
+    for arg in argv:
+        key, sep, text = arg.partition("=")
+        key = key.lstrip("+")  # Hydra's "+key=value" (add a key) means the same here
+        if not sep or not key:
+            raise UsageError(f"'{arg}' is not of the form key=value\n\n{usage()}")
+        if "." in key:
+            try:
+                overrides[key] = yaml.safe_load(text)  # as in make_env, null (or nothing) removes an entry
+            except yaml.YAMLError as exc:
+                raise UsageError(f"{arg}: the value is not valid YAML ({exc.problem})") from None
+        elif key not in KEYS:
+            raise UsageError(f"unknown key '{key}'; allowed: {', '.join(KEYS)}, or a dotted level override "
+                             "such as episode.max_steps=200")
+        elif key in given:
+            raise UsageError(f"{key}= is given twice")
+        else:
+            given[key] = text
+    if "port" in given:
+        given["port"] = _number("port", given["port"], 0, 65535)
+    if "seed" in given:
+        given["seed"] = _number("seed", given["seed"], 0, 2**63 - 1)
+    if "rate" in given:
+        given["rate"] = _number("rate", given["rate"], 0.0, MAX_RATE)
+    if "participant" in given and not _PARTICIPANT.fullmatch(given["participant"]):
+        raise UsageError(f"participant={given['participant']}: use letters, digits and . _ @ - only")
+    if "out" in given:
+        given["out"] = Path(given["out"])
+    options = Options(**given, overrides=overrides)
+    try:  # fail here, before a port is taken, on an unknown level or a bad override
+        load_level(options.level, options.overrides)
+    except LevelError as exc:
+        raise UsageError(str(exc)) from None
+    return options
+
+
+# ------------------------------------------------------------------------------------------------- the game
+class RequestError(Exception):
+    """A request the server refuses: answered with ``status`` and ``{"error": message}``."""
+
+    def __init__(self, status: int, message: str):
+        super().__init__(message)
+        self.status, self.message = status, message
+
+
+def png_data_url(rgb: np.ndarray) -> str:
+    ok, png = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    assert ok, "PNG encoding of a uint8 image cannot fail"
+    return "data:image/png;base64," + base64.b64encode(png.tobytes()).decode("ascii")
+
+
+class PlaySession:
+    """The server's one simulator, the episode being played, and its records.
+
+    Every simulator call runs on one worker thread.  That serialises the requests of the threaded server (the
+    lock a single simulator needs) and keeps MuJoCo's EGL context in the thread that made it current: an EGL
+    context belongs to one thread at a time, so a lock around calls from changing threads would not do.
+    """
+
+    def __init__(self, options: Options):
+        self.options = options
+        self.records = options.out / RECORDS_FILE
+        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="evaaa-sim")
+        self.sim: Simulator | None = None
+        self.tracker: EpisodeTracker | None = None
+        self.done = False
+        self._run(self._reset, options.level)
+
+    def _run(self, fn: Callable[..., Any], *args: Any) -> Any:
+        return self._worker.submit(fn, *args).result()
+
+    def state(self) -> dict[str, Any]:
+        return self._run(self._state)
+
+    def reset(self, level: str | None = None) -> dict[str, Any]:
+        return self._run(self._reset, level)
+
+    def step(self, action: int) -> dict[str, Any]:
+        return self._run(self._step, action)
+
+    def map_png(self) -> bytes:
+        return self._run(self._map_png)
+
+    def close(self) -> None:
+        if self.sim is not None:
+            self._run(self.sim.close)
+        self._worker.shutdown()
+
+    # -------------------------------------------------------------------------------- on the worker thread
+    def _open_level(self, name: str) -> None:
+        """Replace the simulator by one of level ``name`` (validated first, so a bad name keeps the old one)."""
+        try:
+            level = load_level(name, self.options.overrides)
+        except LevelError as exc:
+            raise RequestError(400, str(exc)) from None
+        if self.sim is not None:
+            self.sim.close()
+        self.level: Level = level
+        # the player sees pixels; the EVs are read from the simulator, so no other sensor is computed
+        self.sim = Simulator(level, 1, modalities=["pixels"], seed=self.options.seed)
+
+    def _reset(self, level: str | None) -> dict[str, Any]:
+        unfinished = 0 if self.sim is None or self.done else int(self.sim.steps[0])
+        if level is not None and (self.sim is None or level != self.level.name):
+            self._open_level(level)  # a bad name raises here and leaves the episode be
+        if unfinished:
+            print(f"episode {self.episode} abandoned after {unfinished} steps (not recorded)", file=sys.stderr,
+                  flush=True)
+        # a fresh tracker per episode drops the sums of an abandoned one; the episode index runs on, as it does
+        # within one run of the evaluation tool
+        self.episode = self.tracker.episodes if self.tracker is not None else 0
+        self.tracker = EpisodeTracker(1, level=self.level.name, policy="human",
+                                      participant=self.options.participant, seed=self.options.seed)
+        self.tracker.episodes = self.episode
+        self.frame = self.sim.reset()["pixels"][0]
+        self.done, self.end_type, self.returned, self.record_error = False, None, 0.0, None
+        return self._state()
+
+    def _step(self, action: int) -> dict[str, Any]:
+        if self.done:
+            raise RequestError(409, f"the episode ended ({self.end_type}); POST /api/reset starts a new one")
+        obs, reward, terminated, truncated, info = self.sim.step(np.array([action]))
+        self.frame = obs["pixels"][0]
+        self.returned += float(reward[0])
+        self.done = bool(terminated[0] or truncated[0])
+        rows = self.tracker.update(reward, info, terminated | truncated)
+        if self.done:
+            self.end_type = END_TYPES[int(info["end_type"][0, 0])]
+            try:
+                append_rows(self.records, rows)
+            except (OSError, ValueError) as exc:  # the step stands; the page shows that its record is missing
+                self.record_error = f"could not record the episode in {self.records}: {exc}"
+                print(self.record_error, file=sys.stderr, flush=True)
+        return self._state()
+
+    def _state(self) -> dict[str, Any]:
+        sim, level = self.sim, self.level
+        return {
+            "level": level.name,
+            "kind": level.kind,
+            "description": level.description,
+            "levels": list(level_names()),
+            "participant": self.options.participant,
+            "episode": self.episode,
+            "step": int(sim.steps[0]),
+            "max_steps": level.episode.max_steps,
+            "done": self.done,
+            "end_type": self.end_type,
+            "return": self.returned,
+            "ev_names": list(EV_NAMES),
+            "ev": [float(v) for v in sim.ev[0]],
+            "low": [float(v) for v in sim.params.low],
+            "high": [float(v) for v in sim.params.high],
+            "setpoint": [float(v) for v in sim.params.setpoint],
+            "frame": png_data_url(self.frame),
+            "map_available": level.kind == "training",
+            "rate": self.options.rate,
+            "records": str(self.records),
+            "record_error": self.record_error,
+        }
+
+    def _map_png(self) -> bytes:
+        if self.level.kind != "training":
+            raise RequestError(404, f"{self.level.name} is a testbed: its layout is not shown")
+        ok, png = cv2.imencode(".png", cv2.cvtColor(top_image(self.sim, 0, MAP_SIZE), cv2.COLOR_RGB2BGR))
+        assert ok, "PNG encoding of a uint8 image cannot fail"
+        return png.tobytes()
+
+
+# ------------------------------------------------------------------------------------------------- HTTP
+def read_json(handler: BaseHTTPRequestHandler) -> dict[str, Any]:
+    """The request's JSON object body ({} when there is none)."""
+    try:
+        length = int(handler.headers.get("Content-Length") or 0)
+    except ValueError:
+        raise RequestError(400, "Content-Length is not a number") from None
+    if length > MAX_BODY_BYTES:
+        if length <= DRAIN_BYTES:  # read it anyway: a socket closed on unread data may reset before the answer
+            handler.rfile.read(length)
+        raise RequestError(413, f"request body over {MAX_BODY_BYTES} bytes")
+    raw = handler.rfile.read(length) if length > 0 else b""
+    if not raw.strip():
+        return {}
+    try:
+        body = json.loads(raw)
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise RequestError(400, f"malformed JSON: {exc}") from None
+    if not isinstance(body, dict):
+        raise RequestError(400, f"expected a JSON object, got {type(body).__name__}")
+    return body
+
+
+def only_keys(body: Mapping[str, Any], allowed: tuple[str, ...]) -> None:
+    unknown = sorted(set(body) - set(allowed))
+    if unknown:
+        raise RequestError(400, f"unknown field(s) {', '.join(unknown)}; allowed: {', '.join(allowed)}")
+
+
+def api_state(handler: PlayHandler) -> None:
+    handler.send_json(200, handler.server.session.state())
+
+
+def api_reset(handler: PlayHandler) -> None:
+    body = read_json(handler)
+    only_keys(body, ("level",))
+    level = body.get("level")
+    if level is not None and not isinstance(level, str):
+        raise RequestError(400, f"level must be a string, one of: {', '.join(level_names())}")
+    handler.send_json(200, handler.server.session.reset(level))
+
+
+def api_step(handler: PlayHandler) -> None:
+    body = read_json(handler)
+    only_keys(body, ("action",))
+    action = body.get("action")
+    # bool is an int in Python but not an action; floats such as 1.0 are refused like any other non-integer
+    if type(action) is not int or not 0 <= action < NUM_ACTIONS:
+        names = ", ".join(f"{i} {name}" for i, name in enumerate(ACTION_NAMES))
+        raise RequestError(400, f"action must be an integer in 0..{NUM_ACTIONS - 1} ({names}), got {action!r}")
+    handler.send_json(200, handler.server.session.step(action))
+
+
+def page(handler: PlayHandler) -> None:
+    handler.send_body(200, "text/html; charset=utf-8", handler.server.page)
+
+
+def map_png(handler: PlayHandler) -> None:
+    handler.send_body(200, "image/png", handler.server.session.map_png())
+
+
+#: path -> method -> what answers it
+ROUTES: dict[str, dict[str, Callable[[PlayHandler], None]]] = {
+    "/": {"GET": page},
+    "/api/state": {"GET": api_state},
+    "/api/reset": {"POST": api_reset},
+    "/api/step": {"POST": api_step},
+    "/map.png": {"GET": map_png},
+}
+
+
+class PlayHandler(BaseHTTPRequestHandler):
+    server: PlayServer
+
+    def do_GET(self) -> None:
+        self._dispatch()
+
+    def do_POST(self) -> None:
+        self._dispatch()
+
+    def do_PUT(self) -> None:
+        self._dispatch()
+
+    def do_DELETE(self) -> None:
+        self._dispatch()
+
+    def _dispatch(self) -> None:
+        path = urlsplit(self.path).path
+        try:
+            methods = ROUTES.get(path)
+            if methods is None:
+                raise RequestError(404, f"unknown path {path}; the API is: "
+                                        + ", ".join(f"{m} {p}" for p, ms in ROUTES.items() for m in ms))
+            answer = methods.get(self.command)
+            if answer is None:
+                raise RequestError(405, f"{path} answers {', '.join(methods)}, not {self.command}")
+            answer(self)
+        except RequestError as exc:
+            self.send_json(exc.status, {"error": exc.message})
+        except Exception as exc:  # noqa: BLE001 - a bug answers 500 and the server goes on serving
+            traceback.print_exc()
+            self.send_json(500, {"error": f"internal error: {type(exc).__name__}: {exc}"})
+
+    def send_json(self, status: int, payload: Mapping[str, Any]) -> None:
+        self.send_body(status, "application/json", json.dumps(payload).encode())
+
+    def send_body(self, status: int, content_type: str, body: bytes) -> None:
+        self.send_response(status)
+        self.send_header("Content-Type", content_type)
+        self.send_header("Content-Length", str(len(body)))
+        self.send_header("Cache-Control", "no-store")
+        self.end_headers()
+        self.wfile.write(body)
+
+    def log_request(self, code: int | str = "-", size: int | str = "-") -> None:
+        # a player makes several requests a second; log only the refused ones
+        if isinstance(code, int) and code >= 400:
+            super().log_request(code, size)
+
+
+class PlayServer(ThreadingHTTPServer):
+    """The HTTP server holding the session and the page."""
+
+    def __init__(self, host: str, port: int, page_html: bytes):
+        if ":" in host:
+            self.address_family = socket.AF_INET6
+        super().__init__((host, port), PlayHandler)
+        self.page = page_html
+        self.session: PlaySession | None = None
+
+
+# ------------------------------------------------------------------------------------------------- main
+def _stop(signum: int, frame: Any) -> NoReturn:
+    raise KeyboardInterrupt  # `kill` stops the server as cleanly as Ctrl-C
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if any(a in ("-h", "--help") for a in argv):
+        print(usage())
+        return 0
+    try:
+        options = parse_args(argv)
+    except UsageError as exc:
+        print(f"play.py: error: {exc}", file=sys.stderr)
+        return 2
+    try:
+        server = PlayServer(options.host, options.port, PAGE.read_bytes())
+    except OSError as exc:
+        print(f"play.py: error: cannot listen on {options.host}:{options.port}: {exc}", file=sys.stderr)
+        return 1
+    signal.signal(signal.SIGTERM, _stop)
+    try:
+        server.session = PlaySession(options)
+        host, port = server.server_address[:2]
+        url_host = f"[{host}]" if ":" in host else host
+        overrides = " ".join(f"{k}={v}" for k, v in options.overrides.items())
+        print(f"evaaa play: level {options.level}, participant {options.participant}, seed {options.seed}"
+              + (f", {options.rate:g} decisions/s" if options.rate else ", one decision per key press")
+              + (f", overrides {overrides}" if overrides else ""))
+        print(f"  open http://{url_host}:{port}/ in a browser (one player at a time)")
+        print(f"  finished episodes are appended to {server.session.records}")
+        print("  Ctrl-C stops the server", flush=True)
+        server.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.server_close()
+        if server.session is not None:
+            server.session.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
