@@ -6,6 +6,7 @@ reference agents and human players are summarised the same way.
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -138,9 +139,13 @@ def plot_outcomes(rows: pd.DataFrame, path: str | Path, *, title: str = "What ha
     rows = rows.assign(outcome=rows.apply(outcome, axis=1))
     levels = list(dict.fromkeys(rows["level"]))
     policies = list(dict.fromkeys(rows["policy"]))
-    fig, axes = plt.subplots(1, len(levels), figsize=(max(4.0, 1.0 + 1.3 * len(levels) * max(1, len(policies) / 2)),
-                                                      4.2), sharey=True, squeeze=False)
-    for ax, level in zip(axes[0], levels):
+    cols = min(len(levels), 5)
+    nrows = -(-len(levels) // cols)
+    fig, axes = plt.subplots(nrows, cols, figsize=(1.0 + cols * max(1.6, 0.65 * len(policies)), 3.2 * nrows + 0.9),
+                             sharey=True, squeeze=False)
+    for ax in axes.flat[len(levels):]:
+        ax.set_visible(False)
+    for ax, level in zip(axes.flat, levels):
         part = rows[rows["level"] == level]
         bottom = np.zeros(len(policies))
         for name, colour in zip(OUTCOMES, OUTCOME_COLOURS):
@@ -153,14 +158,15 @@ def plot_outcomes(rows: pd.DataFrame, path: str | Path, *, title: str = "What ha
             if len(hits):
                 ax.text(i, 1.02, f"{hits.mean():.1f}", ha="center", fontsize=7)
         ax.set_xticks(range(len(policies)), policies, rotation=45, ha="right", fontsize=8)
-        ax.set_title(level, fontsize=8)
+        ax.set_title("\n".join(textwrap.wrap(level, 18)), fontsize=8)
         ax.set_ylim(0, 1.12)
         ax.spines[["top", "right"]].set_visible(False)
-    axes[0][0].set_ylabel("share of episodes (mean collisions above)")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("share of episodes", fontsize=8)
     handles, labels = axes[0][0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="lower center", ncols=4, frameon=False, fontsize=8)
-    fig.suptitle(title)
-    fig.tight_layout(rect=(0, 0.12, 1, 0.95))
+    fig.suptitle(f"{title} (numbers: mean collisions per episode)", fontsize=10)
+    fig.tight_layout(rect=(0, 0.9 / (3.2 * nrows + 0.9), 1, 0.96))
     path = Path(path)
     fig.savefig(path, dpi=120)
     plt.close(fig)

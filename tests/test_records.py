@@ -1,0 +1,93 @@
+"""Episode records and their summaries: rows match what happened, files append safely, numbers are right."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from evaaa.analysis import markdown_table, outcome, read_episodes, summarize
+from evaaa.physiology import END_TYPES
+from evaaa.records import EPISODE_FIELDS, EpisodeTracker, append_rows, read_rows
+
+
+def info(n, *, step, end=0, food=0, water=0, collision=False, damage=0.0, success=False, near_heat=False):
+    def col(value, dtype):
+        return np.full((n, 1), value, dtype=dtype)
+
+    return {
+        "food_eaten": col(food, np.int64), "water_eaten": col(water, np.int64), "collision": col(collision, bool),
+        "damage_taken": col(damage, np.float32), "attacked": col(False, bool), "step_count": col(step, np.int64),
+        "end_type": col(end, np.int64), "success": col(success, bool), "trigger_crossed": col(False, bool),
+        "near_heat": col(near_heat, bool), "satiation": col(-1.0, np.float32), "hydration": col(2.0, np.float32),
+        "temperature": col(0.5, np.float32), "damage": col(3.0, np.float32),
+    }
+
+
+def test_tracker_sums_an_episode_and_starts_over():
+    tracker = EpisodeTracker(2, "two-resource-food", "oracle", seed=3)
+    assert tracker.update([1.0, 1.0], info(2, step=1, collision=True, damage=2.0, near_heat=True), [False, False]) == []
+    done = info(2, step=2, food=1, end=END_TYPES.index("ResourceConsumed"), success=True)
+    rows = tracker.update([0.5, 0.5], done, [True, False])
+    assert len(rows) == 1
+    row = rows[0]
+    assert row["steps"] == 2 and row["return"] == pytest.approx(1.5) and row["food_eaten"] == 1
+    assert row["collisions"] == 1 and row["damage_taken"] == pytest.approx(2.0) and row["steps_near_heat"] == 1
+    assert row["end_type"] == "ResourceConsumed" and row["success"] is True and row["seed"] == 3
+    assert row["final_damage"] == pytest.approx(3.0)
+    # world 0 starts over from zero, world 1 keeps counting
+    rows = tracker.update([2.0, 2.0], info(2, step=3, end=END_TYPES.index("MaxStepReached")), [True, True])
+    assert [r["return"] for r in rows] == pytest.approx([2.0, 3.5])
+    assert [r["episode"] for r in rows] == [1, 2]
+
+
+def test_training_levels_are_not_judged():
+    tracker = EpisodeTracker(1, "1-1", "random")
+    rows = tracker.update([0.0], info(1, step=9, end=END_TYPES.index("FoodOutOfRange"), success=False), [True])
+    assert rows[0]["success"] == ""
+
+
+def test_append_rows_writes_the_header_once_and_refuses_other_columns(tmp_path):
+    path = tmp_path / "runs" / "episodes.csv"
+    tracker = EpisodeTracker(1, "two-resource-water", "random")
+    row = tracker.update([0.0], info(1, step=4, end=1, water=1, success=True), [True])[0]
+    append_rows(path, [row])
+    append_rows(path, [row, row])
+    rows = read_rows(path)
+    assert len(rows) == 3 and list(rows[0])[: len(EPISODE_FIELDS)] == list(EPISODE_FIELDS)
+    bad = dict(row, extra_column=1)
+    with pytest.raises(ValueError):
+        append_rows(path, [bad])
+    assert len(read_rows(path)) == 3
+
+
+def test_summary_numbers_match_the_inputs(tmp_path):
+    rows = pd.DataFrame({
+        "level": ["two-resource-food"] * 4 + ["1-1"] * 3,
+        "policy": ["a", "a", "a", "a", "a", "a", "a"],
+        "success": [True, False, True, True, np.nan, np.nan, np.nan],
+        "steps": [10, 20, 30, 40, 100, 200, 600],
+        "collisions": [0, 1, 2, 3, 0, 0, 0],
+        "end_type": ["ResourceConsumed"] * 4 + ["FoodOutOfRange"] * 3,
+        "food_eaten": [1, 0, 1, 1, 0, 0, 0],
+    })
+    summary = summarize(rows).set_index("level")
+    assert summary.loc["two-resource-food", "success_rate"] == pytest.approx(0.75)
+    assert summary.loc["two-resource-food", "success_se"] == pytest.approx(np.std([1, 0, 1, 1], ddof=1) / 2)
+    assert summary.loc["1-1", "survival"] == pytest.approx(300.0)
+    assert summary.loc["1-1", "survival_se"] == pytest.approx(np.std([100, 200, 600], ddof=1) / np.sqrt(3))
+    assert np.isnan(summary.loc["1-1", "success_rate"])
+    table = markdown_table(summarize(rows))
+    assert "| two-resource-food | 75% ± 25 (n=4) |" in table and "| 1-1 | 300 ± 153 steps (n=3) |" in table
+    assert [outcome(r) for _, r in rows.iloc[:2].iterrows()] == ["success", "drank water (wrong)"]
+
+
+def test_read_episodes_parses_success(tmp_path):
+    path = tmp_path / "e.csv"
+    tracker = EpisodeTracker(1, "two-resource-food", "x")
+    append_rows(path, tracker.update([0.0], info(1, step=2, end=1, food=1, success=True), [True]))
+    tracker = EpisodeTracker(1, "1-1", "x")
+    append_rows(path, tracker.update([0.0], info(1, step=2, end=2), [True]))
+    rows = read_episodes([path])
+    assert rows["success"].iloc[0] is True or rows["success"].iloc[0] == 1.0
+    assert np.isnan(rows["success"].iloc[1])
