@@ -78,6 +78,7 @@ class EvaaaEnv(EnvBase):
         self.num_envs = num_envs
         self._make_specs()
         self._seed_value = seed
+        self.is_closed = False  # as TorchRL's wrappers do once built: close() (or garbage collection) frees the GL
 
     # ---------------------------------------------------------------------------------------------- specs
     def _make_specs(self) -> None:

@@ -102,11 +102,14 @@ class BatchRenderer:
     def close(self) -> None:
         global _current_context
         if getattr(self, "_gl", None) is not None:
-            if _current_context is self._gl:
-                _current_context = None
+            # free the GL objects in their own context: freeing them in whichever context is current would
+            # delete another renderer's textures and buffers
+            self._gl.make_current()
             self._context.free()
+            self._context = None
             self._gl.free()
             self._gl = None
+            _current_context = None
 
     def __del__(self):
         try:

@@ -369,7 +369,6 @@ def test_serial_transformed_and_collector():
     assert len(batches) == 2 and batches[0]["next", "pixels"].shape[-3:] == (64, 64, 3)
 
 
-@pytest.mark.slow
 def test_parallel_env():
     from torchrl.envs import ParallelEnv
 
@@ -428,3 +427,16 @@ def test_snapshot_restore_continues_exactly():
         other.restore(snap)
     env.close()
     other.close()
+
+
+def test_closing_one_env_leaves_the_others_pictures_intact():
+    keep = evaaa.make_env("1-1", seed=0, modalities=["pixels"])
+    before = keep.reset()["pixels"].clone()
+    other = evaaa.make_env("1-2", seed=1, modalities=["pixels"])
+    other.reset()
+    assert not other.is_closed
+    other.close()
+    assert other.is_closed
+    keep.set_seed(0)
+    assert torch.equal(keep.reset()["pixels"], before)
+    keep.close()

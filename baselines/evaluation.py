@@ -1,0 +1,157 @@
+"""Evaluating trained baselines: deterministic episodes on a batch of worlds, and loading a checkpoint as a policy.
+
+:func:`load_policy` is what ``scripts/evaluate.py`` and the reports build on: it rebuilds the network an
+algorithm trained from the checkpoint's own record (algorithm, config, observation keys and shapes), refuses a
+checkpoint made for another observation set, and gives the env transforms (frame stacks, LSTM state) the policy
+expects, so that ``loaded.make_env("two-resource-food")`` or ``loaded.wrap(env)`` yields tensordicts it can act on.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from omegaconf import DictConfig, OmegaConf
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+from torch import nn
+from torchrl.envs import Compose, EnvBase, RewardSum, Transform, TransformedEnv
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+import evaaa
+from evaaa import END_TYPES
+from evaaa.sensors import resolve_modalities
+
+from .checkpoint import CHECKPOINT_FORMAT, load_checkpoint
+
+
+def wrap_env(env: EnvBase, transforms: Sequence[Transform]) -> TransformedEnv:
+    """The env a policy acts in: the algorithm's transforms (frame stacks, LSTM state), then the episode return."""
+    return TransformedEnv(env, Compose(*transforms, RewardSum()))
+
+
+@dataclass(frozen=True)
+class EvalResult:
+    """The first episode of every world: survival steps, return and how it ended."""
+
+    survival: list[int]
+    returns: list[float]
+    end_types: list[str]
+
+    @property
+    def survival_mean(self) -> float:
+        return float(np.mean(self.survival))
+
+    @property
+    def return_mean(self) -> float:
+        return float(np.mean(self.returns))
+
+
+def evaluate(env: EnvBase, policy: TensorDictModuleBase) -> EvalResult:
+    """Run ``policy`` deterministically until every world of ``env`` has finished one episode (from a reset).
+
+    ``env`` must emit the keys the policy reads (see :meth:`LoadedPolicy.wrap`); episodes end by death or by the
+    level's ``episode.max_steps``.  Worlds that finish early keep stepping, unrecorded, until the last one ends.
+    """
+    n = env.batch_size.numel()
+    survival = torch.full((n,), -1, dtype=torch.int64)
+    returns = torch.zeros(n)
+    end_types = torch.zeros(n, dtype=torch.int64)
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        td = env.reset()
+        while (survival < 0).any():
+            out, td = env.step_and_maybe_reset(policy(td))
+            running = survival < 0
+            returns += torch.where(running, out["next", "reward"].reshape(n), 0.0)
+            ended = out["next", "done"].reshape(n) & running
+            survival[ended] = out["next", "info", "step_count"].reshape(n)[ended]
+            end_types[ended] = out["next", "info", "end_type"].reshape(n)[ended]
+    return EvalResult(survival.tolist(), returns.tolist(), [END_TYPES[i] for i in end_types.tolist()])
+
+
+@dataclass
+class LoadedPolicy:
+    """A trained policy and what it was trained on.
+
+    Call it on tensordicts of an env made by :meth:`make_env` or :meth:`wrap` to get ``"action"`` (deterministic:
+    greedy Q-values, or the mode of the action distribution).  A recurrent policy keeps its state in the
+    tensordict (``recurrent_state_h/c``), which those envs carry from step to step.
+    """
+
+    path: Path
+    algo: str
+    config: dict
+    level: str
+    modalities: tuple[str, ...]
+    obs_keys: tuple[str, ...]
+    env_overrides: dict
+    model: nn.Module
+    policy: TensorDictModuleBase
+
+    def __call__(self, td: TensorDictBase) -> TensorDictBase:
+        with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+            return self.policy(td)
+
+    def transforms(self) -> list[Transform]:
+        """Fresh instances of the env transforms the policy expects (one set per env)."""
+        from . import ALGOS  # the algorithm modules import this one
+
+        return ALGOS[self.algo].make_transforms(OmegaConf.create(self.config["algo"]), self.obs_keys, self.model)
+
+    def wrap(self, env: EnvBase) -> TransformedEnv:
+        """``env`` (an evaaa env emitting exactly this policy's observation keys) with the policy's transforms."""
+        emitted = tuple(k for k in evaaa.MODALITIES if k in env.observation_spec.keys())
+        if set(emitted) != set(self.obs_keys):
+            raise ValueError(f"{self.path}: the policy reads observation keys {list(self.obs_keys)}, "
+                             f"the env emits {list(emitted)}")
+        return wrap_env(env, self.transforms())
+
+    def make_env(self, level: str | None = None, *, num_envs: int = 1, seed: int | None = None,
+                 overrides: Mapping[str, Any] | None = None) -> TransformedEnv:
+        """An env of ``level`` (default: the one trained on) with this policy's observation keys and transforms.
+
+        ``overrides`` default to the training run's level overrides (reward, episode length, ...); pass ``{}`` for
+        the level as it is.
+        """
+        overrides = self.env_overrides if overrides is None else overrides
+        env = evaaa.make_env(level or self.level, num_envs=num_envs, seed=seed, modalities=self.obs_keys,
+                             **overrides)
+        return self.wrap(env)
+
+
+def load_policy(path: str | Path, *, modalities: Iterable[str] | str | None = None) -> LoadedPolicy:
+    """Load a checkpoint (``checkpoint.pt`` or ``model-*.pt`` of a run directory) as a policy.
+
+    Args:
+        path: the checkpoint file.
+        modalities: the observation keys the caller will feed (e.g. an ablation's); if given and different from
+            the keys the checkpoint was trained on, a ``ValueError`` says which keys differ.
+    """
+    from . import ALGOS  # the algorithm modules import this one
+
+    path = Path(path)
+    state = load_checkpoint(path)
+    if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT or "model" not in state:
+        raise ValueError(f"{path} is not an evaaa baseline checkpoint (format {CHECKPOINT_FORMAT})")
+    obs_keys = tuple(state["obs_keys"])
+    if modalities is not None:
+        wanted = resolve_modalities(modalities)
+        if set(wanted) != set(obs_keys):
+            missing, extra = sorted(set(obs_keys) - set(wanted)), sorted(set(wanted) - set(obs_keys))
+            raise ValueError(f"{path} was trained on observation keys {list(obs_keys)}, not {list(wanted)}: "
+                             f"missing {missing}, unexpected {extra}")
+    if state["algo"] not in ALGOS:
+        raise ValueError(f"{path}: unknown algorithm {state['algo']!r}; known: {', '.join(ALGOS)}")
+    algo = ALGOS[state["algo"]]
+    algo_cfg: DictConfig = OmegaConf.create(state["config"]["algo"])
+    model = algo.make_model(algo_cfg, {k: tuple(s) for k, s in state["obs_shapes"].items()})
+    model.load_state_dict(state["model"])
+    model.eval()
+    return LoadedPolicy(path=path, algo=state["algo"], config=state["config"], level=state["level"],
+                        modalities=tuple(state["modalities"]), obs_keys=obs_keys,
+                        env_overrides=state["env_overrides"], model=model, policy=algo.make_policy(model))
+

@@ -1,0 +1,334 @@
+"""What every baseline's training loop shares, one stage at a time: the stage's worlds and their evaluation twins,
+the step that logs finished episodes, periodic evaluation, the progress bar, and checkpoints that resume exactly.
+
+An algorithm (``baselines/dqn.py``, ``baselines/ppo.py``) owns its networks, buffer, loss and optimiser and calls a
+:class:`Run` for the rest, so that every baseline logs, evaluates, checkpoints and resumes the same way.
+
+Exact resume: a checkpoint is written between iterations and holds everything the next iteration reads — network,
+optimiser, scheduler and other stateful components, the worlds' full state (``EvaaaEnv.snapshot``), the
+frame-stack buffers, the tensordict the next step starts from, the counters, the torch / numpy / python RNG states
+and the sizes of ``episodes.csv`` and ``eval.csv`` (cut back to them on resume, so rows written after the
+checkpoint by the killed process are not duplicated).  Evaluation uses its own worlds, seeded afresh each time, and a
+deterministic policy, so it draws nothing from the training RNGs.
+"""
+
+from __future__ import annotations
+
+import csv
+import logging
+import os
+import time
+from collections import deque
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+import torch
+from omegaconf import DictConfig, OmegaConf
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+from torch import nn
+from torchrl.envs import Transform, TransformedEnv
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchrl.record.loggers import Logger
+from tqdm import tqdm
+
+import evaaa
+from evaaa import END_TYPES, EV_NAMES
+
+from .checkpoint import CHECKPOINT, CHECKPOINT_FORMAT, rng_state, save_atomic, set_rng_state
+from .config import Stage, env_overrides, observation_keys
+from .evaluation import evaluate, wrap_env
+
+log = logging.getLogger(__name__)
+
+EPISODE_COLUMNS = ("env_steps", "stage", "level", "episode", "world", "survival_steps", "return", "end_type",
+                   *EV_NAMES, "wall_time")
+EVAL_COLUMNS = ("env_steps", "stage", "level", "episodes", "survival_mean", "survival_min", "survival_max",
+                "return_mean", "end_types", "wall_time")
+
+
+# ------------------------------------------------------------------------------------------------ files
+def _now() -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%S")
+
+
+class CsvLog:
+    """A CSV file written one flushed row at a time, appending; :meth:`size` / ``truncate_to`` let a resumed run cut
+    it back to what it held at the checkpoint."""
+
+    def __init__(self, path: Path, columns: Sequence[str], truncate_to: int | None = None):
+        self.columns = tuple(columns)
+        self._file = open(path, "a+", newline="")
+        if truncate_to is not None:
+            self._file.truncate(truncate_to)
+        self._file.seek(0, os.SEEK_END)
+        self._writer = csv.writer(self._file)
+        if self._file.tell() == 0:
+            self._writer.writerow(self.columns)
+            self._file.flush()
+
+    def write(self, row: Mapping[str, Any]) -> None:
+        self._writer.writerow([f"{v:.6g}" if isinstance(v, float) else v for v in (row[c] for c in self.columns)])
+        self._file.flush()
+
+    def size(self) -> int:
+        return self._file.tell()
+
+    def close(self) -> None:
+        self._file.close()
+
+
+class Counters(dict):
+    """Plain integer counters of an algorithm's loop, checkpointed like any stateful component."""
+
+    def state_dict(self) -> dict:
+        return dict(self)
+
+    def load_state_dict(self, state: Mapping) -> None:
+        self.update(state)
+
+
+# ------------------------------------------------------------------------------------------------ one stage
+class Run:
+    """One stage of a training run as an algorithm's loop sees it.
+
+    The loop builds its model from :attr:`obs_shapes`, then calls :meth:`train_env`, :meth:`start` (fresh start,
+    curriculum hand-over or exact resume), and per iteration :meth:`step` or :meth:`collect`, :meth:`log` and
+    :meth:`end_iteration`, until :attr:`done`.
+
+    Args:
+        cfg: the composed config.
+        run_dir: where checkpoints and CSVs go.
+        stage: the level and budget of this stage.
+        algo: the algorithm's module (``make_transforms`` and ``make_policy`` build the evaluation worlds' policy).
+        logger: TorchRL logger shared by the stages.
+        resume: a checkpoint of this stage to continue from.
+        init_weights: the previous stage's model weights (curriculum), for a fresh stage.
+        fresh_logs: start ``episodes.csv`` / ``eval.csv`` empty (a run's first stage started from scratch).
+    """
+
+    def __init__(self, cfg: DictConfig, run_dir: Path, stage: Stage, algo: ModuleType, logger: Logger, *,
+                 resume: dict | None = None, init_weights: Mapping | None = None, fresh_logs: bool = False):
+        self.cfg, self.dir, self.stage, self.algo, self.logger = cfg, Path(run_dir), stage, algo, logger
+        self.resume_state, self.init_weights = resume, init_weights
+        self.obs_keys = observation_keys(cfg)
+        self.overrides = env_overrides(cfg)
+        self.base_env = evaaa.make_env(stage.level, num_envs=cfg.env.num_envs, seed=cfg.seed + stage.index,
+                                       modalities=self.obs_keys, **self.overrides)
+        #: per-world shapes of the enabled observation keys, before any frame stacking
+        self.obs_shapes = {k: tuple(self.base_env.observation_spec[k].shape[1:]) for k in self.obs_keys}
+        self.counters = Counters(steps=0, episodes=0, logged=0, last_end=0)
+        self.recent: deque[int] = deque(maxlen=cfg.progress_window)
+        self.last_eval: float | None = None
+        offsets = resume["logs"] if resume else {}
+        self.episodes_csv = CsvLog(self.dir / "episodes.csv", EPISODE_COLUMNS,
+                                   0 if fresh_logs else offsets.get("episodes_csv"))
+        self.eval_csv = CsvLog(self.dir / "eval.csv", EVAL_COLUMNS, 0 if fresh_logs else offsets.get("eval_csv"))
+        self.env: TransformedEnv | None = None
+        self.model: nn.Module | None = None
+        self._eval_env: TransformedEnv | None = None
+        self.progress: tqdm | None = None
+
+    # -------------------------------------------------------------------------------------------- set-up
+    @property
+    def steps(self) -> int:
+        """Env steps of this stage so far (transitions summed over the worlds)."""
+        return self.counters["steps"]
+
+    @property
+    def done(self) -> bool:
+        return self.steps >= self.stage.budget
+
+    def train_env(self, transforms: Sequence[Transform]) -> TransformedEnv:
+        """The stage's worlds wrapped in the algorithm's transforms."""
+        self.env = wrap_env(self.base_env, transforms)
+        return self.env
+
+    def start(self, model: nn.Module, components: Mapping[str, Any]) -> TensorDictBase:
+        """Begin or resume the stage; returns the tensordict the first step acts on.
+
+        ``components`` are the loop's other stateful objects (optimiser, scheduler, loss with target network,
+        replay buffer, exploration module, counters): anything with ``state_dict`` / ``load_state_dict``.
+        """
+        self.model, self.components = model, dict(components)
+        self.policy = self.algo.make_policy(model)
+        if self.resume_state is not None:
+            td = self._restore(self.resume_state)
+        else:
+            if self.init_weights is not None:
+                model.load_state_dict(self.init_weights)
+            td = self.env.reset()
+        self.progress = tqdm(total=self.stage.budget, initial=self.steps, unit="step", dynamic_ncols=True,
+                             desc=f"{self.cfg.algo.name} {self.stage.level}", disable=not self.cfg.progress)
+        self._session = (time.perf_counter(), self.steps)
+        return td
+
+    # -------------------------------------------------------------------------------------------- acting
+    def step(self, policy: TensorDictModuleBase, td: TensorDictBase) -> tuple[TensorDictBase, TensorDictBase]:
+        """One env step in every world with a sampling policy; logs the episodes that end.
+
+        Returns the transition (``td`` with ``"next"``) and the tensordict of the next step (worlds whose episode
+        ended already reset).
+        """
+        with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
+            out, td = self.env.step_and_maybe_reset(policy(td))
+        n = out.batch_size.numel()
+        self.counters["steps"] += n
+        done = out["next", "done"].reshape(-1)
+        if done.any():
+            self._log_episodes(out["next"], done)
+        self.progress.update(n)
+        return out, td
+
+    def collect(self, policy: TensorDictModuleBase, td: TensorDictBase,
+                steps: int) -> tuple[TensorDictBase, TensorDictBase]:
+        """``steps`` env steps in every world: the transitions as ``[num_envs, steps]``, and the next tensordict."""
+        transitions = []
+        for _ in range(steps):
+            out, td = self.step(policy, td)
+            transitions.append(out)
+        return torch.stack(transitions, dim=1), td
+
+    def _log_episodes(self, nxt: TensorDictBase, done: torch.Tensor) -> None:
+        info = nxt["info"]
+        for world in done.nonzero().flatten().tolist():
+            self.counters["episodes"] += 1
+            row = {
+                "env_steps": self.steps, "stage": self.stage.index, "level": self.stage.level,
+                "episode": self.counters["episodes"], "world": world,
+                "survival_steps": int(info["step_count"][world]),
+                "return": float(nxt["episode_reward"][world]),
+                "end_type": END_TYPES[int(info["end_type"][world])],
+                **{ev: float(info[ev][world]) for ev in EV_NAMES},
+                "wall_time": _now(),
+            }
+            self.episodes_csv.write(row)
+            self.logger.log_metrics({
+                "episode/survival_steps": row["survival_steps"], "episode/return": row["return"],
+                **{f"episode/{ev}": row[ev] for ev in EV_NAMES},
+                # one 0/1 series per end type: its running mean is how often episodes end that way
+                **{f"episode/end/{name}": float(name == row["end_type"]) for name in END_TYPES[1:]},
+            }, step=self.steps)
+            self.recent.append(row["survival_steps"])
+        self._show()
+
+    # -------------------------------------------------------------------------------------------- bookkeeping
+    def log(self, metrics: Mapping[str, float]) -> None:
+        """The latest update's training metrics; written every ``log_every`` env steps, with the session's steps/s."""
+        every = self.cfg.log_every
+        if self.steps // every <= self.counters["logged"] // every:
+            return
+        self.counters["logged"] = self.steps
+        self.logger.log_metrics({**{f"train/{k}": float(v) for k, v in metrics.items()},
+                                 "time/env_steps_per_s": self.steps_per_second()}, step=self.steps)
+
+    def steps_per_second(self) -> float:
+        """Env steps per second of this session's whole loop (collection, updates, evaluation, checkpoints)."""
+        start, steps = self._session
+        return (self.steps - steps) / max(time.perf_counter() - start, 1e-9)
+
+    def end_iteration(self, td: TensorDictBase) -> None:
+        """Evaluate and checkpoint when due: every ``eval.every`` / ``checkpoint.every`` env steps, and at the end of
+        the stage, where the final model is also written as ``model-<stage>-<level>.pt``."""
+        prev, now = self.counters["last_end"], self.steps
+        self.counters["last_end"] = now
+
+        def crossed(every: int) -> bool:
+            return every > 0 and now // every > prev // every
+
+        if crossed(self.cfg.eval.every) or (self.done and self.cfg.eval.every > 0):
+            self.evaluate()
+        if self.done:
+            save_atomic(self._identity() | {"model": self.model.state_dict(), "env_steps": now}, self.model_path)
+        if crossed(self.cfg.checkpoint.every) or self.done:
+            self._checkpoint(td)
+
+    @property
+    def model_path(self) -> Path:
+        return self.dir / f"model-{self.stage.index}-{self.stage.level}.pt"
+
+    def evaluate(self) -> None:
+        """A few deterministic episodes on worlds seeded the same way every time; one row of ``eval.csv``."""
+        if self._eval_env is None:
+            base = evaaa.make_env(self.stage.level, num_envs=self.cfg.eval.episodes, modalities=self.obs_keys,
+                                  **self.overrides)
+            self._eval_env = wrap_env(base, self.algo.make_transforms(self.cfg.algo, self.obs_keys, self.model))
+        self._eval_env.set_seed(self.cfg.seed + self.cfg.eval.seed_offset, static_seed=True)
+        result = evaluate(self._eval_env, self.policy)
+        self.last_eval = result.survival_mean
+        row = {"env_steps": self.steps, "stage": self.stage.index, "level": self.stage.level,
+               "episodes": len(result.survival), "survival_mean": result.survival_mean,
+               "survival_min": min(result.survival), "survival_max": max(result.survival),
+               "return_mean": result.return_mean, "end_types": ";".join(result.end_types),
+               "wall_time": _now()}
+        self.eval_csv.write(row)
+        self.logger.log_metrics({"eval/survival_mean": result.survival_mean, "eval/return_mean": result.return_mean},
+                                step=self.steps)
+        self._show()
+
+    def _show(self) -> None:
+        if self.progress is None:
+            return
+        postfix = {"surv": f"{np.mean(self.recent):.0f}" if self.recent else "-"}
+        if self.last_eval is not None:
+            postfix["eval"] = f"{self.last_eval:.0f}"
+        self.progress.set_postfix(postfix, refresh=False)
+
+    # -------------------------------------------------------------------------------------------- checkpoints
+    def _identity(self) -> dict:
+        """What a loader needs to rebuild the policy, and to refuse a checkpoint made for other observations."""
+        return {
+            "format": CHECKPOINT_FORMAT,
+            "algo": self.cfg.algo.name,
+            "config": OmegaConf.to_container(self.cfg, resolve=True),
+            "level": self.stage.level,
+            "stage": self.stage.index,
+            "modality": self.cfg.modality.name,
+            "modalities": list(self.obs_keys),  # one observation key per modality in evaaa
+            "obs_keys": list(self.obs_keys),
+            "obs_shapes": {k: list(s) for k, s in self.obs_shapes.items()},
+            "env_overrides": self.overrides,
+        }
+
+    def _checkpoint(self, td: TensorDictBase) -> None:
+        state = self._identity() | {
+            "num_envs": self.base_env.num_envs,
+            "model": self.model.state_dict(),
+            "components": {name: c.state_dict() for name, c in self.components.items()},
+            "env": {"snapshot": self.base_env.snapshot(), "transforms": self.env.transform.state_dict(), "td": td},
+            "counters": self.counters.state_dict(),
+            "rng": rng_state(),
+            "logs": {"episodes_csv": self.episodes_csv.size(), "eval_csv": self.eval_csv.size(),
+                     "logger": self.logger.state_dict(), "recent": list(self.recent), "last_eval": self.last_eval},
+        }
+        save_atomic(state, self.dir / CHECKPOINT)
+
+    def _restore(self, state: dict) -> TensorDictBase:
+        self.model.load_state_dict(state["model"])
+        for name, component in self.components.items():
+            component.load_state_dict(state["components"][name])
+        self.env.reset()  # materialises the frame-stack buffers (lazy until the first reset) so they can be loaded
+        self.base_env.restore(state["env"]["snapshot"])
+        self.env.transform.load_state_dict(state["env"]["transforms"])
+        self.counters.load_state_dict(state["counters"])
+        self.recent.extend(state["logs"]["recent"])
+        self.last_eval = state["logs"]["last_eval"]
+        set_rng_state(state["rng"])  # last: building the modules above drew from the RNGs
+        return state["env"]["td"]
+
+    def close(self) -> None:
+        if self.progress is not None:
+            self.progress.close()
+            if self.steps > self._session[1]:
+                log.info("%s on %s: %d env steps, %.0f env steps/s this session", self.cfg.algo.name,
+                         self.stage.level, self.steps, self.steps_per_second())
+        self.episodes_csv.close()
+        self.eval_csv.close()
+        # close explicitly: an evaaa env collected later, while another env's GL context is current, frees its
+        # GL objects in that context and corrupts that env's frames
+        for env in (self.base_env, self._eval_env):
+            if env is not None:
+                env.close(raise_if_closed=False)

@@ -1,0 +1,286 @@
+"""Training: the Hydra config composes for every choice; smoke runs of each baseline (debug preset) finish and write
+what a run directory holds; a run killed between checkpoints and resumed ends exactly where an uninterrupted run
+ends (parameters, optimiser state, losses, episodes, evaluations), in direct training and in a curriculum; the
+loader refuses a checkpoint trained on other observation keys; ``scripts/train.py`` runs a multirun sweep."""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+
+import evaaa
+from baselines import checkpoint, evaluate, load_policy, runtime
+from baselines.config import CONF_DIR, env_overrides, observation_keys, register_levels, stages
+from baselines.runner import make_logger, train
+
+register_levels()
+
+ROOT = Path(__file__).resolve().parents[1]
+ALGOS = ("dqn", "ppo", "ppo_lstm")
+TOTAL = 256  # env steps of a smoke run: 128 per world with the debug preset's 2 worlds
+KILL_AT = 160  # a run "killed" here last checkpointed at 128 (debug: every 64 env steps), so 32+ steps are redone
+
+
+def options(group: str) -> list[str]:
+    return sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml"))
+
+
+def make_cfg(*overrides: str):
+    with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
+        return compose("config", overrides=list(overrides))
+
+
+def debug_cfg(algo: str, *extra: str, total_steps: int = TOTAL):
+    return make_cfg(f"algo={algo}", "preset=debug", "logger=csv", "progress=false", f"total_steps={total_steps}",
+                    *extra)
+
+
+# ------------------------------------------------------------------------------------------------ config
+def check_composed(cfg, algo: str, level: str, modality: str, reward: str, logger: str) -> None:
+    assert cfg.algo.name == algo and cfg.logger.backend == logger
+    assert cfg.level.name == level
+    keys = observation_keys(cfg)
+    dropped = modality.removeprefix("no_").replace("vision", "pixels")
+    assert keys == (evaaa.MODALITIES if modality == "all" else tuple(k for k in evaaa.MODALITIES if k != dropped))
+    assert env_overrides(cfg)["reward"]["name"] == reward
+    assert cfg.run.name == f"{level}/{algo}/{modality}-{reward}/seed{cfg.seed}"
+    assert [s.level for s in stages(cfg)] == (list(evaaa.LEVELS) if level == "curriculum" else [level])
+
+
+def test_group_options_are_the_documented_ones():
+    assert options("algo") == sorted(ALGOS)
+    assert options("modality") == sorted(["all", "no_interoception", "no_vision", "no_olfaction", "no_thermoception",
+                                          "no_collision"])
+    assert options("reward") == sorted(evaaa.REWARDS)
+    assert options("logger") == ["csv", "tensorboard", "wandb"]
+
+
+def test_every_level_and_testbed_has_a_level_config():
+    for name in (*evaaa.LEVELS, *evaaa.TESTBEDS):
+        cfg = make_cfg(f"level={name}")
+        assert cfg.level.name == name
+        evaaa.load_level(name, env_overrides(cfg))  # the overrides training passes are valid for this level
+
+
+@pytest.mark.parametrize("algo", ALGOS)
+def test_config_composes_for_every_modality_reward_logger_and_level(algo):
+    """The full product of modality × reward × logger on one level, and every level (and the curriculum) once."""
+    for modality, reward, logger in itertools.product(options("modality"), options("reward"), options("logger")):
+        cfg = make_cfg(f"algo={algo}", f"modality={modality}", f"reward={reward}", f"logger={logger}")
+        check_composed(cfg, algo, "1-1", modality, reward, logger)
+    for level in (*evaaa.LEVELS, *evaaa.TESTBEDS, "curriculum"):
+        check_composed(make_cfg(f"algo={algo}", f"level={level}"), algo, level, "all", "squared", "wandb")
+
+
+def test_debug_preset_shrinks_each_algorithm():
+    for algo in ALGOS:
+        full, debug = make_cfg(f"algo={algo}"), make_cfg(f"algo={algo}", "preset=debug")
+        assert debug.total_steps < full.total_steps and debug.env.num_envs < full.env.num_envs
+        assert debug.algo.encoder.cnn.features < full.algo.encoder.cnn.features
+        assert debug.algo.name == algo
+    assert make_cfg("algo=dqn", "preset=debug").algo.buffer_size < make_cfg("algo=dqn").algo.buffer_size
+    assert make_cfg("algo=ppo_lstm", "preset=debug").algo.lstm.hidden < make_cfg("algo=ppo_lstm").algo.lstm.hidden
+
+
+# ------------------------------------------------------------------------------------------------ runs
+class Killed(Exception):
+    """Stands for the process being killed between two checkpoints."""
+
+
+def run_killed(cfg, run_dir: Path, at: int, monkeypatch, stage: int = 0) -> None:
+    """Train until ``at`` env steps of ``stage``, then stop as a kill would: that iteration's checkpoint is lost."""
+    end_iteration = runtime.Run.end_iteration
+
+    def killing(self, td):
+        if self.stage.index == stage and self.steps >= at:
+            raise Killed
+        end_iteration(self, td)
+
+    with monkeypatch.context() as patch:
+        patch.setattr(runtime.Run, "end_iteration", killing)
+        with pytest.raises(Killed):
+            train(cfg, run_dir)
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """Per algorithm: an uninterrupted smoke run, and the same run killed at KILL_AT then resumed (made once)."""
+    made: dict[str, dict] = {}
+
+    def get(algo: str) -> dict:
+        if algo not in made:
+            root = tmp_path_factory.mktemp(algo)
+            train(debug_cfg(algo), root / "whole")
+            with pytest.MonkeyPatch.context() as patch:
+                run_killed(debug_cfg(algo), root / "resumed", KILL_AT, patch)
+            at_kill = checkpoint.load_checkpoint(root / "resumed" / checkpoint.CHECKPOINT)
+            train(debug_cfg(algo, "resume=true"), root / "resumed")
+            made[algo] = {"whole": root / "whole", "resumed": root / "resumed",
+                          "steps_at_kill_checkpoint": at_kill["counters"]["steps"]}
+        return made[algo]
+
+    return get
+
+
+def read_csv(path: Path) -> list[dict]:
+    with open(path, newline="") as f:
+        return [{k: v for k, v in row.items() if k != "wall_time"} for row in csv.DictReader(f)]
+
+
+def train_scalars(run_dir: Path) -> dict[str, dict[int, str]]:
+    """The logger's training metrics, the last value written per step (a resumed run re-logs the lost steps)."""
+    out = {}
+    for path in sorted((run_dir / "logs" / "scalars" / "train").glob("*.csv")):
+        with open(path) as f:
+            out[path.stem] = {int(step): value for step, value in csv.reader(f)}
+    return out
+
+
+@pytest.mark.parametrize("algo", ALGOS)
+def test_smoke_run_writes_checkpoint_csvs_and_final_model(runs, algo):
+    run_dir = runs(algo)["whole"]
+    state = checkpoint.load_checkpoint(run_dir / checkpoint.CHECKPOINT)
+    assert state["algo"] == algo and state["level"] == "1-1" and state["counters"]["steps"] == TOTAL
+    assert state["obs_keys"] == list(evaaa.MODALITIES) and state["config"]["algo"]["name"] == algo
+    assert {"snapshot", "transforms", "td"} <= set(state["env"]) and {"torch", "numpy", "python"} <= set(state["rng"])
+    if algo == "dqn":
+        assert len(state["components"]["buffer"]["_storage"]["_storage"]["action"]) > 0  # the replay buffer is saved
+    assert (run_dir / "model-0-1-1.pt").exists()
+    assert not list(run_dir.glob(".*.tmp"))  # atomic writes leave no temp file behind
+
+    episodes = read_csv(run_dir / "episodes.csv")
+    assert list(episodes[0]) == [c for c in runtime.EPISODE_COLUMNS if c != "wall_time"]
+    assert len(episodes) >= 2  # the debug preset's 48-step episodes end several times in 128 steps per world
+    for row in episodes:
+        assert row["end_type"] in evaaa.END_TYPES[1:]
+        assert 0 < int(row["survival_steps"]) <= 48
+        assert (int(row["survival_steps"]) == 48) == (row["end_type"] == "MaxStepReached")
+    evaluations = read_csv(run_dir / "eval.csv")
+    assert [int(r["env_steps"]) for r in evaluations] == [128, 256]  # every eval.every, and at the end
+    assert all(0 < float(r["survival_mean"]) <= 48 for r in evaluations)
+    assert train_scalars(run_dir), "training metrics reach the logger"
+
+
+@pytest.mark.parametrize("algo", ALGOS)
+def test_killed_and_resumed_run_equals_uninterrupted_run(runs, algo):
+    r = runs(algo)
+    assert r["steps_at_kill_checkpoint"] < KILL_AT  # the kill lost work that the resumed run had to redo
+    whole = checkpoint.load_checkpoint(r["whole"] / checkpoint.CHECKPOINT)
+    resumed = checkpoint.load_checkpoint(r["resumed"] / checkpoint.CHECKPOINT)
+    assert whole["counters"] == resumed["counters"]
+    for name, value in whole["model"].items():
+        assert torch.equal(value, resumed["model"][name]), name
+    optim_a, optim_b = whole["components"]["optimizer"]["state"], resumed["components"]["optimizer"]["state"]
+    assert optim_a.keys() == optim_b.keys()
+    for index in optim_a:
+        for key, value in optim_a[index].items():
+            assert torch.equal(value, optim_b[index][key]), (index, key)
+    assert train_scalars(r["whole"]) == train_scalars(r["resumed"])
+    assert read_csv(r["whole"] / "episodes.csv") == read_csv(r["resumed"] / "episodes.csv")
+    assert read_csv(r["whole"] / "eval.csv") == read_csv(r["resumed"] / "eval.csv")
+
+
+def test_existing_run_needs_resume_and_the_same_experiment(runs, tmp_path):
+    run_dir = runs("ppo")["whole"]
+    with pytest.raises(FileExistsError, match="resume=true"):
+        train(debug_cfg("ppo"), run_dir)
+    with pytest.raises(ValueError, match="observation keys"):
+        train(debug_cfg("ppo", "resume=true", "modality=no_vision"), run_dir)
+    with pytest.raises(ValueError, match="algo"):
+        train(debug_cfg("dqn", "resume=true"), run_dir)
+
+
+def test_loader_gives_a_policy_and_refuses_other_observation_keys(runs):
+    path = runs("ppo_lstm")["whole"] / "model-0-1-1.pt"
+    with pytest.raises(ValueError, match="observation keys") as error:
+        load_policy(path, modalities=["pixels", "interoception"])
+    assert "olfaction" in str(error.value)
+    loaded = load_policy(path, modalities=evaaa.MODALITIES)
+    assert loaded.algo == "ppo_lstm" and loaded.obs_keys == evaaa.MODALITIES and loaded.level == "1-1"
+    with pytest.raises(ValueError, match="observation keys"):
+        loaded.wrap(evaaa.make_env("1-1", modalities=["interoception"]))
+    env = loaded.make_env(num_envs=2, seed=3)
+    try:
+        td = loaded(env.reset())
+        assert td["action"].shape == (2,) and 0 <= int(td["action"].min()) and int(td["action"].max()) < 5
+        result = evaluate(env, loaded.policy)
+        assert len(result.survival) == 2 and all(0 < s <= 48 for s in result.survival)
+    finally:
+        env.close()
+
+
+def test_curriculum_hands_weights_over_and_resumes_mid_curriculum(tmp_path, monkeypatch):
+    overrides = ("level=curriculum", "level.stages=[1-1,1-2]")
+    started: list[tuple[int, dict]] = []
+    start = runtime.Run.start
+
+    def recording_start(self, model, components):
+        td = start(self, model, components)
+        started.append((self.stage.index, {k: v.clone() for k, v in model.state_dict().items()}))
+        return td
+
+    monkeypatch.setattr(runtime.Run, "start", recording_start)
+    train(debug_cfg("ppo", *overrides, total_steps=128), tmp_path / "whole")
+    stage0_final = checkpoint.load_checkpoint(tmp_path / "whole" / "model-0-1-1.pt")["model"]
+    stage1_start = dict(started)[1]
+    assert all(torch.equal(stage0_final[k], v) for k, v in stage1_start.items())
+    assert (tmp_path / "whole" / "model-1-1-2.pt").exists()
+    assert {r["level"] for r in read_csv(tmp_path / "whole" / "episodes.csv")} == {"1-1", "1-2"}
+
+    run_killed(debug_cfg("ppo", *overrides, total_steps=128), tmp_path / "resumed", 96, monkeypatch, stage=1)
+    at_kill = checkpoint.load_checkpoint(tmp_path / "resumed" / checkpoint.CHECKPOINT)
+    assert at_kill["stage"] == 1 and at_kill["counters"]["steps"] < 96
+    train(debug_cfg("ppo", *overrides, "resume=true", total_steps=128), tmp_path / "resumed")
+    whole = checkpoint.load_checkpoint(tmp_path / "whole" / checkpoint.CHECKPOINT)
+    resumed = checkpoint.load_checkpoint(tmp_path / "resumed" / checkpoint.CHECKPOINT)
+    assert resumed["stage"] == 1 and resumed["level"] == "1-2"
+    assert all(torch.equal(v, resumed["model"][k]) for k, v in whole["model"].items())
+    assert read_csv(tmp_path / "whole" / "episodes.csv") == read_csv(tmp_path / "resumed" / "episodes.csv")
+
+
+def test_atomic_save_keeps_the_previous_checkpoint_when_writing_fails(tmp_path, monkeypatch):
+    path = tmp_path / "checkpoint.pt"
+    checkpoint.save_atomic({"step": 1}, path)
+
+    def failing_save(obj, f):
+        f.write(b"partial")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(torch, "save", failing_save)
+    with pytest.raises(OSError):
+        checkpoint.save_atomic({"step": 2}, path)
+    monkeypatch.undo()
+    assert checkpoint.load_checkpoint(path) == {"step": 1}
+
+
+@pytest.mark.parametrize("backend", ["tensorboard", "wandb"])
+def test_other_loggers_write_under_the_run_directory(tmp_path, backend):
+    cfg = make_cfg(f"logger={backend}")
+    assert backend != "wandb" or cfg.logger.offline  # W&B stays on this machine unless asked
+    logger = make_logger(cfg, tmp_path, None)
+    logger.log_scalar("train/loss", 1.0, step=1)
+    logger.shutdown()
+    written = [p for p in tmp_path.rglob("*") if p.is_file()]
+    assert written and all(tmp_path in p.parents for p in written)
+    if backend == "wandb":
+        assert list((tmp_path / "wandb").glob("offline-run-*"))
+
+
+def test_train_script_multirun_sweeps_seeds(tmp_path):
+    cmd = [sys.executable, str(ROOT / "scripts" / "train.py"), "-m", "algo=ppo", "preset=debug", "logger=csv",
+           "progress=false", "total_steps=64", "seed=0,1", f"run.root={tmp_path}"]
+    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "HYDRA_FULL_ERROR": "1"})
+    assert done.returncode == 0, done.stderr[-3000:]
+    for seed in (0, 1):
+        run_dir = tmp_path / "1-1" / "ppo" / "all-squared" / f"seed{seed}"
+        assert (run_dir / checkpoint.CHECKPOINT).exists() and (run_dir / ".hydra" / "config.yaml").exists()
+        assert checkpoint.load_checkpoint(run_dir / checkpoint.CHECKPOINT)["config"]["seed"] == seed
