@@ -140,7 +140,12 @@ class Run:
 
     @property
     def done(self) -> bool:
-        return self.steps >= self.stage.budget
+        """The stage's env-step budget is spent, or its wall-clock budget (``max_minutes``, if set) is."""
+        if self.steps >= self.stage.budget:
+            return True
+        limit = self.cfg.get("max_minutes")
+        session = getattr(self, "_session", None)
+        return limit is not None and session is not None and time.perf_counter() - session[0] >= 60.0 * limit
 
     def train_env(self, transforms: Sequence[Transform]) -> TransformedEnv:
         """The stage's worlds wrapped in the algorithm's transforms."""

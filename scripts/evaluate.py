@@ -98,7 +98,8 @@ class Policy:
                 self.loaded = load_policy(path, modalities=modalities)
             except ValueError as err:
                 raise SystemExit(f"evaluate.py: {err}") from None
-        self.name = spec if self.loaded is None else f"{self.loaded.algo}:{path.parent.name}"
+        # a checkpoint is named by its path: reports look the run's configuration up from it
+        self.name = spec if self.loaded is None else str(path)
 
     def make_env(self, level: str, num_envs: int, seed: int):
         if self.loaded is not None:

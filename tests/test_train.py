@@ -284,3 +284,12 @@ def test_train_script_multirun_sweeps_seeds(tmp_path):
         run_dir = tmp_path / "1-1" / "ppo" / "all-squared" / f"seed{seed}"
         assert (run_dir / checkpoint.CHECKPOINT).exists() and (run_dir / ".hydra" / "config.yaml").exists()
         assert checkpoint.load_checkpoint(run_dir / checkpoint.CHECKPOINT)["config"]["seed"] == seed
+
+
+def test_a_wall_clock_budget_ends_the_stage_early(tmp_path):
+    # a budget of 30 ms: the stage stops after its first iteration, still writing its model and evaluation
+    cfg = debug_cfg("ppo", "max_minutes=0.0005", "eval.every=100000", total_steps=10 * TOTAL)
+    train(cfg, tmp_path / "run")
+    rows = list(csv.DictReader(open(tmp_path / "run" / "eval.csv")))
+    assert rows and int(rows[-1]["env_steps"]) < 10 * TOTAL
+    assert (tmp_path / "run" / "model-0-1-1.pt").exists()
