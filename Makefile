@@ -1,12 +1,18 @@
 # The two commands of the README, and a few more. Each target sets up what it needs first (scripts/setup.sh).
 PY := .venv/bin/python
 
-.PHONY: setup demo test test-fast bench pictures
+ARGS ?=
+
+.PHONY: setup train demo test test-fast bench pictures
 
 setup:
 	@bash scripts/setup.sh
 
-# the main job (until training lands): a short random-policy rollout that writes a video and prints steps/s
+# the main job: train a baseline (Hydra overrides in ARGS, e.g. make train ARGS="algo=dreamer level=3-2")
+train: setup
+	$(PY) scripts/train.py $(ARGS)
+
+# a quick look: a short random-policy rollout that writes a video and prints steps/s
 demo: setup
 	$(PY) scripts/demo.py
 
