@@ -1,0 +1,750 @@
+"""Reports from finished (or running) training runs and evaluations: the paper's figures and their tables.
+
+Inputs are what the other tools write: run directories of ``scripts/train.py`` (``.hydra/config.yaml``,
+``episodes.csv``, ``eval.csv``, ``model-<stage>-<level>.pt``, ``checkpoint.pt``) and episode files of
+``scripts/evaluate.py`` (one row per episode; ``policy`` is a checkpoint path, ``oracle``, ``random`` or ``human``).
+An evaluated checkpoint is tied to its run through the run directory it lies in, whose ``.hydra/config.yaml`` says
+what was trained (algorithm, modality, reward, level or curriculum, seed, ...).
+
+Statistics: a trained agent's number is the mean over seeds of each seed's value, ± the standard error across seeds
+(n = seeds; no error with one seed).  Reference agents have no seeds: their numbers are over episodes (oracle,
+random) or, for ``human`` rows with several participants, over participants' means — as ``evaaa.analysis`` does.
+
+Runs that differ only in their seed (and in bookkeeping: logger, evaluation and checkpoint cadence, threads, run
+directory) are pooled; anything else that differs (modality, reward, a hyperparameter, steps per stage, curriculum
+or not) makes a separate group, and labels name what differs.  Nothing is dropped silently: runs without episodes,
+unfinished runs and evaluations whose run directory is gone are listed in the report.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from omegaconf import OmegaConf
+
+import evaaa
+from evaaa.analysis import read_episodes, standard_error
+
+from .config import stages as config_stages
+
+#: Policies of evaluation files that are not checkpoints.
+REFERENCES = ("oracle", "random", "human")
+MODEL_FILE = re.compile(r"^model-(\d+)-(.+)\.pt$")
+#: Settings that do not change what is trained: runs differing only in these (and the seed) are pooled.
+BOOKKEEPING = ("seed", "resume", "threads", "progress", "progress_window", "log_every", "total_steps", "stages",
+               "run.", "logger.", "checkpoint.", "eval.", "level.", "hydra.")
+RUN_COLUMNS = ("env_steps", "stage", "level", "survival_steps")
+EVAL_RUN_COLUMNS = ("env_steps", "stage", "level", "survival_mean")
+EVAL_FILE_COLUMNS = ("policy", "level", "steps", "success", "episode")
+LEVEL_ORDER = {name: i for i, name in enumerate((*evaaa.LEVELS, *evaaa.TESTBEDS))}
+
+
+class ReportError(ValueError):
+    """Bad input: a path that does not exist, a file of the wrong kind, nothing to report on."""
+
+
+# ------------------------------------------------------------------------------------------------ runs
+@dataclass
+class Run:
+    """One training run directory, what it was configured to do and how far it got."""
+
+    dir: Path
+    config: dict = field(default_factory=dict)
+    algo: str = "?"
+    modality: str = "?"
+    reward: str = "?"
+    seed: int | None = None
+    curriculum: bool = False
+    stages: list[tuple[int, str, int]] = field(default_factory=list)  # (index, level, budget)
+    episodes: pd.DataFrame | None = None
+    evals: pd.DataFrame | None = None
+    complete: set[int] = field(default_factory=set)  # indices of finished stages
+    steps: int = 0  # env steps reached, summed over stages
+    problem: str | None = None  # why the run is missing or partial (None: finished)
+    usable: bool = True  # False: nothing of it can be reported (no config or no episodes file)
+    extras: tuple = ()  # other settings that tell this run's group apart (filled by describe_extras)
+
+    @property
+    def total(self) -> int:
+        return sum(b for _, _, b in self.stages)
+
+    @property
+    def training(self) -> str:
+        return "curriculum" if self.curriculum else (self.stages[0][1] if self.stages else "?")
+
+    def offset(self, stage: int) -> int:
+        """Env steps of the stages before ``stage``."""
+        return sum(b for i, _, b in self.stages if i < stage)
+
+    @property
+    def latest_stage(self) -> int:
+        """The stage the run is in (or ended in)."""
+        seen = [int(s) for df in (self.episodes, self.evals) if df is not None and len(df) for s in df["stage"]]
+        return max([*seen, *self.complete, 0])
+
+
+def find_run_dirs(paths: Iterable[str | Path]) -> list[Path]:
+    """Run directories at or under ``paths``: directories with ``.hydra/config.yaml`` or a training
+    ``episodes.csv`` / ``eval.csv`` / checkpoint (hidden folders such as submitit's logs are skipped)."""
+    found: list[Path] = []
+    for root in paths:
+        root = Path(root)
+        if not root.is_dir():
+            raise ReportError(f"runs: {root} is not a directory")
+        before = len(found)
+        for here, dirs, files in os.walk(root):
+            dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+            here = Path(here)
+            if (here / ".hydra" / "config.yaml").is_file() or _looks_like_run(here, files):
+                found.append(here)
+                dirs[:] = []  # a run directory holds no other run
+        if len(found) == before:
+            raise ReportError(f"runs: no run directory (.hydra/config.yaml, episodes.csv, eval.csv) under {root}")
+    return list(dict.fromkeys(p.resolve() for p in found))
+
+
+def _looks_like_run(here: Path, files: Sequence[str]) -> bool:
+    if "checkpoint.pt" in files or any(MODEL_FILE.match(f) for f in files):
+        return True
+    for name in ("episodes.csv", "eval.csv"):
+        if name in files:
+            with open(here / name, newline="") as f:
+                header = f.readline().strip().split(",")
+            if {"env_steps", "stage"} <= set(header):  # training files, not evaluate.py's episodes.csv
+                return True
+    return False
+
+
+def load_run(run_dir: str | Path) -> Run:
+    """A run directory as a :class:`Run`; a run that cannot be used says why in ``problem``."""
+    run = Run(Path(run_dir).resolve())
+    cfg_path = run.dir / ".hydra" / "config.yaml"
+    if not cfg_path.is_file():
+        run.problem, run.usable = "no .hydra/config.yaml: its settings are unknown, so it is left out", False
+        return run
+    try:
+        cfg = OmegaConf.load(cfg_path)
+        run.config = OmegaConf.to_container(cfg, resolve=True)
+        run.algo, run.modality, run.reward = cfg.algo.name, cfg.modality.name, cfg.reward.name
+        run.seed = int(cfg.seed)
+        run.curriculum = "stages" in cfg.level
+        run.stages = [(s.index, s.level, s.budget) for s in config_stages(cfg)]
+    except Exception as err:  # noqa: BLE001 - any malformed config is reported, not fatal
+        run.problem, run.usable = f"unreadable .hydra/config.yaml ({err}); left out", False
+        return run
+    run.episodes = _read_run_csv(run.dir / "episodes.csv", RUN_COLUMNS)
+    run.evals = _read_run_csv(run.dir / "eval.csv", EVAL_RUN_COLUMNS)
+    for index, level, budget in run.stages:
+        later = any(df is not None and (df["stage"] > index).any() for df in (run.episodes, run.evals))
+        evaluated_at_end = run.evals is not None and ((run.evals["stage"] == index)
+                                                      & (run.evals["env_steps"] >= budget)).any()
+        if (run.dir / f"model-{index}-{level}.pt").is_file() or later or evaluated_at_end:
+            run.complete.add(index)
+    if len(run.complete) == len(run.stages):
+        run.steps = run.total
+    else:
+        reached = [run.offset(i) + run.stages[i][2] for i in run.complete]
+        for df in (run.episodes, run.evals):
+            if df is not None and len(df):
+                reached += [run.offset(int(s)) + int(e) for s, e in zip(df["stage"], df["env_steps"])]
+        run.steps = max(reached, default=0)
+    if run.episodes is None:
+        run.problem, run.usable = "missing: no episodes.csv (the run never started, or its files are gone)", False
+    elif run.steps < run.total:
+        unfinished = [level for i, level, _ in run.stages if i not in run.complete]
+        run.problem = (f"partial: {run.steps:,} of {run.total:,} env steps (unfinished: {', '.join(unfinished)}); "
+                       "its curves are drawn, its unfinished stages are left out of the final-survival tables")
+    if run.episodes is not None and not len(run.episodes) and run.problem is None:
+        run.problem = "no finished training episode (the budget is shorter than an episode)"
+    return run
+
+
+def _read_run_csv(path: Path, needed: Sequence[str]) -> pd.DataFrame | None:
+    if not path.is_file():
+        return None
+    df = pd.read_csv(path)
+    missing = [c for c in needed if c not in df.columns]
+    if missing:
+        raise ReportError(f"{path} is not a training {path.name} (no column {', '.join(missing)})")
+    return df
+
+
+def describe_extras(runs: Sequence[Run]) -> None:
+    """Set each run's ``extras``: the settings (beyond algorithm, modality, reward and training levels) in which
+    runs of the same algorithm differ, as ``key=value`` pairs, so that they land in separate groups."""
+    flat = {id(r): _flatten(r.config) | {"steps_per_stage": r.stages[0][2] if r.stages else None} for r in runs}
+    by_algo: dict[str, list[Run]] = {}
+    for r in runs:
+        by_algo.setdefault(r.algo, []).append(r)
+    for same in by_algo.values():
+        keys = sorted({k for r in same for k in flat[id(r)]})
+        varying = [k for k in keys if not k.startswith(BOOKKEEPING) and k not in ("algo.name", "modality.name",
+                                                                                  "reward.name")
+                   and not k.startswith("modality.enabled")
+                   and len({repr(flat[id(r)].get(k)) for r in same}) > 1]
+        for r in same:
+            r.extras = tuple(f"{k}={flat[id(r)].get(k)}" for k in varying)
+
+
+def _flatten(node: Any, prefix: str = "") -> dict[str, Any]:
+    if isinstance(node, dict):
+        out: dict[str, Any] = {}
+        for k, v in node.items():
+            out |= _flatten(v, f"{prefix}{k}.")
+        return out
+    return {prefix[:-1]: node}
+
+
+def labels(runs: Sequence[Run], parts: Sequence[str] = ("algo", "modality", "reward", "extras", "condition")
+           ) -> dict[Path, str]:
+    """A label per run naming the algorithm and whichever of ``parts`` differ among ``runs`` (so runs that differ
+    only in their seed share a label).  ``condition``: curriculum or direct; ``training``: curriculum or the level."""
+    def part(r: Run, name: str) -> str:
+        if name == "condition":
+            return "curriculum" if r.curriculum else "direct"
+        if name == "training":
+            return "curriculum" if r.curriculum else f"trained on {r.training}"
+        if name == "extras":
+            return ", ".join(r.extras)
+        return str(getattr(r, name))
+
+    shown = [p for p in parts if p == "algo" or len({part(r, p) for r in runs}) > 1]
+    return {r.dir: " · ".join(x for x in (part(r, p) for p in shown) if x) for r in runs}
+
+
+# ------------------------------------------------------------------------------------------------ numbers
+def mean_se(values: Iterable[float]) -> tuple[float, float, int]:
+    """Mean, standard error of the mean (ddof 1; NaN for one value) and count of the non-NaN values."""
+    s = pd.Series(list(values), dtype=float).dropna()
+    return (float(s.mean()) if len(s) else float("nan")), standard_error(s), int(len(s))
+
+
+def final_survival(runs: Sequence[Run], source: str = "eval", window: int = 20) -> pd.DataFrame:
+    """One row per finished stage of every run: the survival the stage ended with.
+
+    ``source="eval"``: the stage's last evaluation (``eval.csv``: deterministic episodes at the stage's end), or,
+    in a stage without evaluations, the mean survival of its last ``window`` training episodes; ``"train"``: always
+    the training episodes.  The ``source`` column says which.
+    """
+    rows = []
+    for r in runs:
+        if not r.usable:
+            continue
+        for index, level, _ in r.stages:
+            if index not in r.complete:
+                continue
+            value, used = float("nan"), "none"
+            ev = r.evals[r.evals["stage"] == index] if r.evals is not None else None
+            if source == "eval" and ev is not None and len(ev):
+                value, used = float(ev.sort_values("env_steps", kind="stable")["survival_mean"].iloc[-1]), "eval"
+            else:
+                eps = r.episodes[r.episodes["stage"] == index]
+                if len(eps):
+                    value, used = float(eps["survival_steps"].iloc[-window:].mean()), "train"
+            rows.append({"run": r.dir, "stage": index, "level": level, "survival": value, "source": used,
+                         "last": index == r.stages[-1][0]})
+    return pd.DataFrame(rows, columns=["run", "stage", "level", "survival", "source", "last"])
+
+
+def curves(runs: Sequence[Run], bins: int = 20) -> pd.DataFrame:
+    """Training curves: survival of the training episodes against env steps (summed over stages), per run in
+    ``bins`` equal bins of its group's longest budget (bin i holds episodes ending in (i·w, (i+1)·w]; the first
+    also holds step 0); columns run, bin, steps (bin centre), survival (mean of the run's episodes in the bin)."""
+    rows = []
+    for r in runs:
+        if not r.usable or r.episodes is None or not len(r.episodes) or not r.total:
+            continue
+        x = np.array([r.offset(int(s)) + int(e) for s, e in zip(r.episodes["stage"], r.episodes["env_steps"])])
+        width = r.total / bins
+        b = np.clip(np.ceil(x / width).astype(int) - 1, 0, bins - 1)
+        for i in np.unique(b):
+            rows.append({"run": r.dir, "bin": int(i), "steps": (i + 0.5) * width,
+                         "survival": float(r.episodes["survival_steps"].to_numpy()[b == i].mean())})
+    return pd.DataFrame(rows, columns=["run", "bin", "steps", "survival"])
+
+
+def across_seeds(values: pd.DataFrame, by: Sequence[str], value: str) -> pd.DataFrame:
+    """Per group of ``by``: mean, se and n of ``value`` over the group's rows (one row per seed)."""
+    out = []
+    for key, part in values.groupby(list(by), sort=False, dropna=False):
+        m, se, n = mean_se(part[value])
+        out.append({**dict(zip(by, key if isinstance(key, tuple) else (key,))), "mean": m, "se": se, "n": n})
+    return pd.DataFrame(out, columns=[*by, "mean", "se", "n"])
+
+
+# ------------------------------------------------------------------------------------------------ evaluations
+def load_evaluations(paths: Iterable[str | Path]) -> pd.DataFrame:
+    """Episode rows of evaluation outputs (an ``out`` directory of evaluate.py or an episode CSV, e.g. human
+    play records), in one frame with a ``file`` column."""
+    frames = []
+    for p in paths:
+        p = Path(p)
+        file = p / "episodes.csv" if p.is_dir() else p
+        if not file.is_file():
+            raise ReportError(f"evals: {p} is neither an episode CSV nor a directory holding episodes.csv")
+        missing = [c for c in EVAL_FILE_COLUMNS if c not in pd.read_csv(file, nrows=0).columns]
+        if missing:
+            raise ReportError(f"evals: {file} is not an episode file of scripts/evaluate.py or scripts/play.py "
+                              f"(no column {', '.join(missing)})")
+        rows = read_episodes([file])
+        frames.append(rows.assign(file=str(file)))
+    if not frames:
+        return pd.DataFrame(columns=[*EVAL_FILE_COLUMNS, "participant", "file"])
+    return pd.concat(frames, ignore_index=True)
+
+
+@dataclass
+class Evaluations:
+    """Evaluation episodes split into those of checkpoints tied to runs and those of reference agents."""
+
+    checkpoints: pd.DataFrame  # + columns run (Path), ckpt_stage, ckpt_level, checkpoint
+    references: pd.DataFrame
+    orphans: list[str]  # problems: checkpoints whose run is gone or unreadable
+
+
+def attach(evals: pd.DataFrame, runs: dict[Path, Run]) -> Evaluations:
+    """Tie every checkpoint's episodes to its run (the directory the checkpoint lies in; relative paths are taken
+    from the current directory).  Runs found this way that were not among ``runs`` are loaded and added."""
+    is_ref = evals["policy"].isin(REFERENCES) | ~evals["policy"].map(_is_checkpoint_path)
+    refs, ckpts = evals[is_ref].copy(), evals[~is_ref].copy()
+    orphans: list[str] = []
+    info: dict[str, tuple[Path | None, int, str]] = {}
+    for policy, part in ckpts.groupby("policy", sort=False):
+        where = (f"{len(part)} episodes on {', '.join(dict.fromkeys(part['level']))} "
+                 f"in {', '.join(dict.fromkeys(part['file']))}")
+        path = Path(policy)
+        run_dir = path.parent.resolve()
+        if run_dir not in runs:
+            if (run_dir / ".hydra" / "config.yaml").is_file():
+                runs[run_dir] = load_run(run_dir)
+            else:
+                gone = "is gone" if not run_dir.is_dir() else "has no .hydra/config.yaml"
+                orphans.append(f"evaluation of {policy}: its run directory {gone}; left out ({where})")
+                info[policy] = (None, -1, "")
+                continue
+        run = runs[run_dir]
+        if not run.config:
+            orphans.append(f"evaluation of {policy}: its run's settings are unknown ({run.problem}); left out "
+                           f"({where})")
+            info[policy] = (None, -1, "")
+            continue
+        match = MODEL_FILE.match(path.name)
+        if match:
+            stage, level = int(match.group(1)), match.group(2)
+        else:  # checkpoint.pt (or a renamed file): the latest state, in the stage the run is in
+            stage = run.latest_stage
+            level = next((lv for i, lv, _ in run.stages if i == stage), run.training)
+        if not path.is_file():
+            orphans.append(f"evaluation of {policy}: the checkpoint file is gone but its run is there; its episodes "
+                           f"are used ({where})")
+        info[policy] = (run_dir, stage, level)
+    ckpts["run"] = ckpts["policy"].map(lambda p: info[p][0])
+    ckpts["ckpt_stage"] = ckpts["policy"].map(lambda p: info[p][1])
+    ckpts["ckpt_level"] = ckpts["policy"].map(lambda p: info[p][2])
+    ckpts = ckpts[ckpts["run"].notna()]
+    return Evaluations(ckpts, refs, orphans)
+
+
+def _is_checkpoint_path(policy: str) -> bool:
+    return policy.endswith(".pt") or "/" in policy or os.sep in policy
+
+
+def final_checkpoints(ckpts: pd.DataFrame) -> pd.DataFrame:
+    """Per run, the episodes of its furthest-trained evaluated checkpoint (a ``model-*.pt`` before ``checkpoint.pt``
+    of the same stage)."""
+    if not len(ckpts):
+        return ckpts
+    ckpts = ckpts.assign(_model=ckpts["policy"].map(lambda p: bool(MODEL_FILE.match(Path(p).name))))
+    best = (ckpts.sort_values(["ckpt_stage", "_model"], kind="stable").groupby("run", sort=False)["policy"].last())
+    return ckpts[ckpts["policy"].isin(set(best))].drop(columns="_model")
+
+
+def per_run(ckpts: pd.DataFrame, value: str, by: Sequence[str] = ("run", "level")) -> pd.DataFrame:
+    """Each run's mean of ``value`` (success as 0/1, or steps) per ``by``: one value per seed."""
+    col = ckpts[value].astype(float)
+    return ckpts.assign(_v=col).groupby(list(by), sort=False)["_v"].mean().rename(value).reset_index()
+
+
+def reference_stats(refs: pd.DataFrame, value: str) -> pd.DataFrame:
+    """Per (policy, level): mean, se, n and unit of ``value`` for reference agents: over episodes, or over
+    participants' means for human rows of several participants."""
+    out = []
+    for (policy, level), part in refs.groupby(["policy", "level"], sort=False):
+        vals, unit = part[value].astype(float), "episodes"
+        if "participant" in part and part["participant"].astype(str).str.len().gt(0).all() \
+                and part["participant"].nunique() > 1:
+            vals, unit = part.assign(_v=vals).groupby("participant")["_v"].mean(), "participants"
+        m, se, n = mean_se(vals)
+        out.append({"label": policy, "level": level, "mean": m, "se": se, "n": n, "unit": unit})
+    return pd.DataFrame(out, columns=["label", "level", "mean", "se", "n", "unit"])
+
+
+# ------------------------------------------------------------------------------------------------ tables
+def cell(mean: float, se: float, n: int, percent: bool = False) -> str:
+    """``mean ± se (n=N)`` as the report's tables write it (one decimal; percent for success rates)."""
+    if n == 0 or np.isnan(mean):
+        return "–"
+    k, unit = (100.0, "%") if percent else (1.0, "")
+    text = f"{k * mean:.1f}{unit}"
+    if not np.isnan(se):
+        text += f" ± {k * se:.1f}"
+    return f"{text} (n={n})"
+
+
+def pivot_table(stats: pd.DataFrame, row: str, col: str, *, percent: bool = False, row_title: str = "level",
+                rows: Sequence[str] | None = None, cols: Sequence[str] | None = None) -> str:
+    """A Markdown table of ``stats`` (columns mean, se, n) with one row per ``row`` value and one column per
+    ``col`` value."""
+    rows = list(rows if rows is not None else dict.fromkeys(stats[row]))
+    cols = list(cols if cols is not None else dict.fromkeys(stats[col]))
+    lines = [f"| {row_title} | " + " | ".join(cols) + " |", "|---|" + "---|" * len(cols)]
+    for r in rows:
+        cells = []
+        for c in cols:
+            hit = stats[(stats[row] == r) & (stats[col] == c)]
+            cells.append(cell(hit["mean"].iloc[0], hit["se"].iloc[0], int(hit["n"].iloc[0]), percent)
+                         if len(hit) else "–")
+        lines.append(f"| {r} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _level_sorted(names: Iterable[str]) -> list[str]:
+    return sorted(dict.fromkeys(names), key=lambda n: (LEVEL_ORDER.get(n, len(LEVEL_ORDER)), n))
+
+
+# ------------------------------------------------------------------------------------------------ figures
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _finish(fig, axes, path: Path, title: str) -> Path:
+    """Legends to the right of each panel (labels name algorithm, modality and more, so they are long), title,
+    and the file, cropped to what was drawn."""
+    for ax in axes:
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(frameon=False, fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+        ax.spines[["top", "right"]].set_visible(False)
+    fig.suptitle(title, fontsize=11)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120, bbox_inches="tight")
+    _plt().close(fig)
+    return Path(path)
+
+
+def plot_bars(stats: pd.DataFrame, path: Path, *, ylabel: str, title: str, panel: str | None = None,
+              scale: float = 1.0, levels: Sequence[str] | None = None, top: float | None = None) -> Path:
+    """Grouped bars — one group per ``level``, one bar per ``label`` (mean, ± se as whiskers) — in one panel per
+    ``panel`` value (or a single panel); the y axis starts at 0 and ends at ``top`` if given."""
+    plt = _plt()
+    panels = list(dict.fromkeys(stats[panel])) if panel else [None]
+    n_levels = stats["level"].nunique()
+    fig, axes = plt.subplots(len(panels), 1, figsize=(max(4.5, 0.55 * len(stats) / len(panels) + 2.5, 1.2 * n_levels),
+                                                      3.4 * len(panels)), squeeze=False)
+    for ax, name in zip(axes[:, 0], panels):
+        part = stats if name is None else stats[stats[panel] == name]
+        order = [lv for lv in (levels or _level_sorted(part["level"])) if lv in set(part["level"])]
+        names = list(dict.fromkeys(part["label"]))
+        width = 0.8 / max(len(names), 1)
+        for i, label in enumerate(names):
+            one = part[part["label"] == label].set_index("level").reindex(order)
+            ax.bar(np.arange(len(order)) + (i - (len(names) - 1) / 2) * width,
+                   scale * one["mean"].to_numpy(dtype=float), width,
+                   yerr=scale * one["se"].fillna(0.0).to_numpy(dtype=float), capsize=3, label=label)
+        ax.set_xticks(range(len(order)), order, rotation=30 if len(order) > 2 else 0,
+                      ha="right" if len(order) > 2 else "center")
+        ax.set_ylabel(ylabel)
+        ax.set_ylim(0, top)
+        if name is not None:
+            ax.set_title(str(name), fontsize=9)
+    return _finish(fig, axes[:, 0], path, title)
+
+
+def plot_lines(stats: pd.DataFrame, path: Path, *, x: str, panel: str | None, ylabel: str, xlabel: str,
+               title: str, band: bool, scale: float = 1.0, order: Sequence[str] | None = None,
+               hlines: pd.DataFrame | None = None, top: float | None = None) -> Path:
+    """Mean lines per ``label`` (one panel per ``panel`` value), with ± standard error as a band or whiskers;
+    ``order``: categorical x values in this order (labels drawn side by side, slightly apart, so that equal values
+    stay visible); ``hlines``: (label, mean) rows drawn as dashed lines; the y axis starts at 0, ends at ``top``."""
+    plt = _plt()
+    panels = list(dict.fromkeys(stats[panel])) if panel else [None]
+    cols = min(len(panels), 2)
+    nrows = -(-len(panels) // cols)
+    fig, axes = plt.subplots(nrows, cols, figsize=(6.5 * cols, 3.6 * nrows), squeeze=False)
+    for ax in axes.flat[len(panels):]:
+        ax.set_visible(False)
+    for ax, name in zip(axes.flat, panels):
+        part = stats if name is None else stats[stats[panel] == name]
+        n_labels = part["label"].nunique()
+        for k, (label, line) in enumerate(part.groupby("label", sort=False)):
+            if order is not None:
+                line = line.assign(_x=line[x].map({v: i for i, v in enumerate(order)})).sort_values("_x")
+                xs = line["_x"].to_numpy(dtype=float) + 0.04 * (k - (n_labels - 1) / 2)
+            else:
+                line = line.sort_values(x)
+                xs = line[x].to_numpy(dtype=float)
+            m = scale * line["mean"].to_numpy(dtype=float)
+            se = scale * np.nan_to_num(line["se"].to_numpy(dtype=float))
+            if band:
+                (drawn,) = ax.plot(xs, m, marker="." if len(xs) < 30 else None, label=label)
+                ax.fill_between(xs, m - se, m + se, alpha=0.25, color=drawn.get_color(), linewidth=0)
+            else:
+                ax.errorbar(xs, m, yerr=se, marker="o", capsize=3, label=label)
+        for style, (_, ref) in zip(("--", ":", "-.", (0, (5, 1))), (hlines if hlines is not None else
+                                                                    pd.DataFrame()).iterrows()):
+            ax.axhline(scale * ref["mean"], linestyle=style, linewidth=1, color="0.35", label=ref["label"])
+        if order is not None:
+            ax.set_xticks(range(len(order)), order)
+            ax.set_xlim(-0.3, len(order) - 0.7)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
+        ax.set_ylim(0, top)
+        if name is not None:
+            ax.set_title(str(name), fontsize=9)
+    return _finish(fig, list(axes.flat[:len(panels)]), path, title)
+
+
+# ------------------------------------------------------------------------------------------------ the report
+@dataclass
+class Report:
+    markdown: Path
+    figures: list[Path]
+    tables: dict[str, pd.DataFrame]
+    problems: list[str]
+
+
+def build_report(run_paths: Sequence[str | Path], eval_paths: Sequence[str | Path], out: str | Path, *,
+                 survival: str = "eval", window: int = 20, bins: int = 20, title: str = "evaaa report") -> Report:
+    """Read runs and evaluations, write ``out/report.md``, its PNG figures and ``out/data/*.csv`` (the tables'
+    numbers); returns what was written."""
+    if survival not in ("eval", "train"):
+        raise ReportError(f"survival must be eval or train, not {survival!r}")
+    if window < 1 or bins < 1:
+        raise ReportError("window and bins must be positive")
+    if not run_paths and not eval_paths:
+        raise ReportError("nothing to report: give runs=[...] (run directories) and/or evals=[...] "
+                          "(evaluate.py outputs)")
+    runs = {d: load_run(d) for d in find_run_dirs(run_paths)}
+    evals = attach(load_evaluations(eval_paths), runs)  # may add the runs of evaluated checkpoints
+    run_list = sorted(runs.values(), key=lambda r: str(r.dir))
+    usable = [r for r in run_list if r.usable]
+    describe_extras(usable)
+    out = Path(out)
+    (out / "data").mkdir(parents=True, exist_ok=True)
+    md: list[str] = [f"# {title}", ""]
+    figures: list[Path] = []
+    tables: dict[str, pd.DataFrame] = {}
+    cwd = Path.cwd()
+
+    def rel(p: Path) -> str:
+        try:
+            return str(p.relative_to(cwd))
+        except ValueError:
+            return str(p)
+
+    n_policies = evals.checkpoints["policy"].nunique() + evals.references["policy"].nunique()
+    md += [f"{len(run_list)} run directories; {n_policies} evaluated policies "
+           f"({len(evals.checkpoints) + len(evals.references)} evaluation episodes).", "",
+           "Trained agents: mean over seeds ± standard error across seeds (n = seeds; no error with one seed). "
+           "Reference agents (oracle, random): over episodes; human: over participants when there are several. "
+           "Runs that differ only in their seed are pooled; labels name what else differs.", ""]
+
+    # ---- runs and problems
+    md += ["## Runs", "", "| run | algo | modality | reward | training | seed | env steps | status |",
+           "|---|---|---|---|---|---|---|---|"]
+    for r in run_list:
+        status = "finished" if r.problem is None else r.problem.split(":")[0]
+        md.append(f"| {rel(r.dir)} | {r.algo} | {r.modality} | {r.reward} | {r.training} | "
+                  f"{'' if r.seed is None else r.seed} | {r.steps:,} / {r.total:,} | {status} |")
+    problems = [f"{rel(r.dir)}: {r.problem}" for r in run_list if r.problem] + evals.orphans
+    groups: dict[tuple, list[Run]] = {}
+    for r in usable:
+        groups.setdefault((r.algo, r.modality, r.reward, r.extras, r.training, r.seed), []).append(r)
+    problems += [f"{', '.join(rel(r.dir) for r in same)}: same settings and seed; all are counted as seeds"
+                 for same in groups.values() if len(same) > 1]
+    md += ["", "## Missing and partial runs", ""]
+    md += [f"- {p}" for p in problems] if problems else ["None: every run finished and every evaluated checkpoint "
+                                                         "belongs to a run given here."]
+    md.append("")
+
+    def section(heading: str, note: str, figure: Path | None, table: str | None, empty: str) -> None:
+        md.extend([f"## {heading}", ""])
+        if figure is None:
+            md.extend([empty, ""])
+            return
+        figures.append(figure)
+        md.extend([note, "", f"![{heading}]({figure.name})", "", table or "", ""])
+
+    # ---- Fig. 4a: survival per training level; with vs without curriculum
+    final = final_survival(usable, survival, window)
+    by_dir = {r.dir: r for r in usable}
+    fallback = int((final["source"] == "train").sum()) if survival == "eval" else 0
+    source_note = ("Survival: the last evaluation of each finished stage (`eval.csv`, deterministic episodes)"
+                   if survival == "eval" else f"Survival: the mean of each finished stage's last {window} training "
+                   "episodes")
+    if fallback:
+        source_note += f"; {fallback} value(s) from the last {window} training episodes (stages without evaluation)"
+    source_note += "."
+    curriculum_algos = {(r.algo, r.modality, r.reward, r.extras) for r in usable if r.curriculum}
+    left_runs = [r for r in usable if r.curriculum or (r.algo, r.modality, r.reward, r.extras) not in curriculum_algos]
+    table = figure = None
+    if len(final):
+        lab = labels(left_runs)
+        f = final[final["run"].isin(list(lab))].assign(label=lambda d: d["run"].map(lab))
+        stats = across_seeds(f, ["label", "level"], "survival")
+        tables["survival_per_level"] = stats
+        levels = _level_sorted(stats["level"])
+        figure = plot_bars(stats, out / "fig4a_survival_per_level.png", levels=levels, ylabel="survival (decisions)",
+                      title="Survival per training level")
+        table = pivot_table(stats, "level", "label", rows=levels)
+    section("Survival per training level (Fig. 4a, left)",
+            source_note + " Curriculum runs where an algorithm has them, else its direct runs.", figure, table,
+            "No finished stage in the runs given.")
+
+    both = {k for k in curriculum_algos if any(not r.curriculum and (r.algo, r.modality, r.reward, r.extras) == k
+                                               for r in usable)}
+    cmp_runs = [r for r in usable if (r.algo, r.modality, r.reward, r.extras) in both]
+    table = figure = None
+    if cmp_runs and len(final):
+        lab = {d: f"{v} · {'curriculum' if by_dir[d].curriculum else 'direct'}"
+               for d, v in labels(cmp_runs, ("algo", "modality", "reward", "extras")).items()}
+        f = final[final["run"].isin(list(lab))].assign(label=lambda d: d["run"].map(lab))
+        f = f[f["level"].isin(set(f[f["label"].str.endswith("direct")]["level"]))]  # levels with direct runs
+        stats = across_seeds(f, ["label", "level"], "survival").sort_values(
+            "label", key=lambda s: s.str.endswith("direct"), kind="stable")
+        tables["curriculum_vs_direct"] = stats
+        levels = _level_sorted(stats["level"])
+        if len(stats):
+            figure = plot_bars(stats, out / "fig4a_curriculum_vs_direct.png", levels=levels,
+                               ylabel="survival (decisions)", title="With and without curriculum")
+            table = pivot_table(stats, "level", "label", rows=levels)
+    section("With and without curriculum (Fig. 4a, right)",
+            source_note + " Curriculum: the stage of that level after the levels before it; direct: a run trained "
+            "on that level alone.", figure, table,
+            "No algorithm has both curriculum runs (`level=curriculum`) and direct runs (`level=<level>`) here.")
+
+    # ---- Fig. 4b: success per testbed; generalisation by training level
+    ck = evals.checkpoints
+    ck_runs = [runs[d] for d in dict.fromkeys(ck["run"])] if len(ck) else []
+    ck_lab = labels(ck_runs, ("algo", "modality", "reward", "extras", "training"))
+    refs = evals.references
+    tests = ck[ck["level"].isin(evaaa.TESTBEDS)]
+    best = final_checkpoints(tests)
+    ref_tests = reference_stats(refs[refs["level"].isin(evaaa.TESTBEDS)], "success")
+    table = figure = None
+    if len(best) or len(ref_tests):
+        stats = across_seeds(per_run(best, "success").assign(label=lambda d: d["run"].map(ck_lab)),
+                             ["label", "level"], "success") if len(best) else ref_tests.iloc[:0]
+        stats = pd.concat([stats.assign(unit="seeds"), ref_tests], ignore_index=True)
+        tables["success_per_testbed"] = stats
+        testbeds = _level_sorted(stats["level"])
+        figure = plot_bars(stats, out / "fig4b_success_per_testbed.png", levels=testbeds, scale=100, top=105,
+                           ylabel="success rate (%)", title="Success per testbed")
+        table = pivot_table(stats, "level", "label", rows=testbeds, percent=True, row_title="testbed")
+    section("Success per testbed (Fig. 4b, left)",
+            "Each run's furthest-trained evaluated checkpoint; n: seeds for trained agents, episodes (or human "
+            "participants) for the others.", figure, table, "No testbed evaluation given (`evals=[...]`).")
+
+    table = figure = None
+    if len(tests):
+        per_ckpt = per_run(tests, "success", ("run", "policy", "ckpt_stage", "ckpt_level", "level"))
+        mean_tb = per_ckpt.groupby(["run", "policy", "ckpt_stage", "ckpt_level"], sort=False)["success"].agg(
+            ["mean", "size"]).reset_index().rename(columns={"mean": "success", "size": "testbeds"})
+        mean_tb = mean_tb.sort_values("policy", key=lambda p: p.map(lambda s: not MODEL_FILE.match(Path(s).name)),
+                                      kind="stable").drop_duplicates(["run", "ckpt_stage"])
+        stats = across_seeds(mean_tb.assign(label=lambda d: d["run"].map(ck_lab)), ["label", "ckpt_level"],
+                             "success").rename(columns={"ckpt_level": "level"})
+        tables["generalisation"] = stats
+        order = _level_sorted(stats["level"])
+        ref_mean = across_seeds(ref_tests, ["label"], "mean") if len(ref_tests) else None
+        figure = plot_lines(stats, out / "fig4b_generalisation.png", x="level", panel=None, order=order,
+                            ylabel="mean testbed success (%)", xlabel="trained up to level", scale=100, top=105,
+                            band=False, title="Generalisation by training level", hlines=ref_mean)
+        tb_names = ", ".join(_level_sorted(tests["level"]))
+        table = pivot_table(stats, "level", "label", rows=order, percent=True, row_title="trained up to")
+        table += f"\n\nTestbeds averaged: {tb_names} (each checkpoint over the testbeds it was evaluated on)."
+    section("Generalisation by training level (Fig. 4b, right)",
+            "Success averaged over the testbeds, for checkpoints trained up to each level (`model-<stage>-<level>.pt` "
+            "of curriculum runs; a direct run's checkpoint at its level); dashed: reference agents.",
+            figure, table, "No testbed evaluation of a run's checkpoint given.")
+
+    # ---- evaluations on training levels (survival), when there are any
+    train_ck = final_checkpoints(ck[ck["level"].isin(evaaa.LEVELS)])
+    ref_train = reference_stats(refs[refs["level"].isin(evaaa.LEVELS)], "steps")
+    if len(train_ck) or len(ref_train):
+        stats = across_seeds(per_run(train_ck, "steps").assign(label=lambda d: d["run"].map(ck_lab)),
+                             ["label", "level"], "steps") if len(train_ck) else ref_train.iloc[:0]
+        stats = pd.concat([stats.assign(unit="seeds"), ref_train], ignore_index=True)
+        tables["evaluation_survival"] = stats
+        md += ["## Evaluation on training levels", "", "Mean survival (decisions) in evaluate.py's episodes; "
+               "checkpoints as above.", "", pivot_table(stats, "level", "label", rows=_level_sorted(stats["level"])),
+               ""]
+
+    # ---- Figs. 25-26: modality ablations
+    ab_lab = labels(usable, ("algo", "reward", "extras", "training"))
+    curve_rows = curves(usable, bins)
+    table = figure = None
+    if len(curve_rows):
+        # one bin grid per group: a group's runs share a budget (steps per stage is part of the group)
+        by = curve_rows.assign(group=lambda d: d["run"].map(ab_lab), label=lambda d: d["run"].map(
+            lambda x: by_dir[x].modality))
+        stats = across_seeds(by, ["group", "label", "bin", "steps"], "survival")
+        tables["ablation_curves"] = stats
+        figure = plot_lines(stats, out / "fig25_ablation_curves.png", x="steps", panel="group", band=True,
+                            ylabel="survival (decisions)", xlabel="env steps", title="Training curves per modality")
+        last = final[final["last"]].assign(group=lambda d: d["run"].map(ab_lab),
+                                           label=lambda d: d["run"].map(lambda x: by_dir[x].modality))
+        fstats = across_seeds(last, ["group", "label"], "survival")
+        tables["ablation_final_survival"] = fstats
+        table = pivot_table(fstats, "label", "group", row_title="modality",
+                            rows=sorted(dict.fromkeys(fstats["label"]), key=_modality_key)) if len(fstats) else ""
+        table += (f"\n\nCurves: survival of training episodes in {bins} bins of env steps, mean ± standard error "
+                  "across seeds (band). Table: survival at the end of each run (" +
+                  ("last evaluation" if survival == "eval" else f"last {window} training episodes") + ").")
+    section("Modality ablations: training curves (Fig. 25)",
+            "One panel per algorithm (and training set-up), one line per modality set.", figure, table,
+            "No finished training episode in the runs given.")
+
+    table = figure = None
+    if len(best):
+        ab_ck = labels(ck_runs, ("algo", "reward", "extras", "training"))
+        stats = across_seeds(per_run(best, "success").assign(group=lambda d: d["run"].map(ab_ck),
+                                                             label=lambda d: d["run"].map(lambda x: runs[x].modality)),
+                             ["group", "label", "level"], "success")
+        order = {g: i for i, g in enumerate(dict.fromkeys(stats["group"]))}
+        stats = stats.sort_values("label", key=lambda s: s.map(_modality_key), kind="stable").sort_values(
+            "group", key=lambda s: s.map(order), kind="stable")
+        tables["ablation_success"] = stats
+        figure = plot_bars(stats, out / "fig26_ablation_success.png", panel="group", scale=100, top=105,
+                           ylabel="success rate (%)", title="Testbed success per modality")
+        stats = stats.assign(column=stats["group"] + " · " + stats["label"]) if stats["group"].nunique() > 1 \
+            else stats.assign(column=stats["label"])
+        table = pivot_table(stats, "level", "column", rows=_level_sorted(stats["level"]), percent=True,
+                            row_title="testbed")
+    section("Modality ablations: testbed success (Fig. 26)",
+            "Each run's furthest-trained evaluated checkpoint, evaluated with the observation keys it was trained on.",
+            figure, table, "No testbed evaluation of a run's checkpoint given.")
+
+    for name, frame in tables.items():
+        frame.to_csv(out / "data" / f"{name}.csv", index=False)
+    if len(curve_rows):
+        curve_rows.assign(run=curve_rows["run"].map(lambda d: rel(d))).to_csv(out / "data" / "curves_per_run.csv",
+                                                                                index=False)
+    path = out / "report.md"
+    path.write_text("\n".join(md).rstrip() + "\n")
+    return Report(path, figures, tables, problems)
+
+
+def _modality_key(name: str) -> tuple[int, str]:
+    return (0 if name == "all" else 1, name)

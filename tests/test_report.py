@@ -1,0 +1,459 @@
+"""Reports: every figure is built from small run directories and evaluation files written here by hand, and the
+numbers in the report's tables are the means and standard errors of those inputs across seeds; missing, partial
+and orphaned inputs are listed; bad input gives clear errors; the launcher presets compose; a modality ablation
+removes a key and nothing else."""
+
+from __future__ import annotations
+
+import csv
+import importlib.util
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+
+import evaaa
+from baselines.config import CONF_DIR, observation_keys, register_levels
+from baselines.report import build_report
+from baselines.runtime import EPISODE_COLUMNS, EVAL_COLUMNS
+from evaaa.records import append_rows
+
+register_levels()
+
+ROOT = Path(__file__).resolve().parents[1]
+STAGES = ("1-1", "1-2")
+BUDGET = 100  # env steps per stage
+TESTBEDS = ("two-resource-food", "y-maze")
+FIGURES = ("fig4a_survival_per_level.png", "fig4a_curriculum_vs_direct.png", "fig4b_success_per_testbed.png",
+           "fig4b_generalisation.png", "fig25_ablation_curves.png", "fig26_ablation_success.png")
+
+
+# ------------------------------------------------------------------------------------------------ inputs
+def make_cfg(*overrides: str, hydra: bool = False):
+    with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
+        return compose("config", overrides=list(overrides), return_hydra_config=hydra)
+
+
+def write_csv(path: Path, columns, rows) -> None:
+    with path.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(columns))
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+class Sim:
+    """Writes run directories as scripts/train.py leaves them (the real composed config, CSVs, empty model files)
+    and keeps the numbers it wrote, so the tests can compute what the report must say."""
+
+    def __init__(self, root: Path, seed: int = 0):
+        self.root, self.rng = root, np.random.default_rng(seed)
+        self.runs: dict[Path, dict] = {}
+
+    def run(self, algo: str, seed: int, *, level: str = "curriculum", modality: str = "all", finish: int = 2,
+            partial_steps: int = 0, files: bool = True) -> Path:
+        """``finish``: stages finished (a curriculum has two, a direct run one); ``partial_steps``: env steps the
+        next, unfinished stage got to; ``files``: False leaves the config alone (a run that never started)."""
+        extra = ([f"level.stage_steps={BUDGET}", f"level.stages=[{','.join(STAGES)}]"] if level == "curriculum"
+                 else [f"total_steps={BUDGET}"])
+        cfg = make_cfg(f"algo={algo}", f"seed={seed}", f"level={level}", f"modality={modality}", "preset=debug",
+                       "logger=csv", *extra)
+        run_dir = self.root / OmegaConf.to_container(cfg, resolve=True)["run"]["name"]
+        (run_dir / ".hydra").mkdir(parents=True)
+        OmegaConf.save(cfg, run_dir / ".hydra" / "config.yaml")  # as Hydra saves it: interpolations kept
+        stages = STAGES if level == "curriculum" else (level,)
+        info = {"algo": algo, "seed": seed, "modality": modality, "level": level, "stages": stages,
+                "final": {}, "episodes": []}
+        self.runs[run_dir] = info
+        if not files:
+            return run_dir
+        episodes, evals = [], []
+        for index, name in enumerate(stages):
+            if index > finish:
+                break
+            end = BUDGET if index < finish else partial_steps
+            for step in np.linspace(end / 5, end, 5).astype(int)[:-1 if index == finish else None]:
+                survival = int(self.rng.integers(10, 400))
+                episodes.append({"env_steps": step, "stage": index, "level": name, "episode": len(episodes) + 1,
+                                 "world": 0, "survival_steps": survival, "return": -1.5, "end_type": "FoodOutOfRange",
+                                 "satiation": -15.1, "hydration": 0.0, "temperature": 0.0, "damage": 0.0,
+                                 "wall_time": "2026-01-01T00:00:00"})
+                info["episodes"].append((index * BUDGET + step, survival))
+            for step in (end // 2, end):
+                if step == 0:
+                    continue
+                value = round(float(self.rng.uniform(20, 300)), 2)
+                evals.append({"env_steps": step, "stage": index, "level": name, "episodes": 2,
+                              "survival_mean": value, "survival_min": 1, "survival_max": 400, "return_mean": -1,
+                              "end_types": "FoodOutOfRange;FoodOutOfRange", "wall_time": "2026-01-01T00:00:00"})
+                if index < finish and step == end:
+                    info["final"][name] = value
+            if index < finish:
+                (run_dir / f"model-{index}-{name}.pt").touch()
+        write_csv(run_dir / "episodes.csv", EPISODE_COLUMNS, episodes)
+        write_csv(run_dir / "eval.csv", EVAL_COLUMNS, evals)
+        (run_dir / "checkpoint.pt").touch()
+        return run_dir
+
+    def evaluate(self, policy: str, level: str, episodes: int, *, participant: str = "") -> list[dict]:
+        """Episode rows of evaluate.py's format with random outcomes (success on testbeds, steps elsewhere)."""
+        rows = []
+        for i in range(episodes):
+            success = bool(self.rng.random() < 0.5) if level in evaaa.TESTBEDS else ""
+            rows.append({"policy": policy, "participant": participant, "level": level, "episode": i, "seed": 0,
+                         "steps": int(self.rng.integers(5, 300)), "return": -1.0, "end_type": "MaxStepReached",
+                         "success": success, "food_eaten": 0, "water_eaten": 0, "collisions": 0,
+                         "damage_taken": 0.0, "attacks": 0, "final_satiation": 0.0, "final_hydration": 0.0,
+                         "final_temperature": 0.0, "final_damage": 0.0})
+        return rows
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory):
+    """Curriculum runs (ppo, dqn; a ppo no_vision ablation), direct ppo runs on each level, a dqn run killed in
+    its second stage, a run that never started; evaluations of checkpoints, oracle, random, humans and one
+    checkpoint whose run is gone; and the report built from all of it."""
+    base = tmp_path_factory.mktemp("report")
+    sim = Sim(base / "runs")
+    for seed in (0, 1, 2):
+        sim.run("ppo", seed)
+        sim.run("dqn", seed)
+        sim.run("ppo", seed, modality="no_vision")
+    partial = sim.run("dqn", 3, finish=1, partial_steps=40)
+    for level in STAGES:
+        for seed in (0, 1):
+            sim.run("ppo", seed, level=level, finish=1)
+    missing = sim.run("ppo", 0, modality="no_olfaction", files=False)
+
+    rows, evaluated = [], {}
+    for run_dir, info in sim.runs.items():
+        if run_dir == missing:
+            continue
+        if info["level"] == "curriculum":
+            ckpts = [run_dir / f"model-{i}-{lv}.pt" for i, lv in enumerate(STAGES)]
+            if run_dir == partial:
+                ckpts = [ckpts[0], run_dir / "checkpoint.pt"]  # the latest state, in stage 1 (1-2)
+            levels = list(STAGES)
+        else:
+            ckpts, levels = [run_dir / "checkpoint.pt"], [info["level"]]
+        for ckpt, trained_to in zip(ckpts, levels):
+            for testbed in TESTBEDS:
+                part = sim.evaluate(str(ckpt), testbed, 4)
+                evaluated[(run_dir, trained_to, testbed)] = [r["success"] for r in part]
+                rows += part
+    for testbed in TESTBEDS:
+        rows += sim.evaluate("oracle", testbed, 6) + sim.evaluate("random", testbed, 6)
+    rows += sim.evaluate("random", "1-1", 5)
+    gone = base / "runs" / "deleted" / "seed0" / "model-0-1-1.pt"
+    rows += sim.evaluate(str(gone), "y-maze", 3)
+    append_rows(base / "eval" / "episodes.csv", rows)
+    human = (sim.evaluate("human", "two-resource-food", 3, participant="p01")
+             + sim.evaluate("human", "two-resource-food", 2, participant="p02"))
+    append_rows(base / "human.csv", human)
+
+    report = build_report([base / "runs"], [base / "eval", base / "human.csv"], base / "out", bins=4)
+    text = report.markdown.read_text()
+    return {"sim": sim, "base": base, "report": report, "text": text, "partial": partial, "missing": missing,
+            "evaluated": evaluated, "eval_rows": rows, "human": human, "gone": gone}
+
+
+def stats(values) -> tuple[float, float, int]:
+    """Mean, standard error of the mean (ddof 1) and count, computed here from the inputs."""
+    v = np.asarray(values, dtype=float)
+    return v.mean(), (v.std(ddof=1) / np.sqrt(len(v)) if len(v) > 1 else float("nan")), len(v)
+
+
+def expect(values, percent: bool = False) -> str:
+    """The table cell for ``values``: ``mean ± se (n=N)`` with one decimal (percent for success rates)."""
+    m, se, n = stats(values)
+    k, unit = (100, "%") if percent else (1, "")
+    return f"{k * m:.1f}{unit}" + ("" if n == 1 else f" ± {k * se:.1f}") + f" (n={n})"
+
+
+def table(text: str, heading: str) -> dict[str, dict[str, str]]:
+    """The first Markdown table after ``heading`` as {row: {column: cell}}."""
+    lines = text[text.index(heading):].splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("|"))
+    header = [c.strip() for c in lines[start].strip("|").split("|")]
+    out = {}
+    for line in lines[start + 2:]:
+        if not line.startswith("|"):
+            break
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        out[cells[0]] = dict(zip(header[1:], cells[1:]))
+    return out
+
+
+def runs_of(world, **match):
+    return [(d, info) for d, info in world["sim"].runs.items()
+            if all(info[k] == v for k, v in match.items()) and d != world["missing"]]
+
+
+# ------------------------------------------------------------------------------------------------ figures
+def test_every_figure_is_written_as_a_png_and_linked(world):
+    out = world["base"] / "out"
+    for name in FIGURES:
+        data = (out / name).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 5_000, name
+        assert f"]({name})" in world["text"], name
+    assert sorted(p.name for p in world["report"].figures) == sorted(FIGURES)
+
+
+# ------------------------------------------------------------------------------------------------ Fig. 4a
+def test_survival_per_level_is_the_mean_and_se_across_seeds_of_each_stage_final_evaluation(world):
+    got = table(world["text"], "## Survival per training level")
+    for label, algo, modality in (("ppo · all", "ppo", "all"), ("dqn · all", "dqn", "all"),
+                                  ("ppo · no_vision", "ppo", "no_vision")):
+        for level in STAGES:
+            values = [info["final"][level] for _, info in runs_of(world, algo=algo, modality=modality,
+                                                                  level="curriculum") if level in info["final"]]
+            assert got[level][label] == expect(values), (label, level)
+    # the run killed in stage 2 counts for the level it finished, not for the one it did not
+    assert "(n=4)" in got["1-1"]["dqn · all"] and "(n=3)" in got["1-2"]["dqn · all"]
+    assert set(got["1-1"]) == {"ppo · all", "dqn · all", "ppo · no_vision"}  # direct ppo runs are in 4a right
+
+
+def test_curriculum_vs_direct_compares_the_same_level(world):
+    got = table(world["text"], "## With and without curriculum")
+    for level in STAGES:
+        curriculum = [i["final"][level] for _, i in runs_of(world, algo="ppo", modality="all", level="curriculum")]
+        direct = [i["final"][level] for _, i in runs_of(world, algo="ppo", level=level)]
+        assert len(direct) == 2 and got[level]["ppo · curriculum"] == expect(curriculum)
+        assert got[level]["ppo · direct"] == expect(direct)
+
+
+def test_survival_from_training_episodes_on_request(world, tmp_path):
+    report = build_report([world["base"] / "runs"], [], tmp_path, survival="train", window=2)
+    got = table(report.markdown.read_text(), "## Survival per training level")
+    values = []
+    for _, info in runs_of(world, algo="ppo", modality="all", level="curriculum"):
+        stage0 = [s for step, s in info["episodes"] if step <= BUDGET]
+        values.append(np.mean(stage0[-2:]))
+    assert got["1-1"]["ppo · all"] == expect(values)
+
+
+# ------------------------------------------------------------------------------------------------ Fig. 4b
+def success_labels():
+    """(algo, modality, level) of the runs -> their label: what differs among the evaluated runs is named."""
+    return {("ppo", "all", "curriculum"): "ppo · all · curriculum",
+            ("dqn", "all", "curriculum"): "dqn · all · curriculum",
+            ("ppo", "no_vision", "curriculum"): "ppo · no_vision · curriculum",
+            ("ppo", "all", "1-1"): "ppo · all · trained on 1-1",
+            ("ppo", "all", "1-2"): "ppo · all · trained on 1-2"}
+
+
+def test_success_per_testbed_uses_each_run_final_checkpoint_and_the_references(world):
+    got = table(world["text"], "## Success per testbed")
+    ev = world["evaluated"]
+    for (algo, modality, level), label in success_labels().items():
+        for testbed in TESTBEDS:
+            rates = []
+            for run_dir, info in runs_of(world, algo=algo, modality=modality, level=level):
+                final = info["stages"][-1] if level == "curriculum" else level
+                rates.append(np.mean(ev[(run_dir, final, testbed)]))
+            assert got[testbed][label] == expect(rates, percent=True), (label, testbed)
+    rows = world["eval_rows"]
+    for policy in ("oracle", "random"):
+        for testbed in TESTBEDS:
+            values = [float(r["success"]) for r in rows if r["policy"] == policy and r["level"] == testbed]
+            assert got[testbed][policy] == expect(values, percent=True)
+    # human: the mean of the participants' success rates, n = participants
+    per_person = [np.mean([float(r["success"]) for r in world["human"] if r["participant"] == p])
+                  for p in ("p01", "p02")]
+    assert got["two-resource-food"]["human"] == expect(per_person, percent=True)
+    assert got["y-maze"]["human"] == "–"
+
+
+def test_generalisation_averages_testbeds_per_checkpoint_then_seeds(world):
+    got = table(world["text"], "## Generalisation by training level")
+    ev = world["evaluated"]
+    for (algo, modality, level), label in success_labels().items():
+        for trained_to in STAGES:
+            values = [np.mean([np.mean(ev[(d, trained_to, tb)]) for tb in TESTBEDS])
+                      for d, _ in runs_of(world, algo=algo, modality=modality, level=level)
+                      if (d, trained_to, TESTBEDS[0]) in ev]
+            expected = expect(values, percent=True) if values else "–"
+            assert got[trained_to][label] == expected, (label, trained_to)
+
+
+def test_training_level_evaluations_report_survival(world):
+    got = table(world["text"], "## Evaluation on training levels")
+    steps = [r["steps"] for r in world["eval_rows"] if r["policy"] == "random" and r["level"] == "1-1"]
+    assert got["1-1"]["random"] == expect(steps)
+
+
+# ------------------------------------------------------------------------------------------------ Figs. 25-26
+def test_ablation_curves_are_binned_means_across_seeds(world):
+    import pandas as pd
+
+    curves = pd.read_csv(world["base"] / "out" / "data" / "ablation_curves.csv")
+    width = len(STAGES) * BUDGET / 4
+    for modality in ("all", "no_vision"):
+        per_seed = {b: [] for b in range(4)}
+        for _, info in runs_of(world, algo="ppo", modality=modality, level="curriculum"):
+            steps = np.array([s for s, _ in info["episodes"]])
+            surv = np.array([v for _, v in info["episodes"]])
+            bins = np.clip(np.ceil(steps / width).astype(int) - 1, 0, 3)
+            for b in range(4):
+                if (bins == b).any():
+                    per_seed[b].append(surv[bins == b].mean())
+        got = curves[(curves["group"] == "ppo · curriculum") & (curves["label"] == modality)].set_index("bin")
+        for b, values in per_seed.items():
+            m, se, n = stats(values)
+            assert got.loc[b, "mean"] == pytest.approx(m) and got.loc[b, "n"] == n
+            assert got.loc[b, "se"] == pytest.approx(se, nan_ok=True)
+            assert got.loc[b, "steps"] == pytest.approx((b + 0.5) * width)
+
+
+def test_ablation_final_survival_per_modality(world):
+    got = table(world["text"], "## Modality ablations: training curves")
+    for modality in ("all", "no_vision"):
+        values = [i["final"]["1-2"] for _, i in runs_of(world, algo="ppo", modality=modality, level="curriculum")]
+        assert got[modality]["ppo · curriculum"] == expect(values)
+    assert got["no_vision"]["dqn · curriculum"] == "–"
+
+
+def test_ablation_success_per_modality(world):
+    got = table(world["text"], "## Modality ablations: testbed success")
+    ev = world["evaluated"]
+    for modality in ("all", "no_vision"):
+        for testbed in TESTBEDS:
+            rates = [np.mean(ev[(d, "1-2", testbed)]) for d, _ in runs_of(world, algo="ppo", modality=modality,
+                                                                              level="curriculum")]
+            assert got[testbed][f"ppo · curriculum · {modality}"] == expect(rates, percent=True)
+
+
+# ------------------------------------------------------------------------------------------------ what is missing
+def test_missing_partial_and_orphaned_inputs_are_listed(world):
+    section = world["text"][world["text"].index("## Missing and partial runs"):]
+    section = section[:section.index("\n## ", 5)]
+    rel = lambda p: str(Path(p).resolve())  # noqa: E731  (tmp paths are outside the current directory)
+    assert f"{rel(world['missing'])}: missing: no episodes.csv" in section
+    assert f"{rel(world['partial'])}: partial: 140 of 200 env steps (unfinished: 1-2)" in section
+    assert f"evaluation of {world['gone']}: its run directory is gone; left out (3 episodes on y-maze" in section
+    runs = table(world["text"], "## Runs")
+    assert runs[rel(world["partial"])]["status"] == "partial" and runs[rel(world["missing"])]["status"] == "missing"
+    assert len(runs) == len(world["sim"].runs)
+
+
+def test_a_finished_set_of_runs_reports_nothing_missing(world, tmp_path):
+    report = build_report([world["base"] / "runs" / "1-1"], [], tmp_path)
+    assert "None: every run finished" in report.markdown.read_text() and report.problems == []
+    # sections without data say what is missing instead of drawing an empty figure
+    assert "No testbed evaluation given" in report.markdown.read_text()
+    assert not (tmp_path / "fig4b_success_per_testbed.png").exists()
+
+
+def test_checkpoints_outside_the_given_runs_are_found_through_their_run_directory(world, tmp_path):
+    report = build_report([], [world["base"] / "eval"], tmp_path)
+    got = table(report.markdown.read_text(), "## Success per testbed")
+    assert "ppo · all · curriculum" in got["y-maze"] and "oracle" in got["y-maze"]
+    assert any("its run directory is gone" in p for p in report.problems)
+
+
+# ------------------------------------------------------------------------------------------------ command line
+def load_script():
+    spec = importlib.util.spec_from_file_location("report_script", ROOT / "scripts" / "report.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # its dataclass looks its module up
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_command_line_writes_the_report(world, tmp_path, capsys):
+    script = load_script()
+    out = tmp_path / "cli"
+    assert script.main([f"runs=[{world['base'] / 'runs'}]", f"evals={world['base'] / 'eval'}", f"out={out}",
+                        "title=Sweep"]) == 0
+    assert (out / "report.md").read_text().startswith("# Sweep\n")
+    printed = capsys.readouterr().out
+    assert "note: " in printed and "fig26_ablation_success.png" in printed
+
+
+@pytest.mark.parametrize("args, message", [
+    ([], "nothing to report"),
+    (["runs=[/no/such/dir]"], "is not a directory"),
+    (["colour=red"], "allowed keys"),
+    (["runs"], "arguments are key=value"),
+    (["bins=many"], "allowed keys"),
+    (["survival=best", "evals=[EVAL]"], "survival must be eval or train"),
+    (["evals=[RUN_CSV]"], "is not an episode file"),
+    (["runs=[EMPTY]"], "no run directory"),
+])
+def test_command_line_rejects_bad_input(world, tmp_path, args, message):
+    script = load_script()
+    (tmp_path / "empty").mkdir()
+    run_csv = next((world["base"] / "runs").rglob("eval.csv"))
+    subst = {"EVAL": str(world["base"] / "eval"), "RUN_CSV": str(run_csv), "EMPTY": str(tmp_path / "empty")}
+    for placeholder, value in subst.items():
+        args = [a.replace(placeholder, value) for a in args]
+    with pytest.raises(SystemExit, match=message):
+        script.main([*args, f"out={tmp_path / 'out'}"])
+
+
+# ------------------------------------------------------------------------------------------------ launchers
+def test_launcher_presets_compose_with_hydra_config():
+    # sweeps run in parallel on this machine by default (joblib); basic runs them one after another
+    local = make_cfg(hydra=True).hydra.launcher
+    assert local._target_ == "hydra_plugins.hydra_joblib_launcher.joblib_launcher.JoblibLauncher"
+    assert local.n_jobs == 2 and int(local.batch_size) == 1
+    assert make_cfg("hydra/launcher=basic", hydra=True).hydra.launcher._target_.endswith("BasicLauncher")
+    assert make_cfg("hydra/launcher=local", "hydra.launcher.n_jobs=8", hydra=True).hydra.launcher.n_jobs == 8
+    slurm = make_cfg("hydra/launcher=slurm", "hydra.launcher.partition=cpu", hydra=True).hydra.launcher
+    assert slurm._target_ == "hydra_plugins.hydra_submitit_launcher.submitit_launcher.SlurmLauncher"
+    assert slurm.partition == "cpu" and slurm.cpus_per_task == 4 and slurm.max_num_timeout > 0
+    assert "export MUJOCO_GL=egl" in slurm.setup
+    # Ray: a plain config that composes whether or not hydra-ray-launcher is installed (evaaa does not install it)
+    ray = make_cfg("hydra/launcher=ray_cluster", "hydra.launcher.ray.init.address=auto", hydra=True).hydra.launcher
+    assert ray._target_ == "hydra_plugins.hydra_ray_launcher.ray_launcher.RayLauncher"
+    assert ray.ray.init.address == "auto" and ray.ray.remote.num_cpus == 4
+    # the presets do not shadow the plugins' own options
+    names = {p.stem for p in (CONF_DIR / "hydra" / "launcher").glob("*.yaml")}
+    assert names == {"local", "slurm", "ray_cluster"}
+    assert not names & {"joblib", "submitit_local", "submitit_slurm", "ray", "ray_aws"}
+
+
+def test_train_script_prints_the_launcher_config(tmp_path):
+    cmd = [sys.executable, str(ROOT / "scripts" / "train.py"), "hydra.launcher.n_jobs=3",
+           "--cfg", "hydra", "--package", "hydra.launcher"]
+    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "HYDRA_FULL_ERROR": "1"})
+    assert done.returncode == 0, done.stderr[-2000:]
+    printed = yaml.safe_load(done.stdout.split("\n", 1)[1])  # after the "# @package hydra.launcher" line
+    assert printed["_target_"].endswith("JoblibLauncher") and printed["n_jobs"] == 3
+
+
+# ------------------------------------------------------------------------------------------------ ablations
+def test_each_ablation_is_a_small_override_that_drops_one_key():
+    full = make_cfg("modality=all").modality.enabled
+    assert all(full[k] for k in evaaa.MODALITIES)
+    for path in sorted((CONF_DIR / "modality").glob("no_*.yaml")):
+        raw = yaml.safe_load(path.read_text())
+        assert raw["defaults"] == ["all"] and set(raw) == {"defaults", "name", "enabled"}
+        (dropped,) = [k for k, v in raw["enabled"].items() if v is False]
+        cfg = make_cfg(f"modality={path.stem}")
+        assert cfg.modality.name == path.stem
+        assert observation_keys(cfg) == tuple(k for k in evaaa.MODALITIES if k != dropped)
+
+
+def test_an_ablation_removes_the_key_and_keeps_reward_and_termination():
+    actions = [1, 2, 1, 4] * 15
+    results = []
+    for keys in (None, ("pixels", "olfaction", "thermoception", "collision")):
+        env = evaaa.make_env("1-1", seed=3, modalities=keys, **{"episode.max_steps": 40})
+        td = env.reset()
+        assert ("interoception" in td.keys()) == (keys is None)
+        rewards, ends = [], []
+        for a in actions:
+            td["action"] = env.action_spec.zero() + a
+            out, td = env.step_and_maybe_reset(td)
+            rewards.append(float(out["next", "reward"]))
+            ends.append(bool(out["next", "terminated"]) or bool(out["next", "truncated"]))
+        env.close()
+        results.append((rewards, ends))
+    assert results[0] == results[1] and any(results[0][1])  # same reward and episode ends, one episode ended
