@@ -119,9 +119,10 @@ def plot_bars(summary: pd.DataFrame, value: str, error: str, path: str | Path, *
     ax.set_xticks(x, levels, rotation=30, ha="right")
     ax.set_ylabel(ylabel)
     ax.set_title(title)
-    ax.legend(frameon=False, ncols=min(len(policies), 4))
+    # long names (checkpoint paths) go beside the axes, not over the bars
+    ax.legend(frameon=False, fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.spines[["top", "right"]].set_visible(False)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 0.78 if max(map(len, policies)) > 12 else 0.88, 1))
     path = Path(path)
     fig.savefig(path, dpi=120)
     plt.close(fig)
