@@ -112,8 +112,7 @@ class Policy:
 
     def act(self, env, td):
         if self.loaded is not None:
-            with torch.no_grad():
-                return self.loaded.policy(td)["action"]
+            return self.loaded(td)["action"]  # deterministic, as every evaluation of the baselines
         sim = env.sim if hasattr(env, "sim") else env.base_env.sim
         return torch.from_numpy(self.agent.act(sim))
 

@@ -1,4 +1,4 @@
-"""Train a baseline: ``python scripts/train.py algo=<dqn|ppo|ppo_lstm> level=<level|curriculum> [overrides]``.
+"""Train a baseline: ``python scripts/train.py algo=<dqn|ppo|ppo_lstm|dreamer|dreamer_xs> level=<level|curriculum>``.
 
 Hydra composes conf/config.yaml with its groups (algo, level, modality, reward, logger, preset); the run directory
 is ``runs/<level>/<algo>/<modality>-<reward>/seed<seed>`` (``run.root``, ``run.name``), for single runs and for

@@ -56,7 +56,7 @@ def check_composed(cfg, algo: str, level: str, modality: str, reward: str, logge
 
 
 def test_group_options_are_the_documented_ones():
-    assert options("algo") == sorted(ALGOS)
+    assert options("algo") == sorted([*ALGOS, "dreamer", "dreamer_xs"])  # DreamerV3: tests/test_dreamer.py
     assert options("modality") == sorted(["all", "no_interoception", "no_vision", "no_olfaction", "no_thermoception",
                                           "no_collision"])
     assert options("reward") == sorted(evaaa.REWARDS)

@@ -1,0 +1,196 @@
+"""DreamerV3 (``algo=dreamer`` / ``dreamer_xs``): the sizes compose as documented; only the enabled observation keys
+are encoded and decoded; a debug smoke run trains (world-model, actor and critic losses finite and logged), writes
+its checkpoint with the replay buffer and open-loop pictures, and a run killed between checkpoints and resumed ends
+exactly where an uninterrupted run ends; the loaded policy carries its recurrent state and ``scripts/evaluate.py``
+evaluates a Dreamer checkpoint."""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import matplotlib.image
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+
+import evaaa
+from baselines import checkpoint, dreamer, evaluate, load_policy, runtime
+from baselines.config import CONF_DIR, observation_keys, register_levels
+from baselines.runner import train
+
+register_levels()
+
+ROOT = Path(__file__).resolve().parents[1]
+TOTAL = 256  # env steps: 128 per world with the debug preset's 2 worlds
+KILL_AT = 160  # the last checkpoint before it is at 128 (debug: every 64 env steps)
+SHAPES = {"pixels": (64, 64, 3), "interoception": (4,), "olfaction": (10,), "thermoception": (8,), "collision": (10,)}
+
+
+def make_cfg(*overrides: str):
+    with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
+        return compose("config", overrides=list(overrides))
+
+
+def debug_cfg(*extra: str, algo: str = "dreamer"):
+    # one torch thread: these tiny networks gain nothing from more, and tests may share the machine
+    return make_cfg(f"algo={algo}", "preset=debug", "logger=csv", "progress=false", "threads=1",
+                    f"total_steps={TOTAL}", *extra)
+
+
+# ------------------------------------------------------------------------------------------------ config and model
+def test_sizes_s_as_the_paper_xs_and_debug_smaller():
+    s, xs, debug = make_cfg("algo=dreamer").algo, make_cfg("algo=dreamer_xs").algo, debug_cfg().algo
+    assert (s.name, s.size, xs.name, xs.size) == ("dreamer", "S", "dreamer_xs", "XS")
+    assert (s.model.dense, s.model.mlp_layers, s.model.cnn.depth, s.model.recurrent, s.model.hidden) == \
+        (512, 2, 32, 512, 512)  # SPEC §12, size S
+    assert (s.model.stochastic, s.model.classes, s.model.bins, s.horizon) == (32, 32, 255, 15)
+    assert (s.batch_size, s.sequence_length, s.replay_ratio, s.buffer_size) == (16, 64, 1.0, 1_000_000)
+    for small in (xs, debug):
+        assert small.model.dense < s.model.dense and small.model.recurrent < s.model.recurrent
+        assert small.model.cnn.depth < s.model.cnn.depth and small.model.stochastic < s.model.stochastic
+    assert debug_cfg(algo="dreamer_xs").algo.model.dense == debug.model.dense
+    assert make_cfg("algo=dreamer_xs", "modality=no_vision").run.name == "1-1/dreamer_xs/no_vision-squared/seed0"
+
+
+@pytest.mark.parametrize("modality", ["all", "no_vision", "no_olfaction"])
+def test_only_the_enabled_keys_are_encoded_and_decoded(modality):
+    cfg = debug_cfg(f"modality={modality}")
+    keys = observation_keys(cfg)
+    model = dreamer.make_model(cfg.algo, {k: SHAPES[k] for k in keys})
+    assert hasattr(model.encoder, "cnn") == ("pixels" in keys) == hasattr(model.decoder, "cnn")
+    vectors = [k for k in keys if k != "pixels"]
+    assert sorted(model.decoder.heads) == sorted(vectors)
+    assert model.encoder.mlp.model[0].in_features == sum(SHAPES[k][0] for k in vectors)
+    n = 3
+    latent = model.decoder(torch.zeros(n, model.state_dim), torch.zeros(n, model.belief_dim))
+    assert [tuple(x.shape[1:]) for x in latent] == [SHAPES[k] for k in keys]
+
+
+# ------------------------------------------------------------------------------------------------ runs
+class Killed(Exception):
+    """Stands for the process being killed between two checkpoints."""
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """An uninterrupted debug run, and the same run killed at KILL_AT then resumed."""
+    root = tmp_path_factory.mktemp("dreamer")
+    train(debug_cfg(), root / "whole")
+    end_iteration = runtime.Run.end_iteration
+
+    def killing(self, td):
+        if self.steps >= KILL_AT:
+            raise Killed
+        end_iteration(self, td)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(runtime.Run, "end_iteration", killing)
+        with pytest.raises(Killed):
+            train(debug_cfg(), root / "resumed")
+    at_kill = checkpoint.load_checkpoint(root / "resumed" / checkpoint.CHECKPOINT)["counters"]["steps"]
+    train(debug_cfg("resume=true"), root / "resumed")
+    return {"whole": root / "whole", "resumed": root / "resumed", "steps_at_kill_checkpoint": at_kill}
+
+
+def read_csv(path: Path) -> list[dict]:
+    with open(path, newline="") as f:
+        return [{k: v for k, v in row.items() if k != "wall_time"} for row in csv.DictReader(f)]
+
+
+def train_scalars(run_dir: Path) -> dict[str, dict[int, str]]:
+    out = {}
+    for path in sorted((run_dir / "logs" / "scalars" / "train").glob("*.csv")):
+        with open(path) as f:
+            out[path.stem] = {int(step): value for step, value in csv.reader(f)}
+    return out
+
+
+def test_smoke_run_trains_logs_finite_losses_and_checkpoints_the_buffer(runs):
+    run_dir = runs["whole"]
+    state = checkpoint.load_checkpoint(run_dir / checkpoint.CHECKPOINT)
+    assert state["algo"] == "dreamer" and state["counters"]["steps"] == TOTAL
+    updates = state["components"]["counters"]["updates"]
+    cfg = debug_cfg().algo
+    assert updates == int(cfg.replay_ratio * (TOTAL - cfg.learning_starts)) + 1  # the replay ratio is kept
+    rows = state["components"]["replay"]["rows"]
+    assert rows.shape == (TOTAL // 2, 2) and rows["next", "pixels"].dtype == torch.uint8  # every step of both worlds
+    assert {"optimizer_world_model", "optimizer_actor", "optimizer_critic", "value_loss", "return_norm"} <= \
+        set(state["components"])
+    assert (run_dir / "model-0-1-1.pt").exists() and not list(run_dir.glob(".*.tmp"))
+
+    scalars = train_scalars(run_dir)
+    for name in ("model_reco", "model_reward", "model_continue", "model_dynamic", "model_representation",
+                 "actor_loss", "actor_entropy", "critic_loss", "return_scale"):
+        assert scalars.get(name), f"{name} is not logged"
+        assert all(math.isfinite(float(v)) for v in scalars[name].values()), name
+    assert [int(r["env_steps"]) for r in read_csv(run_dir / "eval.csv")] == [128, 256]
+    assert len(read_csv(run_dir / "episodes.csv")) >= 2
+
+
+def test_open_loop_pictures_show_real_and_imagined_frames(runs):
+    pictures = sorted((runs["whole"] / "openloop").glob("openloop-0-1-1-*.png"))
+    assert pictures, "no open-loop picture written"
+    image = matplotlib.image.imread(pictures[-1])
+    o = debug_cfg().algo.openloop
+    # per sequence: real, model and error rows of 64-pixel frames (2-pixel gaps); one column per step
+    assert image.shape[0] == o.sequences * (3 * 66 + 4) and image.shape[1] == (o.context + o.horizon) * 66
+    assert image[:64, :64].std() > 0  # a real frame, not a blank
+
+
+def test_killed_and_resumed_run_equals_uninterrupted_run(runs):
+    assert runs["steps_at_kill_checkpoint"] < KILL_AT
+    whole = checkpoint.load_checkpoint(runs["whole"] / checkpoint.CHECKPOINT)
+    resumed = checkpoint.load_checkpoint(runs["resumed"] / checkpoint.CHECKPOINT)
+    assert whole["counters"] == resumed["counters"]
+    assert whole["components"]["counters"] == resumed["components"]["counters"]
+    for name, value in whole["model"].items():
+        assert torch.equal(value, resumed["model"][name]), name
+    for name in ("optimizer_world_model", "optimizer_actor", "optimizer_critic"):
+        a, b = whole["components"][name]["state"], resumed["components"][name]["state"]
+        assert a.keys() == b.keys()
+        assert all(torch.equal(v, b[i][k]) for i in a for k, v in a[i].items()), name
+    for name, value in whole["components"]["value_loss"].items():  # critic and its slow target
+        assert torch.equal(value, resumed["components"]["value_loss"][name]), name
+    assert (whole["components"]["replay"]["rows"] == resumed["components"]["replay"]["rows"]).all()
+    assert train_scalars(runs["whole"]) == train_scalars(runs["resumed"])
+    assert read_csv(runs["whole"] / "episodes.csv") == read_csv(runs["resumed"] / "episodes.csv")
+    assert read_csv(runs["whole"] / "eval.csv") == read_csv(runs["resumed"] / "eval.csv")
+
+
+# ------------------------------------------------------------------------------------------------ loading
+def test_loaded_policy_carries_its_recurrent_state(runs):
+    loaded = load_policy(runs["whole"] / "model-0-1-1.pt", modalities=evaaa.MODALITIES)
+    assert loaded.algo == "dreamer" and loaded.obs_keys == evaaa.MODALITIES
+    env = loaded.make_env(num_envs=2, seed=3)
+    try:
+        td = env.reset()
+        assert td["is_init"].all() and not td["belief"].any()
+        td = loaded(td)
+        belief, action = td["belief"].clone(), td["prev_action"].clone()
+        assert belief.any() and td["action"].shape == (2,) and (action.argmax(-1) == td["action"]).all()
+        _, td = env.step_and_maybe_reset(td)
+        assert not td["is_init"].any()
+        assert torch.equal(td["belief"], belief) and torch.equal(td["prev_action"], action)  # carried over
+        env.set_seed(3, static_seed=True)
+        first = evaluate(env, loaded.policy)
+        env.set_seed(3, static_seed=True)
+        second = evaluate(env, loaded.policy)
+        assert len(first.survival) == 2 and all(0 < s <= 48 for s in first.survival)
+        assert first == second  # an evaluation from a reset depends on the weights and the seed alone
+    finally:
+        env.close()
+
+
+def test_evaluate_script_runs_a_dreamer_checkpoint(runs, tmp_path):
+    cmd = [sys.executable, str(ROOT / "scripts" / "evaluate.py"), f"policy={runs['whole'] / 'checkpoint.pt'}",
+           "levels=[1-1]", "episodes=2", "num_envs=2", f"out={tmp_path}"]
+    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert done.returncode == 0, done.stderr[-3000:]
+    rows = read_csv(tmp_path / "episodes.csv")
+    assert len(rows) == 2 and all(r["level"] == "1-1" for r in rows)
