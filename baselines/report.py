@@ -691,9 +691,35 @@ def build_report(run_paths: Sequence[str | Path], eval_paths: Sequence[str | Pat
                "checkpoints as above.", "", pivot_table(stats, "level", "label", rows=_level_sorted(stats["level"])),
                ""]
 
+    # ---- training curves per training set-up, one line per algorithm (and settings)
+    all_curves = curves(usable, bins)
+    table = figure = None
+    if len(all_curves):
+        lab = labels(usable, ("algo", "modality", "reward", "extras"))
+        by = all_curves.assign(group=lambda d: d["run"].map(lambda x: f"trained on {by_dir[x].training}"),
+                               label=lambda d: d["run"].map(lab))
+        stats = across_seeds(by, ["group", "label", "bin", "steps"], "survival")
+        tables["training_curves"] = stats
+        trained_on = {by_dir[d].training for d in by["run"]}
+        hl = None
+        if len(trained_on) == 1 and len(ref_train):
+            hl = ref_train[ref_train["level"] == next(iter(trained_on))]
+            hl = hl.assign(label=hl["label"] + " (evaluation)") if len(hl) else None
+        figure = plot_lines(stats, out / "fig_training_curves.png", x="steps", panel="group", band=True,
+                            ylabel="survival (decisions)", xlabel="env steps", title="Training curves",
+                            hlines=hl)
+        ends = stats.sort_values("bin").groupby(["group", "label"], sort=False).tail(1)
+        table = pivot_table(ends.rename(columns={"group": "level"}), "level", "label", row_title="training")
+        table += (f"\n\nCurves: survival of the training episodes (exploring policy) in {bins} bins of env steps, "
+                  "mean ± standard error across seeds (band); table: the last bin. Dashed/dotted: reference agents' "
+                  "mean survival in evaluate.py's episodes on that level, when given.")
+    section("Training curves",
+            "One panel per training set-up, one line per algorithm and settings.", figure, table,
+            "No finished training episode in the runs given.")
+
     # ---- Figs. 25-26: modality ablations
     ab_lab = labels(usable, ("algo", "reward", "extras", "training"))
-    curve_rows = curves(usable, bins)
+    curve_rows = all_curves
     table = figure = None
     if len(curve_rows):
         # one bin grid per group: a group's runs share a budget (steps per stage is part of the group)

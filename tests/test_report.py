@@ -31,7 +31,7 @@ STAGES = ("1-1", "1-2")
 BUDGET = 100  # env steps per stage
 TESTBEDS = ("two-resource-food", "y-maze")
 FIGURES = ("fig4a_survival_per_level.png", "fig4a_curriculum_vs_direct.png", "fig4b_success_per_testbed.png",
-           "fig4b_generalisation.png", "fig25_ablation_curves.png", "fig26_ablation_success.png")
+           "fig4b_generalisation.png", "fig_training_curves.png", "fig25_ablation_curves.png", "fig26_ablation_success.png")
 
 
 # ------------------------------------------------------------------------------------------------ inputs
@@ -308,6 +308,22 @@ def test_ablation_curves_are_binned_means_across_seeds(world):
             assert got.loc[b, "mean"] == pytest.approx(m) and got.loc[b, "n"] == n
             assert got.loc[b, "se"] == pytest.approx(se, nan_ok=True)
             assert got.loc[b, "steps"] == pytest.approx((b + 0.5) * width)
+
+
+def test_training_curves_have_a_line_per_algorithm_and_settings_per_training_set_up(world):
+    import pandas as pd
+
+    curves = pd.read_csv(world["base"] / "out" / "data" / "training_curves.csv")
+    ablation = pd.read_csv(world["base"] / "out" / "data" / "ablation_curves.csv")
+    # the curriculum PPO runs with all modalities are the same binned means in both figures
+    mine = curves[(curves["group"] == "trained on curriculum") & (curves["label"].str.startswith("ppo"))
+                  & ~curves["label"].str.contains("no_vision")].set_index("bin")
+    theirs = ablation[(ablation["group"] == "ppo · curriculum") & (ablation["label"] == "all")].set_index("bin")
+    assert len(mine) and list(mine.index) == list(theirs.index)
+    assert np.allclose(mine["mean"], theirs["mean"]) and (mine["n"] == theirs["n"]).all()
+    assert set(curves["group"]) == {f"trained on {info['level']}" for d, info in world["sim"].runs.items()
+                                    if d != world["missing"]}
+    assert "## Training curves" in world["text"] and "fig_training_curves.png" in world["text"]
 
 
 def test_ablation_final_survival_per_modality(world):
