@@ -155,5 +155,6 @@ def train(run: Run) -> None:
                     totals[key] = totals.get(key, 0.0) + value.item()
         scheduler.step()
         run.log({**{k: v / updates for k, v in totals.items()}, "lr": optimizer.param_groups[0]["lr"],
-                 "clip": loss_fn.clip_epsilon.item()})
+                 "clip": loss_fn.clip_epsilon.item(),
+                 "updates": -(-run.steps // cfg.frames_per_batch) * updates})  # every iteration makes as many
         run.end_iteration(td)

@@ -1,0 +1,148 @@
+"""Training throughput of each baseline: env steps and gradient steps per second of the whole training loop.
+
+    python scripts/bench_train.py                                 # ppo, ppo_lstm, dqn, dreamer_xs: 3 minutes each
+    python scripts/bench_train.py --algos ppo,dqn --minutes 2 --threads 1
+    python scripts/bench_train.py --algos dreamer --minutes 10    # DreamerV3 size S: ~10 s per gradient step here
+
+Each algorithm trains with its defaults (``scripts/train.py algo=<name> level=<level>``, ``env.num_envs=8``, all
+modalities) for ``--minutes`` of wall time in a scratch run directory, one after another, so that the runs do not
+share the machine.  The figures come from the run's own log (``logs/scalars/time/env_steps_per_s.csv``: env steps
+per second of the session so far, written every ``log_every`` env steps, and the gradient-step counter where the
+algorithm logs one):
+
+* **whole run**: env steps / wall time from the start of training to the last log row (warm-up, evaluations and
+  checkpoints included);
+* **steady**: the rate between the log row closest to ``--skip`` of the run's time and the last row, i.e. after
+  warm-up (DreamerV3 collects its first 1,024 steps with a random policy, much faster than it trains).
+
+Evaluations and checkpoints are pushed beyond the budget (``eval.every=0``, ``checkpoint.every`` larger than any run)
+so that both rates measure training alone; the final evaluation and model of the stage are not timed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import pandas as pd
+
+ROOT = Path(__file__).resolve().parents[1]
+ALGOS = ("dqn", "ppo", "ppo_lstm", "dreamer", "dreamer_xs")
+DEFAULT_ALGOS = ("ppo", "ppo_lstm", "dqn", "dreamer_xs")
+
+
+@dataclass
+class Throughput:
+    algo: str
+    env_steps: int
+    seconds: float
+    env_steps_per_s: float
+    steady_env_steps_per_s: float
+    gradient_steps: int | None
+    steady_gradient_steps_per_s: float | None
+
+
+def read_throughput(run_dir: Path, algo: str, skip: float = 0.25) -> Throughput:
+    """The rates of a finished run from its CSV log (see the module docstring); ``skip``: share of the run's
+    wall time left out of the steady rates."""
+    rate_file = run_dir / "logs" / "scalars" / "time" / "env_steps_per_s.csv"
+    if not rate_file.exists():
+        raise SystemExit(f"bench_train.py: {algo}: no {rate_file.relative_to(run_dir)} in {run_dir} (the run logged "
+                         "nothing: give it more --minutes, or see its train.log)")
+    rates = pd.read_csv(rate_file, header=None, names=["step", "rate"]).drop_duplicates("step", keep="last")
+    rates = rates[rates["rate"] > 0]
+    if len(rates) < 2:
+        raise SystemExit(f"bench_train.py: {algo}: fewer than two log rows in {rate_file}; give it more --minutes")
+    rates = rates.assign(seconds=rates["step"] / rates["rate"])  # the session started at step 0
+    last = rates.iloc[-1]
+    first = rates.iloc[(rates["seconds"] - skip * last["seconds"]).abs().argmin()]
+    if first["step"] == last["step"]:
+        first = rates.iloc[-2]
+    span = last["seconds"] - first["seconds"]
+    steady = (last["step"] - first["step"]) / span
+    grad_steps = grad_rate = None
+    update_file = run_dir / "logs" / "scalars" / "train" / "updates.csv"
+    if update_file.exists():
+        updates = pd.read_csv(update_file, header=None, names=["step", "updates"]).drop_duplicates("step", keep="last")
+        by_step = updates.set_index("step")["updates"]
+        if first["step"] in by_step.index and last["step"] in by_step.index:
+            grad_steps = int(by_step[last["step"]])
+            grad_rate = (by_step[last["step"]] - by_step[first["step"]]) / span
+    return Throughput(algo, int(last["step"]), float(last["seconds"]), float(last["rate"]), float(steady),
+                      grad_steps, None if grad_rate is None else float(grad_rate))
+
+
+def run_one(algo: str, level: str, minutes: float, threads: int | None, root: Path, extra: list[str]) -> Path:
+    """Train ``algo`` for ``minutes`` in ``root/<algo>``; returns the run directory."""
+    run_dir = root / algo
+    cmd = [sys.executable, str(ROOT / "scripts" / "train.py"), f"algo={algo}", f"level={level}",
+           "total_steps=1000000000", f"max_minutes={minutes}", "eval.every=0", "checkpoint.every=1000000000",
+           "eval.episodes=1", "logger=csv", "progress=false", f"run.root={root}", f"run.name={algo}", *extra]
+    if threads is not None:
+        cmd.append(f"threads={threads}")
+    log = root / f"{algo}.out"
+    with open(log, "w") as out:
+        done = subprocess.run(cmd, stdout=out, stderr=subprocess.STDOUT, cwd=ROOT, env=os.environ.copy())
+    if done.returncode:
+        tail = "\n".join(log.read_text().splitlines()[-15:])
+        raise SystemExit(f"bench_train.py: {algo} failed (exit {done.returncode}); the end of its output:\n{tail}")
+    return run_dir
+
+
+def table(rows: list[Throughput]) -> str:
+    head = f"{'algo':<12}{'env steps':>11}{'minutes':>9}{'env steps/s':>13}{'steady':>9}{'grad steps/s':>14}"
+    lines = [head]
+    for r in rows:
+        grad = "–" if r.steady_gradient_steps_per_s is None else f"{r.steady_gradient_steps_per_s:.3g}"
+        lines.append(f"{r.algo:<12}{r.env_steps:>11,}{r.seconds / 60:>9.1f}{r.env_steps_per_s:>13.1f}"
+                     f"{r.steady_env_steps_per_s:>9.1f}{grad:>14}")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--algos", default=",".join(DEFAULT_ALGOS), help=f"comma-separated, from {', '.join(ALGOS)}")
+    parser.add_argument("--level", default="1-1")
+    parser.add_argument("--minutes", type=float, default=3.0, help="wall-clock training time per algorithm")
+    parser.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
+    parser.add_argument("--skip", type=float, default=0.25, help="share of each run left out of the steady rates")
+    parser.add_argument("--keep", help="keep the run directories under this folder (default: a temporary one)")
+    parser.add_argument("--json", help="also write the figures to this file")
+    parser.add_argument("overrides", nargs="*", help="more train.py overrides for every run, e.g. env.num_envs=16")
+    args = parser.parse_args(argv)
+    algos = [a.strip() for a in args.algos.split(",") if a.strip()]
+    unknown = [a for a in algos if a not in ALGOS]
+    if unknown or not algos:
+        parser.error(f"--algos: unknown {', '.join(unknown) or '(none given)'}; allowed: {', '.join(ALGOS)}")
+    if args.minutes <= 0:
+        parser.error("--minutes must be positive")
+    if not 0 <= args.skip < 1:
+        parser.error("--skip must be in [0, 1)")
+
+    print(f"evaaa bench_train: level {args.level}, {args.minutes:g} min per algorithm, threads "
+          f"{args.threads or 'default'}, {platform.machine()}, {os.cpu_count()} cores", flush=True)
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="evaaa-bench-train-") as scratch:
+        root = Path(args.keep) if args.keep else Path(scratch)
+        root.mkdir(parents=True, exist_ok=True)
+        for algo in algos:
+            print(f"  {algo} ...", flush=True)
+            run_dir = run_one(algo, args.level, args.minutes, args.threads, root.resolve(), args.overrides)
+            rows.append(read_throughput(run_dir, algo, args.skip))
+    print(table(rows))
+    if args.json:
+        Path(args.json).write_text(json.dumps({"level": args.level, "minutes": args.minutes, "threads": args.threads,
+                                               "cores": os.cpu_count(), "rows": [asdict(r) for r in rows]},
+                                              indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,71 @@
+"""bench_train.py: the rates it derives from a run's log, and one real (tiny) run end to end."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "bench_train.py"
+
+
+def load_bench():
+    spec = importlib.util.spec_from_file_location("bench_train", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["bench_train"] = module  # its dataclass looks itself up there
+    spec.loader.exec_module(module)
+    return module
+
+
+def write_log(run_dir: Path, rows: list[tuple[int, float]], updates: list[tuple[int, int]] | None) -> None:
+    scalars = run_dir / "logs" / "scalars"
+    (scalars / "time").mkdir(parents=True)
+    (scalars / "time" / "env_steps_per_s.csv").write_text("".join(f"{s},{r}\n" for s, r in rows))
+    if updates is not None:
+        (scalars / "train").mkdir()
+        (scalars / "train" / "updates.csv").write_text("".join(f"{s},{u}\n" for s, u in updates))
+
+
+def test_rates_come_from_the_session_rate_log(tmp_path):
+    # a fast warm-up (1,000 steps in 1 s) then 100 steps/s; the session rate column is steps / elapsed seconds
+    times = {1000: 1.0, 2000: 11.0, 3000: 21.0, 4000: 31.0, 5000: 41.0}
+    write_log(tmp_path, [(s, s / t) for s, t in times.items()], [(1000, 0), (2000, 30), (3000, 60), (4000, 90),
+                                                               (5000, 120)])
+    got = load_bench().read_throughput(tmp_path, "dreamer_xs", skip=0.25)
+    assert got.env_steps == 5000 and got.seconds == pytest.approx(41.0)
+    assert got.env_steps_per_s == pytest.approx(5000 / 41.0)
+    # the row nearest 25% of 41 s is the one at 11 s: the steady rate leaves the warm-up out
+    assert got.steady_env_steps_per_s == pytest.approx(100.0)
+    assert got.gradient_steps == 120 and got.steady_gradient_steps_per_s == pytest.approx(3.0)
+
+
+def test_without_an_update_counter_gradient_rates_are_absent(tmp_path):
+    write_log(tmp_path, [(100, 50.0), (200, 50.0), (300, 50.0)], None)
+    got = load_bench().read_throughput(tmp_path, "ppo")
+    assert got.steady_env_steps_per_s == pytest.approx(50.0) and got.steady_gradient_steps_per_s is None
+
+
+def test_a_run_that_logged_nothing_is_a_clear_error(tmp_path):
+    with pytest.raises(SystemExit, match="no logs/scalars/time/env_steps_per_s.csv"):
+        load_bench().read_throughput(tmp_path, "ppo")
+
+
+def test_unknown_algorithm_names_the_allowed_ones(capsys):
+    with pytest.raises(SystemExit):
+        load_bench().main(["--algos", "ppo,a2c"])
+    assert "unknown a2c; allowed: dqn, ppo, ppo_lstm, dreamer, dreamer_xs" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_a_short_real_run_reports_env_and_gradient_steps(tmp_path):
+    out = tmp_path / "bench.json"
+    code = load_bench().main(["--algos", "ppo", "--minutes", "0.25", "--threads", "1", "--keep", str(tmp_path / "runs"),
+                              "--json", str(out), "preset=debug"])
+    assert code == 0
+    row = json.loads(out.read_text())["rows"][0]
+    assert row["algo"] == "ppo" and row["env_steps"] > 0 and row["steady_env_steps_per_s"] > 0
+    # debug PPO: every iteration of frames_per_batch env steps makes epochs x minibatches updates
+    assert row["gradient_steps"] > 0 and row["steady_gradient_steps_per_s"] > 0
