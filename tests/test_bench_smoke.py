@@ -2,20 +2,15 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
 import pytest
+from helpers import load_script
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "bench_env.py"
 
 
 def load_bench():
-    spec = importlib.util.spec_from_file_location("bench_env", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("bench_env")
 
 
 def test_bench_reports_ratios_reset_cost_and_memory(tmp_path):

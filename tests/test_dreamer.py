@@ -6,7 +6,6 @@ evaluates a Dreamer checkpoint."""
 
 from __future__ import annotations
 
-import csv
 import math
 import os
 import subprocess
@@ -15,6 +14,7 @@ from pathlib import Path
 
 import matplotlib.image
 import pytest
+from helpers import read_csv, train_scalars
 import torch
 from hydra import compose, initialize_config_dir
 
@@ -95,19 +95,6 @@ def runs(tmp_path_factory):
     at_kill = checkpoint.load_checkpoint(root / "resumed" / checkpoint.CHECKPOINT)["counters"]["steps"]
     train(debug_cfg("resume=true"), root / "resumed")
     return {"whole": root / "whole", "resumed": root / "resumed", "steps_at_kill_checkpoint": at_kill}
-
-
-def read_csv(path: Path) -> list[dict]:
-    with open(path, newline="") as f:
-        return [{k: v for k, v in row.items() if k != "wall_time"} for row in csv.DictReader(f)]
-
-
-def train_scalars(run_dir: Path) -> dict[str, dict[int, str]]:
-    out = {}
-    for path in sorted((run_dir / "logs" / "scalars" / "train").glob("*.csv")):
-        with open(path) as f:
-            out[path.stem] = {int(step): value for step, value in csv.reader(f)}
-    return out
 
 
 def test_smoke_run_trains_logs_finite_losses_and_checkpoints_the_buffer(runs):

@@ -8,7 +8,6 @@ docs/images/play.png (for docs/play.md) instead of pytest's tmp dir.
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import os
 import re
@@ -23,6 +22,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
+from helpers import load_script
 from playwright.sync_api import Browser, Page, sync_playwright
 
 from evaaa.records import read_rows
@@ -269,11 +269,7 @@ def test_the_api_refuses_bad_requests_and_keeps_serving(tmp_path):
 
 # ------------------------------------------------------------------------------------------------- command line
 def load_play():
-    spec = importlib.util.spec_from_file_location("evaaa_scripts_play", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_script("play")
 
 
 def test_the_command_line_reads_hydra_style_arguments():

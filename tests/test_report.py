@@ -6,7 +6,6 @@ removes a key and nothing else."""
 from __future__ import annotations
 
 import csv
-import importlib.util
 import os
 import subprocess
 import sys
@@ -14,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import load_script
 import yaml
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
@@ -373,16 +373,12 @@ def test_checkpoints_outside_the_given_runs_are_found_through_their_run_director
 
 
 # ------------------------------------------------------------------------------------------------ command line
-def load_script():
-    spec = importlib.util.spec_from_file_location("report_script", ROOT / "scripts" / "report.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclass looks its module up
-    spec.loader.exec_module(module)
-    return module
+def load_report():
+    return load_script("report")
 
 
 def test_command_line_writes_the_report(world, tmp_path, capsys):
-    script = load_script()
+    script = load_report()
     out = tmp_path / "cli"
     assert script.main([f"runs=[{world['base'] / 'runs'}]", f"evals={world['base'] / 'eval'}", f"out={out}",
                         "title=Sweep"]) == 0
@@ -402,7 +398,7 @@ def test_command_line_writes_the_report(world, tmp_path, capsys):
     (["runs=[EMPTY]"], "no run directory"),
 ])
 def test_command_line_rejects_bad_input(world, tmp_path, args, message):
-    script = load_script()
+    script = load_report()
     (tmp_path / "empty").mkdir()
     run_csv = next((world["base"] / "runs").rglob("eval.csv"))
     subst = {"EVAL": str(world["base"] / "eval"), "RUN_CSV": str(run_csv), "EMPTY": str(tmp_path / "empty")}

@@ -2,26 +2,14 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import pytest
+from helpers import load_script
 
 import evaaa  # noqa: F401  (sets MUJOCO_GL before mujoco, and so cv2's users, load)
 import cv2
 
-SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
-
-
-def load_script(name: str):
-    """Import ``scripts/<name>.py`` as a module (the scripts directory is not a package)."""
-    path = SCRIPTS / f"{name}.py"
-    spec = importlib.util.spec_from_file_location(f"evaaa_scripts_{name}", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
 
 
 def read_png(path: Path):

@@ -3,12 +3,10 @@ and the evaluation tool."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import load_script
 
 import evaaa
 from evaaa.agents import OracleAgent
@@ -16,7 +14,6 @@ from evaaa.physiology import END_TYPES
 from evaaa.records import read_rows
 from evaaa.sim import EAT, FORWARD, NONE, Simulator
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "evaluate.py"
 
 
 def make_sim(name: str, **overrides) -> Simulator:
@@ -162,11 +159,7 @@ def test_the_oracle_solves_every_testbed(name):
 
 # ------------------------------------------------------------------------------------------------ evaluate.py
 def load_evaluate():
-    spec = importlib.util.spec_from_file_location("evaluate", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["evaluate"] = module  # dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module
+    return load_script("evaluate")
 
 
 def test_evaluate_writes_records_table_and_figures(tmp_path):

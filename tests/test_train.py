@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from helpers import read_csv, train_scalars
 import torch
 from hydra import compose, initialize_config_dir
 
@@ -128,20 +129,6 @@ def runs(tmp_path_factory):
         return made[algo]
 
     return get
-
-
-def read_csv(path: Path) -> list[dict]:
-    with open(path, newline="") as f:
-        return [{k: v for k, v in row.items() if k != "wall_time"} for row in csv.DictReader(f)]
-
-
-def train_scalars(run_dir: Path) -> dict[str, dict[int, str]]:
-    """The logger's training metrics, the last value written per step (a resumed run re-logs the lost steps)."""
-    out = {}
-    for path in sorted((run_dir / "logs" / "scalars" / "train").glob("*.csv")):
-        with open(path) as f:
-            out[path.stem] = {int(step): value for step, value in csv.reader(f)}
-    return out
 
 
 @pytest.mark.parametrize("algo", ALGOS)
