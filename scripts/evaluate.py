@@ -12,6 +12,8 @@ Arguments (``key=value``, lists as ``[a,b]``):
     out        output directory (default outputs/eval)
     include    episode CSV files to add to the report (e.g. human play records from scripts/play.py)
     modalities for checkpoints: observation keys to evaluate with; a checkpoint trained on others is refused
+    epsilon    for checkpoints: chance of a uniformly random action at each step (default 0: the policy's
+               deterministic action; 0.05 is DQN's customary evaluation epsilon); said in summary.md
 
 Writes to ``out``: ``episodes.csv`` (one row per episode, appended), ``summary.md`` (success rate ± standard
 error per testbed, mean survival ± standard error per training level, one column per policy), ``success.png``,
@@ -50,6 +52,8 @@ class EvalConfig:
     include: list[str] = field(default_factory=list)
     #: for checkpoints: the observation keys to evaluate with (default: those it was trained on)
     modalities: list[str] | None = None
+    #: for checkpoints: chance of a uniformly random action at each step (0: deterministic)
+    epsilon: float = 0.0
 
 
 def parse(argv: list[str]) -> EvalConfig:
@@ -75,6 +79,8 @@ def parse(argv: list[str]) -> EvalConfig:
     cfg.levels = levels
     if cfg.episodes < 1 or cfg.num_envs < 1:
         raise SystemExit("evaluate.py: episodes and num_envs must be positive")
+    if not 0.0 <= cfg.epsilon <= 1.0:
+        raise SystemExit(f"evaluate.py: epsilon must be in [0, 1], got {cfg.epsilon}")
     for path in cfg.include:
         if not Path(path).is_file():
             raise SystemExit(f"evaluate.py: include file {path} does not exist")
@@ -84,9 +90,11 @@ def parse(argv: list[str]) -> EvalConfig:
 class Policy:
     """One policy to evaluate: builds the env for a level and picks actions for a batch of worlds."""
 
-    def __init__(self, spec: str, seed: int, modalities: list[str] | None = None):
+    def __init__(self, spec: str, seed: int, modalities: list[str] | None = None, epsilon: float = 0.0):
         self.spec = spec
         self.seed = seed
+        self.epsilon = epsilon
+        self.rng = torch.Generator().manual_seed(seed)  # epsilon's draws: the same for every run of the command
         self.loaded = None
         if spec not in ("oracle", "random"):
             path = Path(spec)
@@ -112,7 +120,12 @@ class Policy:
 
     def act(self, env, td):
         if self.loaded is not None:
-            return self.loaded(td)["action"]  # deterministic, as every evaluation of the baselines
+            action = self.loaded(td)["action"]  # deterministic, as every evaluation of the baselines
+            if self.epsilon > 0:  # epsilon-greedy evaluation: a uniformly random action instead, now and then
+                explore = torch.rand(action.shape, generator=self.rng) < self.epsilon
+                other = torch.randint(0, len(evaaa.ACTION_NAMES), action.shape, generator=self.rng)
+                action = torch.where(explore, other, action)
+            return action
         sim = env.sim if hasattr(env, "sim") else env.base_env.sim
         return torch.from_numpy(self.agent.act(sim))
 
@@ -147,7 +160,7 @@ def main(argv: list[str] | None = None) -> int:
     cfg = parse(sys.argv[1:] if argv is None else argv)
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
-    policies = [Policy(spec, cfg.seed, cfg.modalities) for spec in cfg.policy]
+    policies = [Policy(spec, cfg.seed, cfg.modalities, cfg.epsilon) for spec in cfg.policy]
     total = len(policies) * len(cfg.levels) * cfg.episodes
     with tqdm(total=total, desc="episodes", unit="ep", dynamic_ncols=True) as bar:
         for policy in policies:
@@ -159,7 +172,8 @@ def main(argv: list[str] | None = None) -> int:
     summary = summarize(rows)
     table = markdown_table(summary)
     (out / "summary.md").write_text(
-        f"# Evaluation ({cfg.episodes} episodes per level and policy, seed {cfg.seed})\n\n"
+        f"# Evaluation ({cfg.episodes} episodes per level and policy, seed {cfg.seed}"
+        + (f"; checkpoints act epsilon-greedily, epsilon {cfg.epsilon:g}" if cfg.epsilon else "") + ")\n\n"
         "Testbeds: success rate ± standard error; training levels: mean survival (decisions) ± standard error.\n\n"
         + table + "\n")
     written = [out / "episodes.csv", out / "summary.md"]

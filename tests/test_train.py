@@ -185,6 +185,30 @@ def test_existing_run_needs_resume_and_the_same_experiment(runs, tmp_path):
         train(debug_cfg("dqn", "resume=true"), run_dir)
 
 
+def test_evaluate_script_acts_epsilon_greedily_on_request(runs):
+    from helpers import load_script
+
+    script = load_script("evaluate")
+    path = str(runs("dqn")["whole"] / "model-0-1-1.pt")
+    with pytest.raises(SystemExit, match=r"epsilon must be in \[0, 1\]"):
+        script.parse([f"policy={path}", "epsilon=1.5"])
+    changed = {}
+    for eps in (0.0, 0.5, 1.0):
+        policy = script.Policy(path, seed=0, epsilon=eps)
+        env = policy.make_env("1-1", num_envs=2, seed=0)
+        try:
+            td = env.reset()
+            greedy = policy.loaded(td)["action"]
+            acts = torch.stack([policy.act(env, td) for _ in range(400)])
+        finally:
+            env.close()
+        assert acts.shape == (400, 2) and int(acts.min()) >= 0 and int(acts.max()) < 5
+        changed[eps] = (acts != greedy).float().mean().item()
+    # a random action is another action 4 times in 5
+    assert changed[0.0] == 0.0
+    assert changed[0.5] == pytest.approx(0.4, abs=0.06) and changed[1.0] == pytest.approx(0.8, abs=0.06)
+
+
 def test_loader_gives_a_policy_and_refuses_other_observation_keys(runs):
     path = runs("ppo_lstm")["whole"] / "model-0-1-1.pt"
     with pytest.raises(ValueError, match="observation keys") as error:
