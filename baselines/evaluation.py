@@ -92,8 +92,11 @@ class LoadedPolicy:
     model: nn.Module
     policy: TensorDictModuleBase
 
-    def __call__(self, td: TensorDictBase) -> TensorDictBase:
-        with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+    def __call__(self, td: TensorDictBase, *, deterministic: bool = True) -> TensorDictBase:
+        """``"action"`` for ``td``: the deterministic one, or (``deterministic=False``) one sampled from the
+        policy's action distribution (PPO, DreamerV3; DQN's Q-values have no distribution and stay greedy)."""
+        mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
+        with torch.no_grad(), set_exploration_type(mode):
             return self.policy(td)
 
     def transforms(self) -> list[Transform]:

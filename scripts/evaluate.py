@@ -12,6 +12,8 @@ Arguments (``key=value``, lists as ``[a,b]``):
     out        output directory (default outputs/eval)
     include    episode CSV files to add to the report (e.g. human play records from scripts/play.py)
     modalities for checkpoints: observation keys to evaluate with; a checkpoint trained on others is refused
+    sample     for checkpoints: act by sampling from the policy's action distribution (PPO, DreamerV3) instead of
+               taking its most likely action (default false); said in summary.md
     epsilon    for checkpoints: chance of a uniformly random action at each step (default 0: the policy's
                deterministic action; 0.05 is DQN's customary evaluation epsilon); said in summary.md
 
@@ -52,6 +54,8 @@ class EvalConfig:
     include: list[str] = field(default_factory=list)
     #: for checkpoints: the observation keys to evaluate with (default: those it was trained on)
     modalities: list[str] | None = None
+    #: for checkpoints: sample actions from the policy's distribution instead of taking the most likely one
+    sample: bool = False
     #: for checkpoints: chance of a uniformly random action at each step (0: deterministic)
     epsilon: float = 0.0
 
@@ -90,10 +94,12 @@ def parse(argv: list[str]) -> EvalConfig:
 class Policy:
     """One policy to evaluate: builds the env for a level and picks actions for a batch of worlds."""
 
-    def __init__(self, spec: str, seed: int, modalities: list[str] | None = None, epsilon: float = 0.0):
+    def __init__(self, spec: str, seed: int, modalities: list[str] | None = None, epsilon: float = 0.0,
+                 sample: bool = False):
         self.spec = spec
         self.seed = seed
         self.epsilon = epsilon
+        self.sample = sample
         self.rng = torch.Generator().manual_seed(seed)  # epsilon's draws: the same for every run of the command
         self.loaded = None
         if spec not in ("oracle", "random"):
@@ -120,7 +126,7 @@ class Policy:
 
     def act(self, env, td):
         if self.loaded is not None:
-            action = self.loaded(td)["action"]  # deterministic, as every evaluation of the baselines
+            action = self.loaded(td, deterministic=not self.sample)["action"]
             if self.epsilon > 0:  # epsilon-greedy evaluation: a uniformly random action instead, now and then
                 explore = torch.rand(action.shape, generator=self.rng) < self.epsilon
                 other = torch.randint(0, len(evaaa.ACTION_NAMES), action.shape, generator=self.rng)
@@ -132,6 +138,7 @@ class Policy:
 
 def run_level(policy: Policy, level: str, cfg: EvalConfig, bar: tqdm) -> list[dict]:
     env = policy.make_env(level, cfg.num_envs, cfg.seed)
+    torch.manual_seed(cfg.seed)  # sampled actions (sample=true) repeat from run to run
     n = cfg.num_envs
     quota = np.full(n, cfg.episodes // n) + (np.arange(n) < cfg.episodes % n)  # episodes each world runs
     tracker = EpisodeTracker(n, level, policy.name, seed=cfg.seed)
@@ -160,7 +167,7 @@ def main(argv: list[str] | None = None) -> int:
     cfg = parse(sys.argv[1:] if argv is None else argv)
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
-    policies = [Policy(spec, cfg.seed, cfg.modalities, cfg.epsilon) for spec in cfg.policy]
+    policies = [Policy(spec, cfg.seed, cfg.modalities, cfg.epsilon, cfg.sample) for spec in cfg.policy]
     total = len(policies) * len(cfg.levels) * cfg.episodes
     with tqdm(total=total, desc="episodes", unit="ep", dynamic_ncols=True) as bar:
         for policy in policies:
@@ -173,6 +180,7 @@ def main(argv: list[str] | None = None) -> int:
     table = markdown_table(summary)
     (out / "summary.md").write_text(
         f"# Evaluation ({cfg.episodes} episodes per level and policy, seed {cfg.seed}"
+        + ("; checkpoints sample their actions" if cfg.sample else "")
         + (f"; checkpoints act epsilon-greedily, epsilon {cfg.epsilon:g}" if cfg.epsilon else "") + ")\n\n"
         "Testbeds: success rate ± standard error; training levels: mean survival (decisions) ± standard error.\n\n"
         + table + "\n")

@@ -209,6 +209,25 @@ def test_evaluate_script_acts_epsilon_greedily_on_request(runs):
     assert changed[0.5] == pytest.approx(0.4, abs=0.06) and changed[1.0] == pytest.approx(0.8, abs=0.06)
 
 
+def test_evaluate_script_samples_from_the_policy_on_request(runs):
+    from helpers import load_script
+
+    script = load_script("evaluate")
+    path = str(runs("ppo")["whole"] / "model-0-1-1.pt")
+    distinct = {}
+    for sample in (False, True):
+        policy = script.Policy(path, seed=0, sample=sample)
+        env = policy.make_env("1-1", num_envs=2, seed=0)
+        try:
+            td = env.reset()
+            acts = torch.stack([policy.act(env, td.clone()) for _ in range(200)])
+        finally:
+            env.close()
+        distinct[sample] = int(acts[:, 0].unique().numel())
+    # the most likely action every time, or draws from a (barely trained, so broad) distribution
+    assert distinct[False] == 1 and distinct[True] >= 3
+
+
 def test_loader_gives_a_policy_and_refuses_other_observation_keys(runs):
     path = runs("ppo_lstm")["whole"] / "model-0-1-1.pt"
     with pytest.raises(ValueError, match="observation keys") as error:
