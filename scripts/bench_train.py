@@ -3,6 +3,7 @@
     python scripts/bench_train.py                                 # ppo, ppo_lstm, dqn, dreamer_xs: 3 minutes each
     python scripts/bench_train.py --algos ppo,dqn --minutes 2 --threads 1
     python scripts/bench_train.py --algos dreamer --minutes 10    # DreamerV3 size S: ~10 s per gradient step here
+    python scripts/bench_train.py --runs runs/acceptance/*/seed0  # the same figures for runs already made
 
 Each algorithm trains with its defaults (``scripts/train.py algo=<name> level=<level>``, ``env.num_envs=8``, all
 modalities) for ``--minutes`` of wall time in a scratch run directory, one after another, so that the runs do not
@@ -32,6 +33,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import pandas as pd
+from omegaconf import OmegaConf
 
 ROOT = Path(__file__).resolve().parents[1]
 ALGOS = ("dqn", "ppo", "ppo_lstm", "dreamer", "dreamer_xs")
@@ -79,6 +81,14 @@ def read_throughput(run_dir: Path, algo: str, skip: float = 0.25) -> Throughput:
                       grad_steps, None if grad_rate is None else float(grad_rate))
 
 
+def run_algo(run_dir: Path) -> str:
+    """The algorithm of a run directory, from the configuration it saved."""
+    config = run_dir / ".hydra" / "config.yaml"
+    if not config.exists():
+        raise SystemExit(f"bench_train.py: {run_dir} is not a run directory of scripts/train.py (no .hydra/config.yaml)")
+    return str(OmegaConf.load(config).algo.name)
+
+
 def run_one(algo: str, level: str, minutes: float, threads: int | None, root: Path, extra: list[str]) -> Path:
     """Train ``algo`` for ``minutes`` in ``root/<algo>``; returns the run directory."""
     run_dir = root / algo
@@ -115,6 +125,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--skip", type=float, default=0.25, help="share of each run left out of the steady rates")
     parser.add_argument("--keep", help="keep the run directories under this folder (default: a temporary one)")
     parser.add_argument("--json", help="also write the figures to this file")
+    parser.add_argument("--runs", nargs="+", help="report these finished run directories instead of training")
     parser.add_argument("overrides", nargs="*", help="more train.py overrides for every run, e.g. env.num_envs=16")
     args = parser.parse_args(argv)
     algos = [a.strip() for a in args.algos.split(",") if a.strip()]
@@ -126,6 +137,16 @@ def main(argv: list[str] | None = None) -> int:
     if not 0 <= args.skip < 1:
         parser.error("--skip must be in [0, 1)")
 
+    if args.runs:
+        rows = [read_throughput(Path(d), run_algo(Path(d)), args.skip) for d in args.runs]
+        print(f"evaaa bench_train: {len(rows)} existing runs")
+        for d, r in zip(args.runs, rows):
+            print(f"  {r.algo}: {d}")
+        print(table(rows))
+        if args.json:
+            Path(args.json).write_text(json.dumps({"runs": args.runs, "rows": [asdict(r) for r in rows]}, indent=2)
+                                       + "\n")
+        return 0
     print(f"evaaa bench_train: level {args.level}, {args.minutes:g} min per algorithm, threads "
           f"{args.threads or 'default'}, {platform.machine()}, {os.cpu_count()} cores", flush=True)
     rows = []

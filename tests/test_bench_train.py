@@ -63,3 +63,15 @@ def test_a_short_real_run_reports_env_and_gradient_steps(tmp_path):
     assert row["algo"] == "ppo" and row["env_steps"] > 0 and row["steady_env_steps_per_s"] > 0
     # debug PPO: every iteration of frames_per_batch env steps makes epochs x minibatches updates
     assert row["gradient_steps"] > 0 and row["steady_gradient_steps_per_s"] > 0
+
+
+def test_existing_runs_are_reported_with_their_algorithm(tmp_path, capsys):
+    run = tmp_path / "run"
+    write_log(run, [(100, 50.0), (200, 50.0), (300, 50.0)], [(100, 10), (200, 20), (300, 30)])
+    (run / ".hydra").mkdir()
+    (run / ".hydra" / "config.yaml").write_text("algo:\n  name: dqn\n")
+    assert load_bench().main(["--runs", str(run), "--json", str(tmp_path / "out.json")]) == 0
+    row = json.loads((tmp_path / "out.json").read_text())["rows"][0]
+    assert row["algo"] == "dqn" and row["steady_gradient_steps_per_s"] == pytest.approx(5.0)
+    with pytest.raises(SystemExit, match="not a run directory"):
+        load_bench().main(["--runs", str(tmp_path)])
