@@ -15,7 +15,8 @@ Arguments (``key=value``, lists as ``[a,b]``):
     title     the report's title
 
 Writes ``out/report.md`` (tables: mean ± standard error across seeds; the runs, and those missing or unfinished),
-the figures ``fig4a_survival_per_level.png``, ``fig4a_curriculum_vs_direct.png``, ``fig4b_success_per_testbed.png``,
+the figures ``fig_training_curves.png`` (training survival against env steps, one panel per training set-up),
+``fig4a_survival_per_level.png``, ``fig4a_curriculum_vs_direct.png``, ``fig4b_success_per_testbed.png``,
 ``fig4b_generalisation.png``, ``fig25_ablation_curves.png``, ``fig26_ablation_success.png`` (those the inputs have
 data for) and the tables' numbers as ``out/data/*.csv``.  See docs/reports.md.
 """
