@@ -26,6 +26,7 @@ import argparse
 import json
 import os
 import platform
+import re
 import subprocess
 import sys
 import tempfile
@@ -62,7 +63,13 @@ def read_throughput(run_dir: Path, algo: str, skip: float = 0.25) -> Throughput:
     rates = rates[rates["rate"] > 0]
     if len(rates) < 2:
         raise SystemExit(f"bench_train.py: {algo}: fewer than two log rows in {rate_file}; give it more --minutes")
-    rates = rates.assign(seconds=rates["step"] / rates["rate"])  # the session started at step 0
+    # each row's rate is (step - the session's first step) / the session's seconds so far; a resumed run has a
+    # session per resume (train.log: "resuming ... env step N"), laid end to end on one wall-time axis
+    starts = resume_steps(run_dir)
+    start = rates["step"].map(lambda step: max([0] + [s for s in starts if s < step]))
+    rates = rates.assign(start=start, session_s=(rates["step"] - start) / rates["rate"])
+    offset = rates.groupby("start")["session_s"].max().cumsum().shift(fill_value=0.0)
+    rates = rates.assign(seconds=rates["session_s"] + rates["start"].map(offset))
     last = rates.iloc[-1]
     first = rates.iloc[(rates["seconds"] - skip * last["seconds"]).abs().argmin()]
     if first["step"] == last["step"]:
@@ -77,8 +84,17 @@ def read_throughput(run_dir: Path, algo: str, skip: float = 0.25) -> Throughput:
         if first["step"] in by_step.index and last["step"] in by_step.index:
             grad_steps = int(by_step[last["step"]])
             grad_rate = (by_step[last["step"]] - by_step[first["step"]]) / span
-    return Throughput(algo, int(last["step"]), float(last["seconds"]), float(last["rate"]), float(steady),
+    return Throughput(algo, int(last["step"]), float(last["seconds"]), float(last["step"] / last["seconds"]),
+                      float(steady),
                       grad_steps, None if grad_rate is None else float(grad_rate))
+
+
+def resume_steps(run_dir: Path) -> list[int]:
+    """The env steps at which the run was resumed (from its ``train.log``; none for a run of one session)."""
+    log = run_dir / "train.log"
+    if not log.exists():
+        return []
+    return [int(m.group(1)) for m in re.finditer(r"resuming .* env step (\d+)", log.read_text())]
 
 
 def run_algo(run_dir: Path) -> str:
@@ -144,8 +160,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  {r.algo}: {d}")
         print(table(rows))
         if args.json:
-            Path(args.json).write_text(json.dumps({"runs": args.runs, "rows": [asdict(r) for r in rows]}, indent=2)
-                                       + "\n")
+            write_json(args.json, {"runs": args.runs, "rows": [asdict(r) for r in rows]})
         return 0
     print(f"evaaa bench_train: level {args.level}, {args.minutes:g} min per algorithm, threads "
           f"{args.threads or 'default'}, {platform.machine()}, {os.cpu_count()} cores", flush=True)
@@ -159,10 +174,16 @@ def main(argv: list[str] | None = None) -> int:
             rows.append(read_throughput(run_dir, algo, args.skip))
     print(table(rows))
     if args.json:
-        Path(args.json).write_text(json.dumps({"level": args.level, "minutes": args.minutes, "threads": args.threads,
-                                               "cores": os.cpu_count(), "rows": [asdict(r) for r in rows]},
-                                              indent=2) + "\n")
+        write_json(args.json, {"level": args.level, "minutes": args.minutes, "threads": args.threads,
+                               "cores": os.cpu_count(), "rows": [asdict(r) for r in rows]})
     return 0
+
+
+def write_json(path: str, data: dict) -> None:
+    """``data`` as indented JSON at ``path``, creating its folder."""
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(data, indent=2) + "\n")
 
 
 if __name__ == "__main__":

@@ -75,3 +75,15 @@ def test_existing_runs_are_reported_with_their_algorithm(tmp_path, capsys):
     assert row["algo"] == "dqn" and row["steady_gradient_steps_per_s"] == pytest.approx(5.0)
     with pytest.raises(SystemExit, match="not a run directory"):
         load_bench().main(["--runs", str(tmp_path)])
+
+
+def test_a_resumed_run_adds_its_sessions_wall_time(tmp_path):
+    # session 1: 1,000 steps at 10 steps/s (100 s); resumed at step 1000, session 2: 1,000 more at 20 steps/s (50 s)
+    rows = [(500, 10.0), (1000, 10.0), (1500, 20.0), (2000, 20.0)]
+    write_log(tmp_path, rows, [(500, 5), (1000, 10), (1500, 15), (2000, 20)])
+    (tmp_path / "train.log").write_text("[x][baselines.runner][INFO] - resuming /r at stage 0 (1-1), env step 1000\n")
+    got = load_bench().read_throughput(tmp_path, "dqn", skip=0.0)
+    assert got.seconds == pytest.approx(150.0) and got.env_steps_per_s == pytest.approx(2000 / 150)
+    # steady from the first row (50 s) to the last (150 s): 1,500 steps and 15 updates in 100 s
+    assert got.steady_env_steps_per_s == pytest.approx(15.0)
+    assert got.steady_gradient_steps_per_s == pytest.approx(0.15)
