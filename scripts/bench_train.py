@@ -9,7 +9,7 @@ Each algorithm trains with its defaults (``scripts/train.py algo=<name> level=<l
 modalities) for ``--minutes`` of wall time in a scratch run directory, one after another, so that the runs do not
 share the machine.  The figures come from the run's own log (``logs/scalars/time/env_steps_per_s.csv``: env steps
 per second of the session so far, written every ``log_every`` env steps, and the gradient-step counter where the
-algorithm logs one):
+algorithm logs one; a resumed run's sessions, found in its ``train.log``, are added up):
 
 * **whole run**: env steps / wall time from the start of training to the last log row (warm-up, evaluations and
   checkpoints included);
