@@ -147,17 +147,18 @@ def load_run(run_dir: str | Path) -> Run:
                                                       & (run.evals["env_steps"] >= budget)).any()
         if (run.dir / f"model-{index}-{level}.pt").is_file() or later or evaluated_at_end:
             run.complete.add(index)
-    if len(run.complete) == len(run.stages):
-        run.steps = run.total
-    else:
-        reached = [run.offset(i) + run.stages[i][2] for i in run.complete]
-        for df in (run.episodes, run.evals):
-            if df is not None and len(df):
-                reached += [run.offset(int(s)) + int(e) for s, e in zip(df["stage"], df["env_steps"])]
-        run.steps = max(reached, default=0)
+    # env steps reached: the furthest logged step (a stage ended by `max_minutes` is complete short of its budget);
+    # a complete stage that logged nothing counts its whole budget
+    reached, logged = [], set()
+    for df in (run.episodes, run.evals):
+        if df is not None and len(df):
+            reached += [run.offset(int(s)) + int(e) for s, e in zip(df["stage"], df["env_steps"])]
+            logged |= {int(s) for s in df["stage"]}
+    reached += [run.offset(i) + run.stages[i][2] for i in run.complete if i not in logged]
+    run.steps = min(max(reached, default=0), run.total)
     if run.episodes is None:
         run.problem, run.usable = "missing: no episodes.csv (the run never started, or its files are gone)", False
-    elif run.steps < run.total:
+    elif len(run.complete) < len(run.stages):
         unfinished = [level for i, level, _ in run.stages if i not in run.complete]
         run.problem = (f"partial: {run.steps:,} of {run.total:,} env steps (unfinished: {', '.join(unfinished)}); "
                        "its curves are drawn, its unfinished stages are left out of the final-survival tables")

@@ -365,6 +365,17 @@ def test_a_finished_set_of_runs_reports_nothing_missing(world, tmp_path):
     assert not (tmp_path / "fig4b_success_per_testbed.png").exists()
 
 
+def test_a_run_ended_by_its_wall_clock_budget_reports_the_steps_it_reached(tmp_path):
+    # max_minutes ended the stage at 70 of its 200 env steps: it is finished (model written, final evaluation at 70)
+    sim = Sim(tmp_path)
+    run = sim.run("ppo", 0, level="1-1", finish=0, partial_steps=70)
+    (run / "model-0-1-1.pt").touch()
+    report = build_report([run], [], tmp_path / "out")
+    row = table(report.markdown.read_text(), "## Runs")[str(run.resolve())]
+    assert row["status"] == "finished" and row["env steps"] == f"70 / {BUDGET:,}"
+    assert report.problems == []
+
+
 def test_checkpoints_outside_the_given_runs_are_found_through_their_run_directory(world, tmp_path):
     report = build_report([], [world["base"] / "eval"], tmp_path)
     got = table(report.markdown.read_text(), "## Success per testbed")
