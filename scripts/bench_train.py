@@ -85,8 +85,7 @@ def read_throughput(run_dir: Path, algo: str, skip: float = 0.25) -> Throughput:
             grad_steps = int(by_step[last["step"]])
             grad_rate = (by_step[last["step"]] - by_step[first["step"]]) / span
     return Throughput(algo, int(last["step"]), float(last["seconds"]), float(last["step"] / last["seconds"]),
-                      float(steady),
-                      grad_steps, None if grad_rate is None else float(grad_rate))
+                      float(steady), grad_steps, None if grad_rate is None else float(grad_rate))
 
 
 def resume_steps(run_dir: Path) -> list[int]:
