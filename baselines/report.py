@@ -301,6 +301,27 @@ def load_evaluations(paths: Iterable[str | Path]) -> pd.DataFrame:
     return pd.concat(frames, ignore_index=True)
 
 
+def select_acting(evals: pd.DataFrame, acting: str | None) -> pd.DataFrame:
+    """Keep the checkpoints' episodes made acting ``acting`` (evaluate.py's ``acting`` column: ``mode``,
+    ``sample``, ``mode+epsilon=0.05`` ...); reference agents' are always kept.  Without ``acting``, a checkpoint
+    evaluated in more than one way is an error: pooling its greedy and sampled episodes would describe neither."""
+    if not len(evals):
+        return evals
+    is_ckpt = ~evals["policy"].isin(REFERENCES) & evals["policy"].map(_is_checkpoint_path)
+    modes = evals.loc[is_ckpt, "acting"].astype(str)
+    if acting is not None:
+        if not (modes == acting).any() and is_ckpt.any():
+            raise ReportError(f"acting: no checkpoint was evaluated acting {acting!r}; the evaluations hold "
+                              f"{', '.join(repr(m) for m in dict.fromkeys(modes))}")
+        return evals[~is_ckpt | (evals["acting"].astype(str) == acting)]
+    for policy, part in evals[is_ckpt].groupby("policy", sort=False):
+        ways = list(dict.fromkeys(part["acting"].astype(str)))
+        if len(ways) > 1:
+            raise ReportError(f"evals: {policy} was evaluated in {len(ways)} ways ({', '.join(map(repr, ways))}); "
+                              f"choose one with acting=<{'|'.join(w or 'unknown' for w in ways)}>")
+    return evals
+
+
 @dataclass
 class Evaluations:
     """Evaluation episodes split into those of checkpoints tied to runs and those of reference agents."""
@@ -526,9 +547,11 @@ class Report:
 
 
 def build_report(run_paths: Sequence[str | Path], eval_paths: Sequence[str | Path], out: str | Path, *,
-                 survival: str = "eval", window: int = 20, bins: int = 20, title: str = "evaaa report") -> Report:
+                 survival: str = "eval", window: int = 20, bins: int = 20, title: str = "evaaa report",
+                 acting: str | None = None) -> Report:
     """Read runs and evaluations, write ``out/report.md``, its PNG figures and ``out/data/*.csv`` (the tables'
-    numbers); returns what was written."""
+    numbers); returns what was written.  ``acting``: which of the checkpoints' evaluation modes to report
+    (:func:`select_acting`)."""
     if survival not in ("eval", "train"):
         raise ReportError(f"survival must be eval or train, not {survival!r}")
     if window < 1 or bins < 1:
@@ -537,7 +560,7 @@ def build_report(run_paths: Sequence[str | Path], eval_paths: Sequence[str | Pat
         raise ReportError("nothing to report: give runs=[...] (run directories) and/or evals=[...] "
                           "(evaluate.py outputs)")
     runs = {d: load_run(d) for d in find_run_dirs(run_paths)}
-    evals = attach(load_evaluations(eval_paths), runs)  # may add the runs of evaluated checkpoints
+    evals = attach(select_acting(load_evaluations(eval_paths), acting), runs)  # may add the runs of evaluated checkpoints
     run_list = sorted(runs.values(), key=lambda r: str(r.dir))
     usable = [r for r in run_list if r.usable]
     describe_extras(usable)
@@ -560,6 +583,11 @@ def build_report(run_paths: Sequence[str | Path], eval_paths: Sequence[str | Pat
            "Trained agents: mean over seeds ± standard error across seeds (n = seeds; no error with one seed). "
            "Reference agents (oracle, random): over episodes; human: over participants when there are several. "
            "Runs that differ only in their seed are pooled; labels name what else differs.", ""]
+    ways = [w for w in dict.fromkeys(evals.checkpoints["acting"].astype(str))] if len(evals.checkpoints) else []
+    if ways:
+        md += ["Checkpoints acted: " + ", ".join(f"`{w}`" if w else "not recorded" for w in ways)
+               + " (evaluate.py: `mode` the most likely action, `sample` drawn from the policy, `+epsilon=e` a "
+               "random action with chance e).", ""]
 
     # ---- runs and problems
     md += ["## Runs", "", "| run | algo | modality | reward | training | seed | env steps | status |",

@@ -35,6 +35,8 @@ def read_episodes(paths: Sequence[str | Path]) -> pd.DataFrame:
     if not frames:
         raise ValueError("no episode files given")
     rows = pd.concat(frames, ignore_index=True)
+    # files written before the acting column existed: how their checkpoints acted is not known
+    rows["acting"] = rows["acting"].fillna("") if "acting" in rows else ""
     rows["success"] = rows["success"].map({"True": True, "False": False, True: True, False: False, "": np.nan})
     return rows
 
@@ -59,9 +61,19 @@ def standard_error(values: pd.Series) -> float:
     return float(values.std(ddof=1) / np.sqrt(n)) if n > 1 else float("nan")
 
 
+def display_names(rows: pd.DataFrame) -> pd.Series:
+    """The policy column as tables and figures show it: a checkpoint's path with how it acted, e.g.
+    ``run/model-0-1-1.pt [sample]``, so that one checkpoint evaluated in two ways gives two entries."""
+    if "acting" not in rows:
+        return rows["policy"]
+    acting = rows["acting"].fillna("").astype(str)
+    return rows["policy"].where(acting == "", rows["policy"] + " [" + acting + "]")
+
+
 def summarize(rows: pd.DataFrame) -> pd.DataFrame:
-    """One row per (level, policy): episodes, success rate and survival, each with its standard error."""
-    groups = rows.groupby(["level", "policy"], sort=False)
+    """One row per (level, policy and how it acted): episodes, success rate and survival, each with its standard
+    error; the ``policy`` column holds :func:`display_names`."""
+    groups = rows.assign(policy=display_names(rows)).groupby(["level", "policy"], sort=False)
     table = groups.agg(
         episodes=("steps", "size"),
         success_rate=("success", lambda s: float(s.astype(float).mean()) if s.notna().any() else np.nan),
@@ -132,6 +144,7 @@ def plot_bars(summary: pd.DataFrame, value: str, error: str, path: str | Path, *
 def plot_outcomes(rows: pd.DataFrame, path: str | Path, *, title: str = "What happened in each episode") -> Path:
     """Per level and policy, the share of episodes by outcome (success, wrong resource, cause of death,
     timeout), with the mean number of collisions written above each bar."""
+    rows = rows.assign(policy=display_names(rows))
     import matplotlib
 
     matplotlib.use("Agg")

@@ -20,6 +20,8 @@ from .physiology import END_TYPES
 #: Columns of an episode row, in order.
 EPISODE_FIELDS: tuple[str, ...] = (
     "policy",  # what acted: a checkpoint path, "random", "oracle", "human"
+    "acting",  # how a checkpoint chose its actions: "mode" or "sample", "+epsilon=<e>" when epsilon-greedy;
+    #            empty for random, oracle and human
     "participant",  # who, for human play; empty otherwise
     "level",
     "episode",  # index of the episode within this run of the tool
@@ -51,10 +53,12 @@ class EpisodeTracker:
     """Accumulates per-world episode statistics and emits a row when a world's episode ends."""
 
     def __init__(self, num_worlds: int, level: str, policy: str, participant: str = "", seed: int | None = None,
-                 judged: bool | None = None):
-        """``judged``: whether the level has a success rule (default: looked up from the level's name)."""
+                 judged: bool | None = None, acting: str = ""):
+        """``judged``: whether the level has a success rule (default: looked up from the level's name);
+        ``acting``: how a checkpoint picks its actions (see :data:`EPISODE_FIELDS`)."""
         self.n = num_worlds
         self.level, self.policy, self.participant, self.seed = level, policy, participant, seed
+        self.acting = acting
         if judged is None:
             from .spec import load_level
 
@@ -94,6 +98,7 @@ class EpisodeTracker:
         for w in np.flatnonzero(done):
             row = {
                 "policy": self.policy,
+                "acting": self.acting,
                 "participant": self.participant,
                 "level": self.level,
                 "episode": self.episodes,

@@ -114,6 +114,9 @@ class Policy:
                 raise SystemExit(f"evaluate.py: {err}") from None
         # a checkpoint is named by its path: reports look the run's configuration up from it
         self.name = spec if self.loaded is None else str(path)
+        # how it acts, recorded with every episode so that evaluations made in different ways stay apart
+        self.acting = "" if self.loaded is None else (
+            "sample" if sample else "mode") + (f"+epsilon={epsilon:g}" if epsilon else "")
 
     def make_env(self, level: str, num_envs: int, seed: int):
         if self.loaded is not None:
@@ -141,7 +144,7 @@ def run_level(policy: Policy, level: str, cfg: EvalConfig, bar: tqdm) -> list[di
     torch.manual_seed(cfg.seed)  # sampled actions (sample=true) repeat from run to run
     n = cfg.num_envs
     quota = np.full(n, cfg.episodes // n) + (np.arange(n) < cfg.episodes % n)  # episodes each world runs
-    tracker = EpisodeTracker(n, level, policy.name, seed=cfg.seed)
+    tracker = EpisodeTracker(n, level, policy.name, seed=cfg.seed, acting=policy.acting)
     rows: list[dict] = []
     td = env.reset()
     done_count = np.zeros(n, dtype=int)

@@ -13,6 +13,8 @@ Arguments (``key=value``, lists as ``[a,b]``):
     window    training episodes averaged for `survival=train` (default 20)
     bins      env-step bins of the training curves (default 20)
     title     the report's title
+    acting    which evaluations of the checkpoints to report when one was evaluated in several ways: mode, sample,
+              mode+epsilon=0.05 ... (evaluate.py's acting column; reference agents are always kept)
 
 Writes ``out/report.md`` (tables: mean ± standard error across seeds; the runs, and those missing or unfinished),
 the figures ``fig_training_curves.png`` (training survival against env steps, one panel per training set-up),
@@ -44,6 +46,7 @@ class ReportConfig:
     window: int = 20
     bins: int = 20
     title: str = "evaaa report"
+    acting: str | None = None
 
 
 def parse(argv: list[str]) -> ReportConfig:
@@ -66,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
     cfg = parse(sys.argv[1:] if argv is None else argv)
     try:
         report = build_report(cfg.runs, cfg.evals, cfg.out, survival=cfg.survival, window=cfg.window,
-                              bins=cfg.bins, title=cfg.title)
+                              bins=cfg.bins, title=cfg.title, acting=cfg.acting)
     except ReportError as err:
         raise SystemExit(f"report.py: {err}") from None
     for problem in report.problems:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import csv
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -91,3 +93,30 @@ def test_read_episodes_parses_success(tmp_path):
     rows = read_episodes([path])
     assert rows["success"].iloc[0] is True or rows["success"].iloc[0] == 1.0
     assert np.isnan(rows["success"].iloc[1])
+
+
+def test_how_a_checkpoint_acted_is_recorded_and_kept_apart(tmp_path):
+    path = tmp_path / "e.csv"
+    for acting, step in (("mode", 100), ("sample", 700), ("sample", 900)):
+        tracker = EpisodeTracker(1, "1-1", "run/model-0-1-1.pt", acting=acting)
+        append_rows(path, tracker.update([0.0], info(1, step=step, end=2), [True]))
+    append_rows(path, EpisodeTracker(1, "1-1", "random").update([0.0], info(1, step=50, end=2), [True]))
+    rows = read_episodes([path])
+    assert list(rows["acting"]) == ["mode", "sample", "sample", ""]
+    summary = summarize(rows).set_index("policy")
+    assert summary.loc["run/model-0-1-1.pt [sample]", "survival"] == pytest.approx(800.0)
+    assert summary.loc["run/model-0-1-1.pt [mode]", "survival"] == pytest.approx(100.0)
+    assert summary.loc["random", "episodes"] == 1
+
+
+def test_episode_files_from_before_the_acting_column_still_read(tmp_path):
+    path = tmp_path / "old.csv"
+    tracker = EpisodeTracker(1, "1-1", "random")
+    row = tracker.update([0.0], info(1, step=7, end=2), [True])[0]
+    row.pop("acting")
+    with path.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(row))
+        writer.writeheader()
+        writer.writerow(row)
+    rows = read_episodes([path])
+    assert list(rows["acting"]) == [""] and summarize(rows)["policy"].tolist() == ["random"]

@@ -20,7 +20,7 @@ from omegaconf import OmegaConf
 
 import evaaa
 from baselines.config import CONF_DIR, observation_keys, register_levels
-from baselines.report import build_report
+from baselines.report import ReportError, build_report
 from baselines.runtime import EPISODE_COLUMNS, EVAL_COLUMNS
 from evaaa.records import append_rows
 
@@ -374,6 +374,31 @@ def test_a_run_ended_by_its_wall_clock_budget_reports_the_steps_it_reached(tmp_p
     row = table(report.markdown.read_text(), "## Runs")[str(run.resolve())]
     assert row["status"] == "finished" and row["env steps"] == f"70 / {BUDGET:,}"
     assert report.problems == []
+
+
+def test_a_checkpoint_evaluated_in_two_ways_is_reported_one_way_at_a_time(world, tmp_path):
+    sim = world["sim"]
+    run = next(d for d, info in sim.runs.items() if info["level"] == "1-1" and info["seed"] == 0)
+    ckpt = str(run / "checkpoint.pt")
+    greedy = [r | {"acting": "mode", "steps": 100 + i} for i, r in enumerate(sim.evaluate(ckpt, "1-1", 3))]
+    sampled = [r | {"acting": "sample", "steps": 900 + 2 * i} for i, r in enumerate(sim.evaluate(ckpt, "1-1", 3))]
+    append_rows(tmp_path / "greedy" / "episodes.csv", greedy)
+    append_rows(tmp_path / "sampled" / "episodes.csv", sampled)
+    append_rows(tmp_path / "random.csv", sim.evaluate("random", "1-1", 4))
+    evals = [tmp_path / "greedy", tmp_path / "sampled", tmp_path / "random.csv"]
+    # pooled, the numbers would describe neither way of acting
+    with pytest.raises(ReportError, match=r"evaluated in 2 ways \('mode', 'sample'\); choose one with "
+                                          r"acting=<mode\|sample>"):
+        build_report([run], evals, tmp_path / "out")
+    with pytest.raises(ReportError, match=r"no checkpoint was evaluated acting 'greedy'"):
+        build_report([run], evals, tmp_path / "out", acting="greedy")
+    for acting, rows in (("sample", sampled), ("mode", greedy)):
+        report = build_report([run], evals, tmp_path / acting, acting=acting)
+        text = report.markdown.read_text()
+        got = table(text, "## Evaluation on training levels")["1-1"]
+        checkpoint_cells = [v for k, v in got.items() if k not in ("level", "random")]
+        assert checkpoint_cells == [expect([np.mean([r["steps"] for r in rows])])]
+        assert f"Checkpoints acted: `{acting}`" in text and "random" in got
 
 
 def test_checkpoints_outside_the_given_runs_are_found_through_their_run_directory(world, tmp_path):
