@@ -307,6 +307,8 @@ def select_acting(evals: pd.DataFrame, acting: str | None) -> pd.DataFrame:
     evaluated in more than one way is an error: pooling its greedy and sampled episodes would describe neither."""
     if not len(evals):
         return evals
+    if acting == "unknown":  # episodes written before evaluate.py recorded how checkpoints acted
+        acting = ""
     is_ckpt = ~evals["policy"].isin(REFERENCES) & evals["policy"].map(_is_checkpoint_path)
     modes = evals.loc[is_ckpt, "acting"].astype(str)
     if acting is not None:
@@ -560,7 +562,8 @@ def build_report(run_paths: Sequence[str | Path], eval_paths: Sequence[str | Pat
         raise ReportError("nothing to report: give runs=[...] (run directories) and/or evals=[...] "
                           "(evaluate.py outputs)")
     runs = {d: load_run(d) for d in find_run_dirs(run_paths)}
-    evals = attach(select_acting(load_evaluations(eval_paths), acting), runs)  # may add the runs of evaluated checkpoints
+    # attach may add the runs of evaluated checkpoints
+    evals = attach(select_acting(load_evaluations(eval_paths), acting), runs)
     run_list = sorted(runs.values(), key=lambda r: str(r.dir))
     usable = [r for r in run_list if r.usable]
     describe_extras(usable)
@@ -583,7 +586,7 @@ def build_report(run_paths: Sequence[str | Path], eval_paths: Sequence[str | Pat
            "Trained agents: mean over seeds ± standard error across seeds (n = seeds; no error with one seed). "
            "Reference agents (oracle, random): over episodes; human: over participants when there are several. "
            "Runs that differ only in their seed are pooled; labels name what else differs.", ""]
-    ways = [w for w in dict.fromkeys(evals.checkpoints["acting"].astype(str))] if len(evals.checkpoints) else []
+    ways = list(dict.fromkeys(evals.checkpoints["acting"].astype(str))) if len(evals.checkpoints) else []
     if ways:
         md += ["Checkpoints acted: " + ", ".join(f"`{w}`" if w else "not recorded" for w in ways)
                + " (evaluate.py: `mode` the most likely action, `sample` drawn from the policy, `+epsilon=e` a "
