@@ -31,3 +31,12 @@ def test_bench_reports_ratios_reset_cost_and_memory(tmp_path):
 def test_bench_rejects_bad_arguments():
     with pytest.raises(SystemExit):
         load_bench().main(["--steps", "10"])
+
+
+def test_profile_lists_the_render_and_the_physics_among_the_costliest_calls(capsys):
+    assert load_script("profile_env").main(["--steps", "30", "--num-envs", "2", "--top", "40"]) == 0
+    printed = capsys.readouterr().out
+    assert printed.startswith("evaaa profile_env: level 1-1, num_envs=2, 30 steps")
+    assert "mjr_render" in printed and "mj_step" in printed
+    with pytest.raises(SystemExit):
+        load_script("profile_env").main(["--level", "9-9"])
