@@ -53,6 +53,8 @@ class EvaaaEnv(EnvBase):
             ``thermoception``, ``collision``.  A dropped modality's key is absent, not zeroed.
         device: where the returned tensors live.
         overrides: dotted-path changes to the level (``{"agent.move_speed": 10}``).
+        render_thread: draw the frames on a thread of their own while the other sensors are read (None: where
+            two or more cores can be used, unless ``EVAAA_RENDER_THREAD=0``).  Observations are the same either way.
     """
 
     # numpy does the work; the output tensordicts are assembled once per call
@@ -68,11 +70,12 @@ class EvaaaEnv(EnvBase):
         modalities: Iterable[str] | str | None = None,
         device: str | torch.device = "cpu",
         overrides: Mapping[str, Any] | None = None,
+        render_thread: bool | None = None,
     ):
         spec = level if isinstance(level, Level) else load_level(level, overrides)
         if isinstance(level, Level) and overrides:
             spec = load_level(level.name, overrides)
-        self.sim = Simulator(spec, num_envs, modalities, seed=seed)
+        self.sim = Simulator(spec, num_envs, modalities, seed=seed, render_thread=render_thread)
         super().__init__(batch_size=torch.Size([num_envs]), device=device)
         self.level = spec
         self.num_envs = num_envs

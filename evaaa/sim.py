@@ -10,10 +10,11 @@ One decision:
 2. five physics substeps of 0.02 s; contact impulses on the body become collision damage;
 3. with eat intent, every item overlapping the eating sphere is consumed (its EV effect counts once) and
    respawns per its group's rule;
-4. predators take their decision and move (attacks add damage); the sun moves on;
+4. predators take their decision and move (attacks add damage); the sun moves on; the scene is now final, and
+   the eye's frames are started (on the render thread, where there is one: see ``evaaa.render``);
 5. the thermal sensors are read at the new pose, the EVs advance, the episode end is decided, the reward is
    computed from the EVs;
-6. the enabled sensors are read.
+6. the diagnostics and the other sensors are read, then the frames are collected.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from . import daynight
 from . import physiology as phys
 from .entities import OBSTACLE_KINDS, PREDATOR, RESOURCE_KINDS, footprint_half
 from .predator import PREDATOR_HALF, NavGrid, Predators
-from .render import BatchRenderer
+from .render import BatchRenderer, RenderJob, render_thread_default
 from .scene import GROUP_AGENT, build_model
 from .sensors import SENSORS, resolve_modalities
 from .spec import Level
@@ -67,9 +68,13 @@ class Simulator:
         num_worlds: worlds stepped together.
         modalities: observation keys to produce (None: all).
         seed: seed of the per-world generators (None: fresh entropy).
+        render_thread: draw the eye's frames on a thread of their own while the rest of a decision is computed
+            (None: where two or more cores can be used, see :func:`evaaa.render.render_thread_default`).  The
+            frames are the same either way.
     """
 
-    def __init__(self, level: Level, num_worlds: int = 1, modalities=None, seed: int | None = None):
+    def __init__(self, level: Level, num_worlds: int = 1, modalities=None, seed: int | None = None,
+                 render_thread: bool | None = None):
         if not isinstance(num_worlds, int) or isinstance(num_worlds, bool) or num_worlds < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_worlds!r}")
         self.level = level
@@ -86,6 +91,7 @@ class Simulator:
         self.agent_z = AGENT_HALF
         self._renderer: BatchRenderer | None = None
         self._top_renderer: BatchRenderer | None = None
+        self.render_thread = render_thread_default() if render_thread is None else bool(render_thread)
 
         n, p = num_worlds, self.pool.size_total
         a = level.agent
@@ -151,6 +157,8 @@ class Simulator:
                                                 self.obstacles.heading[m])
 
         self.sensors = [SENSORS[k](self) for k in self.modalities]
+        # vision is read last: its frames are drawn while the other sensors are read
+        self._vision = next((s for s in self.sensors if s.key == "pixels"), None)
         if "pixels" in self.modalities:
             self._make_renderer()
         self.seed(seed)
@@ -159,7 +167,8 @@ class Simulator:
     def _make_renderer(self) -> None:
         v = self.level.sensors.vision
         adjust = self._light_world if self.level.daynight.enabled else None
-        self._renderer = BatchRenderer(self.model, v.height, v.width, hidden_groups=(GROUP_AGENT,), adjust=adjust)
+        self._renderer = BatchRenderer(self.model, v.height, v.width, hidden_groups=(GROUP_AGENT,), adjust=adjust,
+                                       threaded=self.render_thread)
 
     def seed(self, seed: int | None) -> None:
         """Give every world its own generator, derived from ``seed`` (None: fresh entropy)."""
@@ -421,6 +430,10 @@ class Simulator:
             self.sun_angle = daynight.advance(self.sun_angle, self.level.daynight.degrees_per_step)
             self.field_offset = self._temperature_offset(self.sun_angle)
 
+        # the scene is final for this decision: draw the eye's frames (on the render thread, if there is one) while
+        # the EVs advance and the other sensors are read
+        frames = self.start_render_eye(self._all) if self._vision is not None else None
+
         # 5. physiology
         self.steps += 1
         self.thermal_readings = self._sample_thermal(self._all)
@@ -436,10 +449,10 @@ class Simulator:
         terminated = (end != phys.END_NONE) & ~truncated
         success = self._success(end, food_eaten, water_eaten)
 
-        # 6. senses
-        obs = self._observe(self._all)
+        # 6. diagnostics, then the senses (the frames last)
         info = self._info(food=food_count, water=water_count, collided=collided, damage=damage, end=end,
                           success=success, crossed=crossed)
+        obs = self._observe(self._all, frames)
         return obs, reward, terminated, truncated, info
 
     # ------------------------------------------------------------------------------------------------ events
@@ -611,12 +624,18 @@ class Simulator:
         scene.camera[1].frustum_far = far
 
     # ------------------------------------------------------------------------------------------------ observation
-    def _observe(self, worlds: np.ndarray) -> dict[str, np.ndarray]:
-        """Read the enabled sensors for ``worlds``; other worlds keep their last observation."""
+    def _observe(self, worlds: np.ndarray, frames: RenderJob | None = None) -> dict[str, np.ndarray]:
+        """Read the enabled sensors for ``worlds``; other worlds keep their last observation.  ``frames``: the eye's
+        frames of ``worlds`` already started (otherwise they are started here, before the other sensors)."""
+        if self._vision is not None and frames is None:
+            frames = self.start_render_eye(worlds)
         full = len(worlds) == self.n
+        readings = {s.key: s.read(worlds) for s in self.sensors if s is not self._vision}
+        if frames is not None:
+            readings[self._vision.key] = frames.result()
         obs = {}
-        for sensor in self.sensors:
-            reading = sensor.read(worlds)
+        for sensor in self.sensors:  # in the canonical order
+            reading = readings[sensor.key]
             if full:
                 obs[sensor.key] = reading
             else:
@@ -626,14 +645,19 @@ class Simulator:
         self.last_obs = obs
         return obs
 
-    def render_eye(self, worlds: np.ndarray) -> np.ndarray:
-        """The agent's view in ``worlds``, (len(worlds), H, W, 3) uint8 (a fresh array every call)."""
+    def start_render_eye(self, worlds: np.ndarray) -> RenderJob:
+        """Start drawing the agent's view in ``worlds`` (see :meth:`render_eye`); the worlds' physics must not
+        change until the job's ``result()`` has returned."""
         if self._renderer is None:
             self._make_renderer()
         datas = self.datas if len(worlds) == self.n else [self.datas[w] for w in worlds]
         if self.level.daynight.enabled:
             self._plan_light(worlds)
-        return self._renderer.render(datas, self.index.eye_camera)
+        return self._renderer.submit(datas, self.index.eye_camera)
+
+    def render_eye(self, worlds: np.ndarray) -> np.ndarray:
+        """The agent's view in ``worlds``, (len(worlds), H, W, 3) uint8 (a fresh array every call)."""
+        return self.start_render_eye(worlds).result()
 
     def render_top(self, world: int = 0, size: int = 512) -> np.ndarray:
         """A top-down picture of one world, (size, size, 3) uint8 (for figures and videos; not an observation)."""

@@ -2,8 +2,12 @@
 
 For each setting the env is stepped through TorchRL (``step_and_maybe_reset``, random actions); then the same
 trajectory is replayed as raw MuJoCo work only: per world and decision, five ``mj_step`` calls and one 64x64
-render of the same states.  The ratio env/raw says how much of the possible speed the env keeps; both numbers
-come from this run on this machine, so a busy machine moves both.
+render of the same states, in one thread.  The ratio env/raw says how much of the possible speed the env keeps;
+both numbers come from this run on this machine, so a busy machine moves both.
+
+Where two or more cores can be used the env draws its frames on a render thread while it computes the rest of a
+decision (``render_thread``, the default there); each such setting is also measured with the frames drawn in the
+calling thread ("one thread"), and the ``cores`` column gives the env's CPU seconds per wall-clock second.
 
 Also reported: the cost of a reset in steps, and resident memory over a long run.
 
@@ -27,8 +31,8 @@ import numpy as np
 import evaaa  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
 import mujoco
 import torch
-from evaaa.env import make_env
-from evaaa.render import BatchRenderer
+from evaaa.env import EvaaaEnv, make_env
+from evaaa.render import BatchRenderer, render_thread_default
 from evaaa.sim import Simulator
 from evaaa.spec import load_level
 from evaaa.scene import GROUP_AGENT
@@ -46,18 +50,21 @@ def random_actions(steps: int, n: int, seed: int) -> np.ndarray:
     return np.random.default_rng(seed).integers(0, 5, size=(steps, n))
 
 
-def time_env(env, actions: np.ndarray, warmup: int = 50) -> float:
-    """Steps per second (worlds x decisions) of a TorchRL loop over ``actions`` (T, N)."""
+def time_env(env, actions: np.ndarray, warmup: int = 50, cores: list | None = None) -> float:
+    """Steps per second (worlds x decisions) of a TorchRL loop over ``actions`` (T, N); appends the CPU seconds
+    per wall-clock second of this process to ``cores`` if given."""
     td = env.reset()
     acts = torch.from_numpy(actions).reshape(len(actions), *env.action_spec.shape)
     for t in range(warmup):
         td["action"] = acts[t]
         _, td = env.step_and_maybe_reset(td)
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), time.process_time()
     for t in range(warmup, len(actions)):
         td["action"] = acts[t]
         _, td = env.step_and_maybe_reset(td)
     elapsed = time.perf_counter() - start
+    if cores is not None:
+        cores.append((time.process_time() - cpu) / elapsed)
     return (len(actions) - warmup) * actions.shape[1] / elapsed
 
 
@@ -134,30 +141,34 @@ def measure(args) -> dict:
     results: dict = {"level": level, "steps": steps, "machine": f"{platform.machine()}, {os.cpu_count()} cores",
                      "settings": []}
 
-    def row(name, env_rate, raw_rate, target):
+    def row(name, env_rate, raw_rate, target, cores=None):
         ratio = env_rate / raw_rate
         results["settings"].append({"setting": name, "env_steps_per_s": env_rate, "raw_steps_per_s": raw_rate,
-                                    "ratio": ratio, "target": target})
+                                    "ratio": ratio, "target": target, "cores": cores})
         bound = f">= {target}" if target != "-" else "(report)"
-        print(f"{name:<34}{env_rate:>12.0f}{raw_rate:>14.0f}{ratio:>9.2f}   {bound}", flush=True)
+        used = f"{cores:>7.2f}" if cores is not None else f"{'':>7}"
+        print(f"{name:<40}{env_rate:>12.0f}{raw_rate:>13.0f}{ratio:>8.2f}{used}   {bound}", flush=True)
 
-    print(f"evaaa bench_env: level {level}, {steps} decisions per setting, {results['machine']}")
-    print(f"{'setting':<34}{'env steps/s':>12}{'raw steps/s':>14}{'ratio':>9}   target")
+    print(f"evaaa bench_env: level {level}, {steps} decisions per setting, {results['machine']}, "
+          f"render thread {'on' if render_thread_default() else 'off'}")
+    print(f"{'setting':<40}{'env steps/s':>12}{'raw steps/s':>13}{'ratio':>8}{'cores':>7}   target")
 
-    # one env
-    acts = random_actions(steps, 1, seed=1)
-    env = make_env(level, num_envs=1, seed=0)
-    env_rate = time_env(env, acts)
-    env.close()
-    row("1 env", env_rate, time_raw(level, record_states(level, 1, 0, acts)), 0.75)
+    def env_rows(name: str, n: int, seed: int, target: float) -> None:
+        acts = random_actions(steps, n, seed=seed)
+        raw = time_raw(level, record_states(level, n, 0, acts))
+        variants = [(None, name, target)]  # the default, then the frames in the calling thread
+        if render_thread_default():
+            variants.append((False, f"{name}, one thread", "-"))
+        for render_thread, label, bound in variants:
+            env = EvaaaEnv(level, num_envs=n, seed=0, render_thread=render_thread)
+            cores: list[float] = []
+            env_rate = time_env(env, acts, cores=cores)
+            env.close()
+            row(label, env_rate, raw, bound, cores[0])
 
-    # batched worlds in one process
+    env_rows("1 env", 1, 1, 0.75)
     n = args.num_envs
-    acts = random_actions(steps, n, seed=2)
-    env = make_env(level, num_envs=n, seed=0)
-    env_rate = time_env(env, acts)
-    env.close()
-    row(f"num_envs={n} (1 process)", env_rate, time_raw(level, record_states(level, n, 0, acts)), 0.85)
+    env_rows(f"num_envs={n} (1 process)", n, 2, 0.85)
 
     # two worker processes, one world each and a batch each
     for per_worker in () if args.skip_parallel else (1, n):

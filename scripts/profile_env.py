@@ -4,6 +4,8 @@
     python scripts/profile_env.py --level 4-2 --num-envs 8 --steps 500 --top 30
 
 The profiler adds its own cost per Python call; compare the shares, and take speeds from scripts/bench_env.py.
+The env draws its frames in the calling thread here (``render_thread=False``), so that the profile shows them:
+cProfile sees one thread only.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--top", type=int, default=20, help="functions listed, by own time")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
-    env = evaaa.make_env(args.level, num_envs=args.num_envs, seed=0)
+    env = evaaa.EvaaaEnv(args.level, num_envs=args.num_envs, seed=0, render_thread=False)
     generator = torch.Generator().manual_seed(0)
     td = env.reset()
 

@@ -7,6 +7,8 @@ import json
 import pytest
 from helpers import load_script
 
+from evaaa.render import render_thread_default
+
 
 
 def load_bench():
@@ -20,10 +22,14 @@ def test_bench_reports_ratios_reset_cost_and_memory(tmp_path):
     assert code == 0
     figures = json.loads(out.read_text())
     names = [row["setting"] for row in figures["settings"]]
-    assert names == ["1 env", "num_envs=2 (1 process)"]
+    if render_thread_default():  # each setting also measured with the frames drawn in the calling thread
+        assert names == ["1 env", "1 env, one thread", "num_envs=2 (1 process)", "num_envs=2 (1 process), one thread"]
+    else:
+        assert names == ["1 env", "num_envs=2 (1 process)"]
     for row in figures["settings"]:
         assert row["env_steps_per_s"] > 0 and row["raw_steps_per_s"] > 0
         assert row["ratio"] == pytest.approx(row["env_steps_per_s"] / row["raw_steps_per_s"])
+        assert 0 < row["cores"] < 4
     assert figures["reset"]["in_steps"] > 0
     assert len(figures["memory"]["samples_mb"]) == 2
 

@@ -440,3 +440,31 @@ def test_closing_one_env_leaves_the_others_pictures_intact():
     keep.set_seed(0)
     assert torch.equal(keep.reset()["pixels"], before)
     keep.close()
+
+
+@pytest.mark.parametrize("level", ["1-1", "4-2"])
+def test_the_render_thread_draws_the_same_frames(level):
+    def trajectory(render_thread: bool) -> torch.Tensor:
+        env = evaaa.EvaaaEnv(level, num_envs=2, seed=3, render_thread=render_thread)
+        assert env.sim.render_thread is render_thread and env.sim._renderer.threaded is render_thread
+        frames = env.rollout(40, policy=lambda td: td.set("action", torch.full((2,), FORWARD)),
+                             break_when_any_done=False)["next", "pixels"]
+        env.close()
+        return frames
+
+    threaded, direct = trajectory(True), trajectory(False)
+    assert torch.equal(threaded, direct)
+    assert threaded.float().std() > 0
+
+
+def test_render_thread_setting(monkeypatch):
+    from evaaa.render import render_thread_default
+
+    monkeypatch.setenv("EVAAA_RENDER_THREAD", "0")
+    assert render_thread_default() is False
+    assert evaaa.make_env("1-1", modalities=["pixels"]).sim._renderer.threaded is False
+    monkeypatch.setenv("EVAAA_RENDER_THREAD", "1")
+    assert render_thread_default() is True
+    monkeypatch.setenv("EVAAA_RENDER_THREAD", "sometimes")
+    with pytest.raises(ValueError, match="EVAAA_RENDER_THREAD must be 0 or 1"):
+        render_thread_default()

@@ -249,7 +249,9 @@ def test_collision_rays_agree_with_mujoco_ray_casting(level, overrides):
 
     from evaaa.scene import GROUP_RESOURCE, GROUP_SOLID
 
-    sim = make_sim(level, modalities=("collision",), seed=3, **overrides)
+    # three worlds: the sensor casts the rays of every world in one batch, each world must read only its own things
+    n = 3
+    sim = make_sim(level, modalities=("collision",), n=n, seed=3, **overrides)
     sensor = sim.sensors[0]
     rng = np.random.default_rng(0)
     vec, geom, dist = np.zeros((100, 3)), np.zeros(100, np.int32), np.zeros(100)
@@ -257,15 +259,16 @@ def test_collision_rays_agree_with_mujoco_ray_casting(level, overrides):
     groups[[GROUP_SOLID, GROUP_RESOURCE]] = 1
     seen = 0
     for _ in range(300):
-        _, _, terminated, truncated, _ = sim.step(rng.choice([1, 1, 1, 2, 3], 1))
-        if terminated[0] or truncated[0]:
-            sim.reset()
-        data = sim.datas[0]
-        angles = sim.heading_rad[0] + sensor.offsets
-        vec[:, 0], vec[:, 1] = np.sin(angles), np.cos(angles)
-        mujoco.mj_multiRay(sim.model, data, data.xpos[sim.index.agent_body], vec.reshape(-1), groups, 1,
-                           sim.index.agent_body, geom, dist, None, 100, 1.5)
-        expected = ((dist >= 0) & (dist <= 1.5)).reshape(10, 10).any(axis=1)
-        assert np.array_equal(sim.last_obs["collision"][0] > 0, expected)
-        seen += expected.any()
-    assert seen > 30  # the walk did meet things
+        _, _, terminated, truncated, _ = sim.step(rng.choice([1, 1, 1, 2, 3], n))
+        if (terminated | truncated).any():
+            sim.reset(terminated | truncated)
+        for w in range(n):
+            data = sim.datas[w]
+            angles = sim.heading_rad[w] + sensor.offsets
+            vec[:, 0], vec[:, 1] = np.sin(angles), np.cos(angles)
+            mujoco.mj_multiRay(sim.model, data, data.xpos[sim.index.agent_body], vec.reshape(-1), groups, 1,
+                               sim.index.agent_body, geom, dist, None, 100, 1.5)
+            expected = ((dist >= 0) & (dist <= 1.5)).reshape(10, 10).any(axis=1)
+            assert np.array_equal(sim.last_obs["collision"][w] > 0, expected), w
+            seen += expected.any()
+    assert seen > 90  # the walks did meet things

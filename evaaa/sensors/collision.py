@@ -96,23 +96,27 @@ class CollisionRays(Sensor):
         wall_gap = np.abs(delta[:, :4]) - self._half[:4]
         near[:, :4] = present[:, :4] & (np.max(wall_gap, axis=-1) <= self.range)
         out = np.zeros((len(worlds), self.sectors), dtype=np.float32)
-        for row in np.flatnonzero(near.any(axis=1)):
-            things = np.flatnonzero(near[row])
-            directions = sim.heading_rad[worlds[row]] + self.offsets  # compass: direction (sin, cos)
-            hits = self._cast(delta[row, things], headings[row, things], things, np.sin(directions),
+        rows, things = np.nonzero(near)  # every (world, thing) pair within reach, world by world
+        if len(rows):
+            directions = sim.heading_rad[worlds[rows]][:, None] + self.offsets  # (K, R) compass directions
+            hits = self._cast(delta[rows, things], headings[rows, things], things, np.sin(directions),
                               np.cos(directions))
-            out[row] = hits.reshape(self.sectors, -1).any(axis=1)
+            # a ray hits if it meets any thing of its world: OR the pairs of each world together
+            starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]])
+            per_world = np.logical_or.reduceat(hits, starts, axis=0)  # (worlds with a pair, R)
+            out[rows[starts]] = per_world.reshape(len(starts), self.sectors, -1).any(axis=2)
         return out
 
     def _cast(self, origin: np.ndarray, heading: np.ndarray, things: np.ndarray, dx: np.ndarray,
               dy: np.ndarray) -> np.ndarray:
-        """(R,) whether each ray meets any of ``things`` (origins relative to them, (K, 2)) within range."""
+        """(K, R) whether ray r of pair k meets the pair's thing within range: origins relative to the things
+        (K, 2), the things' headings (K,), their indices (K,) and the rays' directions (K, R)."""
         c, s = np.cos(heading)[:, None], np.sin(heading)[:, None]
         # into each thing's frame (a thing at compass heading h is turned by -h)
         ox = origin[:, 0:1] * c - origin[:, 1:2] * s
         oy = origin[:, 0:1] * s + origin[:, 1:2] * c
-        rx = dx[None, :] * c - dy[None, :] * s  # (K, R)
-        ry = dx[None, :] * s + dy[None, :] * c
+        rx = dx * c - dy * s  # (K, R)
+        ry = dx * s + dy * c
         half = self._half[things]
         a, b = half[:, 0:1], half[:, 1:2]
         hit = np.zeros(rx.shape, dtype=bool)
@@ -137,4 +141,4 @@ class CollisionRays(Sensor):
             t_near = (-qb - root) / (2.0 * qa)
             t_far = (-qb + root) / (2.0 * qa)
             hit[ell] = (qc <= 0) | ((disc >= 0) & (t_far >= 0) & (t_near <= self.range))
-        return hit.any(axis=0)
+        return hit
