@@ -51,8 +51,11 @@ class EvalResult:
         return float(np.mean(self.returns))
 
 
-def evaluate(env: EnvBase, policy: TensorDictModuleBase) -> EvalResult:
-    """Run ``policy`` deterministically until every world of ``env`` has finished one episode (from a reset).
+def evaluate(env: EnvBase, policy: TensorDictModuleBase, *, sample: bool = False) -> EvalResult:
+    """Run ``policy`` until every world of ``env`` has finished one episode (from a reset).
+
+    The policy acts deterministically (greedy Q-values, the mode of its action distribution), or with
+    ``sample=True`` samples its actions from that distribution.
 
     ``env`` must emit the keys the policy reads (see :meth:`LoadedPolicy.wrap`); episodes end by death or by the
     level's ``episode.max_steps``.  Worlds that finish early keep stepping, unrecorded, until the last one ends.
@@ -61,7 +64,8 @@ def evaluate(env: EnvBase, policy: TensorDictModuleBase) -> EvalResult:
     survival = torch.full((n,), -1, dtype=torch.int64)
     returns = torch.zeros(n)
     end_types = torch.zeros(n, dtype=torch.int64)
-    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+    acting = ExplorationType.RANDOM if sample else ExplorationType.DETERMINISTIC
+    with torch.no_grad(), set_exploration_type(acting):
         td = env.reset()
         while (survival < 0).any():
             out, td = env.step_and_maybe_reset(policy(td))

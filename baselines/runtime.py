@@ -9,7 +9,8 @@ optimiser, scheduler and other stateful components, the worlds' full state (``Ev
 frame-stack buffers, the tensordict the next step starts from, the counters, the torch / numpy / python RNG states
 and the sizes of ``episodes.csv`` and ``eval.csv`` (cut back to them on resume, so rows written after the
 checkpoint by the killed process are not duplicated).  Evaluation uses its own worlds, seeded afresh each time, and a
-deterministic policy, so it draws nothing from the training RNGs.
+deterministic policy (or, with ``eval.sample``, a sampling one on a forked torch RNG), so it draws nothing from the
+training RNGs.  The model of the best evaluation so far is kept as ``model-best-<stage>-<level>.pt``.
 """
 
 from __future__ import annotations
@@ -123,6 +124,7 @@ class Run:
         self.counters = Counters(steps=0, episodes=0, logged=0, last_end=0)
         self.recent: deque[int] = deque(maxlen=cfg.progress_window)
         self.last_eval: float | None = None
+        self.best_eval: float | None = None
         offsets = resume["logs"] if resume else {}
         self.episodes_csv = CsvLog(self.dir / "episodes.csv", EPISODE_COLUMNS,
                                    0 if fresh_logs else offsets.get("episodes_csv"))
@@ -255,15 +257,29 @@ class Run:
     def model_path(self) -> Path:
         return self.dir / f"model-{self.stage.index}-{self.stage.level}.pt"
 
+    @property
+    def best_model_path(self) -> Path:
+        """The model of the stage's best evaluation so far (highest mean survival), kept beside the final one."""
+        return self.dir / f"model-best-{self.stage.index}-{self.stage.level}.pt"
+
     def evaluate(self) -> None:
         """A few deterministic episodes on worlds seeded the same way every time; one row of ``eval.csv``."""
         if self._eval_env is None:
             base = evaaa.make_env(self.stage.level, num_envs=self.cfg.eval.episodes, modalities=self.obs_keys,
                                   **self.overrides)
             self._eval_env = wrap_env(base, self.algo.make_transforms(self.cfg.algo, self.obs_keys, self.model))
-        self._eval_env.set_seed(self.cfg.seed + self.cfg.eval.seed_offset, static_seed=True)
-        result = evaluate(self._eval_env, self.policy)
+        seed = self.cfg.seed + self.cfg.eval.seed_offset
+        self._eval_env.set_seed(seed, static_seed=True)
+        sample = bool(self.cfg.eval.get("sample", False))
+        # a sampling policy draws from torch's RNG: a forked, freshly seeded one leaves the training stream as it was
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(seed)
+            result = evaluate(self._eval_env, self.policy, sample=sample)
         self.last_eval = result.survival_mean
+        if self.best_eval is None or result.survival_mean > self.best_eval:
+            self.best_eval = result.survival_mean
+            save_atomic(self._identity() | {"model": self.model.state_dict(), "env_steps": self.steps,
+                                            "eval_survival_mean": result.survival_mean}, self.best_model_path)
         row = {"env_steps": self.steps, "stage": self.stage.index, "level": self.stage.level,
                "episodes": len(result.survival), "survival_mean": result.survival_mean,
                "survival_min": min(result.survival), "survival_max": max(result.survival),
@@ -307,7 +323,8 @@ class Run:
             "counters": self.counters.state_dict(),
             "rng": rng_state(),
             "logs": {"episodes_csv": self.episodes_csv.size(), "eval_csv": self.eval_csv.size(),
-                     "logger": self.logger.state_dict(), "recent": list(self.recent), "last_eval": self.last_eval},
+                     "logger": self.logger.state_dict(), "recent": list(self.recent), "last_eval": self.last_eval,
+                     "best_eval": self.best_eval},
         }
         save_atomic(state, self.dir / CHECKPOINT)
 
@@ -321,6 +338,7 @@ class Run:
         self.counters.load_state_dict(state["counters"])
         self.recent.extend(state["logs"]["recent"])
         self.last_eval = state["logs"]["last_eval"]
+        self.best_eval = state["logs"].get("best_eval")
         set_rng_state(state["rng"])  # last: building the modules above drew from the RNGs
         return state["env"]["td"]
 

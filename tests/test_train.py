@@ -153,7 +153,22 @@ def test_smoke_run_writes_checkpoint_csvs_and_final_model(runs, algo):
     evaluations = read_csv(run_dir / "eval.csv")
     assert [int(r["env_steps"]) for r in evaluations] == [128, 256]  # every eval.every, and at the end
     assert all(0 < float(r["survival_mean"]) <= 48 for r in evaluations)
+    best = checkpoint.load_checkpoint(run_dir / "model-best-0-1-1.pt")
+    means = [float(r["survival_mean"]) for r in evaluations]
+    assert best["eval_survival_mean"] == max(means)
+    assert best["env_steps"] == int(evaluations[means.index(max(means))]["env_steps"])  # the first of equal bests
     assert train_scalars(run_dir), "training metrics reach the logger"
+
+
+def test_sampling_evaluation_leaves_training_unchanged(runs, tmp_path):
+    # the sampling evaluation draws from a forked RNG: the training that follows it is the same as without it
+    train(debug_cfg("ppo", "eval.sample=true"), tmp_path / "run")
+    whole = checkpoint.load_checkpoint(runs("ppo")["whole"] / checkpoint.CHECKPOINT)
+    sampled = checkpoint.load_checkpoint(tmp_path / "run" / checkpoint.CHECKPOINT)
+    for name, value in whole["model"].items():
+        assert torch.equal(value, sampled["model"][name]), name
+    assert read_csv(runs("ppo")["whole"] / "episodes.csv") == read_csv(tmp_path / "run" / "episodes.csv")
+    assert len(read_csv(tmp_path / "run" / "eval.csv")) == 2
 
 
 @pytest.mark.parametrize("algo", ALGOS)
