@@ -31,6 +31,8 @@ PREDATOR_HALF = PREDATOR.base[0] / 2
 CONTACT_DISTANCE = PREDATOR_HALF + AGENT_HALF + 0.2
 #: a chase re-plans at most this often when the straight line to the agent is blocked
 REPLAN_EVERY = 5
+#: sizes (grid cells each way) of the groups in which boxes are rasterised together; larger boxes go one by one
+BOX_GROUP_CELLS = (8, 32)
 
 
 class NavGrid:
@@ -64,7 +66,27 @@ class NavGrid:
                           grown[:, 0] * np.abs(s_) + grown[:, 1] * np.abs(c)], axis=1)
         first = np.clip(np.ceil((xy - reach + size / 2) / step - 0.5).astype(int), 0, np.array(shape))
         last = np.clip(np.floor((xy + reach + size / 2) / step - 0.5).astype(int), -1, np.array(shape) - 1)
-        for k in range(len(xy)):
+        # boxes are rasterised in groups by size, each box of a group over a square of cells from its first cell
+        # (kept where it lies in the box's range and the cell's centre inside the box); the few huge boxes (long
+        # walls) one by one
+        span = (last - first + 1).max(axis=1)
+        done = np.zeros(len(xy), dtype=bool)
+        for cells in BOX_GROUP_CELLS:
+            group = np.flatnonzero(~done & (span <= cells))
+            done[group] = True
+            if not len(group):
+                continue
+            offsets = np.arange(cells)
+            ix = np.broadcast_to(first[group, 0, None, None] + offsets[None, :, None], (len(group), cells, cells))
+            iy = np.broadcast_to(first[group, 1, None, None] + offsets[None, None, :], (len(group), cells, cells))
+            rx = -size[0] / 2 + (ix + 0.5) * step[0] - xy[group, 0, None, None]
+            ry = -size[1] / 2 + (iy + 0.5) * step[1] - xy[group, 1, None, None]
+            cs, sn = c[group, None, None], s_[group, None, None]
+            lx, ly = rx * cs - ry * sn, rx * sn + ry * cs
+            inside = ((ix <= last[group, 0, None, None]) & (iy <= last[group, 1, None, None])
+                      & (np.abs(lx) <= grown[group, 0, None, None]) & (np.abs(ly) <= grown[group, 1, None, None]))
+            blocked[ix[inside], iy[inside]] = True
+        for k in np.flatnonzero(~done):
             (x0, y0), (x1, y1) = first[k], last[k]
             if x1 < x0 or y1 < y0:
                 continue
@@ -277,35 +299,41 @@ class Predators:
                 self.routes[w][k] = None
 
     def _move(self, w: int, agent: np.ndarray) -> None:
+        # plain floats: a route has a handful of waypoints and numpy's per-call cost would dominate
+        xy, state, routes = self.xy[w], self.state[w], self.routes[w]
         for k in range(self.k):
-            route = self.routes[w][k]
-            if route is None or self.state[w, k] in (RESTING, ATTACKING):
+            route = routes[k]
+            if route is None or state[k] == RESTING or state[k] == ATTACKING:
                 continue
-            budget = self.step_length[k]
-            pos = self.xy[w, k]
-            chasing = self.state[w, k] == CHASING
-            while budget > 1e-9 and len(route):
-                target = route[0]
-                delta = target - pos
-                dist = float(np.hypot(*delta))
-                if chasing and len(route) == 1:  # stop when touching, do not walk into the agent
+            budget = float(self.step_length[k])
+            x0, y0 = float(xy[k, 0]), float(xy[k, 1])
+            px, py = x0, y0
+            chasing = state[k] == CHASING
+            points, i = route.tolist(), 0
+            while budget > 1e-9 and i < len(points):
+                dx, dy = points[i][0] - px, points[i][1] - py
+                length = math.hypot(dx, dy)
+                dist = length
+                if chasing and i == len(points) - 1:  # stop when touching, do not walk into the agent
                     dist = max(dist - (CONTACT_DISTANCE - 0.1), 0.0)
+                unit = max(length, 1e-9)
                 if dist <= budget:
-                    pos = pos + (delta / max(np.hypot(*delta), 1e-9)) * dist
+                    px, py = px + dx / unit * dist, py + dy / unit * dist
                     budget -= dist
-                    if len(route) > 1 or not chasing:
-                        route = route[1:]
+                    if i < len(points) - 1 or not chasing:
+                        i += 1
                     else:
                         break
                 else:
-                    pos = pos + delta / max(np.hypot(*delta), 1e-9) * budget
+                    px, py = px + dx / unit * budget, py + dy / unit * budget
                     budget = 0.0
-            moved = pos - self.xy[w, k]
-            if moved @ moved > 1e-12:
-                self._turn(w, k, math.atan2(moved[0], moved[1]))
-            self.xy[w, k] = pos
-            self.routes[w][k] = route if len(route) else None
+            mx, my = px - x0, py - y0
+            if mx * mx + my * my > 1e-12:
+                self._turn(w, k, math.atan2(mx, my))
+            xy[k, 0], xy[k, 1] = px, py
+            routes[k] = route[i:] if i < len(points) else None
 
     def _turn(self, w: int, k: int, towards: float) -> None:
-        off = (towards - self.heading[w, k] + math.pi) % (2 * math.pi) - math.pi
-        self.heading[w, k] = (self.heading[w, k] + np.clip(off, -self.turn_step[k], self.turn_step[k])) % (2 * math.pi)
+        heading, limit = float(self.heading[w, k]), float(self.turn_step[k])
+        off = (towards - heading + math.pi) % (2 * math.pi) - math.pi
+        self.heading[w, k] = (heading + min(max(off, -limit), limit)) % (2 * math.pi)

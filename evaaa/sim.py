@@ -267,12 +267,14 @@ class Simulator:
     def _write_predators(self, w: int) -> None:
         if not self.predators.k:
             return
-        data, ids = self.datas[w], self.index.predator_mocap
-        data.mocap_pos[ids, 0] = self.predators.xy[w, :, 0]
-        data.mocap_pos[ids, 1] = self.predators.xy[w, :, 1]
-        data.mocap_pos[ids, 2] = PREDATOR.base[2] / 2
+        data, ids, k = self.datas[w], self.index.predator_mocap, self.predators.k
+        pose = np.empty((k, 7))
+        pose[:, :2] = self.predators.xy[w]
+        pose[:, 2] = PREDATOR.base[2] / 2
         half = -self.predators.heading[w] / 2  # a body at compass heading h is turned by -h about z
-        data.mocap_quat[ids] = np.stack([np.cos(half), np.zeros_like(half), np.zeros_like(half), np.sin(half)], 1)
+        pose[:, 3], pose[:, 4:6], pose[:, 6] = np.cos(half), 0.0, np.sin(half)
+        data.mocap_pos[ids] = pose[:, :3]
+        data.mocap_quat[ids] = pose[:, 3:]
 
     def _write_resources(self, w: int) -> None:
         z = np.where(self.res_present[w], self.pool.centre_z(), PARKED_Z)

@@ -165,8 +165,9 @@ def _overlaps(candidates: np.ndarray, half: np.ndarray, placed_xy: np.ndarray, p
     """Whether each candidate box (C, 2) with half-sides ``half`` (2,) overlaps any placed box."""
     if not len(placed_xy):
         return np.zeros(len(candidates), dtype=bool)
-    gap = np.abs(candidates[:, None, :] - placed_xy[None, :, :])  # (C, K, 2)
-    return np.any(np.all(gap < half + placed_half[None, :, :], axis=-1), axis=1)
+    gap_x = np.abs(candidates[:, 0, None] - placed_xy[None, :, 0])  # (C, K)
+    gap_y = np.abs(candidates[:, 1, None] - placed_xy[None, :, 1])
+    return ((gap_x < half[0] + placed_half[None, :, 0]) & (gap_y < half[1] + placed_half[None, :, 1])).any(axis=1)
 
 
 def place_obstacles(pool: ObstaclePool, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -179,13 +180,17 @@ def place_obstacles(pool: ObstaclePool, rng: np.random.Generator) -> tuple[np.nd
     xy = np.zeros((pool.size_total, 2))
     present = np.zeros(pool.size_total, dtype=bool)
     placed_xy, placed_half, m = np.zeros((pool.size_total, 2)), np.zeros((pool.size_total, 2)), 0
+    # all 100 tries of every obstacle that moves are drawn up front, in obstacle order (the generator's stream does
+    # not depend on how many are needed), and tested a few at a time: most obstacles fit at the first or second try
+    moving = np.flatnonzero(~pool.static)
+    tries = rng.uniform(pool.low[moving, None, :], pool.high[moving, None, :], size=(len(moving), PLACEMENT_TRIES, 2))
+    row = np.full(pool.size_total, -1)
+    row[moving] = np.arange(len(moving))
     for o in range(pool.size_total):
         if pool.static[o]:
             spot = pool.low[o]
         else:
-            # all 100 tries are drawn up front (the generator's stream does not depend on how many are needed),
-            # and tested a few at a time: most obstacles fit at the first or second try
-            candidates = rng.uniform(pool.low[o], pool.high[o], size=(PLACEMENT_TRIES, 2))
+            candidates = tries[row[o]]
             grown = pool.half[o] + pool.padding[o]
             spot = None
             for chunk in (candidates[:8], candidates[8:]):

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import cProfile
+import os
 import pstats
 
 import torch
@@ -42,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     profiler.runcall(run, args.steps)
     env.close()
     print(f"evaaa profile_env: level {args.level}, num_envs={args.num_envs}, {args.steps} steps")
-    pstats.Stats(profiler).sort_stats("tottime").print_stats(args.top)
+    pstats.Stats(profiler).sort_stats(os.environ.get("PROFILE_SORT", "tottime")).print_stats(args.top)
     return 0
 
 

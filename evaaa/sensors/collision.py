@@ -60,30 +60,36 @@ class CollisionRays(Sensor):
         self._reach = np.hypot(*self._half.T)  # a thing's slice lies within this distance of its centre
         self._reach[:4] = 0.0  # walls are tested against their sides below, not a bounding circle
         self._counts = (4, obstacles.size_total, pool.size_total, k)
+        # per-world buffers of the things' centres, headings and presence: the walls' rows and the fixed headings
+        # are written once here, the rest on every read
+        solid = self._half[:, 0] > 0  # things of no extent (the walls of an open arena) are never there
+        self._solid = solid
+        self._centres = np.zeros((sim.n, len(solid), 2))
+        self._centres[:, :4] = self._walls
+        self._present = np.broadcast_to(solid, (sim.n, len(solid))).copy()
+        self._headings = np.broadcast_to(self._heading, (sim.n, len(solid))).copy()
 
     @property
     def shape(self) -> tuple[int, ...]:
         return (self.sectors,)
 
     def _things(self, worlds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Centres (W, T, 2), headings (W, T) and presence (W, T) of every thing in ``worlds``."""
+        """Centres (W, T, 2), headings (W, T) and presence (W, T) of every thing in ``worlds`` (views of buffers
+        that the next call overwrites)."""
         sim = self.sim
         n = len(worlds)
-        centres = np.concatenate([
-            np.broadcast_to(self._walls, (n, 4, 2)),
-            sim.obs_xy[worlds],
-            sim.res_xy[worlds],
-            sim.predators.xy[worlds],
-        ], axis=1)
-        present = np.concatenate([
-            np.broadcast_to(self._half[:4, 0] > 0, (n, 4)),
-            sim.obs_present[worlds],
-            sim.res_present[worlds],
-            np.ones((n, self._counts[3]), dtype=bool),
-        ], axis=1) & (self._half[:, 0] > 0)
-        headings = np.broadcast_to(self._heading, (n, len(self._heading))).copy()
-        if self._counts[3]:
-            headings[:, -self._counts[3]:] = sim.predators.heading[worlds]
+        _, o, p, k = self._counts
+        items, preds = 4 + o, 4 + o + p
+        centres, present, headings = self._centres[:n], self._present[:n], self._headings[:n]
+        if n == sim.n:  # every world (``worlds`` holds distinct indices in order): slices copy without gathering
+            worlds = slice(None)
+        centres[:, 4:items] = sim.obs_xy[worlds]
+        centres[:, items:preds] = sim.res_xy[worlds]
+        np.logical_and(sim.obs_present[worlds], self._solid[4:items], out=present[:, 4:items])
+        np.logical_and(sim.res_present[worlds], self._solid[items:preds], out=present[:, items:preds])
+        if k:
+            centres[:, preds:] = sim.predators.xy[worlds]
+            headings[:, preds:] = sim.predators.heading[worlds]
         return centres, headings, present
 
     def read(self, worlds: np.ndarray) -> np.ndarray:
@@ -94,7 +100,7 @@ class CollisionRays(Sensor):
         near = present & ((delta**2).sum(-1) <= (self.range + self._reach) ** 2)
         # walls: near when the body centre is within range of the wall's inner face
         wall_gap = np.abs(delta[:, :4]) - self._half[:4]
-        near[:, :4] = present[:, :4] & (np.max(wall_gap, axis=-1) <= self.range)
+        near[:, :4] = present[:, :4] & (wall_gap.max(axis=-1) <= self.range)
         out = np.zeros((len(worlds), self.sectors), dtype=np.float32)
         rows, things = np.nonzero(near)  # every (world, thing) pair within reach, world by world
         if len(rows):
@@ -102,7 +108,10 @@ class CollisionRays(Sensor):
             hits = self._cast(delta[rows, things], headings[rows, things], things, np.sin(directions),
                               np.cos(directions))
             # a ray hits if it meets any thing of its world: OR the pairs of each world together
-            starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]])
+            change = np.empty(len(rows), dtype=bool)
+            change[0] = True
+            np.not_equal(rows[1:], rows[:-1], out=change[1:])
+            starts = np.flatnonzero(change)
             per_world = np.logical_or.reduceat(hits, starts, axis=0)  # (worlds with a pair, R)
             out[rows[starts]] = per_world.reshape(len(starts), self.sectors, -1).any(axis=2)
         return out
