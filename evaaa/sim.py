@@ -499,10 +499,10 @@ class Simulator:
         """(N,) whether each agent stands within 3 m of a hot obstacle's footprint."""
         if not self._heat.any():
             return self._zeros_bool
-        hot = self._heat & self.obs_present
-        gap = np.abs(self.pos[:, None, :] - self.obs_xy) - self._heat_half  # (N, O, 2)
+        hot = np.flatnonzero(self._heat)
+        gap = np.abs(self.pos[:, None, :] - self.obs_xy[:, hot]) - self._heat_half[hot]  # (N, H, 2)
         dist = np.linalg.norm(np.maximum(gap, 0.0), axis=-1)
-        return (hot & (dist <= NEAR_HEAT)).any(axis=1)
+        return (self.obs_present[:, hot] & (dist <= NEAR_HEAT)).any(axis=1)
 
     def _check_actions(self, actions) -> np.ndarray:
         a = np.asarray(actions).reshape(-1)
