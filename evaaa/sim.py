@@ -522,7 +522,7 @@ class Simulator:
         """Squared horizontal distances (N, P) from each agent to each item slot, cached per decision."""
         if self._res_d2 is None:
             delta = self.res_xy - self.pos[:, None, :]
-            self._res_d2 = np.einsum("npk,npk->np", delta, delta)
+            self._res_d2 = delta[..., 0] ** 2 + delta[..., 1] ** 2
         return self._res_d2
 
     def _contact_damage(self, data: mujoco.MjData) -> tuple[float, bool]:
@@ -545,7 +545,7 @@ class Simulator:
             per_body[body] = per_body.get(body, 0.0) + world
         total, hit = 0.0, False
         for vec in per_body.values():
-            impulse = float(np.linalg.norm(vec)) * self.dt
+            impulse = math.sqrt(float(vec @ vec)) * self.dt  # the norm, as np.linalg.norm computes it
             d = min(constant * math.exp(rate * (impulse - offset)), cap)
             total += d
             hit |= d > threshold

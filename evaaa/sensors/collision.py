@@ -59,6 +59,7 @@ class CollisionRays(Sensor):
         self._heading = np.concatenate(headings)
         self._reach = np.hypot(*self._half.T)  # a thing's slice lies within this distance of its centre
         self._reach[:4] = 0.0  # walls are tested against their sides below, not a bounding circle
+        self._near2 = (self.range + self._reach) ** 2  # squared centre distance within which a thing may be hit
         self._counts = (4, obstacles.size_total, pool.size_total, k)
         # per-world buffers of the things' centres, headings and presence: the walls' rows and the fixed headings
         # are written once here, the rest on every read
@@ -97,7 +98,7 @@ class CollisionRays(Sensor):
         centres, headings, present = self._things(worlds)
         pos = sim.pos[worlds]
         delta = pos[:, None, :] - centres  # (W, T, 2) ray origin relative to each thing
-        near = present & ((delta**2).sum(-1) <= (self.range + self._reach) ** 2)
+        near = present & (delta[..., 0] ** 2 + delta[..., 1] ** 2 <= self._near2)
         # walls: near when the body centre is within range of the wall's inner face
         wall_gap = np.abs(delta[:, :4]) - self._half[:4]
         near[:, :4] = present[:, :4] & (wall_gap.max(axis=-1) <= self.range)
@@ -128,15 +129,12 @@ class CollisionRays(Sensor):
         ry = dx * s + dy * c
         half = self._half[things]
         a, b = half[:, 0:1], half[:, 1:2]
-        hit = np.zeros(rx.shape, dtype=bool)
         rect = self._shape[things] == RECT
+        if rect.all():  # boxes only (the common case): no masking
+            return self._cast_rect(ox, oy, rx, ry, a, b)
+        hit = np.zeros(rx.shape, dtype=bool)
         if rect.any():
-            with np.errstate(divide="ignore", invalid="ignore"):
-                tx1, tx2 = (-a[rect] - ox[rect]) / rx[rect], (a[rect] - ox[rect]) / rx[rect]
-                ty1, ty2 = (-b[rect] - oy[rect]) / ry[rect], (b[rect] - oy[rect]) / ry[rect]
-                t_near = np.maximum(np.minimum(tx1, tx2), np.minimum(ty1, ty2))
-                t_far = np.minimum(np.maximum(tx1, tx2), np.maximum(ty1, ty2))
-            hit[rect] = (t_far >= np.maximum(t_near, 0.0)) & (t_near <= self.range)
+            hit[rect] = self._cast_rect(ox[rect], oy[rect], rx[rect], ry[rect], a[rect], b[rect])
         ell = ~rect
         if ell.any():
             # scale the ellipse to the unit circle and solve |o + t d|^2 = 1 for the ray parameter t
@@ -151,3 +149,13 @@ class CollisionRays(Sensor):
             t_far = (-qb + root) / (2.0 * qa)
             hit[ell] = (qc <= 0) | ((disc >= 0) & (t_far >= 0) & (t_near <= self.range))
         return hit
+
+    def _cast_rect(self, ox, oy, rx, ry, a, b) -> np.ndarray:
+        """Slab test of rays (origins ``ox, oy``, directions ``rx, ry``) against boxes of half-sides ``a, b``,
+        all in the boxes' frames."""
+        with np.errstate(divide="ignore", invalid="ignore"):  # a ray parallel to a side: +-inf, handled below
+            tx1, tx2 = (-a - ox) / rx, (a - ox) / rx
+            ty1, ty2 = (-b - oy) / ry, (b - oy) / ry
+            t_near = np.maximum(np.minimum(tx1, tx2), np.minimum(ty1, ty2))
+            t_far = np.minimum(np.maximum(tx1, tx2), np.maximum(ty1, ty2))
+        return (t_far >= np.maximum(t_near, 0.0)) & (t_near <= self.range)
