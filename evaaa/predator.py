@@ -104,18 +104,21 @@ class NavGrid:
         """8-connected graph of the free cells; diagonal moves may not cut the corner of a blocked cell."""
         gx, gy = blocked.shape
         free = ~blocked
-        x, y = np.meshgrid(np.arange(gx), np.arange(gy), indexing="ij")
         rows, cols, weights = [], [], []
+        # per direction (dx, dy): the cells (x, y) whose edge to (x + dx, y + dy) exists, in row-major order
         for dx, dy in ((1, 0), (0, 1), (1, 1), (1, -1)):
-            x2, y2 = x + dx, y + dy
-            inside = (x2 < gx) & (y2 >= 0) & (y2 < gy)
-            xa, ya, xb, yb = x[inside], y[inside], x2[inside], y2[inside]
-            ok = free[xa, ya] & free[xb, yb]
-            if dx and dy:
-                ok &= free[xb, ya] & free[xa, yb]
-            rows.append(xa[ok] * gy + ya[ok])
-            cols.append(xb[ok] * gy + yb[ok])
-            extra = (cost[xa[ok], ya[ok]] + cost[xb[ok], yb[ok]]) / 2
+            y0 = 1 if dy < 0 else 0  # first y with a neighbour at y + dy
+            ny = gy - abs(dy)
+            a = (slice(0, gx - dx), slice(y0, y0 + ny))  # the cells ...
+            b = (slice(dx, gx), slice(y0 + dy, y0 + dy + ny))  # ... and their neighbours
+            ok = free[a] & free[b]
+            if dx and dy:  # the two cells beside the diagonal
+                ok &= free[b[0], a[1]] & free[a[0], b[1]]
+            k = np.flatnonzero(ok)
+            src = (k // ny) * gy + k % ny + y0
+            rows.append(src)
+            cols.append(src + dx * gy + dy)
+            extra = (cost[a][ok] + cost[b][ok]) / 2
             weights.append(math.hypot(dx, dy) * (1.0 + extra))
         n = gx * gy
         return sp.coo_matrix((np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))),
