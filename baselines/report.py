@@ -37,6 +37,8 @@ from .config import stages as config_stages
 #: Policies of evaluation files that are not checkpoints.
 REFERENCES = ("oracle", "random", "human")
 MODEL_FILE = re.compile(r"^model-(\d+)-(.+)\.pt$")
+#: the network of a stage's best evaluation (runtime.Run.best_model_path)
+BEST_MODEL_FILE = re.compile(r"^model-best-(\d+)-(.+)\.pt$")
 #: Settings that do not change what is trained: runs differing only in these (and the seed) are pooled.
 BOOKKEEPING = ("seed", "resume", "threads", "progress", "progress_window", "log_every", "total_steps", "stages",
                "run.", "logger.", "checkpoint.", "eval.", "level.", "hydra.")
@@ -359,7 +361,7 @@ def attach(evals: pd.DataFrame, runs: dict[Path, Run]) -> Evaluations:
                            f"({where})")
             info[policy] = (None, -1, "")
             continue
-        match = MODEL_FILE.match(path.name)
+        match = MODEL_FILE.match(path.name) or BEST_MODEL_FILE.match(path.name)
         if match:
             stage, level = int(match.group(1)), match.group(2)
         else:  # checkpoint.pt (or a renamed file): the latest state, in the stage the run is in
@@ -381,8 +383,8 @@ def _is_checkpoint_path(policy: str) -> bool:
 
 
 def final_checkpoints(ckpts: pd.DataFrame) -> pd.DataFrame:
-    """Per run, the episodes of its furthest-trained evaluated checkpoint (a ``model-*.pt`` before ``checkpoint.pt``
-    of the same stage)."""
+    """Per run, the episodes of its furthest-trained evaluated checkpoint (a final ``model-*.pt`` before a
+    ``model-best-*.pt`` or ``checkpoint.pt`` of the same stage)."""
     if not len(ckpts):
         return ckpts
     ckpts = ckpts.assign(_model=ckpts["policy"].map(lambda p: bool(MODEL_FILE.match(Path(p).name))))

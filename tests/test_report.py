@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 from helpers import load_script
 import yaml
@@ -399,6 +400,22 @@ def test_a_checkpoint_evaluated_in_two_ways_is_reported_one_way_at_a_time(world,
         checkpoint_cells = [v for k, v in got.items() if k not in ("level", "random")]
         assert checkpoint_cells == [expect([np.mean([r["steps"] for r in rows])])]
         assert f"Checkpoints acted: `{acting}`" in text and "random" in got
+
+
+def test_a_stage_best_model_is_tied_to_its_stage_and_the_final_model_is_preferred(world):
+    from baselines.report import attach, final_checkpoints, load_run
+
+    sim = world["sim"]
+    run = next(d for d, info in sim.runs.items() if info["level"] == "curriculum")
+    stage, level = 0, STAGES[0]  # not the stage the run ended in, which a checkpoint.pt would be tied to
+    best, final = str(run / f"model-best-{stage}-{level}.pt"), str(run / f"model-{stage}-{level}.pt")
+    rows = pd.DataFrame(sim.evaluate(best, "1-1", 2) + sim.evaluate(final, "1-1", 2)).assign(file="episodes.csv")
+    ckpts = attach(rows, {run.resolve(): load_run(run)}).checkpoints
+    assert set(zip(ckpts["policy"], ckpts["ckpt_stage"], ckpts["ckpt_level"])) == {(best, stage, level),
+                                                                                  (final, stage, level)}
+    assert set(final_checkpoints(ckpts)["policy"]) == {final}
+    only_best = ckpts[ckpts["policy"] == best]
+    assert set(final_checkpoints(only_best)["policy"]) == {best}
 
 
 def test_checkpoints_outside_the_given_runs_are_found_through_their_run_directory(world, tmp_path):
