@@ -53,8 +53,9 @@ class EvaaaEnv(EnvBase):
             ``thermoception``, ``collision``.  A dropped modality's key is absent, not zeroed.
         device: where the returned tensors live.
         overrides: dotted-path changes to the level (``{"agent.move_speed": 10}``).
-        render_thread: draw the frames on a thread of their own while the other sensors are read (None: where
-            two or more cores can be used, unless ``EVAAA_RENDER_THREAD=0``).  Observations are the same either way.
+        render_thread: draw the frames on a thread of their own while the other sensors are read (None: as the
+            environment variable ``EVAAA_RENDER_THREAD`` says, off when unset).  Observations are the same either
+            way.
     """
 
     # numpy does the work; the output tensordicts are assembled once per call

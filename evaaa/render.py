@@ -9,6 +9,8 @@ A renderer made with ``threaded=True`` keeps its GL context current on a thread 
 :meth:`BatchRenderer.submit` starts the frames there and returns at once, and :meth:`RenderJob.result` collects
 them.  MuJoCo's drawing calls release the GIL, so the simulator reads its other sensors and advances the EVs on
 one core while the frames are drawn on another.  The caller must not change the worlds' ``MjData`` in between.
+Simulators use it only when asked (``render_thread=True`` or ``EVAAA_RENDER_THREAD=1``): between the calls of each
+frame the render thread must take the GIL back, and on a 2-core machine that ate what the overlap gained.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import numpy as np
 #: While frames are drawn on a render thread, the other threads give the GIL up after this long (seconds) when the
 #: render thread asks for it between two MuJoCo calls; Python's default, 5 ms, would stall the render thread.
 RENDER_SWITCH_INTERVAL = 2e-5
+
 
 
 def gl_error(exc: Exception) -> RuntimeError:
@@ -57,18 +60,17 @@ def _gl_context_class():
 
 
 def render_thread_default() -> bool:
-    """Whether simulators draw their frames on a thread of their own: where this process may use two or more
-    cores, unless the environment variable ``EVAAA_RENDER_THREAD`` says otherwise (0 or 1)."""
+    """Whether simulators draw their frames on a thread of their own unless told: the environment variable
+    ``EVAAA_RENDER_THREAD`` (0 or 1), off when unset.  Off by default because on the 2-core machine this project is
+    measured on the thread did not pay: ``bench_env.py`` put a batch of eight worlds within a few percent either way
+    of drawing in the calling thread, and a single world ~15 % slower (the GIL is taken back between the MuJoCo
+    calls of every frame, so little of the other work overlaps the drawing)."""
     setting = os.environ.get("EVAAA_RENDER_THREAD", "").strip().lower()
-    if setting in ("0", "false", "no", "off"):
+    if setting in ("", "0", "false", "no", "off"):
         return False
     if setting in ("1", "true", "yes", "on"):
         return True
-    if setting:
-        raise ValueError(f"EVAAA_RENDER_THREAD must be 0 or 1 (unset: a render thread where two or more cores can "
-                         f"be used), got {setting!r}")
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return cores >= 2
+    raise ValueError(f"EVAAA_RENDER_THREAD must be 0 or 1 (unset: 0), got {setting!r}")
 
 
 # the GL context made current last in each thread (making one current costs ~20 us)

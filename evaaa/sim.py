@@ -69,8 +69,8 @@ class Simulator:
         modalities: observation keys to produce (None: all).
         seed: seed of the per-world generators (None: fresh entropy).
         render_thread: draw the eye's frames on a thread of their own while the rest of a decision is computed
-            (None: where two or more cores can be used, see :func:`evaaa.render.render_thread_default`).  The
-            frames are the same either way.
+            (None: as ``EVAAA_RENDER_THREAD`` says, off when unset; see
+            :func:`evaaa.render.render_thread_default`).  The frames are the same either way.
     """
 
     def __init__(self, level: Level, num_worlds: int = 1, modalities=None, seed: int | None = None,

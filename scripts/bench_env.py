@@ -5,9 +5,10 @@ trajectory is replayed as raw MuJoCo work only: per world and decision, five ``m
 render of the same states, in one thread.  The ratio env/raw says how much of the possible speed the env keeps;
 both numbers come from this run on this machine, so a busy machine moves both.
 
-Where two or more cores can be used the env draws its frames on a render thread while it computes the rest of a
-decision (``render_thread``, the default there); each such setting is also measured with the frames drawn in the
-calling thread ("one thread"), and the ``cores`` column gives the env's CPU seconds per wall-clock second.
+Each setting is measured with the env's default (frames drawn in the calling thread unless
+``EVAAA_RENDER_THREAD=1``) and then the other way ("render thread": the frames drawn on a thread of their own
+while the rest of a decision is computed, or "one thread"); the ``cores`` column gives the env's CPU seconds per
+wall-clock second.
 
 Also reported: the cost of a reset in steps, and resident memory over a long run.
 
@@ -149,16 +150,16 @@ def measure(args) -> dict:
         used = f"{cores:>7.2f}" if cores is not None else f"{'':>7}"
         print(f"{name:<40}{env_rate:>12.0f}{raw_rate:>13.0f}{ratio:>8.2f}{used}   {bound}", flush=True)
 
+    threading = "on" if render_thread_default() else "off"
     print(f"evaaa bench_env: level {level}, {steps} decisions per setting, {results['machine']}, "
-          f"render thread {'on' if render_thread_default() else 'off'}")
+          f"render thread {threading}")
     print(f"{'setting':<40}{'env steps/s':>12}{'raw steps/s':>13}{'ratio':>8}{'cores':>7}   target")
 
     def env_rows(name: str, n: int, seed: int, target: float) -> None:
         acts = random_actions(steps, n, seed=seed)
         raw = time_raw(level, record_states(level, n, 0, acts))
-        variants = [(None, name, target)]  # the default, then the frames in the calling thread
-        if render_thread_default():
-            variants.append((False, f"{name}, one thread", "-"))
+        threaded = render_thread_default()  # the default, then the other way
+        variants = [(None, name, target), (not threaded, f"{name}, {'one thread' if threaded else 'render thread'}", "-")]
         for render_thread, label, bound in variants:
             env = EvaaaEnv(level, num_envs=n, seed=0, render_thread=render_thread)
             cores: list[float] = []

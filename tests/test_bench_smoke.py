@@ -22,10 +22,8 @@ def test_bench_reports_ratios_reset_cost_and_memory(tmp_path):
     assert code == 0
     figures = json.loads(out.read_text())
     names = [row["setting"] for row in figures["settings"]]
-    if render_thread_default():  # each setting also measured with the frames drawn in the calling thread
-        assert names == ["1 env", "1 env, one thread", "num_envs=2 (1 process)", "num_envs=2 (1 process), one thread"]
-    else:
-        assert names == ["1 env", "num_envs=2 (1 process)"]
+    other = "one thread" if render_thread_default() else "render thread"  # each setting: the default, the other way
+    assert names == ["1 env", f"1 env, {other}", "num_envs=2 (1 process)", f"num_envs=2 (1 process), {other}"]
     for row in figures["settings"]:
         assert row["env_steps_per_s"] > 0 and row["raw_steps_per_s"] > 0
         assert row["ratio"] == pytest.approx(row["env_steps_per_s"] / row["raw_steps_per_s"])

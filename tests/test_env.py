@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+
 from functools import partial
 
 import numpy as np
@@ -460,11 +461,14 @@ def test_the_render_thread_draws_the_same_frames(level):
 def test_render_thread_setting(monkeypatch):
     from evaaa.render import render_thread_default
 
-    monkeypatch.setenv("EVAAA_RENDER_THREAD", "0")
+    monkeypatch.delenv("EVAAA_RENDER_THREAD", raising=False)
     assert render_thread_default() is False
-    assert evaaa.make_env("1-1", modalities=["pixels"]).sim._renderer.threaded is False
+    assert evaaa.make_env("1-1", num_envs=2, modalities=["pixels"]).sim._renderer.threaded is False
     monkeypatch.setenv("EVAAA_RENDER_THREAD", "1")
     assert render_thread_default() is True
+    assert evaaa.make_env("1-1", num_envs=2, modalities=["pixels"]).sim._renderer.threaded is True
+    monkeypatch.setenv("EVAAA_RENDER_THREAD", "0")
+    assert render_thread_default() is False
     monkeypatch.setenv("EVAAA_RENDER_THREAD", "sometimes")
     with pytest.raises(ValueError, match="EVAAA_RENDER_THREAD must be 0 or 1"):
         render_thread_default()
