@@ -533,6 +533,10 @@ def plot_lines(stats: pd.DataFrame, path: Path, *, x: str, panel: str | None, yl
         if order is not None:
             ax.set_xticks(range(len(order)), order)
             ax.set_xlim(-0.3, len(order) - 0.7)
+        else:  # env steps: 250k, 1.5M rather than six-digit labels that run into each other
+            from matplotlib.ticker import EngFormatter
+
+            ax.xaxis.set_major_formatter(EngFormatter(sep=""))
         ax.set_xlabel(xlabel)
         ax.set_ylabel(ylabel)
         ax.set_ylim(0, top)
