@@ -29,7 +29,6 @@ import numpy as np
 RENDER_SWITCH_INTERVAL = 2e-5
 
 
-
 def gl_error(exc: Exception) -> RuntimeError:
     """A rendering failure explained: what to install and which variable to set."""
     backend = os.environ.get("MUJOCO_GL", "(unset)")
