@@ -263,7 +263,8 @@ class Run:
         return self.dir / f"model-best-{self.stage.index}-{self.stage.level}.pt"
 
     def evaluate(self) -> None:
-        """A few deterministic episodes on worlds seeded the same way every time; one row of ``eval.csv``."""
+        """A few episodes (deterministic, or sampled with ``eval.sample``) on worlds seeded the same way every time;
+        one row of ``eval.csv``, and ``model-best-*.pt`` when it is the best so far."""
         if self._eval_env is None:
             base = evaaa.make_env(self.stage.level, num_envs=self.cfg.eval.episodes, modalities=self.obs_keys,
                                   **self.overrides)

@@ -51,9 +51,9 @@ def random_actions(steps: int, n: int, seed: int) -> np.ndarray:
     return np.random.default_rng(seed).integers(0, 5, size=(steps, n))
 
 
-def time_env(env, actions: np.ndarray, warmup: int = 50, cores: list | None = None) -> float:
-    """Steps per second (worlds x decisions) of a TorchRL loop over ``actions`` (T, N); appends the CPU seconds
-    per wall-clock second of this process to ``cores`` if given."""
+def time_env(env, actions: np.ndarray, warmup: int = 50) -> tuple[float, float]:
+    """Steps per second (worlds x decisions) of a TorchRL loop over ``actions`` (T, N), and the CPU seconds per
+    wall-clock second this process spent on it."""
     td = env.reset()
     acts = torch.from_numpy(actions).reshape(len(actions), *env.action_spec.shape)
     for t in range(warmup):
@@ -64,9 +64,7 @@ def time_env(env, actions: np.ndarray, warmup: int = 50, cores: list | None = No
         td["action"] = acts[t]
         _, td = env.step_and_maybe_reset(td)
     elapsed = time.perf_counter() - start
-    if cores is not None:
-        cores.append((time.process_time() - cpu) / elapsed)
-    return (len(actions) - warmup) * actions.shape[1] / elapsed
+    return (len(actions) - warmup) * actions.shape[1] / elapsed, (time.process_time() - cpu) / elapsed
 
 
 # ------------------------------------------------------------------------------------------------- raw side
@@ -162,10 +160,9 @@ def measure(args) -> dict:
         variants = [(None, name, target), (not threaded, f"{name}, {'one thread' if threaded else 'render thread'}", "-")]
         for render_thread, label, bound in variants:
             env = EvaaaEnv(level, num_envs=n, seed=0, render_thread=render_thread)
-            cores: list[float] = []
-            env_rate = time_env(env, acts, cores=cores)
+            env_rate, cores = time_env(env, acts)
             env.close()
-            row(label, env_rate, raw, bound, cores[0])
+            row(label, env_rate, raw, bound, cores)
 
     env_rows("1 env", 1, 1, 0.75)
     n = args.num_envs
@@ -177,7 +174,7 @@ def measure(args) -> dict:
         seeds = (10, 11)
         penv = ParallelEnv(2, [partial(make_env, level, num_envs=per_worker, seed=s) for s in seeds],
                            mp_start_method="spawn")
-        env_rate = time_env(penv, acts)
+        env_rate, _ = time_env(penv, acts)  # the workers' CPU time is not this process's
         penv.close()
         states = [record_states(level, per_worker, s, acts[:, i * per_worker: (i + 1) * per_worker])
                   for i, s in enumerate(seeds)]
@@ -186,7 +183,7 @@ def measure(args) -> dict:
 
     # reset cost
     env = make_env(level, num_envs=1, seed=0)
-    step_rate = time_env(env, random_actions(min(steps, 1000), 1, seed=4))
+    step_rate, _ = time_env(env, random_actions(min(steps, 1000), 1, seed=4))
     start = time.perf_counter()
     for _ in range(args.resets):
         env.reset()
