@@ -7,10 +7,13 @@ reset.
 
 A renderer made with ``threaded=True`` keeps its GL context current on a thread of its own for its whole life:
 :meth:`BatchRenderer.submit` starts the frames there and returns at once, and :meth:`RenderJob.result` collects
-them.  MuJoCo's drawing calls release the GIL, so the simulator reads its other sensors and advances the EVs on
-one core while the frames are drawn on another.  The caller must not change the worlds' ``MjData`` in between.
-Simulators use it only when asked (``render_thread=True`` or ``EVAAA_RENDER_THREAD=1``): between the calls of each
-frame the render thread must take the GIL back, and on a 2-core machine that ate what the overlap gained.
+them; the caller must not change the worlds' ``MjData`` in between.  :class:`SplitRenderer` puts several such
+threads to work at once, each with a GL context of its own and a contiguous share of the worlds.  MuJoCo's drawing
+calls release the GIL and Mesa's software rasteriser draws a 64x64 frame on one core, so on a 2-core machine two
+threads draw a batch of frames ~1.5x faster than one; the pixels are the same.  (Overlapping the drawing with the
+rest of a decision, by contrast, did not pay: the Python code of the other sensors holds the GIL that the render
+threads need between their MuJoCo calls.)  How many threads a simulator uses is :func:`render_threads_default`
+unless it is told.
 """
 
 from __future__ import annotations
@@ -23,10 +26,6 @@ from concurrent.futures import Future
 
 import mujoco
 import numpy as np
-
-#: While frames are drawn on a render thread, the other threads give the GIL up after this long (seconds) when the
-#: render thread asks for it between two MuJoCo calls; Python's default, 5 ms, would stall the render thread.
-RENDER_SWITCH_INTERVAL = 2e-5
 
 
 def gl_error(exc: Exception) -> RuntimeError:
@@ -58,45 +57,35 @@ def _gl_context_class():
     return GLContext
 
 
-def render_thread_default() -> bool:
-    """Whether simulators draw their frames on a thread of their own unless told: the environment variable
-    ``EVAAA_RENDER_THREAD`` (0 or 1), off when unset.  Off by default because on the 2-core machine this project is
-    measured on the thread did not pay: ``bench_env.py`` put a batch of eight worlds within a few percent either way
-    of drawing in the calling thread, and a single world ~15 % slower (the GIL is taken back between the MuJoCo
-    calls of every frame, so little of the other work overlaps the drawing)."""
-    setting = os.environ.get("EVAAA_RENDER_THREAD", "").strip().lower()
-    if setting in ("", "0", "false", "no", "off"):
-        return False
-    if setting in ("1", "true", "yes", "on"):
-        return True
-    raise ValueError(f"EVAAA_RENDER_THREAD must be 0 or 1 (unset: 0), got {setting!r}")
+def render_threads_default(num_worlds: int) -> int:
+    """How many threads draw the frames of ``num_worlds`` worlds unless a simulator is told (0: the calling thread).
+
+    The environment variable ``EVAAA_RENDER_THREADS`` (an integer >= 0) decides when set.  Otherwise a single world
+    is drawn in the calling thread (a frame is not split, so another thread would only add a hand-over), and a
+    batch on two threads when the process may use at least two cores (each draws about half the worlds, at once).
+    """
+    setting = os.environ.get("EVAAA_RENDER_THREADS", "").strip()
+    if setting:
+        try:
+            threads = int(setting)
+        except ValueError:
+            threads = -1
+        if threads < 0:
+            raise ValueError(f"EVAAA_RENDER_THREADS must be an integer >= 0 (0: draw in the calling thread), "
+                             f"got {setting!r}")
+        return threads
+    return 2 if num_worlds >= 2 and usable_cores() >= 2 else 0
+
+
+def usable_cores() -> int:
+    """CPU cores this process may run on."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
 
 
 # the GL context made current last in each thread (making one current costs ~20 us)
 _current = threading.local()
-
-# renders in flight on render threads, and the switch interval to restore when none is
-_inflight = 0
-_inflight_lock = threading.Lock()
-_saved_switch_interval = 0.005
-
-
-def _render_started() -> None:
-    global _inflight, _saved_switch_interval
-    with _inflight_lock:
-        if _inflight == 0:
-            _saved_switch_interval = sys.getswitchinterval()
-            sys.setswitchinterval(min(_saved_switch_interval, RENDER_SWITCH_INTERVAL))
-        _inflight += 1
-
-
-def _render_ended() -> None:
-    global _inflight
-    with _inflight_lock:
-        _inflight -= 1
-        if _inflight == 0:
-            sys.setswitchinterval(_saved_switch_interval)
-
 
 class _RenderThread:
     """One thread that runs the calls given to :meth:`submit` in order (a renderer's GL context stays current in
@@ -148,18 +137,9 @@ class RenderJob:
     def result(self) -> np.ndarray:
         """The frames, (N, H, W, 3) uint8, once drawn (waits for the render thread)."""
         if self._future is not None:
-            try:
-                self._frames = self._future.result()
-            finally:
-                self._future = None
-                _render_ended()
+            future, self._future = self._future, None
+            self._frames = future.result()
         return self._frames
-
-    def __del__(self):
-        # a job dropped unread (its step raised) still ends its render: restore the switch interval
-        if getattr(self, "_future", None) is not None:
-            self._future = None
-            _render_ended()
 
 
 class BatchRenderer:
@@ -210,26 +190,29 @@ class BatchRenderer:
         self._camera.type = mujoco.mjtCamera.mjCAMERA_FIXED
         self._rect = mujoco.MjrRect(0, 0, width, height)
         self._catmask = int(mujoco.mjtCatBit.mjCAT_ALL)
+        # MuJoCo hands the context's fog settings to OpenGL only when the context is made; a frame whose
+        # ``adjust`` turns fog on gets them handed over again (PyOpenGL, a MuJoCo dependency, picks the same
+        # platform as the context)
+        from OpenGL import GL
+
+        self._gl_api = GL
+        self._fog_flag = mujoco.mjtRndFlag.mjRND_FOG
 
     def render(self, datas, camera_id: int, out: np.ndarray | None = None) -> np.ndarray:
         """Frames of ``camera_id`` for each data in ``datas``, upright, as (len(datas), H, W, 3) uint8."""
         return self.submit(datas, camera_id, out).result()
 
-    def submit(self, datas, camera_id: int, out: np.ndarray | None = None) -> RenderJob:
+    def submit(self, datas, camera_id: int, out: np.ndarray | None = None, first_row: int = 0) -> RenderJob:
         """Start drawing the frames of :meth:`render`; on a threaded renderer this returns before they are drawn,
-        and ``datas`` must not change until :meth:`RenderJob.result` has returned."""
+        and ``datas`` must not change until :meth:`RenderJob.result` has returned.  ``first_row``: the row of
+        ``datas[0]`` in a larger batch (what ``adjust`` is told)."""
         if out is None:
             out = np.empty((len(datas), self.height, self.width, 3), dtype=np.uint8)
         if self._thread is None:
-            return RenderJob(frames=self._draw(datas, camera_id, out))
-        _render_started()
-        try:
-            return RenderJob(future=self._thread.submit(self._draw, datas, camera_id, out))
-        except BaseException:
-            _render_ended()
-            raise
+            return RenderJob(frames=self._draw(datas, camera_id, out, first_row))
+        return RenderJob(future=self._thread.submit(self._draw, datas, camera_id, out, first_row))
 
-    def _draw(self, datas, camera_id: int, out: np.ndarray) -> np.ndarray:
+    def _draw(self, datas, camera_id: int, out: np.ndarray, first_row: int = 0) -> np.ndarray:
         if getattr(_current, "context", None) is not self._gl:
             self._make_current()
         self._camera.fixedcamid = camera_id
@@ -237,12 +220,20 @@ class BatchRenderer:
         for row, data in enumerate(datas):
             mujoco.mjv_updateScene(model, data, self._option, None, self._camera, self._catmask, scene)
             if self._adjust is not None:
-                self._adjust(row, scene, context)
+                self._adjust(first_row + row, scene, context)
+                if scene.flags[self._fog_flag]:
+                    self._apply_fog(context)
             mujoco.mjr_render(rect, scene, context)
             mujoco.mjr_readPixels(out[row], None, rect, context)
         # OpenGL rows run bottom-up
         out[:] = out[:, ::-1]
         return out
+
+    def _apply_fog(self, context: mujoco.MjrContext) -> None:
+        GL = self._gl_api
+        GL.glFogf(GL.GL_FOG_START, context.fogStart)
+        GL.glFogf(GL.GL_FOG_END, context.fogEnd)
+        GL.glFogfv(GL.GL_FOG_COLOR, np.asarray(context.fogRGBA, dtype=np.float32))
 
     def _make_current(self) -> None:
         self._gl.make_current()
@@ -276,3 +267,75 @@ class BatchRenderer:
             self.close()
         except Exception:  # noqa: BLE001 - interpreter shutdown
             pass
+
+
+class _Jobs:
+    """The parts of one :meth:`SplitRenderer.submit`, collected together."""
+
+    def __init__(self, jobs: list[RenderJob], frames: np.ndarray):
+        self._jobs, self._frames = jobs, frames
+
+    def result(self) -> np.ndarray:
+        """The frames, once every part is drawn (a part's failure is raised after all parts have ended)."""
+        error = None
+        for job in self._jobs:
+            try:
+                job.result()
+            except BaseException as exc:  # noqa: BLE001 - raised once all parts have ended
+                error = error or exc
+        if error is not None:
+            raise error
+        return self._frames
+
+
+class SplitRenderer:
+    """A :class:`BatchRenderer` that draws a batch on ``threads`` threads at once, each with its own GL context and
+    a contiguous share of the worlds (as even as the batch allows).  Same interface and frames."""
+
+    def __init__(self, model: mujoco.MjModel, height: int, width: int, hidden_groups: tuple[int, ...] = (),
+                 adjust=None, threads: int = 2):
+        if threads < 1:
+            raise ValueError(f"SplitRenderer needs threads >= 1, got {threads}")
+        self.height, self.width = height, width
+        self._parts: list[BatchRenderer] = []
+        try:
+            for _ in range(threads):
+                self._parts.append(BatchRenderer(model, height, width, hidden_groups, adjust, threaded=True))
+        except BaseException:
+            self.close()
+            raise
+
+    @property
+    def threaded(self) -> bool:
+        return True
+
+    @property
+    def threads(self) -> int:
+        return len(self._parts)
+
+    def render(self, datas, camera_id: int, out: np.ndarray | None = None) -> np.ndarray:
+        return self.submit(datas, camera_id, out).result()
+
+    def submit(self, datas, camera_id: int, out: np.ndarray | None = None) -> _Jobs:
+        n = len(datas)
+        if out is None:
+            out = np.empty((n, self.height, self.width, 3), dtype=np.uint8)
+        k = min(len(self._parts), n)
+        bounds = [n * i // k for i in range(k + 1)]
+        jobs = []
+        try:
+            for part, a, b in zip(self._parts, bounds[:-1], bounds[1:]):
+                jobs.append(part.submit(datas[a:b], camera_id, out[a:b], first_row=a))
+        except BaseException:
+            for job in jobs:  # let the parts already started finish before their arrays go
+                try:
+                    job.result()
+                except BaseException:  # noqa: BLE001 - the first failure is the one raised
+                    pass
+            raise
+        return _Jobs(jobs, out)
+
+    def close(self) -> None:
+        parts, self._parts = self._parts, []
+        for part in parts:
+            part.close()

@@ -28,7 +28,7 @@ from . import daynight
 from . import physiology as phys
 from .entities import OBSTACLE_KINDS, PREDATOR, RESOURCE_KINDS, footprint_half
 from .predator import PREDATOR_HALF, NavGrid, Predators
-from .render import BatchRenderer, RenderJob, render_thread_default
+from .render import BatchRenderer, SplitRenderer, render_threads_default
 from .scene import GROUP_AGENT, build_model
 from .sensors import SENSORS, resolve_modalities
 from .spec import Level
@@ -68,13 +68,14 @@ class Simulator:
         num_worlds: worlds stepped together.
         modalities: observation keys to produce (None: all).
         seed: seed of the per-world generators (None: fresh entropy).
-        render_thread: draw the eye's frames on a thread of their own while the rest of a decision is computed
-            (None: as ``EVAAA_RENDER_THREAD`` says, off when unset; see
-            :func:`evaaa.render.render_thread_default`).  The frames are the same either way.
+        render_threads: threads that draw the eye's frames while the rest of a decision is computed, each with a
+            share of the worlds (0: the calling thread draws them; None: :func:`evaaa.render.render_threads_default`,
+            two for a batch on a machine with two cores or more, else 0, or ``EVAAA_RENDER_THREADS``).  At most
+            one per world.  The frames are the same either way.
     """
 
     def __init__(self, level: Level, num_worlds: int = 1, modalities=None, seed: int | None = None,
-                 render_thread: bool | None = None):
+                 render_threads: int | None = None):
         if not isinstance(num_worlds, int) or isinstance(num_worlds, bool) or num_worlds < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_worlds!r}")
         self.level = level
@@ -89,9 +90,14 @@ class Simulator:
         self.dt = float(self.model.opt.timestep)
         self.sampler = FieldSampler(level)
         self.agent_z = AGENT_HALF
-        self._renderer: BatchRenderer | None = None
+        self._renderer: BatchRenderer | SplitRenderer | None = None
         self._top_renderer: BatchRenderer | None = None
-        self.render_thread = render_thread_default() if render_thread is None else bool(render_thread)
+        if render_threads is None:
+            render_threads = render_threads_default(num_worlds)
+        if not isinstance(render_threads, int) or isinstance(render_threads, bool) or render_threads < 0:
+            raise ValueError(f"render_threads must be an integer >= 0 (0: draw in the calling thread), "
+                             f"got {render_threads!r}")
+        self.render_threads = min(render_threads, num_worlds)
 
         n, p = num_worlds, self.pool.size_total
         a = level.agent
@@ -157,7 +163,7 @@ class Simulator:
                                                 self.obstacles.heading[m])
 
         self.sensors = [SENSORS[k](self) for k in self.modalities]
-        # vision is read last: its frames are drawn while the other sensors are read
+        # vision is read apart: its frames are drawn as soon as the scene is final
         self._vision = next((s for s in self.sensors if s.key == "pixels"), None)
         if "pixels" in self.modalities:
             self._make_renderer()
@@ -167,8 +173,12 @@ class Simulator:
     def _make_renderer(self) -> None:
         v = self.level.sensors.vision
         adjust = self._light_world if self.level.daynight.enabled else None
-        self._renderer = BatchRenderer(self.model, v.height, v.width, hidden_groups=(GROUP_AGENT,), adjust=adjust,
-                                       threaded=self.render_thread)
+        if self.render_threads:
+            self._renderer = SplitRenderer(self.model, v.height, v.width, hidden_groups=(GROUP_AGENT,),
+                                           adjust=adjust, threads=self.render_threads)
+        else:
+            self._renderer = BatchRenderer(self.model, v.height, v.width, hidden_groups=(GROUP_AGENT,),
+                                           adjust=adjust)
 
     def seed(self, seed: int | None) -> None:
         """Give every world its own generator, derived from ``seed`` (None: fresh entropy)."""
@@ -432,9 +442,8 @@ class Simulator:
             self.sun_angle = daynight.advance(self.sun_angle, self.level.daynight.degrees_per_step)
             self.field_offset = self._temperature_offset(self.sun_angle)
 
-        # the scene is final for this decision: draw the eye's frames (on the render thread, if there is one) while
-        # the EVs advance and the other sensors are read
-        frames = self.start_render_eye(self._all) if self._vision is not None else None
+        # the scene is final for this decision: draw the eye's frames (on the render threads, if there are any)
+        frames = self.render_eye(self._all) if self._vision is not None else None
 
         # 5. physiology
         self.steps += 1
@@ -626,15 +635,13 @@ class Simulator:
         scene.camera[1].frustum_far = far
 
     # ------------------------------------------------------------------------------------------------ observation
-    def _observe(self, worlds: np.ndarray, frames: RenderJob | None = None) -> dict[str, np.ndarray]:
+    def _observe(self, worlds: np.ndarray, frames: np.ndarray | None = None) -> dict[str, np.ndarray]:
         """Read the enabled sensors for ``worlds``; other worlds keep their last observation.  ``frames``: the eye's
-        frames of ``worlds`` already started (otherwise they are started here, before the other sensors)."""
-        if self._vision is not None and frames is None:
-            frames = self.start_render_eye(worlds)
+        frames of ``worlds`` if already drawn."""
         full = len(worlds) == self.n
-        readings = {s.key: s.read(worlds) for s in self.sensors if s is not self._vision}
+        readings = {s.key: s.read(worlds) for s in self.sensors if s is not self._vision or frames is None}
         if frames is not None:
-            readings[self._vision.key] = frames.result()
+            readings[self._vision.key] = frames
         obs = {}
         for sensor in self.sensors:  # in the canonical order
             reading = readings[sensor.key]
@@ -647,19 +654,14 @@ class Simulator:
         self.last_obs = obs
         return obs
 
-    def start_render_eye(self, worlds: np.ndarray) -> RenderJob:
-        """Start drawing the agent's view in ``worlds`` (see :meth:`render_eye`); the worlds' physics must not
-        change until the job's ``result()`` has returned."""
+    def render_eye(self, worlds: np.ndarray) -> np.ndarray:
+        """The agent's view in ``worlds``, (len(worlds), H, W, 3) uint8 (a fresh array every call)."""
         if self._renderer is None:
             self._make_renderer()
         datas = self.datas if len(worlds) == self.n else [self.datas[w] for w in worlds]
         if self.level.daynight.enabled:
             self._plan_light(worlds)
-        return self._renderer.submit(datas, self.index.eye_camera)
-
-    def render_eye(self, worlds: np.ndarray) -> np.ndarray:
-        """The agent's view in ``worlds``, (len(worlds), H, W, 3) uint8 (a fresh array every call)."""
-        return self.start_render_eye(worlds).result()
+        return self._renderer.render(datas, self.index.eye_camera)
 
     def render_top(self, world: int = 0, size: int = 512) -> np.ndarray:
         """A top-down picture of one world, (size, size, 3) uint8 (for figures and videos; not an observation)."""

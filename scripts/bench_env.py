@@ -5,10 +5,11 @@ trajectory is replayed as raw MuJoCo work only: per world and decision, five ``m
 render of the same states, in one thread.  The ratio env/raw says how much of the possible speed the env keeps;
 both numbers come from this run on this machine, so a busy machine moves both.
 
-Each setting is measured with the env's default (frames drawn in the calling thread unless
-``EVAAA_RENDER_THREAD=1``) and then the other way ("render thread": the frames drawn on a thread of their own
-while the rest of a decision is computed, or "one thread"); the ``cores`` column gives the env's CPU seconds per
-wall-clock second.
+Each setting is measured with the env's defaults: one world is drawn in the calling thread, a batch on two render
+threads (each with a GL context and half the worlds) when the process may use two cores.  A batch is measured the
+other way too ("one thread", or "2 render threads").  The raw side is always one thread.  ``cores`` is the env's
+CPU seconds per wall-clock second, and ``per core`` the ratio divided by it: how much of one core's raw speed each
+CPU second the env uses keeps.
 
 Also reported: the cost of a reset in steps, and resident memory over a long run.
 
@@ -33,7 +34,7 @@ import evaaa  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
 import mujoco
 import torch
 from evaaa.env import EvaaaEnv, make_env
-from evaaa.render import BatchRenderer, render_thread_default
+from evaaa.render import BatchRenderer, render_threads_default
 from evaaa.sim import Simulator
 from evaaa.spec import load_level
 from evaaa.scene import GROUP_AGENT
@@ -140,29 +141,31 @@ def measure(args) -> dict:
     results: dict = {"level": level, "steps": steps, "machine": f"{platform.machine()}, {os.cpu_count()} cores",
                      "settings": []}
 
-    def row(name, env_rate, raw_rate, target, cores=None):
+    def row(name, env_rate, raw_rate, target, cores=None, threads=None):
         ratio = env_rate / raw_rate
+        per_core = ratio / cores if cores else None
         results["settings"].append({"setting": name, "env_steps_per_s": env_rate, "raw_steps_per_s": raw_rate,
-                                    "ratio": ratio, "target": target, "cores": cores})
+                                    "ratio": ratio, "target": target, "cores": cores, "ratio_per_core": per_core,
+                                    "render_threads": threads})
         bound = f">= {target}" if target != "-" else "(report)"
-        used = f"{cores:>7.2f}" if cores is not None else f"{'':>7}"
+        used = f"{cores:>7.2f}{per_core:>10.2f}" if cores is not None else f"{'':>17}"
         print(f"{name:<40}{env_rate:>12.0f}{raw_rate:>13.0f}{ratio:>8.2f}{used}   {bound}", flush=True)
 
-    threading = "on" if render_thread_default() else "off"
-    print(f"evaaa bench_env: level {level}, {steps} decisions per setting, {results['machine']}, "
-          f"render thread {threading}")
-    print(f"{'setting':<40}{'env steps/s':>12}{'raw steps/s':>13}{'ratio':>8}{'cores':>7}   target")
+    print(f"evaaa bench_env: level {level}, {steps} decisions per setting, {results['machine']}")
+    print(f"{'setting':<40}{'env steps/s':>12}{'raw steps/s':>13}{'ratio':>8}{'cores':>7}{'per core':>10}   target")
 
     def env_rows(name: str, n: int, seed: int, target: float) -> None:
         acts = random_actions(steps, n, seed=seed)
         raw = time_raw(level, record_states(level, n, 0, acts))
-        threaded = render_thread_default()  # the default, then the other way
-        variants = [(None, name, target), (not threaded, f"{name}, {'one thread' if threaded else 'render thread'}", "-")]
-        for render_thread, label, bound in variants:
-            env = EvaaaEnv(level, num_envs=n, seed=0, render_thread=render_thread)
+        default = min(render_threads_default(n), n)
+        variants = [(default, name, target)]
+        if n > 1:  # a batch the other way too
+            variants.append((0, f"{name}, one thread", "-") if default else (2, f"{name}, 2 render threads", "-"))
+        for threads, label, bound in variants:
+            env = EvaaaEnv(level, num_envs=n, seed=0, render_threads=threads)
             env_rate, cores = time_env(env, acts)
             env.close()
-            row(label, env_rate, raw, bound, cores)
+            row(label, env_rate, raw, bound, cores, threads)
 
     env_rows("1 env", 1, 1, 0.75)
     n = args.num_envs

@@ -7,8 +7,7 @@ import json
 import pytest
 from helpers import load_script
 
-from evaaa.render import render_thread_default
-
+from evaaa.render import render_threads_default
 
 
 def load_bench():
@@ -22,12 +21,16 @@ def test_bench_reports_ratios_reset_cost_and_memory(tmp_path):
     assert code == 0
     figures = json.loads(out.read_text())
     names = [row["setting"] for row in figures["settings"]]
-    other = "one thread" if render_thread_default() else "render thread"  # each setting: the default, the other way
-    assert names == ["1 env", f"1 env, {other}", "num_envs=2 (1 process)", f"num_envs=2 (1 process), {other}"]
+    # a batch is measured with its default and the other way
+    other = "one thread" if render_threads_default(2) else "2 render threads"
+    assert names == ["1 env", "num_envs=2 (1 process)", f"num_envs=2 (1 process), {other}"]
+    assert figures["settings"][0]["render_threads"] == 0
+    assert {figures["settings"][1]["render_threads"], figures["settings"][2]["render_threads"]} == {0, 2}
     for row in figures["settings"]:
         assert row["env_steps_per_s"] > 0 and row["raw_steps_per_s"] > 0
         assert row["ratio"] == pytest.approx(row["env_steps_per_s"] / row["raw_steps_per_s"])
         assert 0 < row["cores"] < 4
+        assert row["ratio_per_core"] == pytest.approx(row["ratio"] / row["cores"])
     assert figures["reset"]["in_steps"] > 0
     assert len(figures["memory"]["samples_mb"]) == 2
 

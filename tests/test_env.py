@@ -444,31 +444,74 @@ def test_closing_one_env_leaves_the_others_pictures_intact():
 
 
 @pytest.mark.parametrize("level", ["1-1", "4-2"])
-def test_the_render_thread_draws_the_same_frames(level):
-    def trajectory(render_thread: bool) -> torch.Tensor:
-        env = evaaa.EvaaaEnv(level, num_envs=2, seed=3, render_thread=render_thread)
-        assert env.sim.render_thread is render_thread and env.sim._renderer.threaded is render_thread
-        frames = env.rollout(40, policy=lambda td: td.set("action", torch.full((2,), FORWARD)),
+def test_render_threads_draw_the_same_frames(level):
+    def trajectory(threads: int) -> torch.Tensor:
+        env = evaaa.EvaaaEnv(level, num_envs=3, seed=3, render_threads=threads)
+        assert env.sim.render_threads == threads and env.sim._renderer.threaded is (threads > 0)
+        frames = env.rollout(40, policy=lambda td: td.set("action", torch.full((3,), FORWARD)),
                              break_when_any_done=False)["next", "pixels"]
         env.close()
         return frames
 
-    threaded, direct = trajectory(True), trajectory(False)
-    assert torch.equal(threaded, direct)
-    assert threaded.float().std() > 0
+    direct = trajectory(0)
+    assert direct.float().std() > 0
+    for threads in (2, 3):  # 3 worlds in shares of 1 and 2, and one each
+        assert torch.equal(trajectory(threads), direct)
 
 
-def test_render_thread_setting(monkeypatch):
-    from evaaa.render import render_thread_default
+def test_render_threads_light_each_world_by_its_own_hour():
+    # the render threads draw shares of the batch: each world must still get its own sun, sky and fog
+    def frames(threads: int) -> np.ndarray:
+        sim = Simulator(evaaa.load_level("4-2"), 3, seed=1, render_threads=threads)
+        sim.reset()
+        sim.sun_angle[:] = (10.0, 100.0, 250.0)  # morning, noon, night
+        out = sim.render_eye(np.arange(3))
+        sim.close()
+        return out
 
-    monkeypatch.delenv("EVAAA_RENDER_THREAD", raising=False)
-    assert render_thread_default() is False
-    assert evaaa.make_env("1-1", num_envs=2, modalities=["pixels"]).sim._renderer.threaded is False
-    monkeypatch.setenv("EVAAA_RENDER_THREAD", "1")
-    assert render_thread_default() is True
-    assert evaaa.make_env("1-1", num_envs=2, modalities=["pixels"]).sim._renderer.threaded is True
-    monkeypatch.setenv("EVAAA_RENDER_THREAD", "0")
-    assert render_thread_default() is False
-    monkeypatch.setenv("EVAAA_RENDER_THREAD", "sometimes")
-    with pytest.raises(ValueError, match="EVAAA_RENDER_THREAD must be 0 or 1"):
-        render_thread_default()
+    direct = frames(0)
+    assert direct[2].mean() < direct[1].mean()  # the night world is darker
+    assert np.array_equal(frames(2), direct)
+
+
+def test_night_fog_density_reaches_the_pixels():
+    # MuJoCo passes a context's fog range to OpenGL only when the context is made: each foggy frame passes it again
+    def night_frame(density: float, first: int | None = None) -> np.ndarray:
+        sim = Simulator(evaaa.load_level("4-2", {"daynight.night_fog_density": density}), 2, seed=1,
+                        render_threads=0)
+        sim.reset()
+        sim.sun_angle[:] = 250.0  # the depth of night
+        if first is not None:  # the context drew another world first
+            sim.render_eye(np.array([first]))
+        frame = sim.render_eye(np.array([1]))[0].astype(float)
+        sim.close()
+        return frame
+
+    thin, thick = night_frame(0.02), night_frame(2.0)
+    fog = np.array([0.02, 0.02, 0.05]) * 255
+    assert np.abs(thick - fog).mean() < 0.5 * np.abs(thin - fog).mean()  # thick fog: the picture is the fog
+    assert np.array_equal(night_frame(0.02, first=0), thin)
+
+
+def test_render_threads_setting(monkeypatch):
+    from evaaa import render
+
+    monkeypatch.delenv("EVAAA_RENDER_THREADS", raising=False)
+    monkeypatch.setattr(render, "usable_cores", lambda: 2)
+    assert render.render_threads_default(1) == 0  # one world: the calling thread
+    assert render.render_threads_default(8) == 2
+    env = evaaa.make_env("1-1", num_envs=2, modalities=["pixels"])
+    assert env.sim.render_threads == 2 and isinstance(env.sim._renderer, render.SplitRenderer)
+    env.close()
+    monkeypatch.setattr(render, "usable_cores", lambda: 1)
+    assert render.render_threads_default(8) == 0
+    monkeypatch.setenv("EVAAA_RENDER_THREADS", "3")
+    assert render.render_threads_default(8) == 3
+    env = evaaa.make_env("1-1", num_envs=2, modalities=["pixels"])
+    assert env.sim.render_threads == 2  # never more threads than worlds
+    env.close()
+    monkeypatch.setenv("EVAAA_RENDER_THREADS", "some")
+    with pytest.raises(ValueError, match="EVAAA_RENDER_THREADS must be an integer >= 0"):
+        render.render_threads_default(8)
+    with pytest.raises(ValueError, match="render_threads must be an integer >= 0"):
+        evaaa.make_env("1-1", num_envs=2, render_threads=-1)
