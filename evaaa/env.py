@@ -53,10 +53,9 @@ class EvaaaEnv(EnvBase):
             ``thermoception``, ``collision``.  A dropped modality's key is absent, not zeroed.
         device: where the returned tensors live.
         overrides: dotted-path changes to the level (``{"agent.move_speed": 10}``).
-        render_threads: threads that draw the frames while the other sensors are read, each with a share of the
-            worlds (0: the calling thread; None: two for a batch when the process may use two cores, none for one
-            world, or as the environment variable ``EVAAA_RENDER_THREADS`` says).  Observations are the same
-            either way.
+        threads: how many shares the worlds are split into, stepped and drawn at once on threads of their own
+            (1: everything in the calling thread; None: 2 for a batch when the process may use two cores, 1 for one
+            world, or as the environment variable ``EVAAA_THREADS`` says).  Observations are the same either way.
     """
 
     # numpy does the work; the output tensordicts are assembled once per call
@@ -72,12 +71,12 @@ class EvaaaEnv(EnvBase):
         modalities: Iterable[str] | str | None = None,
         device: str | torch.device = "cpu",
         overrides: Mapping[str, Any] | None = None,
-        render_threads: int | None = None,
+        threads: int | None = None,
     ):
         spec = level if isinstance(level, Level) else load_level(level, overrides)
         if isinstance(level, Level) and overrides:
             spec = load_level(level.name, overrides)
-        self.sim = Simulator(spec, num_envs, modalities, seed=seed, render_threads=render_threads)
+        self.sim = Simulator(spec, num_envs, modalities, seed=seed, threads=threads)
         super().__init__(batch_size=torch.Size([num_envs]), device=device)
         self.level = spec
         self.num_envs = num_envs
@@ -173,14 +172,14 @@ def make_env(
     seed: int | None = None,
     modalities: Iterable[str] | str | None = None,
     device: str | torch.device = "cpu",
-    render_threads: int | None = None,
+    threads: int | None = None,
     **overrides: Any,
 ) -> EvaaaEnv:
     """Build the TorchRL env of a level or testbed.
 
     Overrides reach any level field by dotted path, e.g.
     ``make_env("1-1", **{"agent.move_speed": 10, "episode.max_steps": 1000})``, or as nested dicts,
-    ``make_env("1-1", episode={"max_steps": 1000})``.  ``render_threads``: see :class:`EvaaaEnv`.
+    ``make_env("1-1", episode={"max_steps": 1000})``.  ``threads``: see :class:`EvaaaEnv`.
     """
     return EvaaaEnv(name, num_envs=num_envs, seed=seed, modalities=modalities, device=device, overrides=overrides,
-                    render_threads=render_threads)
+                    threads=threads)

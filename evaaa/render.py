@@ -12,8 +12,7 @@ threads to work at once, each with a GL context of its own and a contiguous shar
 calls release the GIL and Mesa's software rasteriser draws a 64x64 frame on one core, so on a 2-core machine two
 threads draw a batch of frames ~1.5x faster than one; the pixels are the same.  (Overlapping the drawing with the
 rest of a decision, by contrast, did not pay: the Python code of the other sensors holds the GIL that the render
-threads need between their MuJoCo calls.)  How many threads a simulator uses is :func:`render_threads_default`
-unless it is told.
+threads need between their MuJoCo calls.)  How many a simulator uses: :func:`evaaa.sim.default_threads`.
 """
 
 from __future__ import annotations
@@ -55,33 +54,6 @@ def _gl_context_class():
     else:
         GLContext = mujoco.GLContext
     return GLContext
-
-
-def render_threads_default(num_worlds: int) -> int:
-    """How many threads draw the frames of ``num_worlds`` worlds unless a simulator is told (0: the calling thread).
-
-    The environment variable ``EVAAA_RENDER_THREADS`` (an integer >= 0) decides when set.  Otherwise a single world
-    is drawn in the calling thread (a frame is not split, so another thread would only add a hand-over), and a
-    batch on two threads when the process may use at least two cores (each draws about half the worlds, at once).
-    """
-    setting = os.environ.get("EVAAA_RENDER_THREADS", "").strip()
-    if setting:
-        try:
-            threads = int(setting)
-        except ValueError:
-            threads = -1
-        if threads < 0:
-            raise ValueError(f"EVAAA_RENDER_THREADS must be an integer >= 0 (0: draw in the calling thread), "
-                             f"got {setting!r}")
-        return threads
-    return 2 if num_worlds >= 2 and usable_cores() >= 2 else 0
-
-
-def usable_cores() -> int:
-    """CPU cores this process may run on."""
-    if hasattr(os, "sched_getaffinity"):
-        return len(os.sched_getaffinity(0))
-    return os.cpu_count() or 1
 
 
 # the GL context made current last in each thread (making one current costs ~20 us)

@@ -20,6 +20,8 @@ One decision:
 from __future__ import annotations
 
 import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 
 import mujoco
 import numpy as np
@@ -28,7 +30,7 @@ from . import daynight
 from . import physiology as phys
 from .entities import OBSTACLE_KINDS, PREDATOR, RESOURCE_KINDS, footprint_half
 from .predator import PREDATOR_HALF, NavGrid, Predators
-from .render import BatchRenderer, SplitRenderer, render_threads_default
+from .render import BatchRenderer, SplitRenderer
 from .scene import GROUP_AGENT, build_model
 from .sensors import SENSORS, resolve_modalities
 from .spec import Level
@@ -60,6 +62,33 @@ _NIGHT_FOG = (0.02, 0.02, 0.05, 1.0)
 NEAR_HEAT = 3.0
 
 
+def usable_cores() -> int:
+    """CPU cores this process may run on."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
+
+
+def default_threads(num_worlds: int) -> int:
+    """How many shares a simulator of ``num_worlds`` worlds works on at once unless told (see :class:`Simulator`).
+
+    The environment variable ``EVAAA_THREADS`` (an integer >= 1) decides when set.  Otherwise one world is stepped
+    and drawn in the calling thread (nothing to share out), and a batch in two shares when the process may use two
+    cores or more: on two cores that drew a batch's frames ~1.5x faster and stepped its physics ~1.6x faster.
+    """
+    setting = os.environ.get("EVAAA_THREADS", "").strip()
+    if setting:
+        try:
+            threads = int(setting)
+        except ValueError:
+            threads = 0
+        if threads < 1:
+            raise ValueError(f"EVAAA_THREADS must be an integer >= 1 (1: everything in the calling thread), "
+                             f"got {setting!r}")
+        return threads
+    return 2 if num_worlds >= 2 and usable_cores() >= 2 else 1
+
+
 class Simulator:
     """N worlds of one level.  Arrays are indexed by world first.
 
@@ -68,14 +97,14 @@ class Simulator:
         num_worlds: worlds stepped together.
         modalities: observation keys to produce (None: all).
         seed: seed of the per-world generators (None: fresh entropy).
-        render_threads: threads that draw the eye's frames while the rest of a decision is computed, each with a
-            share of the worlds (0: the calling thread draws them; None: :func:`evaaa.render.render_threads_default`,
-            two for a batch on a machine with two cores or more, else 0, or ``EVAAA_RENDER_THREADS``).  At most
-            one per world.  The frames are the same either way.
+        threads: how many shares the worlds are split into, worked on at once: the physics of each share on a
+            thread (the calling one and helpers) and the frames of each on a render thread.  1: everything in the
+            calling thread; None: :func:`default_threads` (2 for a batch when two cores are free to the process).
+            At most one per world.  Results are the same whatever the number.
     """
 
     def __init__(self, level: Level, num_worlds: int = 1, modalities=None, seed: int | None = None,
-                 render_threads: int | None = None):
+                 threads: int | None = None):
         if not isinstance(num_worlds, int) or isinstance(num_worlds, bool) or num_worlds < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_worlds!r}")
         self.level = level
@@ -92,12 +121,13 @@ class Simulator:
         self.agent_z = AGENT_HALF
         self._renderer: BatchRenderer | SplitRenderer | None = None
         self._top_renderer: BatchRenderer | None = None
-        if render_threads is None:
-            render_threads = render_threads_default(num_worlds)
-        if not isinstance(render_threads, int) or isinstance(render_threads, bool) or render_threads < 0:
-            raise ValueError(f"render_threads must be an integer >= 0 (0: draw in the calling thread), "
-                             f"got {render_threads!r}")
-        self.render_threads = min(render_threads, num_worlds)
+        if threads is None:
+            threads = default_threads(num_worlds)
+        if not isinstance(threads, int) or isinstance(threads, bool) or threads < 1:
+            raise ValueError(f"threads must be an integer >= 1 (1: everything in the calling thread), got {threads!r}")
+        self.threads = min(threads, num_worlds)
+        # helpers that step the physics of all shares but the first (mj_step frees the GIL); made when first needed
+        self._physics_pool: ThreadPoolExecutor | None = None
 
         n, p = num_worlds, self.pool.size_total
         a = level.agent
@@ -173,9 +203,9 @@ class Simulator:
     def _make_renderer(self) -> None:
         v = self.level.sensors.vision
         adjust = self._light_world if self.level.daynight.enabled else None
-        if self.render_threads:
+        if self.threads > 1:
             self._renderer = SplitRenderer(self.model, v.height, v.width, hidden_groups=(GROUP_AGENT,),
-                                           adjust=adjust, threads=self.render_threads)
+                                           adjust=adjust, threads=self.threads)
         else:
             self._renderer = BatchRenderer(self.model, v.height, v.width, hidden_groups=(GROUP_AGENT,),
                                            adjust=adjust)
@@ -397,13 +427,11 @@ class Simulator:
             qvel[1] = vy[w]
             qvel[2] = 0.0
 
-    def _advance(self, actions: np.ndarray):
-        previous = self.pos.copy()
-        # 2. physics
-        damage = np.zeros(self.n)
-        collided = np.zeros(self.n, dtype=bool)
-        model, pos = self.model, self.pos
-        for w, data in enumerate(self.datas):
+    def _physics(self, worlds, damage: np.ndarray, collided: np.ndarray) -> None:
+        """The physics substeps of ``worlds``, adding each one's collision damage and whether it hit something."""
+        model, pos, datas = self.model, self.pos, self.datas
+        for w in worlds:
+            data = datas[w]
             for _ in range(SUBSTEPS):
                 mujoco.mj_step(model, data)
                 if data.ncon:
@@ -414,6 +442,24 @@ class Simulator:
             mujoco.mj_kinematics(model, data)
             mujoco.mj_camlight(model, data)
             pos[w] = data.qpos[:2]
+
+    def _advance(self, actions: np.ndarray):
+        previous = self.pos.copy()
+        # 2. physics
+        damage = np.zeros(self.n)
+        collided = np.zeros(self.n, dtype=bool)
+        if self.threads > 1:  # the first share here, the others on the helpers
+            if self._physics_pool is None:
+                self._physics_pool = ThreadPoolExecutor(self.threads - 1, "evaaa-physics")
+            bounds = [self.n * i // self.threads for i in range(self.threads + 1)]
+            others = [self._physics_pool.submit(self._physics, range(a, b), damage, collided)
+                      for a, b in zip(bounds[1:-1], bounds[2:])]
+            self._physics(range(bounds[1]), damage, collided)
+            for share in others:
+                share.result()
+        else:
+            self._physics(range(self.n), damage, collided)
+        model, pos = self.model, self.pos
         self._res_d2 = None  # distances to items changed with the pose
 
         # 3. eating
@@ -707,3 +753,6 @@ class Simulator:
             if r is not None:
                 r.close()
         self._renderer = self._top_renderer = None
+        if self._physics_pool is not None:
+            self._physics_pool.shutdown()
+            self._physics_pool = None

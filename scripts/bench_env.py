@@ -5,11 +5,11 @@ trajectory is replayed as raw MuJoCo work only: per world and decision, five ``m
 render of the same states, in one thread.  The ratio env/raw says how much of the possible speed the env keeps;
 both numbers come from this run on this machine, so a busy machine moves both.
 
-Each setting is measured with the env's defaults: one world is drawn in the calling thread, a batch on two render
-threads (each with a GL context and half the worlds) when the process may use two cores.  A batch is measured the
-other way too ("one thread", or "2 render threads").  The raw side is always one thread.  ``cores`` is the env's
-CPU seconds per wall-clock second, and ``per core`` the ratio divided by it: how much of one core's raw speed each
-CPU second the env uses keeps.
+Each setting is measured with the env's defaults: one world is stepped and drawn in the calling thread, a batch
+in two shares at once when the process may use two cores (physics on the calling thread and a helper, frames on
+two render threads with a GL context each).  A batch is measured the other way too ("one thread" or "2 threads").
+The raw side is always one thread.  ``cores`` is the env's CPU seconds per wall-clock second, and ``per core`` the
+ratio divided by it: how much of one core's raw speed each CPU second the env uses keeps.
 
 Also reported: the cost of a reset in steps, and resident memory over a long run.
 
@@ -34,8 +34,8 @@ import evaaa  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
 import mujoco
 import torch
 from evaaa.env import EvaaaEnv, make_env
-from evaaa.render import BatchRenderer, render_threads_default
-from evaaa.sim import Simulator
+from evaaa.render import BatchRenderer
+from evaaa.sim import Simulator, default_threads
 from evaaa.spec import load_level
 from evaaa.scene import GROUP_AGENT
 
@@ -146,7 +146,7 @@ def measure(args) -> dict:
         per_core = ratio / cores if cores else None
         results["settings"].append({"setting": name, "env_steps_per_s": env_rate, "raw_steps_per_s": raw_rate,
                                     "ratio": ratio, "target": target, "cores": cores, "ratio_per_core": per_core,
-                                    "render_threads": threads})
+                                    "threads": threads})
         bound = f">= {target}" if target != "-" else "(report)"
         used = f"{cores:>7.2f}{per_core:>10.2f}" if cores is not None else f"{'':>17}"
         print(f"{name:<40}{env_rate:>12.0f}{raw_rate:>13.0f}{ratio:>8.2f}{used}   {bound}", flush=True)
@@ -157,12 +157,12 @@ def measure(args) -> dict:
     def env_rows(name: str, n: int, seed: int, target: float) -> None:
         acts = random_actions(steps, n, seed=seed)
         raw = time_raw(level, record_states(level, n, 0, acts))
-        default = min(render_threads_default(n), n)
+        default = min(default_threads(n), n)
         variants = [(default, name, target)]
         if n > 1:  # a batch the other way too
-            variants.append((0, f"{name}, one thread", "-") if default else (2, f"{name}, 2 render threads", "-"))
+            variants.append((1, f"{name}, one thread", "-") if default > 1 else (2, f"{name}, 2 threads", "-"))
         for threads, label, bound in variants:
-            env = EvaaaEnv(level, num_envs=n, seed=0, render_threads=threads)
+            env = EvaaaEnv(level, num_envs=n, seed=0, threads=threads)
             env_rate, cores = time_env(env, acts)
             env.close()
             row(label, env_rate, raw, bound, cores, threads)

@@ -4,7 +4,7 @@
     python scripts/profile_env.py --level 4-2 --num-envs 8 --steps 500 --top 30
 
 The profiler adds its own cost per Python call; compare the shares, and take speeds from scripts/bench_env.py.
-The env draws its frames in the calling thread here (``render_threads=0``), so that the profile shows them:
+The env steps and draws every world in the calling thread here (``threads=1``), so that the profile shows it all:
 cProfile sees one thread only.
 """
 
@@ -28,7 +28,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--top", type=int, default=20, help="functions listed, by own time")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
-    env = evaaa.EvaaaEnv(args.level, num_envs=args.num_envs, seed=0, render_threads=0)
+    env = evaaa.EvaaaEnv(args.level, num_envs=args.num_envs, seed=0, threads=1)
     generator = torch.Generator().manual_seed(0)
     td = env.reset()
 

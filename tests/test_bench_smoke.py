@@ -7,7 +7,7 @@ import json
 import pytest
 from helpers import load_script
 
-from evaaa.render import render_threads_default
+from evaaa.sim import default_threads
 
 
 def load_bench():
@@ -22,10 +22,10 @@ def test_bench_reports_ratios_reset_cost_and_memory(tmp_path):
     figures = json.loads(out.read_text())
     names = [row["setting"] for row in figures["settings"]]
     # a batch is measured with its default and the other way
-    other = "one thread" if render_threads_default(2) else "2 render threads"
+    other = "one thread" if default_threads(2) > 1 else "2 threads"
     assert names == ["1 env", "num_envs=2 (1 process)", f"num_envs=2 (1 process), {other}"]
-    assert figures["settings"][0]["render_threads"] == 0
-    assert {figures["settings"][1]["render_threads"], figures["settings"][2]["render_threads"]} == {0, 2}
+    assert figures["settings"][0]["threads"] == 1
+    assert {figures["settings"][1]["threads"], figures["settings"][2]["threads"]} == {1, 2}
     for row in figures["settings"]:
         assert row["env_steps_per_s"] > 0 and row["raw_steps_per_s"] > 0
         assert row["ratio"] == pytest.approx(row["env_steps_per_s"] / row["raw_steps_per_s"])

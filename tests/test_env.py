@@ -444,32 +444,33 @@ def test_closing_one_env_leaves_the_others_pictures_intact():
 
 
 @pytest.mark.parametrize("level", ["1-1", "4-2"])
-def test_render_threads_draw_the_same_frames(level):
-    def trajectory(threads: int) -> torch.Tensor:
-        env = evaaa.EvaaaEnv(level, num_envs=3, seed=3, render_threads=threads)
-        assert env.sim.render_threads == threads and env.sim._renderer.threaded is (threads > 0)
-        frames = env.rollout(40, policy=lambda td: td.set("action", torch.full((3,), FORWARD)),
-                             break_when_any_done=False)["next", "pixels"]
+def test_threads_give_the_same_trajectories(level):
+    def trajectory(threads: int):
+        env = evaaa.EvaaaEnv(level, num_envs=3, seed=3, threads=threads)
+        assert env.sim.threads == threads and env.sim._renderer.threaded is (threads > 1)
+        td = env.rollout(40, policy=lambda td: td.set("action", torch.full((3,), FORWARD)),
+                         break_when_any_done=False)
         env.close()
-        return frames
+        return td["next"]
 
-    direct = trajectory(0)
-    assert direct.float().std() > 0
+    direct = trajectory(1)
+    assert direct["pixels"].float().std() > 0
     for threads in (2, 3):  # 3 worlds in shares of 1 and 2, and one each
-        assert torch.equal(trajectory(threads), direct)
+        shared = trajectory(threads)
+        assert (shared == direct).all(), f"threads={threads}"
 
 
-def test_render_threads_light_each_world_by_its_own_hour():
+def test_threads_light_each_world_by_its_own_hour():
     # the render threads draw shares of the batch: each world must still get its own sun, sky and fog
     def frames(threads: int) -> np.ndarray:
-        sim = Simulator(evaaa.load_level("4-2"), 3, seed=1, render_threads=threads)
+        sim = Simulator(evaaa.load_level("4-2"), 3, seed=1, threads=threads)
         sim.reset()
         sim.sun_angle[:] = (10.0, 100.0, 250.0)  # morning, noon, night
         out = sim.render_eye(np.arange(3))
         sim.close()
         return out
 
-    direct = frames(0)
+    direct = frames(1)
     assert direct[2].mean() < direct[1].mean()  # the night world is darker
     assert np.array_equal(frames(2), direct)
 
@@ -477,8 +478,7 @@ def test_render_threads_light_each_world_by_its_own_hour():
 def test_night_fog_density_reaches_the_pixels():
     # MuJoCo passes a context's fog range to OpenGL only when the context is made: each foggy frame passes it again
     def night_frame(density: float, first: int | None = None) -> np.ndarray:
-        sim = Simulator(evaaa.load_level("4-2", {"daynight.night_fog_density": density}), 2, seed=1,
-                        render_threads=0)
+        sim = Simulator(evaaa.load_level("4-2", {"daynight.night_fog_density": density}), 2, seed=1, threads=1)
         sim.reset()
         sim.sun_angle[:] = 250.0  # the depth of night
         if first is not None:  # the context drew another world first
@@ -493,25 +493,27 @@ def test_night_fog_density_reaches_the_pixels():
     assert np.array_equal(night_frame(0.02, first=0), thin)
 
 
-def test_render_threads_setting(monkeypatch):
-    from evaaa import render
+def test_threads_setting(monkeypatch):
+    from evaaa import render, sim
 
-    monkeypatch.delenv("EVAAA_RENDER_THREADS", raising=False)
-    monkeypatch.setattr(render, "usable_cores", lambda: 2)
-    assert render.render_threads_default(1) == 0  # one world: the calling thread
-    assert render.render_threads_default(8) == 2
+    monkeypatch.delenv("EVAAA_THREADS", raising=False)
+    monkeypatch.setattr(sim, "usable_cores", lambda: 2)
+    assert sim.default_threads(1) == 1  # one world: the calling thread
+    assert sim.default_threads(8) == 2
     env = evaaa.make_env("1-1", num_envs=2, modalities=["pixels"])
-    assert env.sim.render_threads == 2 and isinstance(env.sim._renderer, render.SplitRenderer)
+    assert env.sim.threads == 2 and isinstance(env.sim._renderer, render.SplitRenderer)
     env.close()
-    monkeypatch.setattr(render, "usable_cores", lambda: 1)
-    assert render.render_threads_default(8) == 0
-    monkeypatch.setenv("EVAAA_RENDER_THREADS", "3")
-    assert render.render_threads_default(8) == 3
+    monkeypatch.setattr(sim, "usable_cores", lambda: 1)
+    assert sim.default_threads(8) == 1
+    monkeypatch.setenv("EVAAA_THREADS", "3")
+    assert sim.default_threads(8) == 3
     env = evaaa.make_env("1-1", num_envs=2, modalities=["pixels"])
-    assert env.sim.render_threads == 2  # never more threads than worlds
+    assert env.sim.threads == 2  # never more shares than worlds
     env.close()
-    monkeypatch.setenv("EVAAA_RENDER_THREADS", "some")
-    with pytest.raises(ValueError, match="EVAAA_RENDER_THREADS must be an integer >= 0"):
-        render.render_threads_default(8)
-    with pytest.raises(ValueError, match="render_threads must be an integer >= 0"):
-        evaaa.make_env("1-1", num_envs=2, render_threads=-1)
+    for bad in ("some", "0"):
+        monkeypatch.setenv("EVAAA_THREADS", bad)
+        with pytest.raises(ValueError, match="EVAAA_THREADS must be an integer >= 1"):
+            sim.default_threads(8)
+    monkeypatch.delenv("EVAAA_THREADS")
+    with pytest.raises(ValueError, match="threads must be an integer >= 1"):
+        evaaa.make_env("1-1", num_envs=2, threads=0)
