@@ -59,6 +59,7 @@ def _gl_context_class():
 # the GL context made current last in each thread (making one current costs ~20 us)
 _current = threading.local()
 
+
 class _RenderThread:
     """One thread that runs the calls given to :meth:`submit` in order (a renderer's GL context stays current in
     it).  Not a ``ThreadPoolExecutor``: its worker quits when the executor is garbage, which a renderer freed by

@@ -7,14 +7,14 @@ physics substeps, the rays and the render) loop over worlds.
 
 One decision:
 1. the action sets the body's velocity or heading (Eat raises the eat intent);
-2. five physics substeps of 0.02 s; contact impulses on the body become collision damage;
+2. five physics substeps of 0.02 s; contact impulses on the body become collision damage (a batch's worlds may be
+   stepped in shares on threads of their own: see ``Simulator``'s ``threads``);
 3. with eat intent, every item overlapping the eating sphere is consumed (its EV effect counts once) and
    respawns per its group's rule;
-4. predators take their decision and move (attacks add damage); the sun moves on; the scene is now final, and
-   the eye's frames are started (on the render thread, where there is one: see ``evaaa.render``);
+4. predators take their decision and move (attacks add damage); the sun moves on;
 5. the thermal sensors are read at the new pose, the EVs advance, the episode end is decided, the reward is
    computed from the EVs;
-6. the diagnostics and the other sensors are read, then the frames are collected.
+6. the enabled sensors are read (a batch's frames drawn in shares on render threads, where there are some).
 """
 
 from __future__ import annotations
@@ -193,8 +193,6 @@ class Simulator:
                                                 self.obstacles.heading[m])
 
         self.sensors = [SENSORS[k](self) for k in self.modalities]
-        # vision is read apart: its frames are drawn as soon as the scene is final
-        self._vision = next((s for s in self.sensors if s.key == "pixels"), None)
         if "pixels" in self.modalities:
             self._make_renderer()
         self.seed(seed)
@@ -488,9 +486,6 @@ class Simulator:
             self.sun_angle = daynight.advance(self.sun_angle, self.level.daynight.degrees_per_step)
             self.field_offset = self._temperature_offset(self.sun_angle)
 
-        # the scene is final for this decision: draw the eye's frames (on the render threads, if there are any)
-        frames = self.render_eye(self._all) if self._vision is not None else None
-
         # 5. physiology
         self.steps += 1
         self.thermal_readings = self._sample_thermal(self._all)
@@ -506,10 +501,10 @@ class Simulator:
         terminated = (end != phys.END_NONE) & ~truncated
         success = self._success(end, food_eaten, water_eaten)
 
-        # 6. diagnostics, then the senses (the frames last)
+        # 6. senses
+        obs = self._observe(self._all)
         info = self._info(food=food_count, water=water_count, collided=collided, damage=damage, end=end,
                           success=success, crossed=crossed)
-        obs = self._observe(self._all, frames)
         return obs, reward, terminated, truncated, info
 
     # ------------------------------------------------------------------------------------------------ events
@@ -681,16 +676,12 @@ class Simulator:
         scene.camera[1].frustum_far = far
 
     # ------------------------------------------------------------------------------------------------ observation
-    def _observe(self, worlds: np.ndarray, frames: np.ndarray | None = None) -> dict[str, np.ndarray]:
-        """Read the enabled sensors for ``worlds``; other worlds keep their last observation.  ``frames``: the eye's
-        frames of ``worlds`` if already drawn."""
+    def _observe(self, worlds: np.ndarray) -> dict[str, np.ndarray]:
+        """Read the enabled sensors for ``worlds``; other worlds keep their last observation."""
         full = len(worlds) == self.n
-        readings = {s.key: s.read(worlds) for s in self.sensors if s is not self._vision or frames is None}
-        if frames is not None:
-            readings[self._vision.key] = frames
         obs = {}
-        for sensor in self.sensors:  # in the canonical order
-            reading = readings[sensor.key]
+        for sensor in self.sensors:
+            reading = sensor.read(worlds)
             if full:
                 obs[sensor.key] = reading
             else:
