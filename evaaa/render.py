@@ -295,17 +295,8 @@ class SplitRenderer:
             out = np.empty((n, self.height, self.width, 3), dtype=np.uint8)
         k = min(len(self._parts), n)
         bounds = [n * i // k for i in range(k + 1)]
-        jobs = []
-        try:
-            for part, a, b in zip(self._parts, bounds[:-1], bounds[1:]):
-                jobs.append(part.submit(datas[a:b], camera_id, out[a:b], first_row=a))
-        except BaseException:
-            for job in jobs:  # let the parts already started finish before their arrays go
-                try:
-                    job.result()
-                except BaseException:  # noqa: BLE001 - the first failure is the one raised
-                    pass
-            raise
+        jobs = [part.submit(datas[a:b], camera_id, out[a:b], first_row=a)
+                for part, a, b in zip(self._parts, bounds[:-1], bounds[1:])]
         return _Jobs(jobs, out)
 
     def close(self) -> None:
