@@ -53,9 +53,10 @@ class EvaaaEnv(EnvBase):
             ``thermoception``, ``collision``.  A dropped modality's key is absent, not zeroed.
         device: where the returned tensors live.
         overrides: dotted-path changes to the level (``{"agent.move_speed": 10}``).
-        threads: how many shares the worlds are split into, stepped and drawn at once on threads of their own
-            (1: everything in the calling thread; None: 2 for a batch when the process may use two cores, 1 for one
-            world, or as the environment variable ``EVAAA_THREADS`` says).  Observations are the same either way.
+        threads: how many threads work at once (1: everything in the calling thread; None: 2 when the process may
+            use two cores, or as the environment variable ``EVAAA_THREADS`` says).  A batch is split into that many
+            shares, stepped and drawn at once; a single world's frame is drawn while a helper advances its EVs and
+            reads its other senses.  Observations are the same either way.
     """
 
     # numpy does the work; the output tensordicts are assembled once per call

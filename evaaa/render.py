@@ -10,9 +10,11 @@ A renderer made with ``threaded=True`` keeps its GL context current on a thread 
 them; the caller must not change the worlds' ``MjData`` in between.  :class:`SplitRenderer` puts several such
 threads to work at once, each with a GL context of its own and a contiguous share of the worlds.  MuJoCo's drawing
 calls release the GIL and Mesa's software rasteriser draws a 64x64 frame on one core, so on a 2-core machine two
-threads draw a batch of frames ~1.5x faster than one; the pixels are the same.  (Overlapping the drawing with the
-rest of a decision, by contrast, did not pay: the Python code of the other sensors holds the GIL that the render
-threads need between their MuJoCo calls.)  How many a simulator uses: :func:`evaaa.sim.default_threads`.
+threads draw a batch of frames ~1.5x faster than one; the pixels are the same.  (Overlapping a render thread's
+drawing with the rest of a decision, by contrast, did not pay: the Python code of the other sensors holds the GIL
+that the render thread needs between its MuJoCo calls.  A single world turns it round: its frame is drawn on the
+calling thread, in one long GIL-free call, while a helper thread runs that Python.)  How many threads a simulator uses:
+:func:`evaaa.sim.default_threads`.
 """
 
 from __future__ import annotations

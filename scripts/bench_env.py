@@ -5,13 +5,16 @@ trajectory is replayed as raw MuJoCo work only: per world and decision, five ``m
 render of the same states, in one thread.  The ratio env/raw says how much of the possible speed the env keeps;
 both numbers come from this run on this machine, so a busy machine moves both.
 
-Each setting is measured with the env's defaults: one world is stepped and drawn in the calling thread, a batch
-in two shares at once when the process may use two cores (physics on the calling thread and a helper, frames on
-two render threads with a GL context each).  A batch is measured the other way too ("one thread" or "2 threads").
+Each setting is measured with the env's defaults, which use two threads when the process may use two cores: a
+batch in two shares at once (physics on the calling thread and a helper, frames on two render threads with a GL
+context each), one world with its frame drawn on the calling thread while a helper advances the EVs and reads the
+other senses.  Each is measured the other way too ("one thread" or "2 threads").
 The raw side is always one thread.  ``cores`` is the env's CPU seconds per wall-clock second, and ``per core`` the
 ratio divided by it: how much of one core's raw speed each CPU second the env uses keeps.
 
-Also reported: the cost of a reset in steps, and resident memory over a long run.
+Also reported: what TorchRL's step path costs on its own (the same loop over an env of the same keys that simulates
+nothing), and so the most any single env can keep of raw; the cost of a reset in steps; resident memory over a
+long run.
 
     python scripts/bench_env.py                      # level 1-1, all settings
     python scripts/bench_env.py --level 1-2 --steps 2000 --json bench.json
@@ -66,6 +69,18 @@ def time_env(env, actions: np.ndarray, warmup: int = 50) -> tuple[float, float]:
         _, td = env.step_and_maybe_reset(td)
     elapsed = time.perf_counter() - start
     return (len(actions) - warmup) * actions.shape[1] / elapsed, (time.process_time() - cpu) / elapsed
+
+
+class IdleEnv(EvaaaEnv):
+    """The env's specs and keys with the simulation left out: every step hands TorchRL the last observation and
+    info again (fresh tensors, as a real step does), with zero reward and no episode end.  Stepped like the env, it
+    measures what TorchRL's step path and the handing over cost on their own."""
+
+    def _step(self, tensordict):
+        false = torch.zeros((self.num_envs, 1), dtype=torch.bool)
+        return self._to_td(self.sim.last_obs, self.sim.last_info, {
+            "reward": torch.zeros((self.num_envs, 1)), "done": false, "terminated": false.clone(),
+            "truncated": false.clone()})
 
 
 # ------------------------------------------------------------------------------------------------- raw side
@@ -157,17 +172,28 @@ def measure(args) -> dict:
     def env_rows(name: str, n: int, seed: int, target: float) -> None:
         acts = random_actions(steps, n, seed=seed)
         raw = time_raw(level, record_states(level, n, 0, acts))
-        default = min(default_threads(n), n)
-        variants = [(default, name, target)]
-        if n > 1:  # a batch the other way too
-            variants.append((1, f"{name}, one thread", "-") if default > 1 else (2, f"{name}, 2 threads", "-"))
+        default = default_threads()
+        variants = [(default, name, target)]  # the env's default, and the other way too
+        variants.append((1, f"{name}, one thread", "-") if default > 1 else (2, f"{name}, 2 threads", "-"))
         for threads, label, bound in variants:
             env = EvaaaEnv(level, num_envs=n, seed=0, threads=threads)
+            threads = env.sim.threads
             env_rate, cores = time_env(env, acts)
             env.close()
             row(label, env_rate, raw, bound, cores, threads)
+        return raw
 
-    env_rows("1 env", 1, 1, 0.75)
+    raw_one = env_rows("1 env", 1, 1, 0.75)
+    # TorchRL's share: the same step loop over an env that simulates nothing.  A single world's physics and frame
+    # come one after the other, and the step path after them, so no env can keep more than raw / (raw + this).
+    env = IdleEnv(level, num_envs=1, seed=0, threads=1)
+    idle_rate, _ = time_env(env, random_actions(steps, 1, seed=1))
+    env.close()
+    ceiling = 1.0 / (1.0 + raw_one / idle_rate)
+    results["torchrl_floor"] = {"seconds_per_step": 1.0 / idle_rate, "raw_seconds_per_step": 1.0 / raw_one,
+                                "ceiling_ratio_1_env": ceiling}
+    print(f"{'  TorchRL step path alone (1 env)':<40}{idle_rate:>12.0f}{'':>13}{'':>8}{'':>17}   "
+          f"{1e6 / idle_rate:.0f} us/step: 1 env can keep at most {ceiling:.2f} of raw")
     n = args.num_envs
     env_rows(f"num_envs={n} (1 process)", n, 2, 0.85)
 

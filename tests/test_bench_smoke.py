@@ -21,11 +21,17 @@ def test_bench_reports_ratios_reset_cost_and_memory(tmp_path):
     assert code == 0
     figures = json.loads(out.read_text())
     names = [row["setting"] for row in figures["settings"]]
-    # a batch is measured with its default and the other way
-    other = "one thread" if default_threads(2) > 1 else "2 threads"
-    assert names == ["1 env", "num_envs=2 (1 process)", f"num_envs=2 (1 process), {other}"]
-    assert figures["settings"][0]["threads"] == 1
-    assert {figures["settings"][1]["threads"], figures["settings"][2]["threads"]} == {1, 2}
+    # each setting is measured with its default and the other way
+    other = "one thread" if default_threads() > 1 else "2 threads"
+    assert names == ["1 env", f"1 env, {other}", "num_envs=2 (1 process)", f"num_envs=2 (1 process), {other}"]
+    threads = [row["threads"] for row in figures["settings"]]
+    assert set(threads[:2]) == {1, 2} and set(threads[2:]) == {1, 2}
+    floor = figures["torchrl_floor"]  # TorchRL's own step path bounds what one env can keep of raw
+    raw_s, idle_s = floor["raw_seconds_per_step"], floor["seconds_per_step"]
+    assert floor["ceiling_ratio_1_env"] == pytest.approx(raw_s / (raw_s + idle_s))
+    assert 0 < floor["ceiling_ratio_1_env"] < 1
+    one_env = figures["settings"][threads.index(1)]
+    assert floor["seconds_per_step"] < 1 / one_env["env_steps_per_s"]  # doing nothing is faster than simulating
     for row in figures["settings"]:
         assert row["env_steps_per_s"] > 0 and row["raw_steps_per_s"] > 0
         assert row["ratio"] == pytest.approx(row["env_steps_per_s"] / row["raw_steps_per_s"])

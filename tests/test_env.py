@@ -460,6 +460,28 @@ def test_threads_give_the_same_trajectories(level):
         assert (shared == direct).all(), f"threads={threads}"
 
 
+@pytest.mark.parametrize("level", ["1-1", "4-2"])
+def test_one_world_with_a_helper_gives_the_same_trajectory(level):
+    # one world, threads=2: the frame is drawn on the calling thread while a helper does the EVs and other senses
+    def trajectory(threads: int):
+        env = evaaa.EvaaaEnv(level, num_envs=1, seed=5, threads=threads)
+        assert env.sim.threads == threads and not env.sim._renderer.threaded
+        generator = torch.Generator().manual_seed(0)
+        td = env.rollout(150, policy=lambda td: td.set("action", torch.randint(0, 5, (1,), generator=generator)),
+                         break_when_any_done=False)
+        used_helper = env.sim._helpers is not None
+        env.close()
+        return td, used_helper
+
+    direct, used = trajectory(1)
+    assert not used
+    helped, used = trajectory(2)
+    assert used
+    assert list(helped["next"].keys()) == list(direct["next"].keys())  # pixels first, as without the helper
+    assert (helped == direct).all()
+    assert direct["next", "info", "satiation"].std() > 0  # the EVs moved
+
+
 def test_threads_light_each_world_by_its_own_hour():
     # the render threads draw shares of the batch: each world must still get its own sun, sky and fog
     def frames(threads: int) -> np.ndarray:
@@ -498,22 +520,30 @@ def test_threads_setting(monkeypatch):
 
     monkeypatch.delenv("EVAAA_THREADS", raising=False)
     monkeypatch.setattr(sim, "usable_cores", lambda: 2)
-    assert sim.default_threads(1) == 1  # one world: the calling thread
-    assert sim.default_threads(8) == 2
+    assert sim.default_threads() == 2
     env = evaaa.make_env("1-1", num_envs=2, modalities=["pixels"])
     assert env.sim.threads == 2 and isinstance(env.sim._renderer, render.SplitRenderer)
     env.close()
+    env = evaaa.make_env("1-1", num_envs=1)  # one world: a helper beside the frame, one GL context
+    assert env.sim.threads == 2 and isinstance(env.sim._renderer, render.BatchRenderer)
+    env.close()
+    env = evaaa.make_env("1-1", num_envs=1, modalities=["olfaction", "collision"])  # no frame to work beside
+    assert env.sim.threads == 1
+    env.close()
     monkeypatch.setattr(sim, "usable_cores", lambda: 1)
-    assert sim.default_threads(8) == 1
+    assert sim.default_threads() == 1
     monkeypatch.setenv("EVAAA_THREADS", "3")
-    assert sim.default_threads(8) == 3
+    assert sim.default_threads() == 3
     env = evaaa.make_env("1-1", num_envs=2, modalities=["pixels"])
     assert env.sim.threads == 2  # never more shares than worlds
+    env.close()
+    env = evaaa.make_env("1-1", num_envs=1, modalities=["pixels"])
+    assert env.sim.threads == 2  # one world uses one helper at most
     env.close()
     for bad in ("some", "0"):
         monkeypatch.setenv("EVAAA_THREADS", bad)
         with pytest.raises(ValueError, match="EVAAA_THREADS must be an integer >= 1"):
-            sim.default_threads(8)
+            sim.default_threads()
     monkeypatch.delenv("EVAAA_THREADS")
     with pytest.raises(ValueError, match="threads must be an integer >= 1"):
         evaaa.make_env("1-1", num_envs=2, threads=0)
