@@ -173,8 +173,17 @@ class BatchRenderer:
         self._gl_api = GL
         self._fog_flag = mujoco.mjtRndFlag.mjRND_FOG
 
-    def render(self, datas, camera_id: int, out: np.ndarray | None = None) -> np.ndarray:
-        """Frames of ``camera_id`` for each data in ``datas``, upright, as (len(datas), H, W, 3) uint8."""
+    def render(self, datas, camera_id: int, out: np.ndarray | None = None, before_draw=None) -> np.ndarray:
+        """Frames of ``camera_id`` for each data in ``datas``, upright, as (len(datas), H, W, 3) uint8.
+
+        ``before_draw()``, if given, is called once the first frame's scene is ready, just before it is drawn:
+        work started there runs while the drawing call, which frees the GIL, keeps this thread busy (not on a
+        threaded renderer)."""
+        if before_draw is not None:
+            if self._thread is not None:
+                raise ValueError("before_draw is for renderers that draw on the calling thread")
+            out = np.empty((len(datas), self.height, self.width, 3), dtype=np.uint8) if out is None else out
+            return self._draw(datas, camera_id, out, before_draw=before_draw)
         return self.submit(datas, camera_id, out).result()
 
     def submit(self, datas, camera_id: int, out: np.ndarray | None = None, first_row: int = 0) -> RenderJob:
@@ -187,7 +196,7 @@ class BatchRenderer:
             return RenderJob(frames=self._draw(datas, camera_id, out, first_row))
         return RenderJob(future=self._thread.submit(self._draw, datas, camera_id, out, first_row))
 
-    def _draw(self, datas, camera_id: int, out: np.ndarray, first_row: int = 0) -> np.ndarray:
+    def _draw(self, datas, camera_id: int, out: np.ndarray, first_row: int = 0, before_draw=None) -> np.ndarray:
         if getattr(_current, "context", None) is not self._gl:
             self._make_current()
         self._camera.fixedcamid = camera_id
@@ -198,6 +207,9 @@ class BatchRenderer:
                 self._adjust(first_row + row, scene, context)
                 if scene.flags[self._fog_flag]:
                     self._apply_fog(context)
+            if before_draw is not None:
+                before_draw()
+                before_draw = None
             mujoco.mjr_render(rect, scene, context)
             mujoco.mjr_readPixels(out[row], None, rect, context)
         # OpenGL rows run bottom-up

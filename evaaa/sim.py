@@ -494,12 +494,17 @@ class Simulator:
 
         # 5. physiology and 6. senses; one world's frame is drawn here while a helper does the rest
         if self.threads > self.n:
-            job = self._helper_pool().submit(self._conclude, food_eaten, water_eaten, food_count, water_count,
-                                             damage, collided, crossed, skip_pixels=True)
+            jobs = []
+
+            def start_helper():  # once the scene is ready: from here on this thread holds the GIL only briefly
+                jobs.append(self._helper_pool().submit(self._conclude, food_eaten, water_eaten, food_count,
+                                                       water_count, damage, collided, crossed, skip_pixels=True))
+
             try:
-                frame = self.render_eye(self._all)
+                frame = self.render_eye(self._all, before_draw=start_helper)
             finally:
-                obs, reward, terminated, truncated, info = job.result()
+                if jobs:
+                    obs, reward, terminated, truncated, info = jobs[0].result()
             obs = {"pixels": frame, **obs}  # the canonical order: pixels first
             self.last_obs = obs
             return obs, reward, terminated, truncated, info
@@ -722,13 +727,16 @@ class Simulator:
         self.last_obs = obs
         return obs
 
-    def render_eye(self, worlds: np.ndarray) -> np.ndarray:
-        """The agent's view in ``worlds``, (len(worlds), H, W, 3) uint8 (a fresh array every call)."""
+    def render_eye(self, worlds: np.ndarray, before_draw=None) -> np.ndarray:
+        """The agent's view in ``worlds``, (len(worlds), H, W, 3) uint8 (a fresh array every call).
+        ``before_draw``: see :meth:`BatchRenderer.render` (only where the frames are drawn on this thread)."""
         if self._renderer is None:
             self._make_renderer()
         datas = self.datas if len(worlds) == self.n else [self.datas[w] for w in worlds]
         if self.level.daynight.enabled:
             self._plan_light(worlds)
+        if before_draw is not None:
+            return self._renderer.render(datas, self.index.eye_camera, before_draw=before_draw)
         return self._renderer.render(datas, self.index.eye_camera)
 
     def render_top(self, world: int = 0, size: int = 512) -> np.ndarray:

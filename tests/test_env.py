@@ -482,6 +482,23 @@ def test_one_world_with_a_helper_gives_the_same_trajectory(level):
     assert direct["next", "info", "satiation"].std() > 0  # the EVs moved
 
 
+def test_before_draw_runs_once_the_scene_is_ready():
+    from evaaa.render import BatchRenderer
+
+    sim = Simulator(evaaa.load_level("1-1"), 2, seed=2, threads=1)
+    sim.reset()
+    calls = []
+    sim._renderer._scene.ngeom = 0  # forget the scene of the reset's frames
+    hooked = sim.render_eye(np.arange(2), before_draw=lambda: calls.append(sim._renderer._scene.ngeom))
+    assert len(calls) == 1 and calls[0] > 0  # once, with the first frame's scene already built
+    assert np.array_equal(hooked, sim.render_eye(np.arange(2)))
+    threaded = BatchRenderer(sim.model, 16, 16, threaded=True)
+    with pytest.raises(ValueError, match="before_draw is for renderers that draw on the calling thread"):
+        threaded.render(sim.datas[:1], sim.index.eye_camera, before_draw=lambda: None)
+    threaded.close()
+    sim.close()
+
+
 def test_threads_light_each_world_by_its_own_hour():
     # the render threads draw shares of the batch: each world must still get its own sun, sky and fog
     def frames(threads: int) -> np.ndarray:
