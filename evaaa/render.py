@@ -60,6 +60,8 @@ def _gl_context_class():
 
 # the GL context made current last in each thread (making one current costs ~20 us)
 _current = threading.local()
+# the renderers' GL contexts not yet freed
+_live: set = set()
 
 
 class _RenderThread:
@@ -149,6 +151,7 @@ class BatchRenderer:
         model, width, height = self.model, self.width, self.height
         try:
             self._gl = _gl_context_class()(width, height)
+            _live.add(self._gl)
             self._make_current()
             self._context = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100)
         except Exception as exc:  # noqa: BLE001 - every GL failure gets the same explanation
@@ -239,15 +242,24 @@ class BatchRenderer:
             self._free()
 
     def _free(self) -> None:
-        if getattr(self, "_gl", None) is not None:
+        gl = getattr(self, "_gl", None)
+        if gl is not None:
             # free the GL objects in their own context: freeing them in whichever context is current would
             # delete another renderer's textures and buffers
-            self._gl.make_current()
+            previous = getattr(_current, "context", None)
+            gl.make_current()
             self._context.free()
             self._context = None
-            self._gl.free()
+            _live.discard(gl)
+            gl.free()
             self._gl = None
             _current.context = None
+            # the garbage collector frees a renderer in whichever thread it runs, perhaps in the middle of another
+            # renderer's frame there: give that thread its context back, or the rest of the frame is drawn
+            # without one
+            if previous is not None and previous is not gl and previous in _live:
+                previous.make_current()
+                _current.context = previous
 
     def __del__(self):
         try:

@@ -116,7 +116,7 @@ def run_one(algo: str, level: str, minutes: float, threads: int | None, root: Pa
     with open(log, "w") as out:
         done = subprocess.run(cmd, stdout=out, stderr=subprocess.STDOUT, cwd=ROOT, env=os.environ.copy())
     if done.returncode:
-        tail = "\n".join(log.read_text().splitlines()[-15:])
+        tail = "\n".join(log.read_text().splitlines()[-40:])
         raise SystemExit(f"bench_train.py: {algo} failed (exit {done.returncode}); the end of its output:\n{tail}")
     return run_dir
 

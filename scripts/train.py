@@ -12,6 +12,7 @@ docs/training.md.
 
 from __future__ import annotations
 
+import faulthandler
 import logging
 import sys
 from pathlib import Path
@@ -27,6 +28,8 @@ from baselines import train  # noqa: E402
 from baselines.config import CONF_DIR, register_levels  # noqa: E402
 
 register_levels()
+# a crash in native code (MuJoCo, OpenGL, torch) leaves every thread's Python stack in the run's output
+faulthandler.enable(all_threads=True)
 
 
 @hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")

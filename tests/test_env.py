@@ -499,6 +499,28 @@ def test_before_draw_runs_once_the_scene_is_ready():
     sim.close()
 
 
+def test_a_renderer_freed_in_the_middle_of_a_frame_leaves_the_frame_intact():
+    # the garbage collector frees an unclosed renderer in whichever thread it runs, perhaps between the calls that
+    # draw another renderer's frame: that frame must still be drawn in its own context
+    from evaaa.render import BatchRenderer
+    from evaaa.scene import GROUP_AGENT
+
+    sim = Simulator(evaaa.load_level("1-1"), 1, seed=0, threads=1)
+    sim.reset()
+    plain = sim.render_eye(np.arange(1))
+    other = BatchRenderer(sim.model, 32, 32)
+
+    def free_other(row, scene, context):  # called after the scene is built, before it is drawn
+        other.close()
+
+    interrupted = BatchRenderer(sim.model, 64, 64, hidden_groups=(GROUP_AGENT,), adjust=free_other)
+    frame = interrupted.render(sim.datas, sim.index.eye_camera)
+    assert other._gl is None  # it was freed, mid-frame
+    assert np.array_equal(frame, plain)
+    interrupted.close()
+    sim.close()
+
+
 def test_threads_light_each_world_by_its_own_hour():
     # the render threads draw shares of the batch: each world must still get its own sun, sky and fog
     def frames(threads: int) -> np.ndarray:
