@@ -13,8 +13,8 @@ calls release the GIL and Mesa's software rasteriser draws a 64x64 frame on one 
 threads draw a batch of frames ~1.5x faster than one; the pixels are the same.  (Overlapping a render thread's
 drawing with the rest of a decision, by contrast, did not pay: the Python code of the other sensors holds the GIL
 that the render thread needs between its MuJoCo calls.  A single world turns it round: its frame is drawn on the
-calling thread, in one long GIL-free call, while a helper thread runs that Python.)  How many threads a simulator uses:
-:func:`evaaa.sim.default_threads`.
+calling thread, in one long GIL-free call, while a helper thread runs that Python.)  How many threads a simulator
+uses: :func:`evaaa.sim.default_threads`.
 """
 
 from __future__ import annotations
@@ -182,21 +182,19 @@ class BatchRenderer:
         ``before_draw()``, if given, is called once the first frame's scene is ready, just before it is drawn:
         work started there runs while the drawing call, which frees the GIL, keeps this thread busy (not on a
         threaded renderer)."""
-        if before_draw is not None:
-            if self._thread is not None:
-                raise ValueError("before_draw is for renderers that draw on the calling thread")
-            out = np.empty((len(datas), self.height, self.width, 3), dtype=np.uint8) if out is None else out
-            return self._draw(datas, camera_id, out, before_draw=before_draw)
-        return self.submit(datas, camera_id, out).result()
+        if before_draw is not None and self._thread is not None:
+            raise ValueError("before_draw is for renderers that draw on the calling thread")
+        return self.submit(datas, camera_id, out, before_draw=before_draw).result()
 
-    def submit(self, datas, camera_id: int, out: np.ndarray | None = None, first_row: int = 0) -> RenderJob:
+    def submit(self, datas, camera_id: int, out: np.ndarray | None = None, first_row: int = 0,
+               before_draw=None) -> RenderJob:
         """Start drawing the frames of :meth:`render`; on a threaded renderer this returns before they are drawn,
         and ``datas`` must not change until :meth:`RenderJob.result` has returned.  ``first_row``: the row of
         ``datas[0]`` in a larger batch (what ``adjust`` is told)."""
         if out is None:
             out = np.empty((len(datas), self.height, self.width, 3), dtype=np.uint8)
         if self._thread is None:
-            return RenderJob(frames=self._draw(datas, camera_id, out, first_row))
+            return RenderJob(frames=self._draw(datas, camera_id, out, first_row, before_draw))
         return RenderJob(future=self._thread.submit(self._draw, datas, camera_id, out, first_row))
 
     def _draw(self, datas, camera_id: int, out: np.ndarray, first_row: int = 0, before_draw=None) -> np.ndarray:

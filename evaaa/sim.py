@@ -76,7 +76,7 @@ def default_threads() -> int:
 
     The environment variable ``EVAAA_THREADS`` (an integer >= 1) decides when set.  Otherwise 2 when the process may
     use two cores or more, else 1.  On two cores, two shares drew a batch's frames ~1.5x faster and stepped its
-    physics ~1.6x faster; a single world, whose frame cannot be shared out, took ~20% less time per decision with
+    physics ~1.6x faster; a single world, whose frame cannot be shared out, took about a sixth less time per decision with
     its physiology and other senses done on a helper while the frame was drawn.
     """
     setting = os.environ.get("EVAAA_THREADS", "").strip()
