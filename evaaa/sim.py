@@ -200,6 +200,7 @@ class Simulator:
                                                 self.obstacles.heading[m])
 
         self.sensors = [SENSORS[k](self) for k in self.modalities]
+        self._shaping_senses = (SENSORS["olfaction"](self), SENSORS["thermoception"](self))
         if "pixels" in self.modalities:
             self._make_renderer()
         self.seed(seed)
@@ -493,12 +494,14 @@ class Simulator:
             self.field_offset = self._temperature_offset(self.sun_angle)
 
         # 5. physiology and 6. senses; one world's frame is drawn here while a helper does the rest
+        costly = (actions == FORWARD) | (actions == EAT)  # what an action cost in the reward charges
         if self.threads > self.n:
             jobs = []
 
             def start_helper():  # once the scene is ready: from here on this thread holds the GIL only briefly
                 jobs.append(self._helper_pool().submit(self._conclude, food_eaten, water_eaten, food_count,
-                                                       water_count, damage, collided, crossed, skip_pixels=True))
+                                                       water_count, damage, collided, crossed, costly,
+                                                       skip_pixels=True))
 
             try:
                 frame = self.render_eye(self._all, before_draw=start_helper)
@@ -508,14 +511,14 @@ class Simulator:
             obs = {"pixels": frame, **obs}  # the canonical order: pixels first
             self.last_obs = obs
             return obs, reward, terminated, truncated, info
-        return self._conclude(food_eaten, water_eaten, food_count, water_count, damage, collided, crossed)
+        return self._conclude(food_eaten, water_eaten, food_count, water_count, damage, collided, crossed, costly)
 
     def _helper_pool(self) -> ThreadPoolExecutor:
         if self._helpers is None:
             self._helpers = ThreadPoolExecutor(self.threads - 1, "evaaa-helper")
         return self._helpers
 
-    def _conclude(self, food_eaten, water_eaten, food_count, water_count, damage, collided, crossed,
+    def _conclude(self, food_eaten, water_eaten, food_count, water_count, damage, collided, crossed, costly,
                   skip_pixels: bool = False):
         """Steps 5 and 6 of a decision: the EVs, the episode end, the reward, the senses (all but the frame with
         ``skip_pixels``) and the info."""
@@ -529,7 +532,12 @@ class Simulator:
         end = phys.end_types(self.ev, self.params, resource_consumed=food_eaten | water_eaten,
                              single_trial=self.level.episode.single_trial, steps=self.steps,
                              max_steps=self.level.episode.max_steps)
-        reward = phys.reward(ev_before, self.ev, end, self.params)
+        shaping = {}
+        if self.params.reward == "shaped":  # the original's hand-shaped reward reads the senses, enabled or not
+            shaping = dict(odour=self._shaping_senses[0].read(self._all),
+                           thermal=self._shaping_senses[1].read(self._all), consumed=food_eaten | water_eaten,
+                           collided=collided)
+        reward = phys.reward(ev_before, self.ev, end, self.params, costly=costly, **shaping)
         truncated = end == phys.END_MAX_STEPS
         terminated = (end != phys.END_NONE) & ~truncated
         success = self._success(end, food_eaten, water_eaten)

@@ -336,13 +336,22 @@ class Episode(_Spec):
 
 
 class Reward(_Spec):
-    name: Literal["squared", "drive_reduction", "neg_distance", "sparse"]
+    name: Literal["squared", "drive_reduction", "neg_distance", "sparse", "shaped"]
     #: added on the step an EV leaves its range
     terminal_penalty: float
     #: also add the terminal penalty when the episode is truncated at max_steps (the original did)
     penalize_truncation: bool
     #: per-EV weights w_i of the squared deviation sum_i w_i (EV_i - setpoint_i)^2 (squared, drive_reduction)
     weights: EVs
+    #: how the terminal penalty meets the step's reward: ``add`` it, or ``replace`` the step's reward with it (the
+    #: original's Python wrapper and its DQN did)
+    terminal_mode: Literal["add", "replace"] = "add"
+    #: also apply the terminal penalty when a single-trial episode ends by consuming a resource (the original did)
+    penalize_consumption: bool = False
+    #: subtracted on every Forward or Eat decision (the original DQN: 0.001)
+    action_cost: NonNegative = 0.0
+    #: the final reward is clipped to [-clip, clip] (the original DQN: 10); null: no clipping
+    clip: Positive | None = None
 
 
 # --------------------------------------------------------------------------------------------------- level

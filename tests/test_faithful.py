@@ -4,11 +4,17 @@ behaviour log."""
 
 from __future__ import annotations
 
+import dataclasses
+from pathlib import Path
+
 import numpy as np
 import pytest
+import yaml
 
 import evaaa
-from evaaa.sim import Simulator
+from evaaa.physiology import (END_DAMAGE, END_FOOD, END_MAX_STEPS, END_NONE, END_RESOURCE, END_TEMPERATURE,
+                              END_TYPES, END_WATER, PhysiologyParams, reward)
+from evaaa.sim import EAT, FORWARD, LEFT, NONE, RIGHT, Simulator
 from evaaa.spec import LevelError
 from evaaa.worldgen import ObstaclePool, place_obstacles
 
@@ -98,4 +104,122 @@ def test_testbed_walls_stand_4_5_m_and_a_low_block_still_stops_the_rays_and_the_
         sim.step(np.array([1]))
     # the strip's north face is at y = -6.5 and the body's half-width 0.5: it stops there (soft contacts give ~0.1)
     assert sim.pos[0, 1] > -6.2
+    sim.close()
+
+
+# ------------------------------------------------------------------------------------------------ reward options
+CONF = Path(__file__).resolve().parents[1] / "conf" / "reward"
+
+
+def reward_option(option: str) -> dict:
+    """The level reward fields a reward option (conf/reward/<option>.yaml) sets."""
+    data = yaml.safe_load((CONF / f"{option}.yaml").read_text())
+    return data.get("overrides", {"name": data["name"]})
+
+
+def params_for(option: str, level: str = "two-resource-food") -> PhysiologyParams:
+    return PhysiologyParams.from_level(evaaa.load_level(level, {"reward": reward_option(option)}))
+
+
+def squared_by_hand(f, w, t, d):
+    return -0.01 * (f**2 + w**2 + t**2 + (0.15 * d) ** 2)
+
+
+# (EVs after the step, end type, action) -> the original's reward by hand for: the original wrapper (what its PPO,
+# PPO+LSTM and DreamerV3 trained on), its DQN, and evaaa's default
+STEPS = [
+    ((-3.0, 4.0, -10.0, 20.0), END_NONE, FORWARD),
+    ((-3.0, 4.0, -10.0, 20.0), END_NONE, LEFT),
+    ((-3.0, 4.0, -10.0, 20.0), END_NONE, EAT),
+    ((-15.5, 0.0, 0.0, 0.0), END_FOOD, FORWARD),
+    ((1.0, 2.0, 3.0, 4.0), END_MAX_STEPS, NONE),
+    ((1.0, 2.0, 3.0, 4.0), END_RESOURCE, EAT),
+    ((0.0, 0.0, 0.0, 100.5), END_DAMAGE, RIGHT),
+]
+
+
+def original_wrapper_by_hand(ev, end, action):
+    return -100.0 if end != END_NONE else squared_by_hand(*ev)
+
+
+def original_dqn_by_hand(ev, end, action):
+    r = -10.0 if end != END_NONE else squared_by_hand(*ev) - (0.001 if action in (FORWARD, EAT) else 0.0)
+    return min(max(r, -10.0), 10.0)
+
+
+def evaaa_default_by_hand(ev, end, action):
+    return squared_by_hand(*ev) - (100.0 if end in (END_FOOD, END_WATER, END_TEMPERATURE, END_DAMAGE) else 0.0)
+
+
+@pytest.mark.parametrize("option, by_hand", [("original", original_wrapper_by_hand), ("dqn", original_dqn_by_hand),
+                                             ("squared", evaaa_default_by_hand)])
+def test_each_reward_option_follows_its_formula_on_hand_computed_steps(option, by_hand):
+    p = params_for(option)
+    after = np.array([ev for ev, _, _ in STEPS])
+    end = np.array([e for _, e, _ in STEPS])
+    actions = np.array([a for _, _, a in STEPS])
+    r = reward(np.zeros_like(after), after, end, p, costly=(actions == FORWARD) | (actions == EAT))
+    expected = [by_hand(ev, e, a) for ev, e, a in STEPS]
+    np.testing.assert_allclose(r, expected, rtol=1e-6, atol=1e-6)
+
+
+def test_the_default_reward_is_unchanged():
+    level = evaaa.load_level("1-1")
+    r = level.reward
+    assert (r.name, r.terminal_penalty, r.terminal_mode, r.penalize_truncation, r.penalize_consumption,
+            r.action_cost, r.clip) == ("squared", -100.0, "add", False, False, 0.0, None)
+
+
+def test_the_hand_shaped_reward_by_hand():
+    p = params_for("shaped")
+    odour = np.array([[0.2] * 5 + [0.1] * 5, [0.0] * 10, [1.0] * 10])
+    thermal = np.array([[-20.0] * 8, [5.0, -5.0] * 4, [0.0] * 8])
+    consumed = np.array([True, False, True])
+    collided = np.array([True, False, False])
+    end = np.array([END_NONE, END_NONE, END_RESOURCE])
+    ev = np.zeros((3, 4))
+    r = reward(ev, ev, end, p, odour=odour, thermal=thermal, consumed=consumed, collided=collided)
+    expected = [1.5 / 10 - 160 / 1000 + 100 - 1, 0 - 40 / 1000, -100.0]
+    np.testing.assert_allclose(r, expected, rtol=1e-6, atol=1e-5)
+    with pytest.raises(ValueError, match="shaped"):
+        reward(ev, ev, end, p)
+
+
+def test_clip_bounds_the_reward():
+    p = dataclasses.replace(params_for("dqn"), clip=1.0)
+    ev = np.array([[15.0, 15.0, 0.0, 0.0]])  # squared drive -4.5
+    assert reward(ev, ev, np.array([END_NONE]), p)[0] == pytest.approx(-1.0)
+
+
+@pytest.mark.parametrize("option, consumed, at_limit", [("original", -100.0, -100.0), ("dqn", -10.0, -10.0)])
+def test_the_original_penalty_replaces_the_reward_at_every_end_in_the_env(option, consumed, at_limit):
+    # a single-trial consumption: the episode ends ResourceConsumed
+    sim = Simulator(evaaa.load_level("two-resource-food", {"reward": reward_option(option)}), 1, ["interoception"],
+                    seed=0, threads=1)
+    sim.reset()
+    slot = int(np.flatnonzero(sim.res_is_food)[0])
+    sim.set_agent_pose(0, sim.res_xy[0, slot] - (0.0, 0.9), 0.0)
+    _, r, terminated, _, info = sim.step(np.array([EAT]))
+    assert terminated[0] and END_TYPES[int(info["end_type"][0, 0])] == "ResourceConsumed"
+    assert r[0] == pytest.approx(consumed)
+    # the step limit: the last step's reward is the penalty, the ones before are the squared drive
+    sim = Simulator(evaaa.load_level("two-resource-food", {"reward": reward_option(option),
+                                                           "episode.max_steps": 3}), 1, ["interoception"], seed=0,
+                    threads=1)
+    sim.reset()
+    rewards = [sim.step(np.array([NONE]))[1][0] for _ in range(3)]
+    assert rewards[2] == pytest.approx(at_limit)
+    assert -1.0 < rewards[0] < 0.0 and -1.0 < rewards[1] < 0.0
+    sim.close()
+
+
+def test_the_shaped_reward_in_the_env_reads_the_senses_even_when_they_are_not_observed():
+    sim = Simulator(evaaa.load_level("two-resource-food", {"reward": reward_option("shaped")}), 1,
+                    ["interoception"], seed=0, threads=1)
+    sim.reset()
+    _, r, *_ = sim.step(np.array([NONE]))
+    odour = sim._shaping_senses[0].read(np.array([0]))
+    thermal = sim._shaping_senses[1].read(np.array([0]))
+    assert odour.sum() > 0
+    assert r[0] == pytest.approx(odour.sum() / 10 - np.abs(thermal).sum() / 1000, rel=1e-5)
     sim.close()
