@@ -580,6 +580,8 @@ class Simulator:
         rule = self.level.episode.success
         if rule.rule == "survive":
             return end == phys.END_MAX_STEPS
+        if rule.rule == "consume_any":
+            return end == phys.END_RESOURCE
         if rule.rule.startswith("consume"):
             eaten = food_eaten if rule.resource == "food" else water_eaten
             ok = (end == phys.END_RESOURCE) & eaten

@@ -313,16 +313,17 @@ class Success(_Spec):
 
     * ``none``: no criterion (training levels).
     * ``consume``: the episode ended by consuming ``resource`` (single-trial tasks).
+    * ``consume_any``: the episode ended by consuming anything (the paper's rule for risk taking).
     * ``consume_after_trigger``: as ``consume``, after an event trigger was crossed (goal manipulation).
     * ``survive``: alive when the episode reaches ``max_steps``.
     """
 
-    rule: Literal["none", "consume", "consume_after_trigger", "survive"] = "none"
+    rule: Literal["none", "consume", "consume_any", "consume_after_trigger", "survive"] = "none"
     resource: Literal["food", "water"] | None = None
 
     @model_validator(mode="after")
     def _resource_when_consuming(self) -> "Success":
-        if self.rule.startswith("consume") and self.resource is None:
+        if self.rule in ("consume", "consume_after_trigger") and self.resource is None:
             raise ValueError(f"rule '{self.rule}' needs resource: food or water")
         return self
 

@@ -223,3 +223,27 @@ def test_the_shaped_reward_in_the_env_reads_the_senses_even_when_they_are_not_ob
     assert odour.sum() > 0
     assert r[0] == pytest.approx(odour.sum() / 10 - np.abs(thermal).sum() / 1000, rel=1e-5)
     sim.close()
+
+
+# ------------------------------------------------------------------------------------------------ success rules
+def _drink_in_risk_taking(**overrides) -> tuple[bool, str]:
+    sim = Simulator(evaaa.load_level("risk-taking", overrides), 1, ["interoception"], seed=0, threads=1)
+    sim.reset()
+    slot = int(np.flatnonzero(sim.res_is_water)[0])
+    sim.set_agent_pose(0, sim.res_xy[0, slot] - (0.0, 0.9), 0.0)
+    _, _, _, _, info = sim.step(np.array([EAT]))
+    sim.close()
+    return bool(info["success"][0, 0]), END_TYPES[int(info["end_type"][0, 0])]
+
+
+def test_risk_taking_success_is_the_food_by_default_and_any_consumption_under_the_papers_rule():
+    assert evaaa.load_level("risk-taking").episode.success.rule == "consume"
+    assert _drink_in_risk_taking() == (False, "ResourceConsumed")
+    assert _drink_in_risk_taking(**{"episode.success": {"rule": "consume_any", "resource": None}}) == (
+        True, "ResourceConsumed")
+
+
+def test_a_consume_rule_without_a_resource_is_refused_but_consume_any_needs_none():
+    with pytest.raises(LevelError, match="episode.success"):
+        evaaa.load_level("risk-taking", {"episode.success": {"rule": "consume", "resource": None}})
+    assert evaaa.load_level("risk-taking", {"episode.success.rule": "consume_any"}).episode.success.rule == "consume_any"
