@@ -484,7 +484,7 @@ class Simulator:
         if self.predators.k:
             night = daynight.is_night(self.sun_angle) if self.level.daynight.enabled else self._zeros_bool
             attack = self.predators.step(pos, night, self.rngs)
-            self.attacked = attack > 0
+            self.attacked = attack != 0
             damage = damage + attack
             for w in range(self.n):
                 self._write_predators(w)

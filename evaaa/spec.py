@@ -201,6 +201,10 @@ class PredatorGroup(_Spec):
     max_searching_steps: Annotated[int, Field(ge=1)] = 150
     #: a searching predator picks a new landmark every this many decisions
     search_interval: Annotated[int, Field(ge=1)] = 60
+    #: what an attack does each decision: ``harm`` adds ``damage`` to the damage EV (evaaa); ``original`` does what
+    #: the original's code did, subtracting it (healing, floored at 0), so that contact harms only through
+    #: collisions (evaaa's predators never push the agent, so they then do no harm at all)
+    attack: Literal["harm", "original"] = "harm"
 
 
 class Landmarks(_Spec):

@@ -247,3 +247,31 @@ def test_a_consume_rule_without_a_resource_is_refused_but_consume_any_needs_none
     with pytest.raises(LevelError, match="episode.success"):
         evaaa.load_level("risk-taking", {"episode.success": {"rule": "consume", "resource": None}})
     assert evaaa.load_level("risk-taking", {"episode.success.rule": "consume_any"}).episode.success.rule == "consume_any"
+
+
+# ------------------------------------------------------------------------------------------------ predator harm
+def _attacked_damage(attack: str) -> tuple[float, bool]:
+    """Damage after 40 decisions of standing still, starting at 30, with one predator 10 m away that sees it."""
+    overrides = {"obstacles.bushes.count": 0, "obstacles.rocks.count": 0, "obstacles.bonfires.count": 0,
+                 "predators.p2.count": 0, "predators.p3.count": 0, "predators.p1.x": [0.0, 0.0],
+                 "predators.p1.y": [-6.0, -6.0], "predators.p1.heading": 0.0, "predators.p1.attack": attack,
+                 "agent.start": "fixed", "agent.start_position": [0.0, 4.0], "agent.start_heading": 0.0}
+    sim = Simulator(evaaa.load_level("4-1", overrides), 1, ["interoception"], seed=0, threads=1)
+    sim.reset()
+    sim.ev[0, 3] = 30.0
+    attacked = False
+    for _ in range(40):
+        _, _, _, _, info = sim.step(np.array([NONE]))
+        attacked |= bool(info["attacked"][0, 0])
+    damage = float(sim.ev[0, 3])
+    sim.close()
+    return damage, attacked
+
+
+def test_predator_attacks_harm_by_default_and_heal_under_the_originals_rule():
+    assert evaaa.load_level("4-1").predators["p1"].attack == "harm"
+    harmed, attacked = _attacked_damage("harm")
+    assert attacked and harmed > 30.0 + 5.0
+    healed, attacked = _attacked_damage("original")
+    # the original's sign: each attack takes its 5 points off the damage (passive healing alone is 0.01 a decision)
+    assert attacked and healed < 30.0 - 5.0
