@@ -26,6 +26,16 @@ END_TYPES: tuple[str, ...] = (
     "MaxStepReached",
 )
 END_NONE, END_RESOURCE, END_FOOD, END_WATER, END_TEMPERATURE, END_DAMAGE, END_MAX_STEPS = range(7)
+#: The original's name of each end type (its DataRecorder's ``EpisodeEndType``), for comparing logs.
+ORIGINAL_END_TYPES: dict[str, str] = {
+    "None": "Unknown",
+    "ResourceConsumed": "ResourceConsumed",
+    "FoodOutOfRange": "FoodLevelOutOfRange",
+    "WaterOutOfRange": "WaterLevelOutOfRange",
+    "TemperatureOutOfRange": "ThermoLevelOutOfRange",
+    "DamageTooHigh": "HealthLevelTooLow",
+    "MaxStepReached": "MaxStepReached",
+}
 #: End types that mean the animal died (an EV left its viable range).
 DEATHS = (END_FOOD, END_WATER, END_TEMPERATURE, END_DAMAGE)
 _IS_DEATH = np.isin(np.arange(len(END_TYPES)), DEATHS)

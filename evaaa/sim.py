@@ -690,10 +690,13 @@ class Simulator:
         angle = self.sun_angle[worlds]
         dark = daynight.darkness(daynight.hour(angle))
         direction, strength = daynight.sun(angle)
-        density = dn.night_fog_density * dark
+        # the light follows evaaa's darkness; fog and far plane follow it too unless the level asks for the
+        # original's schedule
+        haze = daynight.original_darkness(daynight.hour(angle)) if dn.fog_schedule == "original" else dark
+        density = dn.night_fog_density * haze
         # exponential-squared fog of this density hides ~95% at sqrt(3)/density; MuJoCo's fog is linear
         fog_end = np.where(density > 0, np.sqrt(3.0) / np.maximum(density, 1e-9), 0.0)
-        far = dn.day_far + (dn.night_far - dn.day_far) * dark
+        far = dn.day_far + (dn.night_far - dn.day_far) * haze
         self._light_plan = list(zip(dark.tolist(), direction.tolist(), (0.6 * strength).tolist(),
                                     fog_end.tolist(), far.tolist()))
 

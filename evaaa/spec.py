@@ -258,6 +258,10 @@ class DayNight(_Spec):
     night_fog_density: NonNegative
     day_far: Positive
     night_far: Positive
+    #: how fog and far plane follow the hour: ``smooth`` (evaaa: full night fog from 21:00 to 03:00) or
+    #: ``original`` (the original's table: half the night fog at 21:00 rising to 5/6 of the way by 02:00, full at
+    #: 03:00; see evaaa.daynight.original_darkness)
+    fog_schedule: Literal["smooth", "original"] = "smooth"
 
 
 # --------------------------------------------------------------------------------------------------- thermal field

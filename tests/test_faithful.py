@@ -10,10 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from helpers import load_script
 
 import evaaa
+from evaaa import daynight
 from evaaa.physiology import (END_DAMAGE, END_FOOD, END_MAX_STEPS, END_NONE, END_RESOURCE, END_TEMPERATURE,
-                              END_TYPES, END_WATER, PhysiologyParams, reward)
+                              END_TYPES, END_WATER, ORIGINAL_END_TYPES, PhysiologyParams, reward)
 from evaaa.sim import EAT, FORWARD, LEFT, NONE, RIGHT, Simulator
 from evaaa.spec import LevelError
 from evaaa.worldgen import ObstaclePool, place_obstacles
@@ -275,3 +277,69 @@ def test_predator_attacks_harm_by_default_and_heal_under_the_originals_rule():
     healed, attacked = _attacked_damage("original")
     # the original's sign: each attack takes its 5 points off the damage (passive healing alone is 0.01 a decision)
     assert attacked and healed < 30.0 - 5.0
+
+
+# ------------------------------------------------------------------------------------------------ smaller items
+def test_every_end_type_has_the_originals_name():
+    assert set(ORIGINAL_END_TYPES) == set(END_TYPES)
+    assert ORIGINAL_END_TYPES["DamageTooHigh"] == "HealthLevelTooLow"
+    assert ORIGINAL_END_TYPES["FoodOutOfRange"] == "FoodLevelOutOfRange"
+    assert ORIGINAL_END_TYPES["TemperatureOutOfRange"] == "ThermoLevelOutOfRange"
+
+
+def test_olfaction_clamp_is_a_field():
+    near = {"agent.start": "fixed", "agent.start_position": [0.0, 0.0], "resources.food.count": 1,
+            "resources.food.x": [0.0, 0.0], "resources.food.y": [0.1, 0.1], "resources.water.count": 0}
+    readings = []
+    for clamp in (0.5, 0.05):
+        sim = Simulator(evaaa.load_level("1-1", {**near, "sensors.olfaction.min_distance": clamp}), 1,
+                        ["olfaction"], seed=0, threads=1)
+        readings.append(float(sim.reset()["olfaction"][0, 0]))
+        sim.close()
+    # the cube's centre is 0.1 m ahead and 0.2 m below the nose: 1/d = 1/0.5 clamped, 1/0.224 not
+    assert readings[0] == pytest.approx(0.1 / 0.5, rel=1e-5)
+    assert readings[1] == pytest.approx(0.1 / np.hypot(0.1, 0.2), rel=1e-5)
+
+
+def test_night_fog_follows_evaaas_schedule_or_the_originals_table():
+    hours = np.arange(24)
+    original = daynight.original_darkness(hours)
+    # the original: half the night's fog at 21:00 growing quadratically over six hours, full at 03:00, none by day
+    assert original[21] == pytest.approx(0.5)
+    assert original[0] == pytest.approx(0.5 + 0.5 * 0.25)
+    assert original[2] == pytest.approx(0.5 + 0.5 * (5 / 6) ** 2)
+    assert original[3] == 1.0 and (original[7:18] == 0).all()
+    assert original[19] == pytest.approx((1 / 3) ** 1.5) and original[5] == pytest.approx((2 / 3) ** 1.5)
+    smooth = daynight.darkness(hours)
+    assert (smooth[21:] == 1.0).all() and (smooth[:4] == 1.0).all()
+    # the level option reaches the renderer: at 23:00 the original's fog is thinner, so it ends farther away
+    ends = {}
+    for schedule in ("smooth", "original"):
+        level = evaaa.load_level("4-2", {"daynight.fog_schedule": schedule, "daynight.random_start": False,
+                                         "daynight.start_angle": 255.0})  # 23:00
+        sim = Simulator(level, 1, ["interoception"], seed=0, threads=1)
+        sim.reset()
+        sim._plan_light(np.array([0]))
+        ends[schedule] = sim._light_plan[0][3]
+        sim.close()
+    assert ends["original"] == pytest.approx(ends["smooth"] / original[23], rel=1e-6)
+
+
+def test_the_thermal_panel_marks_apples_and_the_pond(tmp_path):
+    render_levels = load_script("render_levels")
+    sim = Simulator(evaaa.load_level("2-2"), 1, ["interoception"], seed=0, threads=1)
+    sim.reset()
+    fig, ax = render_levels.plt.subplots()
+    render_levels.plot_thermal(ax, sim, colorbar=False)
+    labels = {t.get_text() for t in ax.get_legend().get_texts()}
+    assert {"food (9)", "water (1)"} <= labels  # 9 apples and the pond
+    render_levels.plt.close(fig)
+    sim.close()
+
+
+def test_wall_hits_prints_a_range_per_angle(capsys):
+    assert load_script("wall_hits").main([]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 5
+    low, high = (float(v) for v in lines[1].split()[1:4:2])
+    assert 0.5 < low < high < 15.0  # a head-on hit costs a few damage points per decision
