@@ -4,6 +4,7 @@ behaviour log."""
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 from pathlib import Path
 
@@ -16,6 +17,7 @@ import evaaa
 from evaaa import daynight
 from evaaa.physiology import (END_DAMAGE, END_FOOD, END_MAX_STEPS, END_NONE, END_RESOURCE, END_TEMPERATURE,
                               END_TYPES, END_WATER, ORIGINAL_END_TYPES, PhysiologyParams, reward)
+from evaaa.records import STEP_FIELDS, StepLog, new_log_path
 from evaaa.sim import EAT, FORWARD, LEFT, NONE, RIGHT, Simulator
 from evaaa.spec import LevelError
 from evaaa.worldgen import ObstaclePool, place_obstacles
@@ -343,3 +345,87 @@ def test_wall_hits_prints_a_range_per_angle(capsys):
     assert len(lines) == 5
     low, high = (float(v) for v in lines[1].split()[1:4:2])
     assert 0.5 < low < high < 15.0  # a head-on hit costs a few damage points per decision
+
+
+# ------------------------------------------------------------------------------------------------ behaviour logs
+def _log_rows(path) -> list[dict]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_the_step_log_writes_one_row_per_decision_with_the_listed_columns(tmp_path):
+    sim = Simulator(evaaa.load_level("two-resource-food", {"episode.max_steps": 4}), 2, ["interoception"], seed=0,
+                    threads=1)
+    sim.reset()
+    path = new_log_path(tmp_path)
+    with StepLog(path, policy="scripted") as log:
+        log.start("two-resource-food", sim.last_info, seed=0)
+        start = sim.pos.copy()
+        actions = [np.array([FORWARD, LEFT]), np.array([FORWARD, NONE]), np.array([EAT, RIGHT]),
+                   np.array([NONE, FORWARD])]
+        for a in actions:
+            _, r, term, trunc, info = sim.step(a)
+            log.update(a, r, info, term | trunc)
+    rows = _log_rows(path)
+    assert tuple(rows[0]) == STEP_FIELDS
+    for column in ("x", "y", "yaw", "action", "reward", "distance", "collision", "event", "consumed", "end_type"):
+        assert column in STEP_FIELDS
+    assert len(rows) == 2 * len(actions)  # one row per world and decision
+    world0 = [r for r in rows if r["world"] == "0"]
+    assert [r["action"] for r in world0] == ["forward", "forward", "eat", "none"]
+    assert [int(r["step"]) for r in world0] == [1, 2, 3, 4]
+    # a Forward decision moves the body about 1.9 m, and the distance column says so
+    first = world0[0]
+    moved = np.hypot(float(first["x"]) - start[0, 0], float(first["y"]) - start[0, 1])
+    assert float(first["distance"]) == pytest.approx(moved, rel=1e-5) and 1.5 < moved < 2.1
+    assert [r for r in rows if r["world"] == "1"][0]["distance"] == "0.0"  # a turn does not move the body
+    last = world0[-1]
+    assert last["done"] == "True" and last["end_type"] == "MaxStepReached"
+    assert last["original_end_type"] == "MaxStepReached" and last["success"] == "False"
+    assert all(r["end_type"] == "" for r in world0[:-1])
+    # a new log never overwrites an old one
+    with pytest.raises(FileExistsError):
+        StepLog(path)
+    assert new_log_path(tmp_path) != path
+
+
+def test_evaluate_writes_a_step_log_only_when_asked(tmp_path):
+    evaluate = load_script("evaluate")
+    out = tmp_path / "eval"
+    assert evaluate.main(["policy=oracle", "levels=two-resource-water", "episodes=2", "num_envs=2",
+                          f"out={out}"]) == 0
+    assert not list(out.glob("steps-*.csv"))
+    assert evaluate.main(["policy=oracle", "levels=two-resource-water", "episodes=2", "num_envs=2",
+                          f"out={out}", "step_log=true"]) == 0
+    logs = list(out.glob("steps-*.csv"))
+    assert len(logs) == 1
+    rows = _log_rows(logs[0])
+    episodes = [r for r in csv.DictReader(open(out / "episodes.csv"))][-2:]
+    # every decision of the two counted episodes is in the log (a world may start one more episode afterwards)
+    ends = [r for r in rows if r["done"] == "True"]
+    assert len(ends) >= 2 and {r["end_type"] for r in ends} == {"ResourceConsumed"}
+    assert sorted(int(r["step"]) for r in ends)[:2] == sorted(int(e["steps"]) for e in episodes)
+    assert all(r["policy"] == "oracle" and r["level"] == "two-resource-water" for r in rows)
+    # the episode rows carry the original's reward statistics and action shares
+    for e in episodes:
+        shares = [float(e[f"{a}_pct"]) for a in evaaa.ACTION_NAMES]
+        assert sum(shares) == pytest.approx(100.0)
+        assert float(e["min_reward"]) <= float(e["mean_reward"]) <= float(e["max_reward"])
+        assert float(e["mean_reward"]) * int(e["steps"]) == pytest.approx(float(e["return"]), rel=1e-5)
+
+
+def test_play_writes_a_step_log_when_asked(tmp_path):
+    play = load_script("play")
+    options = play.parse_args(["level=two-resource-food", f"out={tmp_path}", "step_log=true",
+                               "episode.max_steps=3"])
+    session = play.PlaySession(options)
+    try:
+        for action in (FORWARD, LEFT, FORWARD):
+            session.step(action)
+    finally:
+        session.close()
+    rows = _log_rows(next(tmp_path.glob("steps-*.csv")))
+    assert [r["action"] for r in rows] == ["forward", "left", "forward"]
+    assert rows[-1]["end_type"] == "MaxStepReached" and rows[0]["participant"] == "anonymous"
+    with pytest.raises(play.UsageError, match="step_log"):
+        play.parse_args(["step_log=maybe"])
