@@ -156,7 +156,12 @@ class EpisodeTracker:
 
 
 def append_rows(path: str | os.PathLike, rows: Iterable[Mapping[str, Any]]) -> None:
-    """Append episode rows to a CSV file (header written once), flushed and synced to disk."""
+    """Append episode rows to a CSV file (header written once), flushed and synced to disk.
+
+    A file written before some optional columns existed (:data:`OPTIONAL_FIELDS`) is widened first: its header
+    gains them and its earlier rows keep every value, with those cells empty (the file is rewritten beside itself
+    and swapped in).  Any other column the file lacks is refused.
+    """
     rows = list(rows)
     if not rows:
         return
@@ -167,9 +172,12 @@ def append_rows(path: str | os.PathLike, rows: Iterable[Mapping[str, Any]]) -> N
     if not new:
         with path.open(newline="") as f:
             existing = next(csv.reader(f), [])
-        fields = existing + [k for k in fields if k not in existing]
-        if fields != existing:
-            raise ValueError(f"{path} has columns {existing}; these rows need {fields}")
+        missing = [k for k in fields if k not in existing]
+        if [k for k in missing if k not in OPTIONAL_FIELDS]:
+            raise ValueError(f"{path} has columns {existing}; these rows need {existing + missing}")
+        if missing:
+            _widen(path, existing + missing)
+        fields = existing + missing
     with path.open("a", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=fields, extrasaction="raise")
         if new:
@@ -177,6 +185,19 @@ def append_rows(path: str | os.PathLike, rows: Iterable[Mapping[str, Any]]) -> N
         writer.writerows(rows)
         f.flush()
         os.fsync(f.fileno())
+
+
+def _widen(path: Path, fields: list[str]) -> None:
+    """Rewrite a CSV file under a wider header (new cells empty), atomically."""
+    old = read_rows(path)
+    tmp = path.with_name(path.name + ".widening")
+    with tmp.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=fields)
+        writer.writeheader()
+        writer.writerows(old)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
 
 
 def read_rows(path: str | os.PathLike) -> list[dict[str, str]]:

@@ -17,7 +17,8 @@ import evaaa
 from evaaa import daynight
 from evaaa.physiology import (END_DAMAGE, END_FOOD, END_MAX_STEPS, END_NONE, END_RESOURCE, END_TEMPERATURE,
                               END_TYPES, END_WATER, ORIGINAL_END_TYPES, PhysiologyParams, reward)
-from evaaa.records import STEP_FIELDS, StepLog, new_log_path
+from evaaa.records import (EPISODE_FIELDS, STEP_FIELDS, EpisodeTracker, StepLog, append_rows, new_log_path,
+                           read_rows)
 from evaaa.sim import EAT, FORWARD, LEFT, NONE, RIGHT, Simulator
 from evaaa.spec import LevelError
 from evaaa.worldgen import ObstaclePool, place_obstacles
@@ -250,7 +251,8 @@ def test_risk_taking_success_is_the_food_by_default_and_any_consumption_under_th
 def test_a_consume_rule_without_a_resource_is_refused_but_consume_any_needs_none():
     with pytest.raises(LevelError, match="episode.success"):
         evaaa.load_level("risk-taking", {"episode.success": {"rule": "consume", "resource": None}})
-    assert evaaa.load_level("risk-taking", {"episode.success.rule": "consume_any"}).episode.success.rule == "consume_any"
+    level = evaaa.load_level("risk-taking", {"episode.success.rule": "consume_any"})
+    assert level.episode.success.rule == "consume_any"
 
 
 # ------------------------------------------------------------------------------------------------ predator harm
@@ -429,3 +431,22 @@ def test_play_writes_a_step_log_when_asked(tmp_path):
     assert rows[-1]["end_type"] == "MaxStepReached" and rows[0]["participant"] == "anonymous"
     with pytest.raises(play.UsageError, match="step_log"):
         play.parse_args(["step_log=maybe"])
+
+
+def test_an_episode_file_from_before_the_new_columns_is_widened_not_refused(tmp_path):
+    path = tmp_path / "episodes.csv"
+    tracker = EpisodeTracker(1, "two-resource-water", "random")
+    done = {"food_eaten": [[0]], "water_eaten": [[1]], "collision": [[False]], "damage_taken": [[0.0]],
+            "step_count": [[2]], "end_type": [[END_RESOURCE]], "success": [[True]], "satiation": [[7.0]],
+            "hydration": [[-4.0]], "temperature": [[0.0]], "damage": [[0.0]]}
+    row = tracker.update([0.5], done, [True], actions=[EAT])[0]
+    old = {k: row[k] for k in EPISODE_FIELDS}
+    append_rows(path, [old])  # a file as earlier versions wrote it
+    append_rows(path, [row])
+    rows = read_rows(path)
+    assert len(rows) == 2
+    assert {k: rows[0][k] for k in EPISODE_FIELDS} == {k: str(v) for k, v in old.items()}
+    assert rows[0]["mean_reward"] == "" and float(rows[1]["mean_reward"]) == pytest.approx(0.5)
+    assert float(rows[1]["eat_pct"]) == pytest.approx(100.0)
+    with pytest.raises(ValueError):
+        append_rows(path, [dict(row, unknown=1)])
