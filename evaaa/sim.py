@@ -360,7 +360,12 @@ class Simulator:
 
     def restore(self, snapshot: dict) -> None:
         """Return to a state taken by :meth:`snapshot` (same level and number of worlds)."""
-        if snapshot["num_worlds"] != self.n or snapshot["level"] != self.level.model_dump(mode="json"):
+        saved = snapshot["level"]
+        try:  # a snapshot from before a level field existed holds that field's default
+            saved = Level.model_validate(saved).model_dump(mode="json")
+        except ValueError:
+            pass
+        if snapshot["num_worlds"] != self.n or saved != self.level.model_dump(mode="json"):
             raise ValueError("this snapshot was taken from a simulator of another level or number of worlds")
         for name, value in snapshot["arrays"].items():
             setattr(self, name, value.copy())

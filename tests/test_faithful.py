@@ -450,3 +450,25 @@ def test_an_episode_file_from_before_the_new_columns_is_widened_not_refused(tmp_
     assert float(rows[1]["eat_pct"]) == pytest.approx(100.0)
     with pytest.raises(ValueError):
         append_rows(path, [dict(row, unknown=1)])
+
+
+def test_a_snapshot_from_before_the_new_level_fields_still_restores():
+    sim = Simulator(evaaa.load_level("4-1"), 1, ["interoception"], seed=0, threads=1)
+    sim.reset()
+    sim.step(np.array([FORWARD]))
+    snap = sim.snapshot()
+    old = snap["level"]
+    for group in old["obstacles"].values():
+        del group["lift"]
+    for group in old["predators"].values():
+        del group["attack"]
+    for key in ("terminal_mode", "penalize_consumption", "action_cost", "clip"):
+        del old["reward"][key]
+    del old["daynight"]["fog_schedule"]
+    after = sim.step(np.array([LEFT]))[4]["position"].copy()
+    sim.restore(snap)
+    assert np.array_equal(sim.step(np.array([LEFT]))[4]["position"], after)
+    old["agent"]["move_speed"] = 5.0  # another level is still refused
+    with pytest.raises(ValueError, match="another level"):
+        sim.restore(snap)
+    sim.close()
