@@ -23,10 +23,9 @@ from evaaa.sim import EAT, FORWARD, LEFT, NONE, RIGHT, Simulator
 from evaaa.spec import LevelError
 from evaaa.worldgen import ObstaclePool, place_obstacles
 
-FOOD_RED = (0.85, 0.08, 0.08)
-
 
 def _food_pixels(frame: np.ndarray) -> int:
+    """Pixels of the food cube's red (0.85, 0.08, 0.08), lit or shaded."""
     red = (frame[..., 0] > 150) & (frame[..., 1] < 60) & (frame[..., 2] < 60)
     return int(red.sum())
 
