@@ -60,6 +60,8 @@ def observation_keys(cfg: DictConfig) -> tuple[str, ...]:
 
 def env_overrides(cfg: DictConfig) -> dict[str, Any]:
     """Level-field overrides for ``evaaa.make_env``: the level option's, the reward's, then ``env.overrides``."""
-    layers = [OmegaConf.to_container(cfg.level.overrides, resolve=True), {"reward": {"name": cfg.reward.name}},
+    # a reward option names a level reward function, or lists the level's reward fields it sets under ``overrides``
+    reward = cfg.reward.get("overrides") or {"name": cfg.reward.name}
+    layers = [OmegaConf.to_container(cfg.level.overrides, resolve=True), {"reward": reward},
               OmegaConf.to_container(cfg.env.overrides, resolve=True)]
     return OmegaConf.to_container(OmegaConf.merge(*layers))

@@ -58,6 +58,21 @@ def darkness(h: np.ndarray) -> np.ndarray:
     return np.where(h >= 12, dusk, np.where(h < 3, 1.0, dawn))
 
 
+def original_darkness(h: np.ndarray) -> np.ndarray:
+    """The original's fog and far-plane schedule, as a fraction of the night's: 0 by day (07-17); sunset 18-20
+    at ((h - 18) / 3)^1.5; night 21-02 from one half at ((h - 21) mod 24 / 6)^2 of the way to full; full at
+    03:00; dawn 04-06 lifting as 1 - (1 - (h - 4) / 3)^1.5."""
+    h = np.asarray(h, dtype=np.float64)
+    sunset = np.clip((h - 18.0) / 3.0, 0.0, 1.0) ** 1.5
+    night = 0.5 + 0.5 * (((h - 21.0) % 24.0) / 6.0) ** 2
+    dawn = np.clip(1.0 - (h - 4.0) / 3.0, 0.0, 1.0) ** 1.5
+    out = np.zeros_like(h)
+    out = np.where((h >= 18) & (h <= 20), sunset, out)
+    out = np.where((h >= 21) | (h <= 2), night, out)
+    out = np.where(h == 3, 1.0, out)
+    return np.where((h >= 4) & (h <= 6), dawn, out)
+
+
 def sun(angle: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Direction the sunlight travels (N, 3) and its strength (N,) in [0, 1] (0 once the sun has set)."""
     a = np.radians(np.asarray(angle, dtype=np.float64))

@@ -26,11 +26,28 @@ END_TYPES: tuple[str, ...] = (
     "MaxStepReached",
 )
 END_NONE, END_RESOURCE, END_FOOD, END_WATER, END_TEMPERATURE, END_DAMAGE, END_MAX_STEPS = range(7)
+#: The original's name of each end type (its DataRecorder's ``EpisodeEndType``), for comparing logs.
+ORIGINAL_END_TYPES: dict[str, str] = {
+    "None": "Unknown",
+    "ResourceConsumed": "ResourceConsumed",
+    "FoodOutOfRange": "FoodLevelOutOfRange",
+    "WaterOutOfRange": "WaterLevelOutOfRange",
+    "TemperatureOutOfRange": "ThermoLevelOutOfRange",
+    "DamageTooHigh": "HealthLevelTooLow",
+    "MaxStepReached": "MaxStepReached",
+}
 #: End types that mean the animal died (an EV left its viable range).
 DEATHS = (END_FOOD, END_WATER, END_TEMPERATURE, END_DAMAGE)
 _IS_DEATH = np.isin(np.arange(len(END_TYPES)), DEATHS)
 
-REWARDS: tuple[str, ...] = ("squared", "drive_reduction", "neg_distance", "sparse")
+REWARDS: tuple[str, ...] = ("squared", "drive_reduction", "neg_distance", "sparse", "shaped")
+#: The original's hand-shaped reward (its Python wrapper with the homeostatic reward switched off): the sum of
+#: the 10 odour values over ODOUR_DIVISOR, minus the sum of the 8 thermal readings' magnitudes over
+#: HEAT_DIVISOR, plus CONSUMPTION_BONUS when something was eaten or drunk, minus COLLISION_COST on a collision.
+SHAPED_ODOUR_DIVISOR = 10.0
+SHAPED_HEAT_DIVISOR = 1000.0
+SHAPED_CONSUMPTION_BONUS = 100.0
+SHAPED_COLLISION_COST = 1.0
 
 
 @dataclass(frozen=True)
@@ -49,6 +66,10 @@ class PhysiologyParams:
     weights: np.ndarray  # (4,)
     terminal_penalty: float
     penalize_truncation: bool
+    terminal_mode: str = "add"
+    penalize_consumption: bool = False
+    action_cost: float = 0.0
+    clip: float | None = None
 
     @classmethod
     def from_level(cls, level: Level) -> "PhysiologyParams":
@@ -71,6 +92,10 @@ class PhysiologyParams:
             weights=vec(r.weights),
             terminal_penalty=r.terminal_penalty,
             penalize_truncation=r.penalize_truncation,
+            terminal_mode=r.terminal_mode,
+            penalize_consumption=r.penalize_consumption,
+            action_cost=r.action_cost,
+            clip=r.clip,
         )
 
 
@@ -135,16 +160,28 @@ def reward(
     ev_after: np.ndarray,
     end: np.ndarray,
     params: PhysiologyParams,
+    *,
+    costly: np.ndarray | None = None,
+    odour: np.ndarray | None = None,
+    thermal: np.ndarray | None = None,
+    consumed: np.ndarray | None = None,
+    collided: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Reward of a decision from the internal state alone.
+    """Reward of a decision from the internal state (and, for ``shaped``, from the senses).
 
     * ``squared`` (default): ``-drive(EV_after)`` — what the original baselines trained on.
     * ``drive_reduction``: ``drive(EV_before) - drive(EV_after)`` — reward for moving toward the set points.
     * ``neg_distance``: ``-|| (EV_after - s) / sigma ||_2`` with sigma_i the largest distance from the set point
       to a bound of EV i.
     * ``sparse``: 0.
+    * ``shaped``: the original's hand-shaped reward, ``sum(odour) / 10 - sum(|thermal|) / 1000 + 100 consumed
+      - 1 collided``, from the 10 odour values, the 8 thermal readings (as the level's thermoception reports
+      them), whether anything was consumed and whether the body collided, all (N, ...) arrays.
 
-    The terminal penalty is added where an EV left its range (and on truncation if ``penalize_truncation``).
+    ``action_cost`` is then subtracted where ``costly`` (a Forward or Eat decision).  The terminal penalty applies
+    where an EV left its range, on truncation if ``penalize_truncation`` and on a single-trial consumption if
+    ``penalize_consumption``; ``terminal_mode`` says whether it is added to the step's reward or replaces it.
+    Last, the reward is clipped to ``[-clip, clip]`` when ``clip`` is set.
     """
     if params.reward == "squared":
         r = -drive(ev_after, params)
@@ -156,9 +193,26 @@ def reward(
         r = -np.sqrt((((ev_after - params.setpoint) / sigma) ** 2).sum(axis=-1))
     elif params.reward == "sparse":
         r = np.zeros(len(ev_after))
+    elif params.reward == "shaped":
+        if odour is None or thermal is None or consumed is None or collided is None:
+            raise ValueError("reward 'shaped' needs odour, thermal, consumed and collided")
+        r = (np.asarray(odour, dtype=np.float64).sum(axis=-1) / SHAPED_ODOUR_DIVISOR
+             - np.abs(np.asarray(thermal, dtype=np.float64)).sum(axis=-1) / SHAPED_HEAT_DIVISOR
+             + SHAPED_CONSUMPTION_BONUS * np.asarray(consumed, dtype=bool)
+             - SHAPED_COLLISION_COST * np.asarray(collided, dtype=bool))
     else:  # the level schema makes this unreachable; guard against direct construction
         raise ValueError(f"reward.name must be one of {', '.join(REWARDS)}, got {params.reward!r}")
+    if params.action_cost and costly is not None:
+        r = r - params.action_cost * np.asarray(costly, dtype=bool)
     penalised = _IS_DEATH[end]
     if params.penalize_truncation:
         penalised = penalised | (end == END_MAX_STEPS)
-    return (r + params.terminal_penalty * penalised).astype(np.float32)
+    if params.penalize_consumption:
+        penalised = penalised | (end == END_RESOURCE)
+    if params.terminal_mode == "replace":
+        r = np.where(penalised, params.terminal_penalty, r)
+    else:
+        r = r + params.terminal_penalty * penalised
+    if params.clip is not None:
+        r = np.clip(r, -params.clip, params.clip)
+    return r.astype(np.float32)

@@ -190,7 +190,9 @@ class Predators:
         self.turn_step = np.radians(col("turn_speed") * DECISION_SECONDS)
         self.half_view = np.radians(col("view_angle") / 2)
         self.view2 = col("view_distance") ** 2
-        self.damage = np.minimum(col("damage"), col("max_damage"))
+        # the original's attack subtracted its damage (it was written when the EV was health)
+        sign = np.array([1.0 if g.attack == "harm" else -1.0 for g in params])
+        self.damage = sign * np.minimum(col("damage"), col("max_damage"))
         self.max_rest = col("max_resting_steps").astype(np.int64)
         self.max_search = col("max_searching_steps").astype(np.int64)
         self.interval = col("search_interval").astype(np.int64)
@@ -232,7 +234,8 @@ class Predators:
         return ((agent_xy[:, None, :] - self.xy) ** 2).sum(-1) <= CONTACT_DISTANCE**2
 
     def step(self, agent_xy: np.ndarray, night: np.ndarray, rngs: list[np.random.Generator]) -> np.ndarray:
-        """Advance every predator one decision; return the damage (N,) their attacks deal to the agents."""
+        """Advance every predator one decision; return the damage (N,) their attacks deal to the agents (negative
+        where predators with ``attack: original`` attack)."""
         damage = np.zeros(self.n)
         if self.k == 0:
             return damage

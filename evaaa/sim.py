@@ -200,6 +200,7 @@ class Simulator:
                                                 self.obstacles.heading[m])
 
         self.sensors = [SENSORS[k](self) for k in self.modalities]
+        self._shaping_senses = (SENSORS["olfaction"](self), SENSORS["thermoception"](self))
         if "pixels" in self.modalities:
             self._make_renderer()
         self.seed(seed)
@@ -359,7 +360,12 @@ class Simulator:
 
     def restore(self, snapshot: dict) -> None:
         """Return to a state taken by :meth:`snapshot` (same level and number of worlds)."""
-        if snapshot["num_worlds"] != self.n or snapshot["level"] != self.level.model_dump(mode="json"):
+        saved = snapshot["level"]
+        try:  # a snapshot from before a level field existed holds that field's default
+            saved = Level.model_validate(saved).model_dump(mode="json")
+        except ValueError:
+            pass
+        if snapshot["num_worlds"] != self.n or saved != self.level.model_dump(mode="json"):
             raise ValueError("this snapshot was taken from a simulator of another level or number of worlds")
         for name, value in snapshot["arrays"].items():
             setattr(self, name, value.copy())
@@ -483,7 +489,7 @@ class Simulator:
         if self.predators.k:
             night = daynight.is_night(self.sun_angle) if self.level.daynight.enabled else self._zeros_bool
             attack = self.predators.step(pos, night, self.rngs)
-            self.attacked = attack > 0
+            self.attacked = attack != 0
             damage = damage + attack
             for w in range(self.n):
                 self._write_predators(w)
@@ -493,12 +499,14 @@ class Simulator:
             self.field_offset = self._temperature_offset(self.sun_angle)
 
         # 5. physiology and 6. senses; one world's frame is drawn here while a helper does the rest
+        costly = (actions == FORWARD) | (actions == EAT)  # what an action cost in the reward charges
         if self.threads > self.n:
             jobs = []
 
             def start_helper():  # once the scene is ready: from here on this thread holds the GIL only briefly
                 jobs.append(self._helper_pool().submit(self._conclude, food_eaten, water_eaten, food_count,
-                                                       water_count, damage, collided, crossed, skip_pixels=True))
+                                                       water_count, damage, collided, crossed, costly,
+                                                       skip_pixels=True))
 
             try:
                 frame = self.render_eye(self._all, before_draw=start_helper)
@@ -508,14 +516,14 @@ class Simulator:
             obs = {"pixels": frame, **obs}  # the canonical order: pixels first
             self.last_obs = obs
             return obs, reward, terminated, truncated, info
-        return self._conclude(food_eaten, water_eaten, food_count, water_count, damage, collided, crossed)
+        return self._conclude(food_eaten, water_eaten, food_count, water_count, damage, collided, crossed, costly)
 
     def _helper_pool(self) -> ThreadPoolExecutor:
         if self._helpers is None:
             self._helpers = ThreadPoolExecutor(self.threads - 1, "evaaa-helper")
         return self._helpers
 
-    def _conclude(self, food_eaten, water_eaten, food_count, water_count, damage, collided, crossed,
+    def _conclude(self, food_eaten, water_eaten, food_count, water_count, damage, collided, crossed, costly,
                   skip_pixels: bool = False):
         """Steps 5 and 6 of a decision: the EVs, the episode end, the reward, the senses (all but the frame with
         ``skip_pixels``) and the info."""
@@ -529,7 +537,12 @@ class Simulator:
         end = phys.end_types(self.ev, self.params, resource_consumed=food_eaten | water_eaten,
                              single_trial=self.level.episode.single_trial, steps=self.steps,
                              max_steps=self.level.episode.max_steps)
-        reward = phys.reward(ev_before, self.ev, end, self.params)
+        shaping = {}
+        if self.params.reward == "shaped":  # the original's hand-shaped reward reads the senses, enabled or not
+            shaping = dict(odour=self._shaping_senses[0].read(self._all),
+                           thermal=self._shaping_senses[1].read(self._all), consumed=food_eaten | water_eaten,
+                           collided=collided)
+        reward = phys.reward(ev_before, self.ev, end, self.params, costly=costly, **shaping)
         truncated = end == phys.END_MAX_STEPS
         terminated = (end != phys.END_NONE) & ~truncated
         success = self._success(end, food_eaten, water_eaten)
@@ -572,6 +585,8 @@ class Simulator:
         rule = self.level.episode.success
         if rule.rule == "survive":
             return end == phys.END_MAX_STEPS
+        if rule.rule == "consume_any":
+            return end == phys.END_RESOURCE
         if rule.rule.startswith("consume"):
             eaten = food_eaten if rule.resource == "food" else water_eaten
             ok = (end == phys.END_RESOURCE) & eaten
@@ -680,10 +695,13 @@ class Simulator:
         angle = self.sun_angle[worlds]
         dark = daynight.darkness(daynight.hour(angle))
         direction, strength = daynight.sun(angle)
-        density = dn.night_fog_density * dark
+        # the light follows evaaa's darkness; fog and far plane follow it too unless the level asks for the
+        # original's schedule
+        haze = daynight.original_darkness(daynight.hour(angle)) if dn.fog_schedule == "original" else dark
+        density = dn.night_fog_density * haze
         # exponential-squared fog of this density hides ~95% at sqrt(3)/density; MuJoCo's fog is linear
         fog_end = np.where(density > 0, np.sqrt(3.0) / np.maximum(density, 1e-9), 0.0)
-        far = dn.day_far + (dn.night_far - dn.day_far) * dark
+        far = dn.day_far + (dn.night_far - dn.day_far) * haze
         self._light_plan = list(zip(dark.tolist(), direction.tolist(), (0.6 * strength).tolist(),
                                     fog_end.tolist(), far.tolist()))
 

@@ -174,6 +174,9 @@ class ObstacleGroup(_Spec):
     padding: NonNegative = 2.0
     #: cells under the obstacle are set to this temperature before smoothing (0: no heat)
     temperature: float = 0.0
+    #: metres the obstacle is raised from resting on the floor; negative sinks it, so that only its top part
+    #: stands above the floor (the original's collision-avoidance blocks show 0.55 m, just above the 0.5 m eye)
+    lift: float = 0.0
 
     @property
     def static(self) -> bool:
@@ -198,6 +201,10 @@ class PredatorGroup(_Spec):
     max_searching_steps: Annotated[int, Field(ge=1)] = 150
     #: a searching predator picks a new landmark every this many decisions
     search_interval: Annotated[int, Field(ge=1)] = 60
+    #: what an attack does each decision: ``harm`` adds ``damage`` to the damage EV (evaaa); ``original`` does what
+    #: the original's code did, subtracting it (healing, floored at 0), so that contact harms only through
+    #: collisions (evaaa's predators never push the agent, so they then do no harm at all)
+    attack: Literal["harm", "original"] = "harm"
 
 
 class Landmarks(_Spec):
@@ -251,6 +258,10 @@ class DayNight(_Spec):
     night_fog_density: NonNegative
     day_far: Positive
     night_far: Positive
+    #: how fog and far plane follow the hour: ``smooth`` (evaaa: full night fog from 21:00 to 03:00) or
+    #: ``original`` (the original's table: half the night fog at 21:00 rising to 5/6 of the way by 02:00, full at
+    #: 03:00; see evaaa.daynight.original_darkness)
+    fog_schedule: Literal["smooth", "original"] = "smooth"
 
 
 # --------------------------------------------------------------------------------------------------- thermal field
@@ -310,16 +321,17 @@ class Success(_Spec):
 
     * ``none``: no criterion (training levels).
     * ``consume``: the episode ended by consuming ``resource`` (single-trial tasks).
+    * ``consume_any``: the episode ended by consuming anything (the paper's rule for risk taking).
     * ``consume_after_trigger``: as ``consume``, after an event trigger was crossed (goal manipulation).
     * ``survive``: alive when the episode reaches ``max_steps``.
     """
 
-    rule: Literal["none", "consume", "consume_after_trigger", "survive"] = "none"
+    rule: Literal["none", "consume", "consume_any", "consume_after_trigger", "survive"] = "none"
     resource: Literal["food", "water"] | None = None
 
     @model_validator(mode="after")
     def _resource_when_consuming(self) -> "Success":
-        if self.rule.startswith("consume") and self.resource is None:
+        if self.rule in ("consume", "consume_after_trigger") and self.resource is None:
             raise ValueError(f"rule '{self.rule}' needs resource: food or water")
         return self
 
@@ -333,13 +345,22 @@ class Episode(_Spec):
 
 
 class Reward(_Spec):
-    name: Literal["squared", "drive_reduction", "neg_distance", "sparse"]
+    name: Literal["squared", "drive_reduction", "neg_distance", "sparse", "shaped"]
     #: added on the step an EV leaves its range
     terminal_penalty: float
     #: also add the terminal penalty when the episode is truncated at max_steps (the original did)
     penalize_truncation: bool
     #: per-EV weights w_i of the squared deviation sum_i w_i (EV_i - setpoint_i)^2 (squared, drive_reduction)
     weights: EVs
+    #: how the terminal penalty meets the step's reward: ``add`` it, or ``replace`` the step's reward with it (the
+    #: original's Python wrapper and its DQN did)
+    terminal_mode: Literal["add", "replace"] = "add"
+    #: also apply the terminal penalty when a single-trial episode ends by consuming a resource (the original did)
+    penalize_consumption: bool = False
+    #: subtracted on every Forward or Eat decision (the original DQN: 0.001)
+    action_cost: NonNegative = 0.0
+    #: the final reward is clipped to [-clip, clip] (the original DQN: 10); null: no clipping
+    clip: Positive | None = None
 
 
 # --------------------------------------------------------------------------------------------------- level

@@ -14,13 +14,15 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
 from .entities import FEEDS, OBSTACLE_KINDS, RESOURCE_KINDS, centre_z, footprint_half
-from .spec import Level
+from .spec import Level, LevelError
 
 FOOD, WATER = 0, 1
 #: Where hidden or unused pooled bodies wait: far below the floor, out of sight and out of reach of rays.
 PARKED_Z = -100.0
 AGENT_HALF = 0.5
 PLACEMENT_TRIES = 100
+#: candidates an obstacle may draw before the episode's layout is declared impossible
+PLACEMENT_LIMIT = 1000
 
 
 @dataclass(frozen=True)
@@ -113,6 +115,7 @@ class ObstaclePool:
     padding: np.ndarray  # (O,)
     temperature: np.ndarray  # (O,)
     half: np.ndarray  # (O, 2) half-sides of the axis-aligned box around each footprint
+    lift: np.ndarray  # (O,) metres raised from resting on the floor (negative: sunk into it)
 
     @property
     def size_total(self) -> int:
@@ -129,9 +132,9 @@ class ObstaclePool:
                 scale = [rng.uniform(lo, hi) for lo, hi in spec.scale]
                 extents = np.array(kind.base) * scale
                 rows.append((g, spec.kind, spec.static, (spec.x[0], spec.y[0]), (spec.x[1], spec.y[1]), extents,
-                             np.radians(spec.heading), spec.padding, spec.temperature))
+                             np.radians(spec.heading), spec.padding, spec.temperature, spec.lift))
         rows.sort(key=lambda r: not r[2])  # static obstacles first: random ones are placed around them
-        cols = list(zip(*rows)) if rows else [()] * 9
+        cols = list(zip(*rows)) if rows else [()] * 10
         kinds = np.array(cols[1], dtype=object)
         extents = np.array(cols[5], dtype=np.float64).reshape(-1, 3)
         heading = np.array(cols[6], dtype=np.float64)
@@ -151,13 +154,15 @@ class ObstaclePool:
             padding=np.array(cols[7], dtype=np.float64),
             temperature=np.array(cols[8], dtype=np.float64),
             half=half,
+            lift=np.array(cols[9], dtype=np.float64),
         )
 
     def centre_z(self) -> np.ndarray:
-        out = np.zeros(self.size_total)
+        """Height of each slot's centre: resting on the floor, raised by its lift."""
+        out = self.lift.copy()
         for k in set(self.kind):
             m = self.kind == k
-            out[m] = centre_z(OBSTACLE_KINDS[k], self.extents[m])
+            out[m] += centre_z(OBSTACLE_KINDS[k], self.extents[m])
         return out
 
 
@@ -173,15 +178,19 @@ def _overlaps(candidates: np.ndarray, half: np.ndarray, placed_xy: np.ndarray, p
 def place_obstacles(pool: ObstaclePool, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Positions (O, 2) and presence (O,) of the obstacles of an episode.
 
-    Static obstacles stand at their fixed spot.  Each other obstacle draws up to 100 candidates in its box and
-    takes the first whose footprint, grown by its padding, overlaps no obstacle placed before it; if none fits,
-    it sits this episode out.
+    Static obstacles stand at their fixed spot.  Each other obstacle draws candidates in its box and takes the
+    first where a square of half-side ``padding`` around the candidate's centre touches no obstacle placed before
+    it (their whole footprints count).  That is the original's test: it sized the candidate's box from the
+    prefab asset's collider, whose bounds Unity reports as empty, so only the padding remained.  The original
+    gave up after 100 candidates and left the obstacle out; here a level always holds every obstacle it lists:
+    after 100 candidates more are drawn, and after :data:`PLACEMENT_LIMIT` the episode cannot be built and a
+    :class:`~evaaa.spec.LevelError` names the group.
     """
     xy = np.zeros((pool.size_total, 2))
     present = np.zeros(pool.size_total, dtype=bool)
     placed_xy, placed_half, m = np.zeros((pool.size_total, 2)), np.zeros((pool.size_total, 2)), 0
-    # all 100 tries of every obstacle that moves are drawn up front, in obstacle order (the generator's stream does
-    # not depend on how many are needed), and tested a few at a time: most obstacles fit at the first or second try
+    # the first 100 tries of every obstacle that moves are drawn up front, in obstacle order (the generator's
+    # stream does not depend on how many are needed), and tested a few at a time: most fit at the first try
     moving = np.flatnonzero(~pool.static)
     tries = rng.uniform(pool.low[moving, None, :], pool.high[moving, None, :], size=(len(moving), PLACEMENT_TRIES, 2))
     row = np.full(pool.size_total, -1)
@@ -190,20 +199,34 @@ def place_obstacles(pool: ObstaclePool, rng: np.random.Generator) -> tuple[np.nd
         if pool.static[o]:
             spot = pool.low[o]
         else:
-            candidates = tries[row[o]]
-            grown = pool.half[o] + pool.padding[o]
-            spot = None
-            for chunk in (candidates[:8], candidates[8:]):
-                free = np.flatnonzero(~_overlaps(chunk, grown, placed_xy[:m], placed_half[:m]))
-                if len(free):
-                    spot = chunk[free[0]]
-                    break
+            spot = _first_free(tries[row[o]], np.full(2, pool.padding[o]), placed_xy[:m], placed_half[:m])
+            drawn = PLACEMENT_TRIES
+            while spot is None and drawn < PLACEMENT_LIMIT:  # a crowded level: keep looking
+                more = rng.uniform(pool.low[o], pool.high[o], size=(PLACEMENT_TRIES, 2))
+                spot = _first_free(more, np.full(2, pool.padding[o]), placed_xy[:m], placed_half[:m])
+                drawn += PLACEMENT_TRIES
             if spot is None:
-                continue
+                group = pool.names[pool.group[o]]
+                number = int((pool.group[:o] == pool.group[o]).sum()) + 1
+                total = int((pool.group == pool.group[o]).sum())
+                raise LevelError(
+                    f"obstacles.{group}: obstacle {number} of {total} found no free spot in {PLACEMENT_LIMIT} "
+                    f"candidates (padding {pool.padding[o]:g} m around its centre must touch no other obstacle); "
+                    f"lower obstacles.{group}.count or padding, or widen its x/y box")
         xy[o], present[o] = spot, True
         placed_xy[m], placed_half[m] = spot, pool.half[o]
         m += 1
     return xy, present
+
+
+def _first_free(candidates: np.ndarray, half: np.ndarray, placed_xy: np.ndarray,
+                placed_half: np.ndarray) -> np.ndarray | None:
+    """The first candidate (2,) whose box overlaps no placed box, or None."""
+    for chunk in (candidates[:8], candidates[8:]):
+        free = np.flatnonzero(~_overlaps(chunk, half, placed_xy, placed_half))
+        if len(free):
+            return chunk[free[0]]
+    return None
 
 
 # ------------------------------------------------------------------------------------------------ agent

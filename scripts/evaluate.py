@@ -16,6 +16,8 @@ Arguments (``key=value``, lists as ``[a,b]``):
                taking its most likely action (default false); said in summary.md
     epsilon    for checkpoints: chance of a uniformly random action at each step (default 0: the policy's
                deterministic action; 0.05 is DQN's customary evaluation epsilon); said in summary.md
+    step_log   also write a per-step behaviour log, out/steps-<UTC time>.csv (one row per world and decision:
+               evaaa.records.STEP_FIELDS) (default false)
 
 Writes to ``out``: ``episodes.csv`` (one row per episode, appended), ``summary.md`` (success rate ± standard
 error per testbed, mean survival ± standard error per training level, one column per policy), ``success.png``,
@@ -38,7 +40,7 @@ from tqdm import tqdm
 import evaaa
 from evaaa.agents import OracleAgent, RandomAgent
 from evaaa.analysis import markdown_table, plot_bars, plot_outcomes, read_episodes, summarize
-from evaaa.records import EpisodeTracker, append_rows
+from evaaa.records import EpisodeTracker, StepLog, append_rows, new_log_path
 
 GROUPS = {"testbeds": evaaa.TESTBEDS, "training": evaaa.LEVELS, "all": evaaa.LEVELS + evaaa.TESTBEDS}
 
@@ -58,6 +60,8 @@ class EvalConfig:
     sample: bool = False
     #: for checkpoints: chance of a uniformly random action at each step (0: deterministic)
     epsilon: float = 0.0
+    #: also write a per-step behaviour log (one file per run)
+    step_log: bool = False
 
 
 def parse(argv: list[str]) -> EvalConfig:
@@ -139,7 +143,7 @@ class Policy:
         return torch.from_numpy(self.agent.act(sim))
 
 
-def run_level(policy: Policy, level: str, cfg: EvalConfig, bar: tqdm) -> list[dict]:
+def run_level(policy: Policy, level: str, cfg: EvalConfig, bar: tqdm, step_log: StepLog | None = None) -> list[dict]:
     env = policy.make_env(level, cfg.num_envs, cfg.seed)
     torch.manual_seed(cfg.seed)  # sampled actions (sample=true) repeat from run to run
     n = cfg.num_envs
@@ -147,6 +151,8 @@ def run_level(policy: Policy, level: str, cfg: EvalConfig, bar: tqdm) -> list[di
     tracker = EpisodeTracker(n, level, policy.name, seed=cfg.seed, acting=policy.acting)
     rows: list[dict] = []
     td = env.reset()
+    if step_log is not None:
+        step_log.start(level, td["info"], seed=cfg.seed, policy=policy.name, acting=policy.acting)
     done_count = np.zeros(n, dtype=int)
     while (done_count < quota).any():
         td["action"] = policy.act(env, td).reshape(env.action_spec.shape)
@@ -154,7 +160,9 @@ def run_level(policy: Policy, level: str, cfg: EvalConfig, bar: tqdm) -> list[di
         nxt = step["next"]
         info = {k: v.reshape(n, -1) for k, v in nxt["info"].items()}
         done = nxt["done"].reshape(n).numpy()
-        finished = tracker.update(nxt["reward"].reshape(n).numpy(), info, done)
+        finished = tracker.update(nxt["reward"].reshape(n).numpy(), info, done, actions=step["action"])
+        if step_log is not None:
+            step_log.update(step["action"], nxt["reward"], info, done, td["info"])
         for w, row in zip(np.flatnonzero(done), finished):  # rows come in the order of the finished worlds
             if done_count[w] < quota[w]:  # a world's episodes beyond its quota are not counted
                 rows.append(row)
@@ -172,11 +180,15 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     policies = [Policy(spec, cfg.seed, cfg.modalities, cfg.epsilon, cfg.sample) for spec in cfg.policy]
     total = len(policies) * len(cfg.levels) * cfg.episodes
+    step_log = StepLog(new_log_path(out)) if cfg.step_log else None
     with tqdm(total=total, desc="episodes", unit="ep", dynamic_ncols=True) as bar:
         for policy in policies:
             for level in cfg.levels:
                 bar.set_postfix_str(f"{policy.name} on {level}")
-                append_rows(out / "episodes.csv", run_level(policy, level, cfg, bar))
+                append_rows(out / "episodes.csv", run_level(policy, level, cfg, bar, step_log))
+    if step_log is not None:
+        step_log.close()
+        print(f"step log: {step_log.path}")
     rows = read_episodes([out / "episodes.csv", *cfg.include])
     rows = rows[rows["level"].isin(cfg.levels)]
     summary = summarize(rows)

@@ -47,7 +47,7 @@ import numpy as np
 import yaml
 
 from evaaa.physiology import END_TYPES, EV_NAMES
-from evaaa.records import EpisodeTracker, append_rows
+from evaaa.records import EpisodeTracker, StepLog, append_rows, new_log_path
 from evaaa.sim import ACTION_NAMES, NUM_ACTIONS, Simulator
 from evaaa.spec import Level, LevelError, level_names, load_level
 
@@ -74,6 +74,7 @@ KEYS: dict[str, str] = {
     "seed": "seed of the worlds' layouts (default 0: every participant meets the same worlds)",
     "rate": "decisions per second; 0 (default) steps once per key press",
     "out": "directory of the records, <out>/episodes.csv (default outputs/human)",
+    "step_log": "true: also log every decision to <out>/steps-<UTC time>.csv (default false)",
 }
 _PARTICIPANT = re.compile(r"[\w.@-]+")
 
@@ -92,6 +93,8 @@ class Options:
     seed: int = 0
     rate: float = 0.0
     out: Path = Path("outputs/human")
+    #: also write a per-step behaviour log (one file per run)
+    step_log: bool = False
     #: dotted-path level overrides (``episode.max_steps=5``), applied to every level played
     overrides: dict[str, Any] = field(default_factory=dict)
 
@@ -152,6 +155,10 @@ def parse_args(argv: list[str]) -> Options:
         raise UsageError(f"participant={given['participant']}: use letters, digits and . _ @ - only")
     if "out" in given:
         given["out"] = Path(given["out"])
+    if "step_log" in given:
+        if given["step_log"] not in ("true", "false"):
+            raise UsageError(f"step_log={given['step_log']}: expected true or false")
+        given["step_log"] = given["step_log"] == "true"
     options = Options(**given, overrides=overrides)
     try:  # fail here, before a port is taken, on an unknown level or a bad override
         load_level(options.level, options.overrides)
@@ -190,6 +197,8 @@ class PlaySession:
         self.sim: Simulator | None = None
         self.tracker: EpisodeTracker | None = None
         self.done = False
+        self.step_log = (StepLog(new_log_path(options.out), policy="human", participant=options.participant)
+                         if options.step_log else None)
         self._run(self._reset, options.level)
 
     def _run(self, fn: Callable[..., Any], *args: Any) -> Any:
@@ -210,6 +219,8 @@ class PlaySession:
     def close(self) -> None:
         if self.sim is not None:
             self._run(self.sim.close)
+        if self.step_log is not None:
+            self._run(self.step_log.close)
         self._worker.shutdown()
 
     # -------------------------------------------------------------------------------- on the worker thread
@@ -239,6 +250,8 @@ class PlaySession:
                                       participant=self.options.participant, seed=self.options.seed)
         self.tracker.episodes = self.episode
         self.frame = self.sim.reset()["pixels"][0]
+        if self.step_log is not None:
+            self.step_log.start(self.level.name, self.sim.last_info, seed=self.options.seed)
         self.done, self.end_type, self.returned, self.record_error = False, None, 0.0, None
         return self._state()
 
@@ -249,7 +262,9 @@ class PlaySession:
         self.frame = obs["pixels"][0]
         self.returned += float(reward[0])
         self.done = bool(terminated[0] or truncated[0])
-        rows = self.tracker.update(reward, info, terminated | truncated)
+        rows = self.tracker.update(reward, info, terminated | truncated, actions=np.array([action]))
+        if self.step_log is not None:
+            self.step_log.update(np.array([action]), reward, info, terminated | truncated)
         if self.done:
             self.end_type = END_TYPES[int(info["end_type"][0, 0])]
             try:

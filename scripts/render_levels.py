@@ -88,7 +88,7 @@ def plot_thermal(ax, sim: Simulator, world: int = 0, *, colorbar: bool = True, f
         cb.set_label("floor temperature (°C)")
     present = sim.res_present[world]
     for kind, colour, marker, name in ((FOOD, "red", "s", "food"), (WATER, "dodgerblue", "s", "water")):
-        sel = present & (sim.pool.kind == kind)
+        sel = present & (sim.pool.feeds == kind)  # apples count as food, the pond as water
         if sel.any():
             xy = sim.res_xy[world, sel]
             ax.scatter(xy[:, 0], xy[:, 1], s=18, c=colour, marker=marker, edgecolors="white", linewidths=0.6,

@@ -51,7 +51,9 @@ def check_composed(cfg, algo: str, level: str, modality: str, reward: str, logge
     keys = observation_keys(cfg)
     dropped = modality.removeprefix("no_").replace("vision", "pixels")
     assert keys == (evaaa.MODALITIES if modality == "all" else tuple(k for k in evaaa.MODALITIES if k != dropped))
-    assert env_overrides(cfg)["reward"]["name"] == reward
+    # an option either names the level's reward function or sets the level's reward fields (original, dqn)
+    assert env_overrides(cfg)["reward"]["name"] == cfg.reward.get("overrides", {"name": reward})["name"]
+    evaaa.load_level(level if level != "curriculum" else "1-1", env_overrides(cfg))
     assert cfg.run.name == f"{level}/{algo}/{modality}-{reward}/seed{cfg.seed}"
     assert [s.level for s in stages(cfg)] == (list(evaaa.LEVELS) if level == "curriculum" else [level])
 
@@ -60,7 +62,7 @@ def test_group_options_are_the_documented_ones():
     assert options("algo") == sorted([*ALGOS, "dreamer", "dreamer_xs"])  # DreamerV3: tests/test_dreamer.py
     assert options("modality") == sorted(["all", "no_interoception", "no_vision", "no_olfaction", "no_thermoception",
                                           "no_collision"])
-    assert options("reward") == sorted(evaaa.REWARDS)
+    assert options("reward") == sorted([*evaaa.REWARDS, "original", "dqn"])
     assert options("logger") == ["csv", "tensorboard", "wandb"]
 
 

@@ -40,12 +40,14 @@ class CollisionRays(Sensor):
         shapes += [RECT] * 4
         halves.append(wall_half)
         headings.append(np.zeros(4))
-        for kinds, names, extents, heading in ((OBSTACLE_KINDS, obstacles.kind, obstacles.extents, obstacles.heading),
-                                               (RESOURCE_KINDS, pool.kind, pool.extents, pool.heading)):
+        for kinds, names, extents, heading, lift in (
+                (OBSTACLE_KINDS, obstacles.kind, obstacles.extents, obstacles.heading, obstacles.lift),
+                (RESOURCE_KINDS, pool.kind, pool.extents, pool.heading, np.zeros(pool.size_total))):
             half = np.zeros((len(names), 2))
             for name in set(names):
                 m = names == name
-                _, half[m] = cross_section(kinds[name], extents[m], z)
+                # a thing raised by ``lift`` is cut at the rays' height where a resting one is cut lower by as much
+                _, half[m] = cross_section(kinds[name], extents[m], z - lift[m])
             shapes += [RECT if kinds[name].shape == "box" else ELLIPSE for name in names]
             halves.append(half)
             headings.append(heading)
