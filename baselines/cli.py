@@ -134,8 +134,10 @@ def _choices(choices: Sequence[Any] | Callable[[], Sequence[Any]]) -> list[Any]:
 
 
 # ------------------------------------------------------------------------------------------------- parsing
-def read(schema: type[T], argv: Sequence[str]) -> T:
-    """``argv`` (``key=value`` strings) over ``schema``'s defaults.  Raises :class:`UsageError` with one line."""
+def read(schema: type[T], argv: Sequence[str], checks: bool = True) -> T:
+    """``argv`` (``key=value`` strings) over ``schema``'s defaults.  Raises :class:`UsageError` with one line.
+    ``checks=False`` checks keys and types only, not the allowed values (a documentation test of commands whose
+    files do not exist here)."""
     hints = typing.get_type_hints(schema)
     fields = {f.name: f for f in dataclasses.fields(schema)}
     keys = ", ".join(fields)
@@ -170,7 +172,7 @@ def read(schema: type[T], argv: Sequence[str]) -> T:
         if top not in fields:
             raise UsageError(f"{str(err).splitlines()[0]} (see --help)") from None
         raise UsageError(f"{top}={_given(argv, top)}: expected {_expected(hints[top])}") from None
-    for f in dataclasses.fields(schema):
+    for f in dataclasses.fields(schema) if checks else ():
         value = getattr(cfg, f.name)
         items = value if isinstance(value, list) else [value]
         choices, check = f.metadata.get("choices"), f.metadata.get("check")

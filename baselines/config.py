@@ -8,7 +8,9 @@ beside them (``curriculum.yaml``) and would take precedence over a registered na
 
 from __future__ import annotations
 
+import copy
 import re
+import sys
 import textwrap
 from dataclasses import dataclass
 from pathlib import Path
@@ -186,9 +188,12 @@ def _one_line(err: BaseException) -> str:
     return " ".join(str(err).split("\n")[0].split())
 
 
+_DEFAULTS: dict[tuple[str, ...], DictConfig] = {}
+
+
 def compose_checked(overrides: list[str]) -> DictConfig:
     """The training config of one job composed as ``scripts/train.py`` would, and :func:`validate`-d.  Call it inside
-    ``hydra.initialize_config_dir(CONF_DIR)``.  Raises :class:`ConfigError` naming the key."""
+    ``hydra.initialize_config_dir(CONF_DIR)``, after :func:`register_levels`.  Raises :class:`ConfigError` naming the key."""
     from hydra import compose
     from hydra.core.global_hydra import GlobalHydra
     from hydra.errors import MissingConfigException, OverrideParseException
@@ -206,10 +211,13 @@ def compose_checked(overrides: list[str]) -> DictConfig:
             options = loader.get_group_options(group)
             if options and o.value() not in options:
                 raise ConfigError(f"{o.input_line}: no option '{o.value()}' in {group}; allowed: {', '.join(options)}")
-    try:
-        defaults = compose("config", overrides=chosen)
-    except MissingConfigException as err:
-        raise ConfigError(_one_line(err)) from None
+    key = tuple(chosen)
+    if key not in _DEFAULTS:  # a sweep composes the same groups' defaults again and again
+        try:
+            _DEFAULTS[key] = compose("config", overrides=chosen)
+        except MissingConfigException as err:
+            raise ConfigError(_one_line(err)) from None
+    defaults = _DEFAULTS[key]
     try:
         cfg = compose("config", overrides=list(overrides))
     except Exception as err:  # noqa: BLE001  (Hydra's composition errors have no common narrower base)
@@ -229,7 +237,11 @@ def compose_checked(overrides: list[str]) -> DictConfig:
             raise ConfigError(f"unknown key '{full_key}'; keys here: {keys} (see --help)") from None
         raise ConfigError(_one_line(err)) from None
     validate(cfg, defaults)
+    _LAST[:] = [cfg, defaults]
     return cfg
+
+
+_LAST: list[DictConfig] = []  # the last config compose_checked composed, and its defaults
 
 
 def job_overrides(overrides: list[str], multirun: bool) -> list[list[str]]:
@@ -259,6 +271,50 @@ def job_overrides(overrides: list[str], multirun: bool) -> list[list[str]]:
         for value in values[1:]:
             jobs.append([*base[:i], line(i, value), *base[i + 1:]])
     return jobs
+
+
+def check_overrides(overrides: list[str], multirun: bool) -> None:
+    """Compose and check every job of :func:`job_overrides`; a job that differs from the first only in the value of
+    a plain key (``seed=0,1,2``) is checked by setting that value in the first job's config, which is much faster
+    than composing it again and gives the same verdict.  Raises :class:`ConfigError`."""
+    jobs = job_overrides(overrides, multirun)
+    compose_checked(jobs[0])
+    first, defaults = _LAST
+    from hydra.core.global_hydra import GlobalHydra
+
+    groups = set(GlobalHydra.instance().config_loader().list_groups(""))
+    parser = OverridesParser.create()
+    for job in jobs[1:]:
+        changed = [parser.parse_override(new) for new, old in zip(job, jobs[0]) if new != old]
+        if len(changed) != 1 or _group_of(changed[0], groups) or changed[0].key_or_group.startswith("hydra"):
+            compose_checked(job)
+            continue
+        trial = copy.deepcopy(first)
+        with open_dict(trial):
+            OmegaConf.update(trial, changed[0].key_or_group, changed[0].value(), force_add=True)
+        validate(trial, defaults)
+
+
+def check_command_line(argv: list[str], doc: str = "") -> None:
+    """``scripts/train.py``'s command line, before Hydra starts (and writes anything): ``--help`` prints
+    :func:`help_text` and exits 0; a malformed value, unknown key or option prints one line naming it and exits 2.
+    Every job of a sweep is composed and checked.  Hydra's other flags are Hydra's (``--hydra-help``, ``--info``)."""
+    from hydra import initialize_config_dir
+    from hydra._internal.utils import get_args_parser
+
+    register_levels()
+    args = get_args_parser().parse_args(argv)  # Hydra's own flags, parsed as Hydra will (a bad flag exits 2 here)
+    if args.hydra_help or args.info or args.shell_completion:
+        return
+    with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
+        try:
+            if args.help:
+                print(help_text(args.overrides, "train.py", doc.split("\n\n")[0].replace("``", "")))
+                raise SystemExit(0)
+            check_overrides(args.overrides, args.multirun)
+        except ConfigError as err:
+            print(f"train.py: error: {err}", file=sys.stderr)
+            raise SystemExit(2) from None
 
 
 # ------------------------------------------------------------------------------------------------- --help
@@ -376,7 +432,10 @@ def _kind(full: str, value: Any) -> str:
     """A key's type as --help names it."""
     if value is None:
         kinds = NULLABLE.get(full)
-        return "any" if kinds is None else " or ".join({dict: "mapping"}.get(t, t.__name__) for t in kinds) + " or null"
+        if kinds is None:
+            return "any"
+        kinds = tuple(t for t in kinds if not (t is int and float in kinds))  # an int is a float here
+        return " or ".join({dict: "mapping"}.get(t, t.__name__) for t in kinds) + " or null"
     if OmegaConf.is_list(value):
         return "list"
     if OmegaConf.is_dict(value):

@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a check
 
 import evaaa  # noqa: E402,F401  (sets MUJOCO_GL before mujoco loads)
 from baselines import train  # noqa: E402
-from baselines.config import CONF_DIR, ConfigError, compose_checked, help_text, job_overrides, register_levels  # noqa: E402,E501
+from baselines.config import CONF_DIR, check_command_line, register_levels  # noqa: E402
 
 register_levels()
 # a crash in native code (MuJoCo, OpenGL, torch) leaves every thread's Python stack in the run's output
@@ -43,27 +43,6 @@ def main(cfg: DictConfig) -> None:
         raise SystemExit(130) from None
 
 
-def check_command_line(argv: list[str]) -> None:
-    """Before Hydra starts (and writes anything): ``--help`` lists every key; a malformed value, unknown key or
-    option is one line naming it, exit status 2.  Every job of a sweep is composed and checked."""
-    from hydra import initialize_config_dir
-    from hydra._internal.utils import get_args_parser
-
-    args = get_args_parser().parse_args(argv)  # Hydra's own flags, parsed as Hydra will (bad flags exit 2 here)
-    if args.hydra_help or args.info or args.shell_completion:
-        return
-    with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
-        try:
-            if args.help:
-                print(help_text(args.overrides, "train.py", __doc__.split("\n\n")[0]))
-                raise SystemExit(0)
-            for job in job_overrides(args.overrides, args.multirun):
-                compose_checked(job)
-        except ConfigError as err:
-            print(f"train.py: error: {err}", file=sys.stderr)
-            raise SystemExit(2) from None
-
-
 if __name__ == "__main__":
-    check_command_line(sys.argv[1:])
+    check_command_line(sys.argv[1:], __doc__)  # --help, and a malformed override: before Hydra writes anything
     main()
