@@ -144,7 +144,7 @@ def read(schema: type[T], argv: Sequence[str], checks: bool = True) -> T:
     given = OmegaConf.create()
     for arg in argv:
         key, sep, text = arg.partition("=")
-        key = key.removeprefix("+")  # Hydra's "+key=value" (add a key) means the same here
+        key = key.lstrip("+")  # Hydra's "+key=value" and "++key=value" (add a key) mean the same here
         if not sep or not key:
             raise UsageError(f"'{arg}' is not of the form key=value; keys: {keys} (see --help)")
         top = key.split(".")[0]
@@ -193,7 +193,7 @@ def read(schema: type[T], argv: Sequence[str], checks: bool = True) -> T:
 
 def _given(argv: Sequence[str], key: str) -> str:
     """The text the user gave for ``key`` (the last one, as OmegaConf keeps the last)."""
-    texts = [a.partition("=")[2] for a in argv if a.partition("=")[0].removeprefix("+") == key]
+    texts = [a.partition("=")[2] for a in argv if a.partition("=")[0].lstrip("+") == key]
     return texts[-1] if texts else ""
 
 

@@ -193,7 +193,8 @@ _DEFAULTS: dict[tuple[str, ...], DictConfig] = {}
 
 def compose_checked(overrides: list[str]) -> DictConfig:
     """The training config of one job composed as ``scripts/train.py`` would, and :func:`validate`-d.  Call it inside
-    ``hydra.initialize_config_dir(CONF_DIR)``, after :func:`register_levels`.  Raises :class:`ConfigError` naming the key."""
+    ``hydra.initialize_config_dir(CONF_DIR)``, after :func:`register_levels`.  Raises :class:`ConfigError` naming
+    the key."""
     from hydra import compose
     from hydra.core.global_hydra import GlobalHydra
     from hydra.errors import MissingConfigException, OverrideParseException

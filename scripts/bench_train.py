@@ -142,7 +142,8 @@ def table(rows: list[Throughput]) -> str:
 @dataclass
 class BenchConfig:
     algos: list[str] = option(list(DEFAULT_ALGOS), "algorithms to train, one after another", choices=ALGOS)
-    level: str = option("1-1", "level or testbed trained on", choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS, "curriculum"])
+    level: str = option("1-1", "level or testbed trained on",
+                        choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS, "curriculum"])
     minutes: float = option(3.0, "wall-clock training time per algorithm", check=(lambda v: v > 0, "a positive number"))
     threads: int | None = option(None, "torch threads (null: torch's default)",
                                  check=(lambda v: v >= 1, "a positive integer"))
