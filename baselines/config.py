@@ -305,8 +305,9 @@ def check_command_line(argv: list[str], doc: str = "") -> None:
 
     register_levels()
     args = get_args_parser().parse_args(argv)  # Hydra's own flags, parsed as Hydra will (a bad flag exits 2 here)
-    if args.hydra_help or args.info or args.shell_completion:
-        return
+    if args.hydra_help or args.info or args.shell_completion or args.config_name or args.config_path or \
+            args.config_dir:
+        return  # Hydra's own answers, or another config than conf/config.yaml: Hydra checks it
     with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
         try:
             if args.help:
