@@ -8,13 +8,14 @@ ARGS ?=
 setup:
 	@bash scripts/setup.sh
 
+# Every script takes key=value arguments (python scripts/<name>.py --help lists them); ARGS passes them on.
 # the main job: train a baseline (Hydra overrides in ARGS, e.g. make train ARGS="algo=dreamer level=3-2")
 train: setup
 	$(PY) scripts/train.py $(ARGS)
 
 # a quick look: a short random-policy rollout that writes a video and prints steps/s
 demo: setup
-	$(PY) scripts/demo.py
+	$(PY) scripts/demo.py $(ARGS)
 
 test: setup
 	$(PY) -m pytest -q
@@ -23,7 +24,7 @@ test-fast: setup
 	$(PY) -m pytest -q -m "not slow"
 
 bench: setup
-	$(PY) scripts/bench_env.py
+	$(PY) scripts/bench_env.py $(ARGS)
 
 pictures: setup
-	$(PY) scripts/render_levels.py
+	$(PY) scripts/render_levels.py $(ARGS)

@@ -70,6 +70,44 @@ def display_names(rows: pd.DataFrame) -> pd.Series:
     return rows["policy"].where(acting == "", rows["policy"] + " [" + acting + "]")
 
 
+def short_labels(names: Sequence[str]) -> tuple[dict[str, str], str]:
+    """Figure labels for policy names: a checkpoint path shortened to the path components in which the checkpoints
+    shown differ (``runs/1-1/ppo/all-squared/seed0/model-0-1-1.pt`` and ``runs/1-1/dqn/...`` become ``ppo`` and
+    ``dqn``), how it acted (`` [sample]``) kept; other names (oracle, random, human) unchanged.  Also returns a note
+    that says what the labels stand for (``checkpoints: runs/1-1/<label>/all-squared/seed0/model-0-1-1.pt``), or
+    ``""`` when nothing was shortened.  Full paths made legends wider than the plot and pushed labels off the image."""
+    def split(name: str) -> tuple[str, str]:
+        base, bracket, rest = name.partition(" [")
+        return base, bracket + rest
+
+    paths = list(dict.fromkeys(b for b, _ in map(split, names) if "/" in b or b.endswith(".pt")))
+    short: dict[str, str] = {}
+    note = ""
+    if len(paths) == 1:
+        parts = Path(paths[0]).parts
+        if len(parts) > 2:
+            short[paths[0]] = "/".join(parts[-2:])
+            note = f"{short[paths[0]]}: {paths[0]}"
+    elif paths:
+        parts = [Path(p).parts for p in paths]
+        shortest = min(map(len, parts))
+        head = 0
+        while head < shortest - 1 and len({p[head] for p in parts}) == 1:
+            head += 1
+        tail = 0
+        while tail < shortest - head - 1 and len({p[len(p) - 1 - tail] for p in parts}) == 1:
+            tail += 1
+        labels = {p: "/".join(q[head:len(q) - tail]) for p, q in zip(paths, parts)}
+        if len(set(labels.values())) == len(labels) and all(labels.values()):
+            short = labels
+            note = "checkpoints: " + "/".join([*parts[0][:head], "<label>", *parts[0][len(parts[0]) - tail:]])
+    out = {}
+    for name in names:
+        base, acting = split(name)
+        out[name] = short.get(base, base) + acting
+    return out, note
+
+
 def summarize(rows: pd.DataFrame) -> pd.DataFrame:
     """One row per (level, policy and how it acted): episodes, success rate and survival, each with its standard
     error; the ``policy`` column holds :func:`display_names`."""
@@ -120,6 +158,8 @@ def plot_bars(summary: pd.DataFrame, value: str, error: str, path: str | Path, *
     import matplotlib.pyplot as plt
 
     levels = list(dict.fromkeys(summary["level"]))
+    names, note = short_labels(list(dict.fromkeys(summary["policy"])))
+    summary = summary.assign(policy=summary["policy"].map(names))
     policies = list(dict.fromkeys(summary["policy"]))
     width = 0.8 / max(len(policies), 1)
     fig, ax = plt.subplots(figsize=(max(6.0, 1.1 * len(levels) + 2), 4.2))
@@ -131,12 +171,14 @@ def plot_bars(summary: pd.DataFrame, value: str, error: str, path: str | Path, *
     ax.set_xticks(x, levels, rotation=30, ha="right")
     ax.set_ylabel(ylabel)
     ax.set_title(title)
-    # long names (checkpoint paths) go beside the axes, not over the bars
+    # the legend goes beside the axes, not over the bars
     ax.legend(frameon=False, fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.spines[["top", "right"]].set_visible(False)
-    fig.tight_layout(rect=(0, 0, 0.78 if max(map(len, policies)) > 12 else 0.88, 1))
+    if note:
+        fig.text(0.01, 0.01, note, fontsize=7, color="0.35")
+    fig.tight_layout(rect=(0, 0.04 if note else 0, 0.78 if max(map(len, policies)) > 12 else 0.88, 1))
     path = Path(path)
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=120, bbox_inches="tight")  # whatever the labels, nothing is cut off
     plt.close(fig)
     return path
 
@@ -145,6 +187,8 @@ def plot_outcomes(rows: pd.DataFrame, path: str | Path, *, title: str = "What ha
     """Per level and policy, the share of episodes by outcome (success, wrong resource, cause of death,
     timeout), with the mean number of collisions written above each bar."""
     rows = rows.assign(policy=display_names(rows))
+    names, note = short_labels(list(dict.fromkeys(rows["policy"])))
+    rows = rows.assign(policy=rows["policy"].map(names))
     import matplotlib
 
     matplotlib.use("Agg")
@@ -179,9 +223,9 @@ def plot_outcomes(rows: pd.DataFrame, path: str | Path, *, title: str = "What ha
         ax.set_ylabel("share of episodes", fontsize=8)
     handles, labels = axes[0][0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="lower center", ncols=4, frameon=False, fontsize=8)
-    fig.suptitle(f"{title} (numbers: mean collisions per episode)", fontsize=10)
-    fig.tight_layout(rect=(0, 0.9 / (3.2 * nrows + 0.9), 1, 0.96))
+    fig.suptitle(f"{title} (numbers: mean collisions per episode)" + (f"\n{note}" if note else ""), fontsize=10)
+    fig.tight_layout(rect=(0, 0.9 / (3.2 * nrows + 0.9), 1, 0.93 if note else 0.96))
     path = Path(path)
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=120, bbox_inches="tight")  # rotated labels and the legend stay inside the image
     plt.close(fig)
     return path

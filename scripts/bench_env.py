@@ -17,18 +17,20 @@ nothing), and so the most any single env can keep of raw; the cost of a reset in
 long run.
 
     python scripts/bench_env.py                      # level 1-1, all settings
-    python scripts/bench_env.py --level 1-2 --steps 2000 --json bench.json
+    python scripts/bench_env.py level=1-2 steps=2000 json=bench.json
+
+Arguments are ``key=value``, the keys of :class:`BenchConfig`; ``--help`` lists them.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import multiprocessing as mp
 import os
 import platform
 import sys
 import time
+from dataclasses import dataclass
 from functools import partial
 
 import numpy as np
@@ -41,6 +43,8 @@ from evaaa.render import BatchRenderer
 from evaaa.sim import Simulator, default_threads
 from evaaa.spec import load_level
 from evaaa.scene import GROUP_AGENT
+from baselines import cli
+from baselines.cli import option
 
 torch.set_num_threads(1)
 
@@ -240,22 +244,23 @@ def measure(args) -> dict:
     return results
 
 
+@dataclass
+class BenchConfig:
+    level: str = option("1-1", "level or testbed whose scene is measured",
+                        choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS])
+    steps: int = option(3000, "decisions per setting (the first 50 warm up)",
+                        check=(lambda v: v > 60, "more than 60 (the first 50 decisions warm up)"))
+    num_envs: int = option(8, "worlds of the batched setting", check=(lambda v: v >= 1, "a positive integer"))
+    resets: int = option(50, "resets timed for the cost of a reset", check=(lambda v: v >= 1, "a positive integer"))
+    memory_steps: int = option(20000, "steps of the memory run (resident memory is sampled every 1000 steps)",
+                               check=(lambda v: v >= 2000, "at least 2000 (memory is sampled every 1000 steps)"))
+    skip_parallel: bool = option(False, "leave out the ParallelEnv settings")
+    json: str | None = option(None, "also write the figures to this file")
+
+
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--level", default="1-1")
-    parser.add_argument("--steps", type=int, default=3000, help="decisions per setting")
-    parser.add_argument("--num-envs", type=int, default=8, help="worlds of the batched setting")
-    parser.add_argument("--resets", type=int, default=50)
-    parser.add_argument("--memory-steps", type=int, default=20000)
-    parser.add_argument("--skip-parallel", action="store_true", help="leave out the ParallelEnv settings")
-    parser.add_argument("--json", help="also write the figures to this file")
-    args = parser.parse_args(argv)
-    if args.steps <= 60:
-        parser.error("--steps must exceed the 50 warm-up decisions")
-    if args.num_envs < 1 or args.resets < 1:
-        parser.error("--num-envs and --resets must be positive")
-    if args.memory_steps < 2000:
-        parser.error("--memory-steps must be at least 2000 (memory is sampled every 1000 steps)")
+    args = cli.parse(BenchConfig, argv, prog="bench_env.py", description=__doc__.split("\n\n")[0],
+                     examples=["", "level=4-2 steps=1500 skip_parallel=true json=docs/bench_env_4-2.json"])
     results = measure(args)
     if args.json:
         with open(args.json, "w") as f:

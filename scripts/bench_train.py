@@ -1,28 +1,30 @@
 """Training throughput of each baseline: env steps and gradient steps per second of the whole training loop.
 
     python scripts/bench_train.py                                 # ppo, ppo_lstm, dqn, dreamer_xs: 3 minutes each
-    python scripts/bench_train.py --algos ppo,dqn --minutes 2 --threads 1
-    python scripts/bench_train.py --algos dreamer --minutes 10    # DreamerV3 size S: ~10 s per gradient step here
-    python scripts/bench_train.py --runs runs/acceptance/*/seed0  # the same figures for runs already made
+    python scripts/bench_train.py algos=[ppo,dqn] minutes=2 threads=1
+    python scripts/bench_train.py algos=[dreamer] minutes=10      # DreamerV3 size S: ~10 s per gradient step here
+    python scripts/bench_train.py "runs=[runs/acceptance/*/seed0]"  # the same figures for runs already made
 
 Each algorithm trains with its defaults (``scripts/train.py algo=<name> level=<level>``, ``env.num_envs=8``, all
-modalities) for ``--minutes`` of wall time in a scratch run directory, one after another, so that the runs do not
+modalities) for ``minutes`` of wall time in a scratch run directory, one after another, so that the runs do not
 share the machine.  The figures come from the run's own log (``logs/scalars/time/env_steps_per_s.csv``: env steps
 per second of the session so far, written every ``log_every`` env steps, and the gradient-step counter where the
 algorithm logs one; a resumed run's sessions, found in its ``train.log``, are added up):
 
 * **whole run**: env steps / wall time from the start of training to the last log row (warm-up, evaluations and
   checkpoints included);
-* **steady**: the rate between the log row closest to ``--skip`` of the run's time and the last row, i.e. after
+* **steady**: the rate between the log row closest to ``skip`` of the run's time and the last row, i.e. after
   warm-up (DreamerV3 collects its first 1,024 steps with a random policy, much faster than it trains).
 
 Evaluations and checkpoints are pushed beyond the budget (``eval.every=0``, ``checkpoint.every`` larger than any run)
 so that both rates measure training alone; the final evaluation and model of the stage are not timed.
+
+Arguments are ``key=value`` (lists as ``[a,b]``), the keys of :class:`BenchConfig`; ``--help`` lists them.
 """
 
 from __future__ import annotations
 
-import argparse
+import glob
 import json
 import os
 import platform
@@ -35,6 +37,12 @@ from pathlib import Path
 
 import pandas as pd
 from omegaconf import OmegaConf
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
+
+import evaaa  # noqa: E402
+from baselines import cli  # noqa: E402
+from baselines.cli import option  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 ALGOS = ("dqn", "ppo", "ppo_lstm", "dreamer", "dreamer_xs")
@@ -58,11 +66,11 @@ def read_throughput(run_dir: Path, algo: str, skip: float = 0.25) -> Throughput:
     rate_file = run_dir / "logs" / "scalars" / "time" / "env_steps_per_s.csv"
     if not rate_file.exists():
         raise SystemExit(f"bench_train.py: {algo}: no {rate_file.relative_to(run_dir)} in {run_dir} (the run logged "
-                         "nothing: give it more --minutes, or see its train.log)")
+                         "nothing: give it more minutes=, or see its train.log)")
     rates = pd.read_csv(rate_file, header=None, names=["step", "rate"]).drop_duplicates("step", keep="last")
     rates = rates[rates["rate"] > 0]
     if len(rates) < 2:
-        raise SystemExit(f"bench_train.py: {algo}: fewer than two log rows in {rate_file}; give it more --minutes")
+        raise SystemExit(f"bench_train.py: {algo}: fewer than two log rows in {rate_file}; give it more minutes=")
     # each row's rate is (step - the session's first step) / the session's seconds so far; a resumed run has a
     # session per resume (train.log: "resuming ... env step N"), laid end to end on one wall-time axis
     starts = resume_steps(run_dir)
@@ -131,27 +139,34 @@ def table(rows: list[Throughput]) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--algos", default=",".join(DEFAULT_ALGOS), help=f"comma-separated, from {', '.join(ALGOS)}")
-    parser.add_argument("--level", default="1-1")
-    parser.add_argument("--minutes", type=float, default=3.0, help="wall-clock training time per algorithm")
-    parser.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
-    parser.add_argument("--skip", type=float, default=0.25, help="share of each run left out of the steady rates")
-    parser.add_argument("--keep", help="keep the run directories under this folder (default: a temporary one)")
-    parser.add_argument("--json", help="also write the figures to this file")
-    parser.add_argument("--runs", nargs="+", help="report these finished run directories instead of training")
-    parser.add_argument("overrides", nargs="*", help="more train.py overrides for every run, e.g. env.num_envs=16")
-    args = parser.parse_args(argv)
-    algos = [a.strip() for a in args.algos.split(",") if a.strip()]
-    unknown = [a for a in algos if a not in ALGOS]
-    if unknown or not algos:
-        parser.error(f"--algos: unknown {', '.join(unknown) or '(none given)'}; allowed: {', '.join(ALGOS)}")
-    if args.minutes <= 0:
-        parser.error("--minutes must be positive")
-    if not 0 <= args.skip < 1:
-        parser.error("--skip must be in [0, 1)")
+@dataclass
+class BenchConfig:
+    algos: list[str] = option(list(DEFAULT_ALGOS), "algorithms to train, one after another", choices=ALGOS)
+    level: str = option("1-1", "level or testbed trained on",
+                        choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS, "curriculum"])
+    minutes: float = option(3.0, "wall-clock training time per algorithm", check=(lambda v: v > 0, "a positive number"))
+    threads: int | None = option(None, "torch threads (null: torch's default)",
+                                 check=(lambda v: v >= 1, "a positive integer"))
+    skip: float = option(0.25, "share of each run left out of the steady rates (warm-up)",
+                         check=(lambda v: 0 <= v < 1, "a number in [0, 1)"))
+    keep: str | None = option(None, "keep the run directories under this folder (null: a temporary one)")
+    json: str | None = option(None, "also write the figures to this file")
+    runs: list[str] | None = option(None, "report these finished run directories (glob patterns allowed) instead of "
+                                          "training")
+    overrides: list[str] = option([], "more train.py overrides for every run, e.g. [env.num_envs=16,preset=debug]")
 
+
+def main(argv: list[str] | None = None) -> int:
+    args = cli.parse(BenchConfig, argv, prog="bench_train.py", description=__doc__.split("\n\n")[0],
+                     examples=["algos=[ppo,dqn] minutes=2 threads=1", '"runs=[runs/acceptance/*/seed0]"'])
+    algos = args.algos
+    if not algos and args.runs is None:
+        cli.fail("bench_train.py", f"algos=[]: name at least one of {', '.join(ALGOS)}")
+    if args.runs is not None:  # patterns are expanded here, so that they may be quoted on the command line
+        args.runs = [d for pattern in args.runs for d in (sorted(glob.glob(pattern)) or [pattern])]
+    for d in args.runs or ():
+        if not (Path(d) / ".hydra" / "config.yaml").is_file():
+            cli.fail("bench_train.py", f"runs: {d} is not a run directory of scripts/train.py (no .hydra/config.yaml)")
     if args.runs:
         rows = [read_throughput(Path(d), run_algo(Path(d)), args.skip) for d in args.runs]
         print(f"evaaa bench_train: {len(rows)} existing runs")

@@ -1,7 +1,7 @@
 """A short rollout of a random policy through the TorchRL env, as a video and plots.
 
 Steps ``make_env(level, num_envs=N, seed=S)`` with uniformly random actions through ``env.step_and_maybe_reset``
-(so worlds whose episode ended start a new one) and writes, for world 0, to ``--out``:
+(so worlds whose episode ended start a new one) and writes, for world 0, to ``out``:
 
 * ``rollout.mp4``     each decision: the egocentric view (upscaled x4) beside bars of the four essential variables
                       with their viable ranges (10 fps, mp4v; an animated GIF or PNG frames if mp4 is unavailable);
@@ -12,14 +12,16 @@ At the end it prints the env's steps per second over the rollout (worlds x decis
 drawing and encoding the video are not counted) and the paths written.
 
     python scripts/demo.py                                   # level 1-1, 1 env, 500 steps -> outputs/demo/
-    python scripts/demo.py --level 1-2 --steps 2000 --num-envs 4 --seed 1 --out /tmp/demo
+    python scripts/demo.py level=1-2 steps=2000 num_envs=4 seed=1 out=/tmp/demo
+
+Arguments are ``key=value``, the keys of :class:`DemoConfig`; ``--help`` lists them.
 """
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import evaaa  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
@@ -34,6 +36,8 @@ from tqdm import tqdm  # noqa: E402
 
 from evaaa import END_TYPES, EV_NAMES, make_env  # noqa: E402
 from evaaa.physiology import PhysiologyParams  # noqa: E402
+from baselines import cli  # noqa: E402
+from baselines.cli import option  # noqa: E402
 
 FPS = 10
 EYE_SCALE = 4
@@ -178,37 +182,24 @@ def plot_traces(path: Path, evs: np.ndarray, ends: list[tuple[int, str]], params
 
 
 # ------------------------------------------------------------------------------------------------- main
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="demo.py",
-        description="Roll out a random policy through the evaaa TorchRL env and write, for world 0, a video of "
-                    "the egocentric view beside the four essential-variable bars (rollout.mp4), its last frame "
-                    "(final_frame.png) and a plot of the EVs over time (ev_traces.png). Prints the env's steps/s "
-                    "(video drawing and encoding excluded).",
-        epilog="example: python scripts/demo.py --level 1-2 --steps 1000 --num-envs 2 --seed 3",
-    )
-    parser.add_argument("--level", default="1-1", help=f"level to play (default: 1-1; available: "
-                                                       f"{', '.join(evaaa.LEVELS + evaaa.TESTBEDS)})")
-    parser.add_argument("--steps", type=int, default=500, help="decisions to take (default: 500)")
-    parser.add_argument("--num-envs", type=int, default=1, help="worlds stepped together; the video shows world 0 "
-                                                                  "(default: 1)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the env and of the random actions (default: 0)")
-    parser.add_argument("--out", type=Path, default=Path("outputs/demo"),
-                        help="output directory, created if missing (default: outputs/demo)")
-    return parser
+@dataclass
+class DemoConfig:
+    level: str = option("1-1", "level or testbed to play", choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS])
+    steps: int = option(500, "decisions to take", check=(lambda v: v >= 1, "a positive integer"))
+    num_envs: int = option(1, "worlds stepped together; the video shows world 0",
+                           check=(lambda v: v >= 1, "a positive integer"))
+    seed: int = option(0, "seed of the env and of the random actions")
+    out: Path = option(Path("outputs/demo"), "output directory, created if missing")
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if args.steps < 1:
-        parser.error(f"--steps must be at least 1, got {args.steps}")
-    if args.num_envs < 1:
-        parser.error(f"--num-envs must be at least 1, got {args.num_envs}")
-    try:
-        level = evaaa.load_level(args.level)
-    except evaaa.LevelError as exc:
-        parser.error(str(exc))
+    args = cli.parse(DemoConfig, argv, prog="demo.py",
+                     description="Roll out a random policy through the evaaa TorchRL env and write, for world 0, a "
+                                 "video of the egocentric view beside the four essential-variable bars "
+                                 "(rollout.mp4), its last frame (final_frame.png) and a plot of the EVs over time "
+                                 "(ev_traces.png). Prints the env's steps/s (video drawing and encoding excluded).",
+                     examples=["level=1-2 steps=1000 num_envs=2 seed=3"])
+    level = evaaa.load_level(args.level)
     args.out.mkdir(parents=True, exist_ok=True)
 
     env = make_env(args.level, num_envs=args.num_envs, seed=args.seed)

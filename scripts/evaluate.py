@@ -3,21 +3,8 @@
     python scripts/evaluate.py policy=[oracle,random] levels=testbeds episodes=20
     python scripts/evaluate.py policy=runs/ppo-1-1/checkpoint.pt levels=[1-1,two-resource-food] episodes=20
 
-Arguments (``key=value``, lists as ``[a,b]``):
-    policy     oracle, random, or a checkpoint path of a baseline; a list evaluates each (default [oracle,random])
-    levels     level and testbed names, or testbeds / training / all (default testbeds)
-    episodes   episodes per level and policy (default 20)
-    num_envs   worlds run together (default 4)
-    seed       seed of the envs (and the random agent); the same for every policy, so they face the same draws
-    out        output directory (default outputs/eval)
-    include    episode CSV files to add to the report (e.g. human play records from scripts/play.py)
-    modalities for checkpoints: observation keys to evaluate with; a checkpoint trained on others is refused
-    sample     for checkpoints: act by sampling from the policy's action distribution (PPO, DreamerV3) instead of
-               taking its most likely action (default false); said in summary.md
-    epsilon    for checkpoints: chance of a uniformly random action at each step (default 0: the policy's
-               deterministic action; 0.05 is DQN's customary evaluation epsilon); said in summary.md
-    step_log   also write a per-step behaviour log, out/steps-<UTC time>.csv (one row per world and decision:
-               evaaa.records.STEP_FIELDS) (default false)
+Arguments are ``key=value`` (lists as ``[a,b]``), the keys of :class:`EvalConfig`; ``--help`` lists them with their
+types, defaults and meanings.
 
 Writes to ``out``: ``episodes.csv`` (one row per episode, appended), ``summary.md`` (success rate ± standard
 error per testbed, mean survival ± standard error per training level, one column per policy), ``success.png``,
@@ -28,16 +15,16 @@ EV, ran out of time; mean collisions).
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
-from omegaconf import OmegaConf
-from omegaconf.errors import OmegaConfBaseException
 from tqdm import tqdm
 
 import evaaa
+from baselines import cli
+from baselines.cli import option
 from evaaa.agents import OracleAgent, RandomAgent
 from evaaa.analysis import markdown_table, plot_bars, plot_outcomes, read_episodes, summarize
 from evaaa.records import EpisodeTracker, StepLog, append_rows, new_log_path
@@ -45,53 +32,44 @@ from evaaa.records import EpisodeTracker, StepLog, append_rows, new_log_path
 GROUPS = {"testbeds": evaaa.TESTBEDS, "training": evaaa.LEVELS, "all": evaaa.LEVELS + evaaa.TESTBEDS}
 
 
+def _policy_ok(spec: str) -> bool:
+    return spec in ("oracle", "random") or Path(spec).is_file()
+
+
 @dataclass
 class EvalConfig:
-    policy: list[str] = field(default_factory=lambda: ["oracle", "random"])
-    levels: list[str] = field(default_factory=lambda: ["testbeds"])
-    episodes: int = 20
-    num_envs: int = 4
-    seed: int = 0
-    out: str = "outputs/eval"
-    include: list[str] = field(default_factory=list)
-    #: for checkpoints: the observation keys to evaluate with (default: those it was trained on)
-    modalities: list[str] | None = None
-    #: for checkpoints: sample actions from the policy's distribution instead of taking the most likely one
-    sample: bool = False
-    #: for checkpoints: chance of a uniformly random action at each step (0: deterministic)
-    epsilon: float = 0.0
-    #: also write a per-step behaviour log (one file per run)
-    step_log: bool = False
+    policy: list[str] = option(["oracle", "random"], "oracle, random, or a checkpoint file of a baseline; a list "
+                               "evaluates each", check=(_policy_ok, "oracle, random or an existing checkpoint file"))
+    levels: list[str] = option(["testbeds"], "level and testbed names, or the groups testbeds, training, all",
+                               choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS, *GROUPS])
+    episodes: int = option(20, "episodes per level and policy", check=(lambda v: v >= 1, "a positive integer"))
+    num_envs: int = option(4, "worlds run together", check=(lambda v: v >= 1, "a positive integer"))
+    seed: int = option(0, "seed of the envs (and the random agent); the same for every policy, so they face the "
+                          "same draws")
+    out: str = option("outputs/eval", "output directory")
+    include: list[str] = option([], "episode CSV files to add to the report (e.g. human play records of "
+                                    "scripts/play.py)", check=(lambda p: Path(p).is_file(), "existing files"))
+    modalities: list[str] | None = option(None, "for checkpoints: the observation keys to evaluate with (default: "
+                                                "those it was trained on; a checkpoint trained on others is refused)",
+                                          choices=lambda: evaaa.MODALITIES)
+    sample: bool = option(False, "for checkpoints: sample actions from the policy's distribution (PPO, DreamerV3) "
+                                 "instead of taking the most likely one; said in summary.md")
+    epsilon: float = option(0.0, "for checkpoints: chance of a uniformly random action at each step (0: the "
+                                 "policy's own action; 0.05 is DQN's customary evaluation epsilon); said in "
+                                 "summary.md", check=(lambda v: 0.0 <= v <= 1.0, "a number in [0, 1]"))
+    step_log: bool = option(False, "also write a per-step behaviour log, out/steps-<UTC time>.csv (one row per "
+                                   "world and decision: evaaa.records.STEP_FIELDS)")
 
 
-def parse(argv: list[str]) -> EvalConfig:
-    """``key=value`` arguments over the defaults; single values where lists are expected become lists."""
-    schema = OmegaConf.structured(EvalConfig)
-    given = OmegaConf.from_dotlist(argv)
-    for key in ("policy", "levels", "include", "modalities"):
-        if key in given and not OmegaConf.is_list(given[key]):
-            given[key] = [given[key]]
-    try:
-        cfg = OmegaConf.to_object(OmegaConf.merge(schema, given))
-    except OmegaConfBaseException as err:
-        allowed = ", ".join(EvalConfig.__dataclass_fields__)
-        raise SystemExit(f"evaluate.py: {err.msg if hasattr(err, 'msg') else err}\n  allowed keys: {allowed}")
+def parse(argv: list[str] | None = None) -> EvalConfig:
+    """The config from ``key=value`` arguments (``--help`` lists the keys); level groups expanded, in order."""
+    cfg = cli.parse(EvalConfig, argv, prog="evaluate.py", description=__doc__.split("\n\n")[0],
+                    examples=["policy=[oracle,random] levels=testbeds episodes=20",
+                              "policy=[runs/1-1/ppo/all-squared/seed0/model-0-1-1.pt,random] levels=[1-1] sample=true"])
     levels: list[str] = []
     for name in cfg.levels:
-        for level in GROUPS.get(name, (name,)):
-            if level not in evaaa.LEVELS + evaaa.TESTBEDS:
-                raise SystemExit(f"evaluate.py: unknown level {level!r}; available: "
-                                 f"{', '.join(evaaa.LEVELS + evaaa.TESTBEDS)} or {', '.join(GROUPS)}")
-            if level not in levels:
-                levels.append(level)
+        levels += [level for level in GROUPS.get(name, (name,)) if level not in levels]
     cfg.levels = levels
-    if cfg.episodes < 1 or cfg.num_envs < 1:
-        raise SystemExit("evaluate.py: episodes and num_envs must be positive")
-    if not 0.0 <= cfg.epsilon <= 1.0:
-        raise SystemExit(f"evaluate.py: epsilon must be in [0, 1], got {cfg.epsilon}")
-    for path in cfg.include:
-        if not Path(path).is_file():
-            raise SystemExit(f"evaluate.py: include file {path} does not exist")
     return cfg
 
 
@@ -114,8 +92,8 @@ class Policy:
 
             try:
                 self.loaded = load_policy(path, modalities=modalities)
-            except ValueError as err:
-                raise SystemExit(f"evaluate.py: {err}") from None
+            except ValueError as err:  # e.g. modalities= names keys the checkpoint was not trained on
+                cli.fail("evaluate.py", f"policy={spec}: {err}")
         # a checkpoint is named by its path: reports look the run's configuration up from it
         self.name = spec if self.loaded is None else str(path)
         # how it acts, recorded with every episode so that evaluations made in different ways stay apart
@@ -175,7 +153,7 @@ def run_level(policy: Policy, level: str, cfg: EvalConfig, bar: tqdm, step_log: 
 
 
 def main(argv: list[str] | None = None) -> int:
-    cfg = parse(sys.argv[1:] if argv is None else argv)
+    cfg = parse(argv)
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     policies = [Policy(spec, cfg.seed, cfg.modalities, cfg.epsilon, cfg.sample) for spec in cfg.policy]

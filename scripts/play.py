@@ -9,7 +9,7 @@ rows the evaluation tool writes for agents, so a report can put people beside th
 
     python scripts/play.py level=1-1 participant=p01                 # then open http://127.0.0.1:8000/
     python scripts/play.py level=1-2 participant=p02 rate=5 seed=3 port=8080 out=outputs/human
-    python scripts/play.py level=1-1 episode.max_steps=200           # a dotted key overrides a level field
+    python scripts/play.py level=1-1 overrides.episode.max_steps=200 # any level field, by its dotted path
 
 Keys: up = forward, left/right = turn, space = eat, period = do nothing, Enter = new episode once one ended.
 Steps advance on each key press; with ``rate=R`` they advance R times a second instead, a second without a
@@ -35,7 +35,7 @@ import sys
 import traceback
 from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any, NoReturn
@@ -44,12 +44,13 @@ from urllib.parse import urlsplit
 import evaaa  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
 import cv2
 import numpy as np
-import yaml
 
 from evaaa.physiology import END_TYPES, EV_NAMES
 from evaaa.records import EpisodeTracker, StepLog, append_rows, new_log_path
 from evaaa.sim import ACTION_NAMES, NUM_ACTIONS, Simulator
 from evaaa.spec import Level, LevelError, level_names, load_level
+from baselines import cli
+from baselines.cli import option
 
 # the sibling script render_levels draws the top-down view with the agent marked; make it importable however
 # this file is loaded (as a script, scripts/ is on the path already; under a test runner it is not)
@@ -65,17 +66,6 @@ MAX_RATE = 30.0
 MAX_BODY_BYTES = 4096
 #: a larger body is still read (and dropped) up to this size, so that its sender gets the refusal
 DRAIN_BYTES = 1 << 20
-#: the built-in keys and what each sets; any other key must be a dotted level override
-KEYS: dict[str, str] = {
-    "level": "level or testbed to play (default 1-1)",
-    "participant": "participant id written to every record (default anonymous)",
-    "host": "address to listen on (default 127.0.0.1: this machine only)",
-    "port": "port to listen on (default 8000; 0 picks a free one)",
-    "seed": "seed of the worlds' layouts (default 0: every participant meets the same worlds)",
-    "rate": "decisions per second; 0 (default) steps once per key press",
-    "out": "directory of the records, <out>/episodes.csv (default outputs/human)",
-    "step_log": "true: also log every decision to <out>/steps-<UTC time>.csv (default false)",
-}
 _PARTICIPANT = re.compile(r"[\w.@-]+")
 
 
@@ -86,84 +76,56 @@ class UsageError(ValueError):
 
 @dataclass(frozen=True)
 class Options:
-    level: str = "1-1"
-    participant: str = "anonymous"
-    host: str = "127.0.0.1"
-    port: int = 8000
-    seed: int = 0
-    rate: float = 0.0
-    out: Path = Path("outputs/human")
-    #: also write a per-step behaviour log (one file per run)
-    step_log: bool = False
-    #: dotted-path level overrides (``episode.max_steps=5``), applied to every level played
-    overrides: dict[str, Any] = field(default_factory=dict)
+    """The keys of the command line (``key=value``, as every script; ``--help`` lists them)."""
+
+    level: str = option("1-1", "level or testbed to play (the page can switch to another)", choices=level_names)
+    participant: str = option("anonymous", "participant id written to every record (letters, digits, . _ @ -)",
+                              check=(lambda v: bool(_PARTICIPANT.fullmatch(v)), "letters, digits and . _ @ - only"))
+    host: str = option("127.0.0.1", "address to listen on (127.0.0.1: this machine only)")
+    port: int = option(8000, "port to listen on (0 picks a free one)",
+                       check=(lambda v: 0 <= v <= 65535, "a port in [0, 65535]"))
+    seed: int = option(0, "seed of the worlds' layouts (the same for every participant: they meet the same worlds)",
+                       check=(lambda v: 0 <= v < 2**63, "an integer in [0, 2**63)"))
+    rate: float = option(0.0, f"decisions per second; 0 steps once per key press (at most {MAX_RATE:g})",
+                         check=(lambda v: 0 <= v <= MAX_RATE, f"a number in [0, {MAX_RATE:g}]"))
+    out: Path = option(Path("outputs/human"), "directory of the records, <out>/episodes.csv")
+    step_log: bool = option(False, "also log every decision to <out>/steps-<UTC time>.csv (one row per decision: "
+                                   "evaaa.records.STEP_FIELDS)")
+    #: level fields by dotted path (``episode.max_steps: 5``), applied to every level played
+    overrides: dict[str, Any] = option({}, "any level field by its dotted path, as in make_env, e.g. "
+                                           "overrides.episode.max_steps=200 (null removes an entry)")
+
+
+DESCRIPTION = "Serve a page where a person plays an evaaa level with the keyboard; every finished episode is recorded."
 
 
 def usage() -> str:
-    keys = "\n".join(f"  {key}=...{' ' * (12 - len(key))}{what}" for key, what in KEYS.items())
-    return (
-        "usage: python scripts/play.py [key=value ...]\n\n"
-        "Serve a page where a person plays an evaaa level with the keyboard; every finished episode is recorded.\n\n"
-        f"keys:\n{keys}\n"
-        "  a.b.c=value     override a level field by dotted path (value read as YAML), e.g. episode.max_steps=200\n\n"
-        f"levels: {', '.join(level_names())}\n"
-        "example: python scripts/play.py level=1-1 participant=p01 rate=5"
-    )
+    return cli.usage(Options, "play.py", DESCRIPTION, ["level=1-1 participant=p01 rate=5",
+                                                       "level=1-1 overrides.episode.max_steps=200"])
 
 
-def _number(key: str, text: str, low: int | float, high: int | float) -> int | float:
-    """``text`` as a number of the type of ``low`` and ``high``, inside [low, high]."""
-    kind = type(low)
-    try:
-        value = kind(text)
-    except ValueError:
-        raise UsageError(f"{key}={text}: expected {'an integer' if kind is int else 'a number'}") from None
-    if not low <= value <= high:
-        raise UsageError(f"{key}={text}: expected a value in [{low:g}, {high:g}]" if kind is float
-                         else f"{key}={text}: expected a value in [{low}, {high}]")
-    return value
+def _dotted(overrides: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested overrides as ``{"a.b": value}``, the form make_env and load_level document."""
+    flat: dict[str, Any] = {}
+    for key, value in overrides.items():
+        if isinstance(value, Mapping) and value:
+            flat.update(_dotted(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
 
 
 def parse_args(argv: list[str]) -> Options:
-    """Read Hydra-style ``key=value`` arguments; a dotted key is a level override.  Raises :class:`UsageError`."""
-    given: dict[str, Any] = {}
-    overrides: dict[str, Any] = {}
-    for arg in argv:
-        key, sep, text = arg.partition("=")
-        key = key.lstrip("+")  # Hydra's "+key=value" (add a key) means the same here
-        if not sep or not key:
-            raise UsageError(f"'{arg}' is not of the form key=value\n\n{usage()}")
-        if "." in key:
-            try:
-                overrides[key] = yaml.safe_load(text)  # as in make_env, null (or nothing) removes an entry
-            except yaml.YAMLError as exc:
-                raise UsageError(f"{arg}: the value is not valid YAML ({exc.problem})") from None
-        elif key not in KEYS:
-            raise UsageError(f"unknown key '{key}'; allowed: {', '.join(KEYS)}, or a dotted level override "
-                             "such as episode.max_steps=200")
-        elif key in given:
-            raise UsageError(f"{key}= is given twice")
-        else:
-            given[key] = text
-    if "port" in given:
-        given["port"] = _number("port", given["port"], 0, 65535)
-    if "seed" in given:
-        given["seed"] = _number("seed", given["seed"], 0, 2**63 - 1)
-    if "rate" in given:
-        given["rate"] = _number("rate", given["rate"], 0.0, MAX_RATE)
-    if "participant" in given and not _PARTICIPANT.fullmatch(given["participant"]):
-        raise UsageError(f"participant={given['participant']}: use letters, digits and . _ @ - only")
-    if "out" in given:
-        given["out"] = Path(given["out"])
-    if "step_log" in given:
-        if given["step_log"] not in ("true", "false"):
-            raise UsageError(f"step_log={given['step_log']}: expected true or false")
-        given["step_log"] = given["step_log"] == "true"
-    options = Options(**given, overrides=overrides)
-    try:  # fail here, before a port is taken, on an unknown level or a bad override
+    """The options from ``key=value`` arguments.  Raises :class:`UsageError` (one line naming the key)."""
+    try:
+        options = cli.read(Options, argv)
+    except cli.UsageError as exc:
+        raise UsageError(str(exc)) from None
+    options = replace(options, overrides=_dotted(options.overrides))
+    try:  # fail here, before a port is taken, on a bad override
         load_level(options.level, options.overrides)
     except LevelError as exc:
-        raise UsageError(str(exc)) from None
+        raise UsageError("overrides: " + " ".join(str(exc).split())) from None
     return options
 
 

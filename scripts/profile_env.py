@@ -1,32 +1,40 @@
 """Where an env step's time goes: cProfile over TorchRL steps (random actions), the costliest functions first.
 
     python scripts/profile_env.py                        # level 1-1, 1 world, 2000 steps
-    python scripts/profile_env.py --level 4-2 --num-envs 8 --steps 500 --top 30
+    python scripts/profile_env.py level=4-2 num_envs=8 steps=500 top=30
 
 The profiler adds its own cost per Python call; compare the shares, and take speeds from scripts/bench_env.py.
 The env steps and draws every world in the calling thread here (``threads=1``), so that the profile shows it all:
-cProfile sees one thread only.
+cProfile sees one thread only.  Arguments are ``key=value``, the keys of :class:`ProfileConfig` (``--help``).
 """
 
 from __future__ import annotations
 
-import argparse
 import cProfile
 import os
 import pstats
+from dataclasses import dataclass
 
 import torch
 
 import evaaa
+from baselines import cli
+from baselines.cli import option
+
+
+@dataclass
+class ProfileConfig:
+    level: str = option("1-1", "level or testbed to step", choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS])
+    num_envs: int = option(1, "worlds stepped together", check=(lambda v: v >= 1, "a positive integer"))
+    steps: int = option(2000, "decisions profiled (after 100 of warm-up)", check=(lambda v: v >= 1,
+                                                                                  "a positive integer"))
+    top: int = option(20, "functions listed, costliest first (by own time; PROFILE_SORT=cumulative sorts by "
+                          "cumulative time)", check=(lambda v: v >= 1, "a positive integer"))
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--level", default="1-1", choices=[*evaaa.LEVELS, *evaaa.TESTBEDS])
-    parser.add_argument("--num-envs", type=int, default=1)
-    parser.add_argument("--steps", type=int, default=2000)
-    parser.add_argument("--top", type=int, default=20, help="functions listed, by own time")
-    args = parser.parse_args(argv)
+    args = cli.parse(ProfileConfig, argv, prog="profile_env.py", description=__doc__.split("\n\n")[0],
+                     examples=["level=4-2 num_envs=8 steps=500 top=30"])
     torch.set_num_threads(1)
     env = evaaa.EvaaaEnv(args.level, num_envs=args.num_envs, seed=0, threads=1)
     generator = torch.Generator().manual_seed(0)

@@ -1,6 +1,6 @@
 """Pictures of each level right after a reset: what the agent sees, the world from above, and the thermal field.
 
-For every chosen level, after ``reset()`` with ``--seed``, four PNGs are written to ``--out``:
+For every chosen level, after ``reset()`` with ``seed``, four PNGs are written to ``out``:
 
 * ``<level>_eye.png``      the 64x64 egocentric frame, upscaled x4 (nearest neighbour, pixels stay crisp);
 * ``<level>_top.png``      the top-down render (512x512) with the agent's position and heading marked;
@@ -8,14 +8,16 @@ For every chosen level, after ``reset()`` with ``--seed``, four PNGs are written
 * ``<level>_overview.png`` the three side by side, for the README.
 
     python scripts/render_levels.py                          # every level in evaaa.LEVELS -> docs/images/
-    python scripts/render_levels.py --levels 1-2 --seed 3 --out /tmp/pics
+    python scripts/render_levels.py levels=[1-2] seed=3 out=/tmp/pics
+
+Arguments are ``key=value`` (lists as ``[a,b]``), the keys of :class:`RenderConfig`; ``--help`` lists them.
 """
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import evaaa  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
@@ -29,6 +31,8 @@ import numpy as np  # noqa: E402
 from evaaa.sim import Simulator  # noqa: E402
 from evaaa.spec import Level  # noqa: E402
 from evaaa.worldgen import AGENT_HALF, FOOD, WATER  # noqa: E402
+from baselines import cli  # noqa: E402
+from baselines.cli import option  # noqa: E402
 
 EYE_SCALE = 4
 TOP_SIZE = 512
@@ -164,31 +168,22 @@ def render_level(level: Level, out: Path, seed: int) -> list[Path]:
 
 
 # ------------------------------------------------------------------------------------------------- main
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="render_levels.py",
-        description="Render pictures of evaaa levels after a reset: the agent's 64x64 eye (upscaled x4), a "
-                    "512x512 top-down view with the agent marked, the thermal field with food/water/agent, and an "
-                    "overview combining the three. Writes <level>_{eye,top,thermal,overview}.png.",
-        epilog="example: python scripts/render_levels.py --levels 1-1 1-2 --out docs/images --seed 0",
-    )
-    parser.add_argument("--levels", nargs="+", metavar="LEVEL", default=list(evaaa.LEVELS),
-                        help=f"levels to render (default: all of evaaa.LEVELS = {' '.join(evaaa.LEVELS)})")
-    parser.add_argument("--out", type=Path, default=Path("docs/images"),
-                        help="output directory, created if missing (default: docs/images)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the reset that lays out each world (default: 0)")
-    return parser
+@dataclass
+class RenderConfig:
+    levels: list[str] = option(list(evaaa.LEVELS), "levels and testbeds to render",
+                               choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS])
+    out: Path = option(Path("docs/images"), "output directory, created if missing")
+    seed: int = option(0, "seed of the reset that lays out each world")
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    levels = []
-    for name in args.levels:
-        try:
-            levels.append(evaaa.load_level(name))
-        except evaaa.LevelError as exc:
-            parser.error(str(exc))  # exits with status 2, naming the available levels
+    args = cli.parse(RenderConfig, argv, prog="render_levels.py",
+                     description="Render pictures of evaaa levels after a reset: the agent's 64x64 eye (upscaled "
+                                 "x4), a 512x512 top-down view with the agent marked, the thermal field with "
+                                 "food/water/agent, and an overview combining the three. Writes "
+                                 "<level>_{eye,top,thermal,overview}.png.",
+                     examples=["levels=[1-1,1-2] out=docs/images seed=0", "levels=[two-resource-food,y-maze]"])
+    levels = [evaaa.load_level(name) for name in args.levels]
     args.out.mkdir(parents=True, exist_ok=True)
     for level in levels:
         for path in render_level(level, args.out, args.seed):

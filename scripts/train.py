@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a check
 
 import evaaa  # noqa: E402,F401  (sets MUJOCO_GL before mujoco loads)
 from baselines import train  # noqa: E402
-from baselines.config import CONF_DIR, register_levels  # noqa: E402
+from baselines.config import CONF_DIR, check_command_line, register_levels  # noqa: E402
 
 register_levels()
 # a crash in native code (MuJoCo, OpenGL, torch) leaves every thread's Python stack in the run's output
@@ -44,4 +44,5 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    check_command_line(sys.argv[1:], __doc__)  # --help, and a malformed override: before Hydra writes anything
     main()

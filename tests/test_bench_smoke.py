@@ -16,8 +16,8 @@ def load_bench():
 
 def test_bench_reports_ratios_reset_cost_and_memory(tmp_path):
     out = tmp_path / "bench.json"
-    code = load_bench().main(["--steps", "80", "--num-envs", "2", "--resets", "2", "--memory-steps", "2000",
-                              "--skip-parallel", "--json", str(out)])
+    code = load_bench().main(["steps=80", "num_envs=2", "resets=2", "memory_steps=2000", "skip_parallel=true",
+                              f"json={out}"])
     assert code == 0
     figures = json.loads(out.read_text())
     names = [row["setting"] for row in figures["settings"]]
@@ -41,15 +41,24 @@ def test_bench_reports_ratios_reset_cost_and_memory(tmp_path):
     assert len(figures["memory"]["samples_mb"]) == 2
 
 
-def test_bench_rejects_bad_arguments():
-    with pytest.raises(SystemExit):
-        load_bench().main(["--steps", "10"])
+@pytest.mark.parametrize("args, message", [
+    (["steps=10"], "steps=10: expected more than 60"),
+    (["level=1-3"], "level=1-3: '1-3' is not allowed; allowed: 1-1, 1-2"),
+    (["steps=abc"], "steps=abc: expected an integer"),
+    (["--steps", "80"], "'--steps' is not of the form key=value"),
+])
+def test_bench_rejects_bad_arguments_in_one_line(args, message, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        load_bench().main(args)
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.count("\n") == 1 and message in err, err
 
 
 def test_profile_lists_the_render_and_the_physics_among_the_costliest_calls(capsys):
-    assert load_script("profile_env").main(["--steps", "30", "--num-envs", "2", "--top", "40"]) == 0
+    assert load_script("profile_env").main(["steps=30", "num_envs=2", "top=40"]) == 0
     printed = capsys.readouterr().out
     assert printed.startswith("evaaa profile_env: level 1-1, num_envs=2, 30 steps")
     assert "mjr_render" in printed and "mj_step" in printed
-    with pytest.raises(SystemExit):
-        load_script("profile_env").main(["--level", "9-9"])
+    with pytest.raises(SystemExit) as exit_:
+        load_script("profile_env").main(["level=9-9"])
+    assert exit_.value.code == 2 and "level=9-9: '9-9' is not allowed" in capsys.readouterr().err

@@ -48,16 +48,18 @@ def test_a_run_that_logged_nothing_is_a_clear_error(tmp_path):
 
 
 def test_unknown_algorithm_names_the_allowed_ones(capsys):
-    with pytest.raises(SystemExit):
-        load_bench().main(["--algos", "ppo,a2c"])
-    assert "unknown a2c; allowed: dqn, ppo, ppo_lstm, dreamer, dreamer_xs" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:
+        load_bench().main(["algos=[ppo,a2c]"])
+    assert exit_.value.code == 2
+    assert "algos=[ppo,a2c]: 'a2c' is not allowed; allowed: dqn, ppo, ppo_lstm, dreamer, dreamer_xs" in \
+        capsys.readouterr().err
 
 
 @pytest.mark.slow
 def test_a_short_real_run_reports_env_and_gradient_steps(tmp_path):
     out = tmp_path / "bench.json"
-    code = load_bench().main(["--algos", "ppo", "--minutes", "0.25", "--threads", "1", "--keep", str(tmp_path / "runs"),
-                              "--json", str(out), "preset=debug"])
+    code = load_bench().main(["algos=[ppo]", "minutes=0.25", "threads=1", f"keep={tmp_path / 'runs'}", f"json={out}",
+                              "overrides=[preset=debug]"])
     assert code == 0
     row = json.loads(out.read_text())["rows"][0]
     assert row["algo"] == "ppo" and row["env_steps"] > 0 and row["steady_env_steps_per_s"] > 0
@@ -70,11 +72,12 @@ def test_existing_runs_are_reported_with_their_algorithm(tmp_path, capsys):
     write_log(run, [(100, 50.0), (200, 50.0), (300, 50.0)], [(100, 10), (200, 20), (300, 30)])
     (run / ".hydra").mkdir()
     (run / ".hydra" / "config.yaml").write_text("algo:\n  name: dqn\n")
-    assert load_bench().main(["--runs", str(run), "--json", str(tmp_path / "out.json")]) == 0
+    assert load_bench().main([f"runs=[{tmp_path}/r*]", f"json={tmp_path / 'out.json'}"]) == 0  # a pattern
     row = json.loads((tmp_path / "out.json").read_text())["rows"][0]
     assert row["algo"] == "dqn" and row["steady_gradient_steps_per_s"] == pytest.approx(5.0)
-    with pytest.raises(SystemExit, match="not a run directory"):
-        load_bench().main(["--runs", str(tmp_path)])
+    with pytest.raises(SystemExit) as exit_:
+        load_bench().main([f"runs={tmp_path}"])
+    assert exit_.value.code == 2 and "not a run directory" in capsys.readouterr().err
 
 
 def test_a_resumed_run_adds_its_sessions_wall_time(tmp_path):

@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from evaaa.analysis import markdown_table, outcome, read_episodes, summarize
+from evaaa.analysis import markdown_table, outcome, plot_bars, plot_outcomes, read_episodes, short_labels, summarize
 from evaaa.physiology import END_TYPES
 from evaaa.records import EPISODE_FIELDS, EpisodeTracker, append_rows, read_rows
 
@@ -120,3 +120,32 @@ def test_episode_files_from_before_the_acting_column_still_read(tmp_path):
         writer.writerow(row)
     rows = read_episodes([path])
     assert list(rows["acting"]) == [""] and summarize(rows)["policy"].tolist() == ["random"]
+
+
+def test_figures_label_checkpoints_by_what_differs_in_their_paths(tmp_path, monkeypatch):
+    a, b = "runs/1-1/ppo/all-squared/seed0/model-0-1-1.pt", "runs/1-1/dqn/all-squared/seed0/model-0-1-1.pt"
+    names, note = short_labels(["oracle", a, f"{b} [mode+epsilon=0.05]", b])
+    assert names == {"oracle": "oracle", a: "ppo", f"{b} [mode+epsilon=0.05]": "dqn [mode+epsilon=0.05]", b: "dqn"}
+    assert note == "checkpoints: runs/1-1/<label>/all-squared/seed0/model-0-1-1.pt"
+    one, note = short_labels(["random", a])
+    assert one[a] == "seed0/model-0-1-1.pt" and note == f"seed0/model-0-1-1.pt: {a}"
+    assert short_labels(["random", "human"]) == ({"random": "random", "human": "human"}, "")
+
+    import matplotlib.figure
+
+    shown: list[str] = []
+    real_savefig = matplotlib.figure.Figure.savefig
+
+    def savefig(fig, *args, **kwargs):  # every text the figure draws: legends, tick labels, titles
+        shown.extend(t.get_text() for t in fig.findobj(matplotlib.text.Text))
+        return real_savefig(fig, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", savefig)
+    rows = pd.DataFrame({"level": ["two-resource-food"] * 3, "policy": [a, b, "random"], "success": [True, False, True],
+                         "steps": [10, 20, 30], "collisions": [0, 1, 2], "end_type": ["ResourceConsumed"] * 3,
+                         "food_eaten": [1, 0, 1], "water_eaten": [0, 1, 0]})
+    plot_bars(summarize(rows), "success_rate", "success_se", tmp_path / "s.png", ylabel="%", title="t")
+    plot_outcomes(rows, tmp_path / "o.png")
+    assert {"ppo", "dqn", "random"} <= set(shown)
+    assert not any(a in t or b in t for t in shown if not t.startswith("checkpoints: ") and "\n" not in t)
+    assert any("checkpoints: runs/1-1/<label>/all-squared/seed0/model-0-1-1.pt" in t for t in shown)

@@ -443,22 +443,24 @@ def test_command_line_writes_the_report(world, tmp_path, capsys):
 @pytest.mark.parametrize("args, message", [
     ([], "nothing to report"),
     (["runs=[/no/such/dir]"], "is not a directory"),
-    (["colour=red"], "allowed keys"),
-    (["runs"], "arguments are key=value"),
-    (["bins=many"], "allowed keys"),
-    (["survival=best", "evals=[EVAL]"], "survival must be eval or train"),
+    (["colour=red"], "unknown key 'colour'; keys: runs, evals, out"),
+    (["runs"], "'runs' is not of the form key=value"),
+    (["bins=many"], "bins=many: expected an integer"),
+    (["survival=best", "evals=[EVAL]"], "survival=best: 'best' is not allowed; allowed: eval, train"),
     (["evals=[RUN_CSV]"], "is not an episode file"),
     (["runs=[EMPTY]"], "no run directory"),
 ])
-def test_command_line_rejects_bad_input(world, tmp_path, args, message):
+def test_command_line_rejects_bad_input(world, tmp_path, args, message, capsys):
     script = load_report()
     (tmp_path / "empty").mkdir()
     run_csv = next((world["base"] / "runs").rglob("eval.csv"))
     subst = {"EVAL": str(world["base"] / "eval"), "RUN_CSV": str(run_csv), "EMPTY": str(tmp_path / "empty")}
     for placeholder, value in subst.items():
         args = [a.replace(placeholder, value) for a in args]
-    with pytest.raises(SystemExit, match=message):
+    with pytest.raises(SystemExit) as exit_:
         script.main([*args, f"out={tmp_path / 'out'}"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.startswith("report.py: error: ") and message in err, err
 
 
 # ------------------------------------------------------------------------------------------------ launchers

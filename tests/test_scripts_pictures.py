@@ -21,7 +21,7 @@ def read_png(path: Path):
 
 def test_render_levels_writes_pictures(tmp_path, capsys):
     render_levels = load_script("render_levels")
-    assert render_levels.main(["--levels", "1-1", "--out", str(tmp_path), "--seed", "0"]) == 0
+    assert render_levels.main(["levels=[1-1]", f"out={tmp_path}", "seed=0"]) == 0
     printed = capsys.readouterr().out
 
     eye = read_png(tmp_path / "1-1_eye.png")
@@ -40,8 +40,8 @@ def test_render_levels_writes_pictures(tmp_path, capsys):
 def test_render_levels_rejects_unknown_level(tmp_path, capsys):
     render_levels = load_script("render_levels")
     with pytest.raises(SystemExit) as exc:
-        render_levels.main(["--levels", "no-such-level", "--out", str(tmp_path)])
-    assert exc.value.code != 0
+        render_levels.main(["levels=no-such-level", f"out={tmp_path}"])
+    assert exc.value.code == 2
     err = capsys.readouterr().err
     assert "no-such-level" in err
     for name in evaaa.LEVELS:
@@ -51,8 +51,7 @@ def test_render_levels_rejects_unknown_level(tmp_path, capsys):
 
 def test_demo_writes_video_and_plots(tmp_path, capsys):
     demo = load_script("demo")
-    assert demo.main(["--level", "1-1", "--steps", "40", "--num-envs", "1", "--seed", "0",
-                      "--out", str(tmp_path)]) == 0
+    assert demo.main(["level=1-1", "steps=40", "num_envs=1", "seed=0", f"out={tmp_path}"]) == 0
     printed = capsys.readouterr().out
     assert "steps/s" in printed
 

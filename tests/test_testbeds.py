@@ -179,11 +179,15 @@ def test_evaluate_writes_records_table_and_figures(tmp_path):
 
 
 @pytest.mark.parametrize("args,message", [
-    (["levels=[no-such-testbed]"], "unknown level 'no-such-testbed'"),
-    (["policy=missing/checkpoint.pt"], "neither oracle, random nor a checkpoint"),
-    (["episodes=0"], "must be positive"),
-    (["colour=red"], "allowed keys"),
+    (["levels=[no-such-testbed]"], "levels=[no-such-testbed]: 'no-such-testbed' is not allowed; allowed: 1-1"),
+    (["policy=missing/checkpoint.pt"], "policy=missing/checkpoint.pt: expected oracle, random or an existing"),
+    (["episodes=0"], "episodes=0: expected a positive integer"),
+    (["episodes=abc"], "episodes=abc: expected an integer"),
+    (["colour=red"], "unknown key 'colour'; keys: policy, levels, episodes"),
 ])
-def test_evaluate_rejects_bad_input(args, message, tmp_path):
-    with pytest.raises(SystemExit, match=message):
-        load_evaluate().main([*args, f"out={tmp_path}"])
+def test_evaluate_rejects_bad_input(args, message, tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        load_evaluate().main([*args, f"out={tmp_path / 'eval'}"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.count("\n") == 1 and message in err, err
+    assert not (tmp_path / "eval").exists()

@@ -1,0 +1,217 @@
+"""The command line of every script but ``train.py``: ``key=value`` arguments read into a typed dataclass.
+
+The syntax is training's (Hydra): ``key=value``, lists as ``key=[a,b]``, a nested key dotted (``a.b=1``), values
+read as YAML (``null``, ``true``, numbers).  A script declares its keys as a dataclass whose fields are made with
+:func:`option` (default, meaning, and optionally the allowed values), and calls :func:`parse`:
+
+* ``--help`` (or ``-h``) prints every key with its type, default and meaning, and exits with status 0;
+* a malformed argument (not ``key=value``, an unknown key, a value of the wrong type or outside what is allowed)
+  prints ONE line naming the key and what it accepts, and exits with status 2 — no traceback.
+
+OmegaConf's structured configs do the typing; this module only adds the help, the messages, and two conveniences:
+a single value where a list is expected is a list of one (``levels=1-1``), and a string key keeps its text as typed
+(``participant=07`` stays ``"07"``, which YAML would read as the number 7).
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import sys
+import textwrap
+import types
+import typing
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, TypeVar
+
+import yaml
+from omegaconf import OmegaConf
+from omegaconf.errors import ConfigKeyError, OmegaConfBaseException
+
+T = TypeVar("T")
+HELP_FLAGS = ("-h", "--help")
+SYNTAX = "key=value; lists as key=[a,b]; values read as YAML (null, true, 3, 0.5)"
+
+
+def option(default: Any, meaning: str, *, choices: Sequence[Any] | Callable[[], Sequence[Any]] | None = None,
+           check: tuple[Callable[[Any], bool], str] | None = None) -> Any:
+    """A dataclass field of a script's config: its default, what it means (for ``--help``), and what is allowed.
+
+    ``choices``: the allowed values (for a list: of each element), or a function giving them;
+    ``check``: ``(predicate, what is allowed)`` for a value, e.g. ``(lambda v: v >= 1, "at least 1")``.
+    """
+    metadata = {"meaning": meaning, "choices": choices, "check": check}
+    if isinstance(default, (list, dict)):
+        return dataclasses.field(default_factory=lambda: copy.deepcopy(default), metadata=metadata)
+    return dataclasses.field(default=default, metadata=metadata)
+
+
+class UsageError(ValueError):
+    """A command-line argument is refused; the message names the key and what is allowed."""
+
+
+# ------------------------------------------------------------------------------------------------- types
+def _optional(tp: Any) -> tuple[Any, bool]:
+    """``(T, True)`` for ``T | None``, ``(tp, False)`` otherwise."""
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        if len(args) == 1 and len(typing.get_args(tp)) == 2:
+            return args[0], True
+    return tp, False
+
+
+def _is_list(tp: Any) -> bool:
+    return typing.get_origin(_optional(tp)[0]) in (list, Sequence)
+
+
+def _is_text(tp: Any) -> bool:
+    return _optional(tp)[0] in (str, Path)
+
+
+def type_name(tp: Any) -> str:
+    """How ``--help`` and the errors name a field's type."""
+    inner, optional = _optional(tp)
+    origin = typing.get_origin(inner)
+    if origin in (list, Sequence):
+        (item,) = typing.get_args(inner) or (Any,)
+        name = f"list of {type_name(item)}"
+    elif origin is dict or inner is dict:
+        name = "mapping"
+    else:
+        name = {int: "int", float: "float", bool: "bool", str: "str", Path: "path"}.get(inner, "any")
+    return f"{name} or null" if optional else name
+
+
+def _expected(tp: Any) -> str:
+    inner, optional = _optional(tp)
+    if typing.get_origin(inner) in (list, Sequence):
+        (item,) = typing.get_args(inner) or (Any,)
+        text = f"a list of {type_name(item)} values, e.g. [a,b]"
+    else:
+        text = {int: "an integer", float: "a number", bool: "true or false", str: "a string", Path: "a path"}.get(
+            inner, f"a value of type {type_name(inner)}")
+    return text + (" (or null)" if optional else "")
+
+
+def _show(value: Any) -> str:
+    """A value as it is typed on the command line."""
+    if isinstance(value, (list, tuple)):
+        return "[" + ",".join(_show(v) for v in value) + "]"
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k}: {_show(v)}" for k, v in value.items()) + "}"
+    return str(value)
+
+
+# ------------------------------------------------------------------------------------------------- help
+def usage(schema: type, prog: str, description: str, examples: Sequence[str] = ()) -> str:
+    """The ``--help`` text: what the script does, then every key with its type, default, meaning and choices."""
+    hints = typing.get_type_hints(schema)
+    lines = [f"usage: python scripts/{prog} [key=value ...]", ""]
+    for paragraph in description.strip().split("\n\n"):
+        lines += [*textwrap.wrap(" ".join(paragraph.split()), width=114, break_on_hyphens=False), ""]
+    lines.append(f"keys ({SYNTAX}):")
+    for f in dataclasses.fields(schema):
+        default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+        lines.append(f"  {f.name}: {type_name(hints[f.name])} = {_show(default)}")
+        meaning = f.metadata.get("meaning", "")
+        choices = f.metadata.get("choices")
+        if choices is not None:
+            meaning += f" (allowed: {', '.join(map(str, _choices(choices)))})"
+        lines += textwrap.wrap(meaning, width=114, initial_indent=" " * 6, subsequent_indent=" " * 6,
+                               break_on_hyphens=False)
+    if examples:
+        lines += ["", "examples:", *(f"  python scripts/{prog} {e}" for e in examples)]
+    return "\n".join(lines)
+
+
+def _choices(choices: Sequence[Any] | Callable[[], Sequence[Any]]) -> list[Any]:
+    return list(choices() if callable(choices) else choices)
+
+
+# ------------------------------------------------------------------------------------------------- parsing
+def read(schema: type[T], argv: Sequence[str], checks: bool = True) -> T:
+    """``argv`` (``key=value`` strings) over ``schema``'s defaults.  Raises :class:`UsageError` with one line.
+    ``checks=False`` checks keys and types only, not the allowed values (a documentation test of commands whose
+    files do not exist here)."""
+    hints = typing.get_type_hints(schema)
+    fields = {f.name: f for f in dataclasses.fields(schema)}
+    keys = ", ".join(fields)
+    given = OmegaConf.create()
+    for arg in argv:
+        key, sep, text = arg.partition("=")
+        key = key.lstrip("+")  # Hydra's "+key=value" and "++key=value" (add a key) mean the same here
+        if not sep or not key:
+            raise UsageError(f"'{arg}' is not of the form key=value; keys: {keys} (see --help)")
+        top = key.split(".")[0]
+        if top not in fields:
+            raise UsageError(f"unknown key '{key}'; keys: {keys} (see --help)")
+        tp = hints[top]
+        try:
+            value = OmegaConf.to_container(OmegaConf.from_dotlist([f"v={text}"]))["v"]
+        except yaml.YAMLError:
+            if not (key == top and _is_text(tp)):
+                raise UsageError(f"{key}={text}: not a valid value (lists are written [a,b]); "
+                                 f"expected {_expected(tp)}") from None
+            value = text
+        if key == top and _is_text(tp) and value is not None and not isinstance(value, str):
+            value = text  # a name like 07, or a title with a colon, stays as typed
+        if key == top and _is_list(tp) and not isinstance(value, list) and value is not None:
+            value = [value]
+        OmegaConf.update(given, key, value, force_add=True)
+    try:
+        cfg = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(schema), given))
+    except ConfigKeyError as err:
+        raise UsageError(f"unknown key '{err.full_key}'; keys: {keys} (see --help)") from None
+    except OmegaConfBaseException as err:
+        top = str(err.full_key or "").split(".")[0].split("[")[0]
+        if top not in fields:
+            raise UsageError(f"{str(err).splitlines()[0]} (see --help)") from None
+        raise UsageError(f"{top}={_given(argv, top)}: expected {_expected(hints[top])}") from None
+    for f in dataclasses.fields(schema) if checks else ():
+        value = getattr(cfg, f.name)
+        items = value if isinstance(value, list) else [value]
+        choices, check = f.metadata.get("choices"), f.metadata.get("check")
+        if value is None:
+            continue
+        if choices is not None:
+            allowed = _choices(choices)
+            bad = [v for v in items if v not in allowed]
+            if bad:
+                raise UsageError(f"{f.name}={_given(argv, f.name)}: '{_show(bad[0])}' is not allowed; "
+                                 f"allowed: {', '.join(map(str, allowed))}")
+        bad = [v for v in items if check is not None and not check[0](v)]
+        if bad:
+            got = f" (got {_show(bad[0])})" if isinstance(value, list) else ""
+            raise UsageError(f"{f.name}={_given(argv, f.name)}: expected {check[1]}{got}")
+    return cfg
+
+
+def _given(argv: Sequence[str], key: str) -> str:
+    """The text the user gave for ``key`` (the last one, as OmegaConf keeps the last)."""
+    texts = [a.partition("=")[2] for a in argv if a.partition("=")[0].lstrip("+") == key]
+    return texts[-1] if texts else ""
+
+
+def fail(prog: str, message: str) -> typing.NoReturn:
+    """Print one line ``<prog>: error: <message>`` to stderr and exit with status 2 (as argparse does)."""
+    print(f"{prog}: error: {message}", file=sys.stderr)
+    raise SystemExit(2)
+
+
+def parse(schema: type[T], argv: Sequence[str] | None, *, prog: str, description: str,
+          examples: Sequence[str] = ()) -> T:
+    """The script's config from ``argv`` (default ``sys.argv[1:]``): ``--help`` prints :func:`usage` and exits 0;
+    a malformed argument exits 2 after one line naming the key (:func:`fail`)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if any(a in HELP_FLAGS for a in argv):
+        print(usage(schema, prog, description, examples))
+        raise SystemExit(0)
+    try:
+        return read(schema, argv)
+    except UsageError as err:
+        fail(prog, str(err))
