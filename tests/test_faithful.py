@@ -418,7 +418,7 @@ def test_evaluate_writes_a_step_log_only_when_asked(tmp_path):
 def test_play_writes_a_step_log_when_asked(tmp_path):
     play = load_script("play")
     options = play.parse_args(["level=two-resource-food", f"out={tmp_path}", "step_log=true",
-                               "episode.max_steps=3"])
+                               "overrides.episode.max_steps=3"])
     session = play.PlaySession(options)
     try:
         for action in (FORWARD, LEFT, FORWARD):
