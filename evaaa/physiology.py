@@ -6,6 +6,7 @@ touches MuJoCo, so the dynamics can be checked analytically.  EVs are ordered as
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,6 +32,20 @@ DEATHS = (END_FOOD, END_WATER, END_TEMPERATURE, END_DAMAGE)
 _IS_DEATH = np.isin(np.arange(len(END_TYPES)), DEATHS)
 
 REWARDS: tuple[str, ...] = ("squared", "drive_reduction", "neg_distance", "sparse")
+
+
+def contact_damage(impulse: float, constant: float, rate: float, offset: float, cap: float) -> float:
+    """Damage of one contact impulse ``I`` (N s): ``min(constant * exp(rate * (I - offset)), cap)``.
+
+    Past the exponent at which the cap is reached the cap is returned without evaluating the exponential, so a steep
+    ``rate`` or a hard hit cannot overflow ``math.exp``.
+    """
+    if constant <= 0.0 or cap <= 0.0:
+        return 0.0
+    exponent = rate * (impulse - offset)
+    if exponent >= math.log(cap / constant):
+        return cap
+    return constant * math.exp(exponent)
 
 
 @dataclass(frozen=True)
