@@ -62,6 +62,13 @@ MAX_INTEGER = 10**9
 MAX_ARENA_SIDE = 1000.0
 #: Smallest side of an arena (m): the agent's body is 1 m wide.
 MIN_ARENA_SIDE = 2.0
+#: Bodies the agent collides with (obstacles and ponds), in all: MuJoCo's collision detection ran out of its
+#: default memory at 2,000 of them (1,500 worked); this keeps a margin.
+MAX_SOLID_BODIES = 1200
+#: Resource items in all (measured: 2,000 items step in ~3 ms a decision on one core).
+MAX_ITEMS = 2000
+#: Landmark points of a patrol pattern (each predator plans routes between them).
+MAX_LANDMARKS = 10_000
 #: Work of one smoothing of the thermal field (cells times kernel width) allowed at every episode reset; the
 #: default 100 x 100 grid at sigma 10 costs 6.1e5, and 5e7 takes about a tenth of a second on one core.
 MAX_SMOOTHING_WORK = 5e7
@@ -266,6 +273,9 @@ class Landmarks(_Spec):
             raise ValueError("pattern must be a non-empty rectangle of rows of equal length")
         if sum(map(sum, self.pattern)) == 0:
             raise ValueError("pattern places no landmark")
+        points = sum(n * n for row in self.pattern for n in row)
+        if points > MAX_LANDMARKS:
+            raise ValueError(f"pattern places {points} landmark points; at most {MAX_LANDMARKS}")
         return self
 
 
@@ -331,6 +341,11 @@ class Thermal(_Spec):
             raise ValueError(f"sigma = {self.sigma:g} cells over a grid of {gx} x {gy} cells is too much work for "
                              f"every reset ({work:.2g} > {MAX_SMOOTHING_WORK:.0e} cell operations): lower sigma or "
                              "the grid")
+        spots = self.hotspots
+        painted = spots.count * min(spots.size, gx) * min(spots.size, gy)
+        if painted > MAX_SMOOTHING_WORK:
+            raise ValueError(f"hotspots.count = {spots.count} squares of hotspots.size = {spots.size} cells paint "
+                             f"{painted:.2g} cells at every reset; at most {MAX_SMOOTHING_WORK:.0e}")
         return self
 
 
@@ -441,6 +456,20 @@ class Level(_Spec):
                             f"{section}.{name}.{axis} = [{lo}, {hi}] leaves the floor [{-half}, {half}] "
                             f"(arena.size {list(self.arena.size)})"
                         )
+        return self
+
+    @model_validator(mode="after")
+    def _entities_fit(self) -> "Level":
+        from .entities import RESOURCE_KINDS  # entities is data about kinds; imported here to keep spec first
+
+        solid = sum(g.count for g in self.obstacles.values()) + sum(
+            g.count for g in self.resources.values() if getattr(RESOURCE_KINDS.get(g.kind), "solid", False))
+        if solid > MAX_SOLID_BODIES:
+            raise ValueError(f"the obstacles' count and the solid resources' (ponds) count add up to {solid} bodies "
+                             f"the agent collides with; at most {MAX_SOLID_BODIES} in all")
+        items = sum(g.count for g in self.resources.values())
+        if items > MAX_ITEMS:
+            raise ValueError(f"the resources' count adds up to {items} items; at most {MAX_ITEMS} in all")
         return self
 
     @model_validator(mode="after")

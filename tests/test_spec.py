@@ -246,3 +246,20 @@ def test_rules_across_fields_are_checked_at_load_time(overrides, pattern):
 def test_a_random_spawn_box_partly_off_the_floor_is_kept():
     level = load_level("1-1", {"agent.spawn_x": [-80, 0]})
     assert level.agent.spawn_x == (-80.0, 0.0)  # the part on the floor is used (worldgen clips it)
+
+
+def test_bodies_in_all_are_bounded():
+    assert load_level("2-2", {"obstacles.bushes.count": 1000}).obstacles["bushes"].count == 1000
+    # each group within its own limit, too many together for MuJoCo's collision detection
+    with pytest.raises(LevelError, match=r"obstacles' count and the solid resources' \(ponds\) count add up to 1514"):
+        load_level("2-2", {"obstacles.bushes.count": 1000, "obstacles.rocks.count": 500})
+    with pytest.raises(LevelError, match=r"resources' count adds up to 2004 items; at most 2000"):
+        load_level("2-2", {"resources.apples_a.count": 1000, "resources.apples_b.count": 1000})
+
+
+def test_hotspots_and_landmarks_are_bounded_in_all():
+    with pytest.raises(LevelError, match=r"hotspots\.count = 1000 squares of hotspots\.size = 999 cells paint"):
+        load_level("1-1", {"thermal.grid": [1000, 1000], "thermal.sigma": 0, "thermal.hotspots.count": 1000,
+                           "thermal.hotspots.size": 999})
+    with pytest.raises(LevelError, match=r"landmarks: pattern places 12100 landmark points; at most 10000"):
+        load_level("4-1", {"landmarks.pattern": [[10] * 11] * 11})
