@@ -493,7 +493,11 @@ class PlayHandler(BaseHTTPRequestHandler):
                 raise RequestError(403, f"refused: requests from {origin} are not allowed; only this server's own "
                                         "page may call the API")
         site = self.headers.get("Sec-Fetch-Site")
-        if site is not None and site not in ("same-origin", "none"):
+        # a link elsewhere (a study's instructions) may open the page itself, in a tab of its own, not in a frame
+        opens_page = (self.command in ("GET", "HEAD") and urlsplit(self.path).path == "/"
+                      and self.headers.get("Sec-Fetch-Mode") == "navigate"
+                      and self.headers.get("Sec-Fetch-Dest") == "document")
+        if site is not None and site not in ("same-origin", "none") and not opens_page:
             raise RequestError(403, f"refused: a {site} request; only this server's own page may call the API")
 
     def send_json(self, status: int, payload: Mapping[str, Any]) -> None:
@@ -508,6 +512,9 @@ class PlayHandler(BaseHTTPRequestHandler):
                 self.send_header("Allow", self._allow)
             self.send_header("Content-Length", str(len(body)))
             self.send_header("Cache-Control", "no-store")
+            # no other site may show the page in a frame and steer the player's keys
+            self.send_header("X-Frame-Options", "DENY")
+            self.send_header("Content-Security-Policy", "frame-ancestors 'none'")
             self.end_headers()
             if self.command != "HEAD":
                 self.wfile.write(body)

@@ -96,6 +96,11 @@ def test_requests_from_other_sites_are_refused_and_change_nothing(tmp_path):
         after = state(address)
         assert after == before  # same episode, step, EVs and frame
         assert not (out / "episodes.csv").exists()  # the step that would end the episode never ran
+        # a link on another site may open the page in a tab of its own, never in a frame
+        navigate = {"Sec-Fetch-Site": "cross-site", "Sec-Fetch-Mode": "navigate"}
+        status, headers, _ = call(address, "GET", "/", headers={**navigate, "Sec-Fetch-Dest": "document"})
+        assert status == 200 and headers["X-Frame-Options"] == "DENY"
+        assert call(address, "GET", "/", headers={**navigate, "Sec-Fetch-Dest": "iframe"})[0] == 403
         # names of this machine are fine, and the episode goes on where it was
         assert call(address, "GET", "/api/state", headers={"Host": f"localhost:{port}"})[0] == 200
         status, _, payload = call(address, "POST", "/api/step", b'{"action": 0}', {"Origin": f"http://localhost:{port}"})
