@@ -22,7 +22,6 @@ from pydantic import (
     ConfigDict,
     Field,
     ValidationError,
-    ValidationInfo,
     field_validator,
     model_validator,
 )
@@ -69,8 +68,9 @@ MAX_SOLID_BODIES = 1200
 MAX_ITEMS = 2000
 #: Landmark points of a patrol pattern (each predator plans routes between them).
 MAX_LANDMARKS = 10_000
-#: Work of one smoothing of the thermal field (cells times kernel width) allowed at every episode reset; the
-#: default 100 x 100 grid at sigma 10 costs 6.1e5, and 5e7 takes about a tenth of a second on one core.
+#: Work of one smoothing of the thermal field (cells times kernel width, both passes) allowed at every episode
+#: reset: the default 100 x 100 grid at sigma 10 costs 6.1e5; 1000 x 1000 cells at sigma 3 (3.8e7) took 15 ms of
+#: CPU on the 2-core box.  Painting the hotspots is held to the same number of cells.
 MAX_SMOOTHING_WORK = 5e7
 
 
@@ -93,7 +93,7 @@ class _Spec(BaseModel):
 
     @field_validator("*", mode="after")
     @classmethod
-    def _bounded(cls, value: Any, info: ValidationInfo) -> Any:
+    def _bounded(cls, value: Any) -> Any:
         _check_bounded(value)
         return value
 
@@ -487,7 +487,8 @@ class Level(_Spec):
         x, y = a.start_position
         if abs(x) > hx or abs(y) > hy:
             raise ValueError(f"agent.start_position = [{x:g}, {y:g}] is off the floor: the body's centre must lie "
-                             f"within x in [{-hx:g}, {hx:g}], y in [{-hy:g}, {hy:g}] (arena.size {list(self.arena.size)})")
+                             f"within x in [{-hx:g}, {hx:g}], y in [{-hy:g}, {hy:g}] "
+                             f"(arena.size {list(self.arena.size)})")
         if a.start == "random":
             for axis, (lo, hi), half in (("x", a.spawn_x, hx), ("y", a.spawn_y, hy)):
                 if hi < -half or lo > half:

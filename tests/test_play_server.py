@@ -103,7 +103,8 @@ def test_requests_from_other_sites_are_refused_and_change_nothing(tmp_path):
         assert call(address, "GET", "/", headers={**navigate, "Sec-Fetch-Dest": "iframe"})[0] == 403
         # names of this machine are fine, and the episode goes on where it was
         assert call(address, "GET", "/api/state", headers={"Host": f"localhost:{port}"})[0] == 200
-        status, _, payload = call(address, "POST", "/api/step", b'{"action": 0}', {"Origin": f"http://localhost:{port}"})
+        status, _, payload = call(address, "POST", "/api/step", b'{"action": 0}',
+                                  {"Origin": f"http://localhost:{port}"})
         assert status == 200 and json.loads(payload)["done"] is True
 
 
