@@ -32,7 +32,6 @@ import base64
 import csv
 import ipaddress
 import json
-import os
 import re
 import secrets
 import signal
