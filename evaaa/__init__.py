@@ -16,6 +16,10 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 os.environ.setdefault("LP_NUM_THREADS", "0")
 
+import logging  # noqa: E402
+
+import mujoco  # noqa: E402
+
 from .env import EvaaaEnv, make_env  # noqa: E402
 from .physiology import END_TYPES, EV_NAMES, REWARDS  # noqa: E402
 from .sensors import MODALITIES  # noqa: E402
@@ -38,6 +42,17 @@ __all__ = [
     "load_level",
     "make_env",
 ]
+
+
+
+def _mujoco_warning(message: str) -> None:
+    logging.getLogger("mujoco").warning("MuJoCo: %s", message.strip())
+
+
+# MuJoCo's own warning handler also appends every warning to MUJOCO_LOG.TXT in the working directory; send them
+# to Python's logging instead (stderr unless configured), unless the program installed a handler of its own
+if mujoco.get_mju_user_warning() is None:
+    mujoco.set_mju_user_warning(_mujoco_warning)
 
 # gymnasium.make("evaaa/<level>-v0") should work after a plain `import evaaa`
 from .gym import register_envs  # noqa: E402

@@ -16,7 +16,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from .sim import NUM_ACTIONS, Simulator
+from .sim import ACTION_NAMES, NUM_ACTIONS, Simulator
 from .spec import Level, load_level
 
 _TORCH_DTYPE = {np.dtype(np.float32): torch.float32, np.dtype(np.uint8): torch.uint8}
@@ -89,9 +89,13 @@ class EvaaaEnv(EnvBase):
     def _make_specs(self) -> None:
         n = self.num_envs
         obs = {}
+        bounds = {sensor.key: sensor.bounds for sensor in self.sim.sensors}
         for key, (shape, dtype) in self.sim.observation_shapes.items():
             if dtype == np.uint8:
                 obs[key] = Bounded(0, 255, shape=(n, *shape), dtype=torch.uint8, device=self.device)
+            elif bounds[key] is not None:
+                obs[key] = Bounded(*bounds[key], shape=(n, *shape), dtype=_TORCH_DTYPE[np.dtype(dtype)],
+                                   device=self.device)
             else:
                 obs[key] = Unbounded(shape=(n, *shape), dtype=_TORCH_DTYPE[np.dtype(dtype)], device=self.device)
         info = {}
@@ -122,7 +126,35 @@ class EvaaaEnv(EnvBase):
         source["info"] = TensorDict._new_unsafe(info_td, batch_size=self.batch_size, device=device)
         return TensorDict._new_unsafe(source, batch_size=self.batch_size, device=device)
 
+    def _check_open(self) -> None:
+        # a closed env has freed its renderer; bringing it back silently would hide a use-after-close bug
+        if self.__dict__.get("is_closed", False):
+            raise RuntimeError(f"this EvaaaEnv ({self.level.name}) was closed; make a new one with "
+                               "evaaa.make_env(...)")
+
+    def _action(self, tensordict: TensorDictBase) -> np.ndarray:
+        """The ``"action"`` entry as one integer per world, or a clear error."""
+        n = self.num_envs
+        allowed = f"an integer tensor of shape ({n},) with values in 0..{NUM_ACTIONS - 1} ({', '.join(ACTION_NAMES)})"
+        action = tensordict.get("action", None)
+        if action is None:
+            raise ValueError(f"the input has no 'action' entry: set td['action'] to {allowed}")
+        if action.dtype.is_floating_point:
+            raise ValueError(f"action must be {allowed}; got dtype {action.dtype}")
+        if action.numel() == n * NUM_ACTIONS and action.shape[-1] == NUM_ACTIONS and action.numel() != n:
+            raise ValueError(f"action has shape {tuple(action.shape)}, like a one-hot encoding; this env takes "
+                             f"{allowed} (for a one-hot tensor, pass action.argmax(-1))")
+        if action.numel() != n:
+            raise ValueError(f"action must be {allowed}; got shape {tuple(action.shape)}")
+        return action.reshape(n).cpu().numpy()
+
+    def extra_repr(self) -> str:
+        # what repr(env) shows between the parentheses (EnvBase is an nn.Module)
+        return (f"level={self.level.name!r}, num_envs={self.num_envs}, modalities={list(self.sim.modalities)}, "
+                f"device={self.device}, seed={self._seed_value}, threads={self.sim.threads}")
+
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        self._check_open()
         mask = None
         if tensordict is not None:
             reset = tensordict.get("_reset", None)
@@ -134,10 +166,8 @@ class EvaaaEnv(EnvBase):
                                                     "truncated": false.clone()})
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        action = tensordict.get("action")
-        if action.dtype.is_floating_point:
-            raise ValueError(f"action must be an integer tensor in 0..{NUM_ACTIONS - 1}, got dtype {action.dtype}")
-        obs, reward, terminated, truncated, info = self.sim.step(action.reshape(self.num_envs).cpu().numpy())
+        self._check_open()
+        obs, reward, terminated, truncated, info = self.sim.step(self._action(tensordict))
         term = torch.from_numpy(terminated).unsqueeze(-1)
         trunc = torch.from_numpy(truncated).unsqueeze(-1)
         return self._to_td(obs, info, {

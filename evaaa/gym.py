@@ -52,16 +52,36 @@ class EvaaaGymEnv(gymnasium.Env[dict[str, np.ndarray], int]):
         # seeded for real on the first reset, from the seed given there or from self.np_random
         self.sim = Simulator(self.level, 1, modalities, seed=0)
         self._sim_seeded = False
+        self._closed = False
+        bounds = {sensor.key: sensor.bounds for sensor in self.sim.sensors}
         self.observation_space = spaces.Dict({
             key: spaces.Box(0, 255, shape, np.uint8) if np.dtype(dtype) == np.uint8
-            else spaces.Box(-np.inf, np.inf, shape, np.float32)
+            else spaces.Box(*(bounds[key] or (-np.inf, np.inf)), shape, np.float32)
             for key, (shape, dtype) in self.sim.observation_shapes.items()
         })
         self.action_space = spaces.Discrete(NUM_ACTIONS)
+        registered = load_level(level).episode.max_steps
+        if self.level.episode.max_steps > registered:
+            # gymnasium.make wraps the env in TimeLimit(the registered cap), which would end episodes early
+            gymnasium.logger.warn(
+                f"episode.max_steps = {self.level.episode.max_steps} exceeds the {registered} steps evaaa/{level}-v0 "
+                f"is registered with: through gymnasium.make, also pass max_episode_steps="
+                f"{self.level.episode.max_steps} (TimeLimit would end episodes at {registered})"
+            )
+
+    def __repr__(self) -> str:
+        return (f"EvaaaGymEnv(level={self.level.name!r}, modalities={list(self.sim.modalities)}, "
+                f"render_mode={self.render_mode!r}, max_steps={self.level.episode.max_steps})")
+
+    def _check_open(self) -> None:
+        # a closed env has freed its renderer; bringing it back silently would hide a use-after-close bug
+        if self._closed:
+            raise RuntimeError(f"this EvaaaGymEnv ({self.level.name}) was closed; make a new one")
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        self._check_open()
         super().reset(seed=seed)
         if seed is not None:
             self.sim.seed(seed)
@@ -73,7 +93,9 @@ class EvaaaGymEnv(gymnasium.Env[dict[str, np.ndarray], int]):
         return _world0(obs), _info(self.sim.last_info)
 
     def step(self, action: int) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
-        if not self.action_space.contains(action):
+        self._check_open()
+        # True and False are ints to Python (and to Discrete.contains) but never an intended action
+        if isinstance(action, (bool, np.bool_)) or not self.action_space.contains(action):
             raise ValueError(
                 f"action must be an integer in 0..{NUM_ACTIONS - 1} ({', '.join(ACTION_NAMES)}), got {action!r}"
             )
@@ -84,10 +106,12 @@ class EvaaaGymEnv(gymnasium.Env[dict[str, np.ndarray], int]):
         if self.render_mode is None:
             gymnasium.logger.warn("render() was called with render_mode=None; pass render_mode='rgb_array'")
             return None
+        self._check_open()
         # the simulator builds its eye renderer on first use, so this works when pixels are not observed
         return self.sim.render_eye(_ONE_WORLD)[0]
 
     def close(self) -> None:
+        self._closed = True
         self.sim.close()
 
 
@@ -103,8 +127,11 @@ def _info(info: dict[str, np.ndarray]) -> dict[str, Any]:
 
 
 def register_envs() -> None:
-    """Register ``evaaa/<name>-v0`` for every level; ids already registered are left alone."""
+    """Register ``evaaa/<name>-v0`` for every level, with the level's step cap as ``max_episode_steps`` (the
+    TimeLimit of ``gymnasium.make`` then agrees with the env's own truncation); ids already registered are left
+    alone."""
     for name in level_names():
         env_id = f"evaaa/{name}-v0"
         if env_id not in gymnasium.registry:
-            gymnasium.register(env_id, entry_point="evaaa.gym:EvaaaGymEnv", kwargs={"level": name})
+            gymnasium.register(env_id, entry_point="evaaa.gym:EvaaaGymEnv", kwargs={"level": name},
+                               max_episode_steps=load_level(name).episode.max_steps)

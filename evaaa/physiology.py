@@ -6,6 +6,7 @@ touches MuJoCo, so the dynamics can be checked analytically.  EVs are ordered as
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,6 +49,20 @@ SHAPED_ODOUR_DIVISOR = 10.0
 SHAPED_HEAT_DIVISOR = 1000.0
 SHAPED_CONSUMPTION_BONUS = 100.0
 SHAPED_COLLISION_COST = 1.0
+
+
+def contact_damage(impulse: float, constant: float, rate: float, offset: float, cap: float) -> float:
+    """Damage of one contact impulse ``I`` (N s): ``min(constant * exp(rate * (I - offset)), cap)``.
+
+    Past the exponent at which the cap is reached the cap is returned without evaluating the exponential, so a steep
+    ``rate`` or a hard hit cannot overflow ``math.exp``.
+    """
+    if constant <= 0.0 or cap <= 0.0:
+        return 0.0
+    exponent = rate * (impulse - offset)
+    if exponent >= math.log(cap / constant):
+        return cap
+    return constant * math.exp(exponent)
 
 
 @dataclass(frozen=True)

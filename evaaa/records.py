@@ -168,6 +168,8 @@ def append_rows(path: str | os.PathLike, rows: Iterable[Mapping[str, Any]]) -> N
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fields = list(EPISODE_FIELDS) + [k for k in OPTIONAL_FIELDS if any(k in r for r in rows)]
+    # a tool's own columns (human play: session, ended_at) follow, in the order its rows give them
+    fields += [k for k in dict.fromkeys(k for r in rows for k in r) if k not in fields]
     new = not path.exists() or path.stat().st_size == 0
     if not new:
         with path.open(newline="") as f:

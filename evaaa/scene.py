@@ -12,13 +12,14 @@ heading h is rotated by -h about z.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
 from .entities import CANOPY, OBSTACLE_KINDS, PREDATOR, RESOURCE_KINDS, Kind
-from .spec import Level
+from .spec import Level, LevelError
 from .worldgen import AGENT_HALF, PARKED_Z, ObstaclePool, ResourcePool
 
 # Geom groups, so that cameras and rays can choose what they see.
@@ -192,8 +193,29 @@ def build_mjcf(level: Level, pool: ResourcePool, obstacles: ObstaclePool | None 
 """
 
 
+def _xml_culprit(message: str, pool: ResourcePool, obstacles: ObstaclePool) -> str:
+    """The level field behind the MJCF element that a MuJoCo compile error names."""
+    found = re.search(r"Element name '([a-z_]+?)(\d*)'", message)
+    if found is None:
+        return "level"
+    stem, number = found.groups()
+    if stem == "res" and number:
+        return f"resources.{pool.names[pool.group[int(number)]]} (size)"
+    if stem == "obs" and number:
+        return f"obstacles.{obstacles.names[obstacles.group[int(number)]]} (scale)"
+    if stem == "agent":
+        return "agent.mass"
+    if stem.startswith("wall") or stem == "floor":
+        return "arena (size, wall_height)"
+    return "predators" if stem == "pred" else "level"
+
+
 def build_model(level: Level, pool: ResourcePool, obstacles: ObstaclePool) -> tuple[mujoco.MjModel, SceneIndex]:
-    model = mujoco.MjModel.from_xml_string(build_mjcf(level, pool, obstacles))
+    try:
+        model = mujoco.MjModel.from_xml_string(build_mjcf(level, pool, obstacles))
+    except ValueError as exc:  # MuJoCo refuses a body the level's numbers made (too light, too thin, ...)
+        raise LevelError(f"invalid level '{level.name}':\n  {_xml_culprit(str(exc), pool, obstacles)}: MuJoCo "
+                         f"cannot build it: {' '.join(str(exc).split())}") from None
 
     def body(name: str) -> int:
         return mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)

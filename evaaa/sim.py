@@ -644,7 +644,7 @@ class Simulator:
         total, hit = 0.0, False
         for vec in per_body.values():
             impulse = math.sqrt(float(vec @ vec)) * self.dt  # the norm, as np.linalg.norm computes it
-            d = min(constant * math.exp(rate * (impulse - offset)), cap)
+            d = phys.contact_damage(impulse, constant, rate, offset, cap)
             total += d
             hit |= d > threshold
         return total, hit

@@ -10,12 +10,21 @@ field and what it accepts.
 from __future__ import annotations
 
 import copy
+import math
 from collections.abc import Mapping
 from importlib import resources
 from typing import Annotated, Any, Literal
 
 import yaml
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 __all__ = [
     "Level",
@@ -43,15 +52,58 @@ Positive = Annotated[float, Field(gt=0)]
 NonNegative = Annotated[float, Field(ge=0)]
 
 
+#: Largest magnitude of any number in a level.  Lengths, temperatures, rates and weights all stay far below it, and
+#: so do their squares and products in float32 observations and rewards (float32 overflows near 3.4e38).
+MAX_MAGNITUDE = 1e6
+#: Largest integer in a level (counts, step limits): beyond it a loop or an array would outgrow the machine.
+MAX_INTEGER = 10**9
+#: Longest side of an arena (m): predators plan on a grid of 1 m cells over the floor.
+MAX_ARENA_SIDE = 1000.0
+#: Smallest side of an arena (m): the agent's body is 1 m wide.
+MIN_ARENA_SIDE = 2.0
+#: Bodies the agent collides with (obstacles and ponds), in all: MuJoCo's collision detection ran out of its
+#: default memory at 2,000 of them (1,500 worked); this keeps a margin.
+MAX_SOLID_BODIES = 1200
+#: Resource items in all (measured: 2,000 items step in ~3 ms a decision on one core).
+MAX_ITEMS = 2000
+#: Landmark points of a patrol pattern (each predator plans routes between them).
+MAX_LANDMARKS = 10_000
+#: Work of one smoothing of the thermal field (cells times kernel width, both passes) allowed at every episode
+#: reset: the default 100 x 100 grid at sigma 10 costs 6.1e5; 1000 x 1000 cells at sigma 3 (3.8e7) took 15 ms of
+#: CPU on the 2-core box.  Painting the hotspots is held to the same number of cells.
+MAX_SMOOTHING_WORK = 5e7
+
+
+def _check_bounded(value: Any) -> None:
+    """Raise if a number in ``value`` (a number, or a tuple or list of them) lies beyond the allowed magnitude."""
+    if isinstance(value, bool):
+        return
+    if isinstance(value, float) and abs(value) > MAX_MAGNITUDE:
+        raise ValueError(f"must lie within [-{MAX_MAGNITUDE:g}, {MAX_MAGNITUDE:g}]")
+    if isinstance(value, int) and abs(value) > MAX_INTEGER:
+        raise ValueError(f"must lie within [-{MAX_INTEGER:.0e}, {MAX_INTEGER:.0e}]")
+    if isinstance(value, (tuple, list)):
+        for item in value:
+            _check_bounded(item)
+
+
 class _Spec(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # every float of a level is finite: NaN or infinity anywhere would reach the observations or the reward
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    @field_validator("*", mode="after")
+    @classmethod
+    def _bounded(cls, value: Any) -> Any:
+        _check_bounded(value)
+        return value
 
 
 # --------------------------------------------------------------------------------------------------- arena / agent
 class Arena(_Spec):
     """The floor (centred on the origin; walking surface at z = 0) and its walls."""
 
-    size: tuple[Positive, Positive]
+    size: tuple[Annotated[float, Field(ge=MIN_ARENA_SIDE, le=MAX_ARENA_SIDE)],
+                Annotated[float, Field(ge=MIN_ARENA_SIDE, le=MAX_ARENA_SIDE)]]
     walls: bool
     wall_height: Positive
     floor: Literal["ground", "gray"]
@@ -178,6 +230,13 @@ class ObstacleGroup(_Spec):
     #: stands above the floor (the original's collision-avoidance blocks show 0.55 m, just above the 0.5 m eye)
     lift: float = 0.0
 
+    @field_validator("scale", mode="after")
+    @classmethod
+    def _positive_scale(cls, scale: tuple) -> tuple:
+        if min(min(pair) for pair in scale) <= 0:
+            raise ValueError("every scale must be > 0 (a body needs a size)")
+        return scale
+
     @property
     def static(self) -> bool:
         return self.count == 1 and self.x[0] == self.x[1] and self.y[0] == self.y[1]
@@ -221,6 +280,9 @@ class Landmarks(_Spec):
             raise ValueError("pattern must be a non-empty rectangle of rows of equal length")
         if sum(map(sum, self.pattern)) == 0:
             raise ValueError("pattern places no landmark")
+        points = sum(n * n for row in self.pattern for n in row)
+        if points > MAX_LANDMARKS:
+            raise ValueError(f"pattern places {points} landmark points; at most {MAX_LANDMARKS}")
         return self
 
 
@@ -266,9 +328,9 @@ class DayNight(_Spec):
 
 # --------------------------------------------------------------------------------------------------- thermal field
 class Hotspots(_Spec):
-    count: Annotated[int, Field(ge=0)]
+    count: Annotated[int, Field(ge=0, le=1000)]
     #: side of the square of cells set to ``temperature`` (odd; an even size is rounded up as in the original)
-    size: Annotated[int, Field(ge=1)]
+    size: Annotated[int, Field(ge=1, le=1000)]
     temperature: float
 
 
@@ -277,9 +339,25 @@ class Thermal(_Spec):
     base_temperature: float
     hotspots: Hotspots
     #: Gaussian smoothing in cells (0: none)
-    sigma: NonNegative
+    sigma: Annotated[float, Field(ge=0, le=100)]
     #: thermoception reads T_sensor - body temperature instead of T_sensor
     relative: bool
+
+    @model_validator(mode="after")
+    def _smoothing_affordable(self) -> "Thermal":
+        # the field is rebuilt and smoothed at every reset: two passes of a 2*ceil(3 sigma)+1 kernel over the grid
+        gx, gy = self.grid
+        work = 2 * gx * gy * (2 * math.ceil(3 * self.sigma) + 1)
+        if self.sigma > 0 and work > MAX_SMOOTHING_WORK:
+            raise ValueError(f"sigma = {self.sigma:g} cells over a grid of {gx} x {gy} cells is too much work for "
+                             f"every reset ({work:.2g} > {MAX_SMOOTHING_WORK:.0e} cell operations): lower sigma or "
+                             "the grid")
+        spots = self.hotspots
+        painted = spots.count * min(spots.size, gx) * min(spots.size, gy)
+        if painted > MAX_SMOOTHING_WORK:
+            raise ValueError(f"hotspots.count = {spots.count} squares of hotspots.size = {spots.size} cells paint "
+                             f"{painted:.2g} cells at every reset; at most {MAX_SMOOTHING_WORK:.0e}")
+        return self
 
 
 # --------------------------------------------------------------------------------------------------- sensors
@@ -289,6 +367,12 @@ class Vision(_Spec):
     fovy: Annotated[float, Field(gt=0, lt=180)]
     near: Positive
     far: Positive
+
+    @model_validator(mode="after")
+    def _near_before_far(self) -> "Vision":
+        if self.near >= self.far:
+            raise ValueError(f"near ({self.near:g}) must be less than far ({self.far:g}): nothing would be drawn")
+        return self
 
 
 class Olfaction(_Spec):
@@ -390,14 +474,59 @@ class Level(_Spec):
                 for axis, (lo, hi), half in (("x", group.x, hx), ("y", group.y, hy)):
                     if lo < -half or hi > half:
                         raise ValueError(
-                            f"{section}.{name}.{axis} = [{lo}, {hi}] leaves the floor [{-half}, {half}]"
+                            f"{section}.{name}.{axis} = [{lo}, {hi}] leaves the floor [{-half}, {half}] "
+                            f"(arena.size {list(self.arena.size)})"
                         )
+        return self
+
+    @model_validator(mode="after")
+    def _entities_fit(self) -> "Level":
+        from .entities import RESOURCE_KINDS  # entities is data about kinds; imported here to keep spec first
+
+        solid = sum(g.count for g in self.obstacles.values()) + sum(
+            g.count for g in self.resources.values() if getattr(RESOURCE_KINDS.get(g.kind), "solid", False))
+        if solid > MAX_SOLID_BODIES:
+            raise ValueError(f"the obstacles' count and the solid resources' (ponds) count add up to {solid} bodies "
+                             f"the agent collides with; at most {MAX_SOLID_BODIES} in all")
+        items = sum(g.count for g in self.resources.values())
+        if items > MAX_ITEMS:
+            raise ValueError(f"the resources' count adds up to {items} items; at most {MAX_ITEMS} in all")
         return self
 
     @model_validator(mode="after")
     def _predators_need_landmarks(self) -> "Level":
         if any(g.count for g in self.predators.values()) and self.landmarks is None:
             raise ValueError("predators patrol the convex hull of the landmarks: set landmarks.pattern")
+        return self
+
+    @model_validator(mode="after")
+    def _agent_starts_on_the_floor(self) -> "Level":
+        # the body's centre keeps half its width (worldgen.AGENT_HALF, 0.5 m) from the floor's edge; a random start
+        # falls back to start_position when its box is full, so that must lie on the floor either way
+        a = self.agent
+        hx, hy = self.arena.size[0] / 2 - 0.5, self.arena.size[1] / 2 - 0.5
+        x, y = a.start_position
+        if abs(x) > hx or abs(y) > hy:
+            raise ValueError(f"agent.start_position = [{x:g}, {y:g}] is off the floor: the body's centre must lie "
+                             f"within x in [{-hx:g}, {hx:g}], y in [{-hy:g}, {hy:g}] "
+                             f"(arena.size {list(self.arena.size)})")
+        if a.start == "random":
+            for axis, (lo, hi), half in (("x", a.spawn_x, hx), ("y", a.spawn_y, hy)):
+                if hi < -half or lo > half:
+                    raise ValueError(f"agent.spawn_{axis} = [{lo:g}, {hi:g}] misses the floor, where the body's "
+                                     f"centre lies within [{-half:g}, {half:g}] (arena.size {list(self.arena.size)})")
+        return self
+
+    @model_validator(mode="after")
+    def _far_plane_beyond_near(self) -> "Level":
+        near = self.sensors.vision.near
+        dn = self.daynight
+        if dn.enabled:
+            for name in ("day_far", "night_far"):
+                far = getattr(dn, name)
+                if far <= near:
+                    raise ValueError(f"daynight.{name} ({far:g}) must exceed sensors.vision.near ({near:g}): the "
+                                     "far plane would hide everything")
         return self
 
 
@@ -422,12 +551,16 @@ def level_names() -> tuple[str, ...]:
     return LEVELS + TESTBEDS
 
 
+#: libyaml's safe loader where PyYAML was built with it (same documents, about 7x faster than the Python one)
+_YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
 def _read_yaml(name: str) -> dict[str, Any]:
     try:
         text = resources.files("evaaa.levels").joinpath(f"{name}.yaml").read_text()
     except FileNotFoundError:
         raise LevelError(f"level file '{name}.yaml' is missing from evaaa/levels") from None
-    data = yaml.safe_load(text) or {}
+    data = yaml.load(text, Loader=_YAML_LOADER) or {}
     if not isinstance(data, dict):
         raise LevelError(f"level file '{name}.yaml' must hold a mapping at the top")
     return data
@@ -512,7 +645,7 @@ def _format_errors(name: str, err: ValidationError) -> str:
     lines = []
     for e in err.errors():
         loc = tuple(e["loc"])
-        where = ".".join(str(p) for p in loc) or "(top level)"
+        where = ".".join(str(p) for p in loc)
         if e["type"] == "extra_forbidden":
             owner = _model_at(loc[:-1])
             allowed = ", ".join(owner.model_fields) if owner else "?"
@@ -523,7 +656,8 @@ def _format_errors(name: str, err: ValidationError) -> str:
             got = e.get("input")
             got_text = "" if isinstance(got, dict) else f" (got {got!r})"
             msg = e["msg"].removeprefix("Value error, ")
-            lines.append(f"{where}: {msg}{got_text}")
+            # a rule across sections (loc empty) names its fields itself
+            lines.append(f"{where}: {msg}{got_text}" if where else msg)
     return f"invalid level '{name}':\n  " + "\n  ".join(lines)
 
 

@@ -251,8 +251,10 @@ def sample_agent_start(
     high = np.minimum([a.spawn_x[1], a.spawn_y[1]], half_floor)
     candidates = rng.uniform(low, high, size=(tries, 2))
     heading = float(rng.uniform(0.0, 360.0))
-    blocker_half = np.broadcast_to(np.asarray(blocker_half, dtype=np.float64).reshape(len(blocker_xy), -1),
-                                   (len(blocker_xy), 2))
+    # (B, 1) or (B, 2); reshaped to (B, -1) only when B > 0 (numpy cannot infer -1 from an empty array)
+    blocker_half = np.asarray(blocker_half, dtype=np.float64)
+    blocker_half = np.broadcast_to(blocker_half.reshape(len(blocker_xy), -1) if len(blocker_xy)
+                                   else np.zeros((0, 2)), (len(blocker_xy), 2))
     blocked = _overlaps(candidates, np.full(2, AGENT_HALF + a.spawn_padding), blocker_xy, blocker_half)
     free = np.flatnonzero(~blocked)
     if len(free) == 0:

@@ -15,7 +15,9 @@ Keys: up = forward, left/right = turn, space = eat, period = do nothing, Enter =
 Steps advance on each key press; with ``rate=R`` they advance R times a second instead, a second without a
 key doing nothing (action 0).
 
-JSON API (what the page uses; a bad request gets a 4xx answer ``{"error": "..."}``):
+JSON API (what the page uses; a bad request gets a 4xx answer ``{"error": "..."}``).  Only this machine's own pages
+may call it: a request whose ``Host`` is not the server's own name (DNS rebinding) or whose ``Origin`` is another site
+gets 403 and changes nothing.
 
     GET  /              the page
     GET  /api/state     the current state (see ``PlaySession._state``)
@@ -27,15 +29,20 @@ JSON API (what the page uses; a bad request gets a 4xx answer ``{"error": "..."}
 from __future__ import annotations
 
 import base64
+import csv
+import ipaddress
 import json
 import re
+import secrets
 import signal
 import socket
 import sys
+import tempfile
 import traceback
 from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
+from datetime import datetime, timezone
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any, NoReturn
@@ -46,7 +53,7 @@ import cv2
 import numpy as np
 
 from evaaa.physiology import END_TYPES, EV_NAMES
-from evaaa.records import EpisodeTracker, StepLog, append_rows, new_log_path
+from evaaa.records import EPISODE_FIELDS, OPTIONAL_FIELDS, EpisodeTracker, StepLog, append_rows, new_log_path
 from evaaa.sim import ACTION_NAMES, NUM_ACTIONS, Simulator
 from evaaa.spec import Level, LevelError, level_names, load_level
 from baselines import cli
@@ -60,6 +67,9 @@ from render_levels import top_image  # noqa: E402
 
 PAGE = Path(__file__).resolve().with_name("play.html")
 RECORDS_FILE = "episodes.csv"
+#: columns a human record adds to an evaluation's: the server run (session) and when the episode ended (UTC):
+#: episode indices restart with every run of the server, so (participant, session, episode) names an episode
+SESSION_COLUMNS = ("session", "ended_at")
 MAP_SIZE = 320
 MAX_RATE = 30.0
 #: requests carry a level name or an action; anything larger is not from the page
@@ -144,6 +154,36 @@ def png_data_url(rgb: np.ndarray) -> str:
     return "data:image/png;base64," + base64.b64encode(png.tobytes()).decode("ascii")
 
 
+class StartupError(Exception):
+    """The server cannot start as asked (for example, its records cannot be written)."""
+
+
+def new_session_id() -> str:
+    """An id for one run of the server: its start time (UTC) and a random suffix, e.g. 20260101T120000Z-3fa9c1."""
+    return f"{datetime.now(timezone.utc):%Y%m%dT%H%M%SZ}-{secrets.token_hex(3)}"
+
+
+def check_records(path: Path) -> None:
+    """Fail now, not at the end of the first episode, where ``path`` cannot take human records."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        # a real write, not os.access: root passes every permission check yet cannot write a read-only mount
+        with tempfile.NamedTemporaryFile(dir=path.parent, prefix=".write-test-"):
+            pass
+        if path.exists():
+            with path.open("a"):  # opened for appending, nothing written
+                pass
+            with path.open(newline="") as f:
+                header = next(csv.reader(f), [])
+            # an evaluation's columns and the session's; optional columns added later are widened in by append_rows
+            known = {*EPISODE_FIELDS, *OPTIONAL_FIELDS, *SESSION_COLUMNS}
+            if header and (set(header) - known or not {*EPISODE_FIELDS, *SESSION_COLUMNS} <= set(header)):
+                raise StartupError(f"{path} holds other columns ({', '.join(header)}): it was not written by this "
+                                   "version of play.py; choose another out= directory")
+    except OSError as exc:
+        raise StartupError(f"cannot write records in {path.parent}: {exc.strerror or exc}") from None
+
+
 class PlaySession:
     """The server's one simulator, the episode being played, and its records.
 
@@ -155,6 +195,8 @@ class PlaySession:
     def __init__(self, options: Options):
         self.options = options
         self.records = options.out / RECORDS_FILE
+        check_records(self.records)
+        self.session_id = new_session_id()
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="evaaa-sim")
         self.sim: Simulator | None = None
         self.tracker: EpisodeTracker | None = None
@@ -227,6 +269,8 @@ class PlaySession:
         rows = self.tracker.update(reward, info, terminated | truncated, actions=np.array([action]))
         if self.step_log is not None:
             self.step_log.update(np.array([action]), reward, info, terminated | truncated)
+        ended_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
+        rows = [{**row, "session": self.session_id, "ended_at": ended_at} for row in rows]
         if self.done:
             self.end_type = END_TYPES[int(info["end_type"][0, 0])]
             try:
@@ -244,6 +288,7 @@ class PlaySession:
             "description": level.description,
             "levels": list(level_names()),
             "participant": self.options.participant,
+            "session": self.session_id,
             "episode": self.episode,
             "step": int(sim.steps[0]),
             "max_steps": level.episode.max_steps,
@@ -288,6 +333,8 @@ def read_json(handler: BaseHTTPRequestHandler) -> dict[str, Any]:
         body = json.loads(raw)
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise RequestError(400, f"malformed JSON: {exc}") from None
+    except RecursionError:  # a few kilobytes of brackets nest deeper than the parser's recursion
+        raise RequestError(400, "malformed JSON: nested too deeply") from None
     if not isinstance(body, dict):
         raise RequestError(400, f"expected a JSON object, got {type(body).__name__}")
     return body
@@ -341,10 +388,34 @@ ROUTES: dict[str, dict[str, Callable[[PlayHandler], None]]] = {
 }
 
 
+def is_loopback(host: str) -> bool:
+    """Whether listening on ``host`` keeps the server to this machine."""
+    if host.lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False
+
+
+def _is_ip(name: str) -> bool:
+    try:
+        ipaddress.ip_address(name)
+        return True
+    except ValueError:
+        return False
+
+
 class PlayHandler(BaseHTTPRequestHandler):
     server: PlayServer
 
     def do_GET(self) -> None:
+        self._dispatch()
+
+    def do_HEAD(self) -> None:  # GET's status and headers without the body
+        self._dispatch()
+
+    def do_OPTIONS(self) -> None:
         self._dispatch()
 
     def do_POST(self) -> None:
@@ -358,31 +429,75 @@ class PlayHandler(BaseHTTPRequestHandler):
 
     def _dispatch(self) -> None:
         path = urlsplit(self.path).path
+        self._allow = ""
         try:
+            self._check_caller()  # before anything is read or changed
             methods = ROUTES.get(path)
             if methods is None:
                 raise RequestError(404, f"unknown path {path}; the API is: "
                                         + ", ".join(f"{m} {p}" for p, ms in ROUTES.items() for m in ms))
-            answer = methods.get(self.command)
+            allowed = [*methods, *(["HEAD"] if "GET" in methods else []), "OPTIONS"]
+            self._allow = ", ".join(allowed)
+            if self.command == "OPTIONS":  # no CORS headers: a browser keeps other sites' pages out
+                self.send_body(204, "", b"")
+                return
+            answer = methods.get("GET" if self.command == "HEAD" else self.command)
             if answer is None:
                 raise RequestError(405, f"{path} answers {', '.join(methods)}, not {self.command}")
             answer(self)
         except RequestError as exc:
+            self.close_connection = True  # a refused request's body may be left unread
             self.send_json(exc.status, {"error": exc.message})
+        except ConnectionError:  # the page went away (a reload, a closed tab): nobody to answer
+            self.close_connection = True
         except Exception as exc:  # noqa: BLE001 - a bug answers 500 and the server goes on serving
             traceback.print_exc()
             self.send_json(500, {"error": f"internal error: {type(exc).__name__}: {exc}"})
+
+    def _check_caller(self) -> None:
+        """Refuse (403) requests that a page from another site makes through the player's browser.
+
+        ``Host`` must name this server (a web page cannot choose it, except by DNS rebinding: pointing a name of its
+        own at 127.0.0.1, which leaves its name in ``Host``); ``Origin`` and ``Sec-Fetch-Site``, which browsers set
+        on cross-site requests, must say the request comes from this server's own page."""
+        host = self.headers.get("Host")
+        if host is None or not self.server.is_own_host(host):
+            raise RequestError(403, f"refused: Host {host!r} is not this server "
+                                    f"({', '.join(self.server.own_hosts())}); open the address play.py printed")
+        origin = self.headers.get("Origin")
+        if origin is not None:
+            parts = urlsplit(origin)
+            if parts.scheme != "http" or not self.server.is_own_host(parts.netloc):
+                raise RequestError(403, f"refused: requests from {origin} are not allowed; only this server's own "
+                                        "page may call the API")
+        site = self.headers.get("Sec-Fetch-Site")
+        # a link elsewhere (a study's instructions) may open the page itself, in a tab of its own, not in a frame
+        opens_page = (self.command in ("GET", "HEAD") and urlsplit(self.path).path == "/"
+                      and self.headers.get("Sec-Fetch-Mode") == "navigate"
+                      and self.headers.get("Sec-Fetch-Dest") == "document")
+        if site is not None and site not in ("same-origin", "none") and not opens_page:
+            raise RequestError(403, f"refused: a {site} request; only this server's own page may call the API")
 
     def send_json(self, status: int, payload: Mapping[str, Any]) -> None:
         self.send_body(status, "application/json", json.dumps(payload).encode())
 
     def send_body(self, status: int, content_type: str, body: bytes) -> None:
-        self.send_response(status)
-        self.send_header("Content-Type", content_type)
-        self.send_header("Content-Length", str(len(body)))
-        self.send_header("Cache-Control", "no-store")
-        self.end_headers()
-        self.wfile.write(body)
+        try:
+            self.send_response(status)
+            if content_type:
+                self.send_header("Content-Type", content_type)
+            if getattr(self, "_allow", "") and status in (204, 405):
+                self.send_header("Allow", self._allow)
+            self.send_header("Content-Length", str(len(body)))
+            self.send_header("Cache-Control", "no-store")
+            # no other site may show the page in a frame and steer the player's keys
+            self.send_header("X-Frame-Options", "DENY")
+            self.send_header("Content-Security-Policy", "frame-ancestors 'none'")
+            self.end_headers()
+            if self.command != "HEAD":
+                self.wfile.write(body)
+        except ConnectionError:  # the page went away before its answer: nothing to report
+            self.close_connection = True
 
     def log_request(self, code: int | str = "-", size: int | str = "-") -> None:
         # a player makes several requests a second; log only the refused ones
@@ -399,6 +514,35 @@ class PlayServer(ThreadingHTTPServer):
         super().__init__((host, port), PlayHandler)
         self.page = page_html
         self.session: PlaySession | None = None
+        self.host = host.strip("[]").lower()
+
+    def own_hosts(self) -> list[str]:
+        """The names (with the port) under which pages may reach this server."""
+        port = self.server_address[1]
+        names = ["127.0.0.1", "localhost", "[::1]"]
+        if self.host not in ("127.0.0.1", "localhost", "::1"):
+            names.append(f"[{self.host}]" if ":" in self.host else self.host)
+        return [f"{name}:{port}" for name in names]
+
+    def is_own_host(self, host: str) -> bool:
+        """Whether a ``Host`` header (or an origin's host:port) names this server."""
+        try:
+            parts = urlsplit(f"//{host}")
+            name, port = (parts.hostname or "").lower(), parts.port or 80
+        except ValueError:  # a malformed port
+            return False
+        if port != self.server_address[1]:
+            return False
+        if name in ("localhost", self.host) or (_is_ip(name) and ipaddress.ip_address(name).is_loopback):
+            return True
+        # listening on every interface, a page may use any of this machine's addresses, but never a domain name
+        # (which could be a rebinding one)
+        return self.host in ("0.0.0.0", "::", "") and _is_ip(name)
+
+    def handle_error(self, request: Any, client_address: Any) -> None:
+        if isinstance(sys.exc_info()[1], ConnectionError):
+            return  # a browser dropped its connection (reload, closed tab): routine, not an error
+        super().handle_error(request, client_address)
 
 
 # ------------------------------------------------------------------------------------------------- main
@@ -422,6 +566,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"play.py: error: cannot listen on {options.host}:{options.port}: {exc}", file=sys.stderr)
         return 1
     signal.signal(signal.SIGTERM, _stop)
+    if not is_loopback(options.host):
+        print(f"play.py: WARNING: listening on {options.host}, not on this machine only: anyone who can reach it "
+              "can play, and their episodes are recorded as this participant's. Prefer the default host and an "
+              "ssh tunnel (docs/play.md).", file=sys.stderr, flush=True)
     try:
         server.session = PlaySession(options)
         host, port = server.server_address[:2]
@@ -434,6 +582,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  finished episodes are appended to {server.session.records}")
         print("  Ctrl-C stops the server", flush=True)
         server.serve_forever()
+    except StartupError as exc:
+        print(f"play.py: error: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         pass
     finally:

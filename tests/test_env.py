@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 
+import re
 from functools import partial
 
 import numpy as np
@@ -586,3 +587,125 @@ def test_threads_setting(monkeypatch):
     monkeypatch.delenv("EVAAA_THREADS")
     with pytest.raises(ValueError, match="threads must be an integer >= 1"):
         evaaa.make_env("1-1", num_envs=2, threads=0)
+
+
+# ------------------------------------------------------------------------------------------------ level edge cases
+def test_a_level_without_resources_runs_with_a_random_start():
+    env = evaaa.make_env("1-2", seed=0, modalities=["interoception", "olfaction", "collision"],
+                         **{"resources.food.count": 0, "resources.water.count": 0, "agent.start": "random"})
+    td = env.rollout(20, break_when_any_done=False)
+    assert td["next", "interoception"].isfinite().all()
+    assert (td["next", "olfaction"] == 0).all()  # nothing to smell
+    env.close()
+
+
+def test_a_steep_collision_damage_rule_saturates_at_its_cap_without_overflow():
+    from evaaa.physiology import contact_damage
+
+    assert contact_damage(1e4, 0.0002, 5.0, 60.0, 80.0) == 80.0  # exp(49700) would overflow
+    assert contact_damage(60.0, 0.0002, 5.0, 60.0, 80.0) == pytest.approx(0.0002)
+    assert contact_damage(1e4, 0.0, 5.0, 60.0, 80.0) == 0.0
+    assert contact_damage(-1e4, 0.0002, 5.0, 60.0, 80.0) == 0.0
+    # the default rule is unchanged where it does not saturate
+    assert contact_damage(100.0, 0.0002, 0.07, 60.0, 80.0) == pytest.approx(0.0002 * np.exp(0.07 * 40.0))
+    # pressing into a wall for a while with a steep rule: every substep's damage stays at most the cap
+    sim = bare_sim(["collision"], **{"agent.collision_damage.rate": 5.0, "physiology.bounds.damage": [0, 1e5]})
+    sim.set_agent_pose(0, (0.0, 46.0), 0.0)
+    for _ in range(30):
+        _, reward, _, _, info = sim.step(np.array([FORWARD]))
+        assert np.isfinite(reward).all()
+        assert 0.0 <= info["damage_taken"][0, 0] <= 80.0 * 5
+    assert np.isfinite(sim.ev).all()
+
+
+@pytest.mark.parametrize("overrides, field", [
+    ({"agent.mass": 1e-20}, "agent.mass"),
+    ({"obstacles.bushes.scale": [[1e-12, 1e-12], [1, 1], [1, 1]]}, "obstacles.bushes"),
+])
+def test_a_scene_mujoco_refuses_is_a_level_error_naming_the_field(overrides, field):
+    with pytest.raises(evaaa.LevelError, match=rf"invalid level '2-1':\n  {re.escape(field)}.*MuJoCo cannot build it"):
+        evaaa.make_env("2-1", modalities=["interoception"], **overrides)
+
+
+# ------------------------------------------------------------------------------------------------ API hygiene
+def test_a_missing_or_one_hot_action_gets_a_clear_error():
+    env = evaaa.make_env("1-1", num_envs=2, seed=0, modalities=["interoception"])
+    td = env.reset()
+    with pytest.raises(ValueError, match=r"no 'action' entry: set td\['action'\] to an integer tensor of shape \(2,\)"):
+        env.step(td.clone())
+    td["action"] = torch.nn.functional.one_hot(torch.tensor([1, 3]), 5)
+    with pytest.raises(ValueError, match=r"shape \(2, 5\), like a one-hot encoding.*action\.argmax\(-1\)"):
+        env.step(td)
+    td["action"] = torch.tensor([[1, 3], [0, 0]])
+    with pytest.raises(ValueError, match=r"got shape \(2, 2\)"):
+        env.step(td)
+    td["action"] = torch.tensor([1, 3])
+    assert env.step(td)["next", "info", "step_count"].tolist() == [[1], [1]]
+    env.close()
+
+
+def test_stepping_a_closed_env_is_an_error_and_rebuilds_nothing():
+    env = evaaa.make_env("1-1", seed=0, modalities=["pixels"])
+    td = env.reset()
+    td["action"] = torch.tensor([1])
+    env.close()
+    with pytest.raises(RuntimeError, match=r"EvaaaEnv \(1-1\) was closed; make a new one"):
+        env.step(td)
+    with pytest.raises(RuntimeError, match="was closed"):
+        env.reset()
+    assert env.sim._renderer is None
+
+
+def test_repr_says_what_the_env_is():
+    env = evaaa.make_env("2-1", num_envs=3, seed=4, modalities=["olfaction", "pixels"], threads=1)
+    assert repr(env) == ("EvaaaEnv(level='2-1', num_envs=3, modalities=['pixels', 'olfaction'], device=cpu, "
+                         "seed=4, threads=1)")
+    env.close()
+
+
+def test_the_collision_spec_is_bounded_zero_to_one():
+    env = evaaa.make_env("1-1", seed=0, modalities=["collision"])
+    spec = env.observation_spec["collision"]
+    assert (spec.space.low == 0).all() and (spec.space.high == 1).all()
+    env.close()
+
+
+def test_mujoco_warnings_go_to_logging_not_to_a_file(tmp_path, monkeypatch, caplog):
+    import mujoco
+
+    monkeypatch.chdir(tmp_path)
+    model = mujoco.MjModel.from_xml_string(
+        '<mujoco><worldbody><body><freejoint/><geom size="1"/></body></worldbody></mujoco>')
+    data = mujoco.MjData(model)
+    data.qpos[0] = np.nan
+    with caplog.at_level("WARNING", logger="mujoco"):
+        mujoco.mj_step(model, data)
+    assert any("MuJoCo: Nan, Inf or huge value in QPOS" in r.getMessage() for r in caplog.records)
+    assert list(tmp_path.iterdir()) == []  # no MUJOCO_LOG.TXT
+
+
+def test_a_torchrl_video_recorder_writes_a_playable_mp4(tmp_path):
+    import cv2
+    from torchrl.envs import TransformedEnv
+    from torchrl.record import VideoRecorder
+
+    from evaaa.video import VideoLogger
+
+    logger = VideoLogger(tmp_path / "videos", fps=10)
+    env = TransformedEnv(evaaa.make_env("1-1", seed=0, modalities=["pixels"]),
+                         VideoRecorder(logger, tag="eye", in_keys=["pixels"]))
+    td = env.rollout(12, break_when_any_done=False)
+    env.transform.dump()
+    env.close()
+    assert logger.written == [tmp_path / "videos" / "eye_0.mp4"]
+    video = cv2.VideoCapture(str(logger.written[0]))
+    frames = []
+    while True:
+        ok, frame = video.read()
+        if not ok:
+            break
+        frames.append(cv2.cvtColor(frame, cv2.COLOR_BGR2RGB))
+    video.release()
+    assert len(frames) == 13  # the reset frame and one per step
+    last = td["next", "pixels"][0, -1].numpy()  # world 0, last step
+    assert frames[-1].shape == last.shape and np.abs(frames[-1].astype(int) - last).mean() < 20

@@ -118,3 +118,78 @@ def test_render_is_the_eye_view_without_pixels():
 def test_unknown_render_mode_raises():
     with pytest.raises(ValueError, match="rgb_array"):
         EvaaaGymEnv("1-1", render_mode="human")
+
+
+def test_registration_carries_the_level_step_cap():
+    for name in evaaa.LEVELS + evaaa.TESTBEDS:
+        assert gymnasium.spec(f"evaaa/{name}-v0").max_episode_steps == evaaa.load_level(name).episode.max_steps
+    env = gymnasium.make("evaaa/two-resource-food-v0", modalities="interoception")
+    assert env.spec.max_episode_steps == evaaa.load_level("two-resource-food").episode.max_steps
+    env.close()
+
+
+def test_a_longer_cap_than_registered_warns_about_gymnasium_time_limit():
+    with pytest.warns(UserWarning, match=r"also pass max_episode_steps=9000"):
+        EvaaaGymEnv("1-1", modalities="interoception", **{"episode.max_steps": 9000}).close()
+
+
+def test_the_collision_sensor_is_declared_zero_or_one():
+    env = gymnasium.make("evaaa/1-1-v0", modalities=["collision", "olfaction"])
+    space = env.observation_space["collision"]
+    assert (space.low == 0).all() and (space.high == 1).all()
+    assert np.isinf(env.observation_space["olfaction"].high).all()  # the others stay unbounded
+    env.close()
+
+
+@pytest.mark.parametrize("action", [True, False, np.bool_(True)])
+def test_booleans_are_not_actions(action):
+    env = gymnasium.make("evaaa/1-1-v0", modalities="interoception")
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"action must be an integer in 0\.\.4"):
+        env.step(action)
+    env.close()
+
+
+def test_stepping_a_closed_env_is_an_error():
+    env = EvaaaGymEnv("1-1", modalities="interoception", render_mode="rgb_array")
+    env.reset(seed=0)
+    env.close()
+    for call in (lambda: env.step(0), lambda: env.reset(seed=0), env.render):
+        with pytest.raises(RuntimeError, match=r"EvaaaGymEnv \(1-1\) was closed"):
+            call()
+    env.close()  # closing twice is harmless (wrappers and garbage collection both close)
+    assert env.sim._renderer is None  # nothing was rebuilt
+
+
+def test_repr_names_the_level_and_modalities():
+    env = EvaaaGymEnv("1-2", modalities=["olfaction"])
+    assert repr(env) == "EvaaaGymEnv(level='1-2', modalities=['olfaction'], render_mode=None, max_steps=5000)"
+    env.close()
+
+
+def test_rendered_frames_make_a_playable_video(tmp_path):
+    import cv2
+
+    from evaaa.video import write_mp4
+
+    env = gymnasium.make("evaaa/1-1-v0", modalities="interoception", render_mode="rgb_array")
+    env.reset(seed=0)
+    frames = [env.render()]
+    for action in ACTIONS[:9]:
+        env.step(int(action))
+        frames.append(env.render())
+    env.close()
+    path = write_mp4(tmp_path / "eye.mp4", frames, fps=10)
+    video = cv2.VideoCapture(str(path))
+    decoded = []
+    while True:
+        ok, frame = video.read()
+        if not ok:
+            break
+        decoded.append(cv2.cvtColor(frame, cv2.COLOR_BGR2RGB))
+    video.release()
+    assert len(decoded) == 10 and decoded[0].shape == (64, 64, 3)
+    # lossy, but each decoded frame is closer to its own source frame than to the others
+    for i, frame in enumerate(decoded):
+        errors = [np.abs(frame.astype(int) - f.astype(int)).mean() for f in frames]
+        assert errors[i] == min(errors) and errors[i] < 20, (i, errors)

@@ -179,3 +179,87 @@ def test_reward_name_error_lists_the_four_names():
     for name in evaaa.REWARDS:
         assert re.search(rf"'{name}'", message), name
     assert "'dense'" in message
+
+
+# ------------------------------------------------------------------------------------------------ broken but typed
+@pytest.mark.parametrize(
+    "overrides, pattern",
+    [
+        ({"physiology.food_value": float("nan")}, r"physiology\.food_value: Input should be a finite number"),
+        ({"physiology.food_value": "nan"}, r"physiology\.food_value: Input should be a finite number"),
+        ({"thermal.base_temperature": float("inf")}, r"thermal\.base_temperature: .*finite"),
+        ({"agent.spawn_x": [float("-inf"), 0]}, r"agent\.spawn_x\.0: .*finite"),
+        ({"resources.food.size": float("inf")}, r"resources\.food\.size.*finite"),
+        ({"events.switch.set.satiation": float("nan")}, r"events\.switch\.set\.satiation: .*finite"),
+    ],
+)
+def test_nan_and_infinity_are_refused_everywhere(overrides, pattern):
+    base = "goal-manipulation-food-to-water" if any(k.startswith("events") for k in overrides) else "1-1"
+    with pytest.raises(LevelError, match=pattern):
+        load_level(base, overrides)
+
+
+@pytest.mark.parametrize(
+    "overrides, pattern",
+    [
+        ({"reward.weights.satiation": 1e308}, r"reward\.weights\.satiation: must lie within \[-1e\+06, 1e\+06\]"),
+        ({"physiology.bounds.satiation": [-1e9, 1e9]}, r"physiology\.bounds\.satiation: must lie within"),
+        ({"episode.max_steps": 10**12}, r"episode\.max_steps: must lie within"),
+        ({"thermal.hotspots.count": 10**9}, r"thermal\.hotspots\.count: .*less than or equal to 1000"),
+        ({"thermal.hotspots.size": 5000}, r"thermal\.hotspots\.size: .*less than or equal to 1000"),
+        ({"thermal.sigma": 1e9}, r"thermal\.sigma: .*less than or equal to 100"),
+        # each within its own bound, too much work together at every reset
+        ({"thermal.grid": [1000, 1000], "thermal.sigma": 20}, r"thermal: sigma = 20 cells over a grid of 1000 x 1000"),
+        ({"arena.size": [1e5, 100]}, r"arena\.size\.0: .*less than or equal to 1000"),
+        ({"arena.size": [1, 100]}, r"arena\.size\.0: .*greater than or equal to 2"),
+        ({"obstacles.bushes.scale": [[0, 1], [1, 1], [1, 1]]}, r"obstacles\.bushes\.scale: every scale must be > 0"),
+    ],
+)
+def test_sizes_and_counts_are_bounded_by_what_the_machine_can_do(overrides, pattern):
+    with pytest.raises(LevelError, match=pattern):
+        load_level("2-1", overrides)
+
+
+def test_the_default_smoothing_stays_allowed():
+    assert load_level("1-1", {"thermal.grid": [1000, 1000], "thermal.sigma": 3}).thermal.sigma == 3
+
+
+@pytest.mark.parametrize(
+    "overrides, pattern",
+    [
+        ({"agent.start": "fixed", "agent.start_position": [60, 0]},
+         r"agent\.start_position = \[60, 0\] is off the floor.*x in \[-49\.5, 49\.5\]"),
+        # a random start falls back to the fixed position when its box is full: that must be on the floor too
+        ({"agent.start_position": [0, -50]}, r"agent\.start_position = \[0, -50\] is off the floor"),
+        ({"agent.spawn_y": [60, 70]}, r"agent\.spawn_y = \[60, 70\] misses the floor"),
+        ({"sensors.vision.near": 5, "sensors.vision.far": 1},
+         r"sensors\.vision: near \(5\) must be less than far \(1\)"),
+        ({"daynight.enabled": True, "daynight.night_far": 0.2},
+         r"daynight\.night_far \(0\.2\) must exceed sensors\.vision\.near \(0\.3\)"),
+    ],
+)
+def test_rules_across_fields_are_checked_at_load_time(overrides, pattern):
+    with pytest.raises(LevelError, match=pattern):
+        load_level("1-1", overrides)
+
+
+def test_a_random_spawn_box_partly_off_the_floor_is_kept():
+    level = load_level("1-1", {"agent.spawn_x": [-80, 0]})
+    assert level.agent.spawn_x == (-80.0, 0.0)  # the part on the floor is used (worldgen clips it)
+
+
+def test_bodies_in_all_are_bounded():
+    assert load_level("2-2", {"obstacles.bushes.count": 1000}).obstacles["bushes"].count == 1000
+    # each group within its own limit, too many together for MuJoCo's collision detection
+    with pytest.raises(LevelError, match=r"obstacles' count and the solid resources' \(ponds\) count add up to 1514"):
+        load_level("2-2", {"obstacles.bushes.count": 1000, "obstacles.rocks.count": 500})
+    with pytest.raises(LevelError, match=r"resources' count adds up to 2004 items; at most 2000"):
+        load_level("2-2", {"resources.apples_a.count": 1000, "resources.apples_b.count": 1000})
+
+
+def test_hotspots_and_landmarks_are_bounded_in_all():
+    with pytest.raises(LevelError, match=r"hotspots\.count = 1000 squares of hotspots\.size = 999 cells paint"):
+        load_level("1-1", {"thermal.grid": [1000, 1000], "thermal.sigma": 0, "thermal.hotspots.count": 1000,
+                           "thermal.hotspots.size": 999})
+    with pytest.raises(LevelError, match=r"landmarks: pattern places 12100 landmark points; at most 10000"):
+        load_level("4-1", {"landmarks.pattern": [[10] * 11] * 11})

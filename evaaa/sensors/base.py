@@ -19,6 +19,8 @@ class Sensor:
 
     key: str = ""
     dtype = np.float32
+    #: (low, high) every reading lies in, declared in the observation specs; None: unbounded
+    bounds: tuple[float, float] | None = None
 
     def __init__(self, sim: "Simulator"):
         self.sim = sim

@@ -21,6 +21,7 @@ from .base import Sensor
 
 class CollisionRays(Sensor):
     key = "collision"
+    bounds = (0.0, 1.0)  # one 0/1 flag per sector
 
     def __init__(self, sim):
         super().__init__(sim)

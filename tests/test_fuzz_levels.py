@@ -1,0 +1,82 @@
+"""Fuzzing level overrides: every override set is either refused with a LevelError that names a field it changed,
+or gives a world that runs 50 decisions with finite observations and rewards.
+
+The cases (tests/fuzz_levels.py) are seeded: a failure names its seed, and ``draw_case(seed)`` replays it.  The
+default suite runs a few hundred cases without vision except where a case changes what the camera sees; the slow
+version runs more, every modality on.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from fuzz_levels import draw_case
+
+from evaaa.sim import Simulator
+from evaaa.spec import LevelError, load_level
+
+STEPS = 50
+NO_VISION = ("interoception", "olfaction", "thermoception", "collision")
+#: fields that change what the camera draws: cases touching them are run with vision
+_DRAWN = ("sensors.vision", "daynight")
+
+
+def _names_a_changed_field(message: str, overrides: dict) -> bool:
+    return any(path.split(".")[-1] in message for path in overrides)
+
+
+def _run(level, seed: int, modalities) -> str | None:
+    """Step a world of ``level`` with random actions; the problem found, or None."""
+    sim = Simulator(level, 1, modalities, seed=seed, threads=1)
+    try:
+        actions = np.random.default_rng(seed).integers(0, 5, size=STEPS)
+        obs = sim.reset()
+        for t in range(STEPS):
+            for key, value in obs.items():
+                if value.dtype.kind == "f" and not np.isfinite(value).all():
+                    return f"observation {key} not finite at step {t}: {value}"
+            obs, reward, terminated, truncated, _ = sim.step(actions[t: t + 1])
+            if not np.isfinite(reward).all():
+                return f"reward not finite at step {t}: {reward}"
+            if terminated[0] or truncated[0]:
+                obs = sim.reset()
+        return None
+    finally:
+        sim.close()
+
+
+def _fuzz(seeds, all_modalities: bool) -> tuple[list[str], int, int]:
+    failures, refused, ran = [], 0, 0
+    for seed in seeds:
+        base, overrides = draw_case(seed)
+        case = f"seed {seed}: {base} {overrides}"
+        try:
+            level = load_level(base, overrides)
+            drawn = all_modalities or any(p.startswith(_DRAWN) for p in overrides)
+            problem = _run(level, seed, None if drawn else NO_VISION)
+        except LevelError as exc:  # at load time, or when MuJoCo refuses the scene
+            refused += 1
+            if not _names_a_changed_field(str(exc), overrides):
+                failures.append(f"{case}\n  refused without naming a changed field: {exc}")
+            continue
+        except Exception as exc:  # noqa: BLE001 - every other error is a failure of the level checks
+            failures.append(f"{case}\n  {type(exc).__name__}: {exc}")
+            continue
+        ran += 1
+        if problem:
+            failures.append(f"{case}\n  {problem}")
+    return failures, refused, ran
+
+
+def test_fuzzed_levels_are_refused_by_name_or_run_finite():
+    failures, refused, ran = _fuzz(range(300), all_modalities=False)
+    assert not failures, f"{len(failures)} of 300 cases failed:\n" + "\n".join(failures)
+    # the generator must keep producing both kinds of case, or this test would check little
+    assert refused >= 100 and ran >= 40, (refused, ran)
+
+
+@pytest.mark.slow
+def test_fuzzed_levels_with_every_modality():
+    failures, refused, ran = _fuzz(range(300, 2300), all_modalities=True)
+    assert not failures, f"{len(failures)} of 2000 cases failed:\n" + "\n".join(failures)
+    assert refused >= 500 and ran >= 300, (refused, ran)

@@ -1,0 +1,191 @@
+"""The play server's defences and records (scripts/play.py): only this machine's own page may drive it, odd requests
+get 4xx answers, and every human record says which run of the server it came from and when it ended."""
+
+from __future__ import annotations
+
+import http.client
+import io
+import json
+import re
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+from helpers import load_script
+
+from evaaa.records import read_rows
+
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "play.py"
+START_TIMEOUT_S = 120
+
+
+@contextmanager
+def server(workdir: Path, *args: str) -> Iterator[tuple[str, int]]:
+    """``scripts/play.py level=1-1 port=0 *args`` running in ``workdir``; yields (host, port)."""
+    log_path = workdir / "play.log"
+    with log_path.open("w") as log:
+        proc = subprocess.Popen([sys.executable, str(SCRIPT), "level=1-1", "participant=p01", "port=0", *args],
+                                cwd=workdir, stdout=log, stderr=subprocess.STDOUT)
+    try:
+        deadline = time.monotonic() + START_TIMEOUT_S
+        while not (found := re.search(r"open http://([\d.]+):(\d+)/ ", log_path.read_text())):
+            if proc.poll() is not None or time.monotonic() > deadline:
+                pytest.fail(f"play.py did not start:\n{log_path.read_text()}")
+            time.sleep(0.1)
+        yield found.group(1), int(found.group(2))
+    finally:
+        proc.terminate()
+        assert proc.wait(timeout=30) == 0, log_path.read_text()
+
+
+def call(address: tuple[str, int], method: str, path: str, body: bytes | None = None,
+         headers: dict[str, str] | None = None) -> tuple[int, dict[str, str], bytes]:
+    """One request with exactly these headers (http.client adds Host unless one is given)."""
+    connection = http.client.HTTPConnection(*address, timeout=30)
+    headers = dict(headers or {})
+    skip_host = "Host" in headers
+    connection.putrequest(method, path, skip_host=skip_host, skip_accept_encoding=True)
+    for key, value in headers.items():
+        connection.putheader(key, value)
+    if body is not None:
+        connection.putheader("Content-Length", str(len(body)))
+    connection.endheaders(body)
+    response = connection.getresponse()
+    payload = response.read()
+    connection.close()
+    return response.status, dict(response.getheaders()), payload
+
+
+def state(address) -> dict:
+    status, _, payload = call(address, "GET", "/api/state")
+    assert status == 200
+    return json.loads(payload)
+
+
+def test_requests_from_other_sites_are_refused_and_change_nothing(tmp_path):
+    out = tmp_path / "records"
+    with server(tmp_path, "episode.max_steps=2", f"out={out}") as address:
+        host, port = address
+        own = f"http://{host}:{port}"
+        status, _, _ = call(address, "POST", "/api/step", b'{"action": 1}',
+                            {"Origin": own, "Content-Type": "application/json"})
+        assert status == 200  # the page's own requests pass
+        before = state(address)
+        assert before["step"] == 1
+        attacks = [
+            # a page elsewhere posting through the player's browser (a "simple" text/plain request needs no preflight)
+            {"Origin": "http://evil.example", "Content-Type": "text/plain"},
+            {"Origin": "null", "Content-Type": "text/plain"},
+            {"Origin": f"http://localhost:{port + 1}"},  # another local server's page
+            {"Origin": f"https://{host}:{port}"},
+            {"Sec-Fetch-Site": "cross-site"},
+            # DNS rebinding: the attacker's own name, now pointing at 127.0.0.1, stays in Host
+            {"Host": f"rebind.evil.example:{port}"},
+            {"Host": f"{host}:{port + 1}"},
+        ]
+        for headers in attacks:
+            for path, body in (("/api/step", b'{"action": 1}'), ("/api/reset", b'{"level": "1-2"}'),
+                               ("/api/state", None), ("/", None)):
+                status, _, payload = call(address, "POST" if body else "GET", path, body, headers)
+                assert status == 403, (headers, path, status, payload)
+                assert "refused" in json.loads(payload)["error"]
+        after = state(address)
+        assert after == before  # same episode, step, EVs and frame
+        assert not (out / "episodes.csv").exists()  # the step that would end the episode never ran
+        # a link on another site may open the page in a tab of its own, never in a frame
+        navigate = {"Sec-Fetch-Site": "cross-site", "Sec-Fetch-Mode": "navigate"}
+        status, headers, _ = call(address, "GET", "/", headers={**navigate, "Sec-Fetch-Dest": "document"})
+        assert status == 200 and headers["X-Frame-Options"] == "DENY"
+        assert call(address, "GET", "/", headers={**navigate, "Sec-Fetch-Dest": "iframe"})[0] == 403
+        # names of this machine are fine, and the episode goes on where it was
+        assert call(address, "GET", "/api/state", headers={"Host": f"localhost:{port}"})[0] == 200
+        status, _, payload = call(address, "POST", "/api/step", b'{"action": 0}',
+                                  {"Origin": f"http://localhost:{port}"})
+        assert status == 200 and json.loads(payload)["done"] is True
+
+
+def test_head_options_nesting_and_methods(tmp_path):
+    with server(tmp_path, f"out={tmp_path / 'records'}") as address:
+        get_status, get_headers, page = call(address, "GET", "/")
+        status, headers, payload = call(address, "HEAD", "/")
+        assert (status, payload) == (200, b"") and get_status == 200
+        assert headers["Content-Length"] == get_headers["Content-Length"] == str(len(page))
+        assert call(address, "HEAD", "/api/step")[0] == 405
+        status, headers, payload = call(address, "OPTIONS", "/api/step")
+        assert (status, headers["Allow"], payload) == (204, "POST, OPTIONS", b"")
+        assert "Access-Control-Allow-Origin" not in headers  # no cross-origin permission is ever granted
+        assert call(address, "OPTIONS", "/api/state")[1]["Allow"] == "GET, HEAD, OPTIONS"
+        assert call(address, "OPTIONS", "/nowhere")[0] == 404
+        status, headers, payload = call(address, "DELETE", "/api/reset")
+        assert status == 405 and headers["Allow"] == "POST, OPTIONS"
+        deep = b"[" * 2000 + b"]" * 2000  # within the 4 KiB body limit, deeper than the parser recurses
+        for body in (deep, b'{"action": ' + deep + b"}"):
+            status, _, payload = call(address, "POST", "/api/step", body)
+            assert status == 400 and "nested too deeply" in json.loads(payload)["error"]
+        assert state(address)["step"] == 0
+
+
+def test_records_name_their_session_and_time(tmp_path):
+    out = tmp_path / "records"
+    sessions = []
+    for _ in range(2):  # the same participant comes back: episode indices start at 0 again
+        with server(tmp_path, "episode.max_steps=1", f"out={out}") as address:
+            first = state(address)["session"]
+            call(address, "POST", "/api/step", b'{"action": 0}')
+            sessions.append(first)
+    rows = read_rows(out / "episodes.csv")
+    assert [(r["participant"], r["episode"]) for r in rows] == [("p01", "0"), ("p01", "0")]
+    assert [r["session"] for r in rows] == sessions and sessions[0] != sessions[1]
+    for row in rows:
+        assert re.fullmatch(r"\d{8}T\d{6}Z-[0-9a-f]{6}", row["session"])
+        assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\+00:00", row["ended_at"])
+
+
+# ------------------------------------------------------------------------------------------------- start-up
+def test_unwritable_records_fail_at_start_up(tmp_path, capsys):
+    play = load_script("play")
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a directory")
+    assert play.main(["port=0", f"out={blocker / 'records'}"]) == 1
+    assert f"cannot write records in {blocker / 'records'}" in capsys.readouterr().err
+    # a records file from something else is not appended to
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "episodes.csv").write_text("policy,level,steps\nrandom,1-1,5\n")
+    assert play.main(["port=0", f"out={foreign}"]) == 1
+    assert "holds other columns" in capsys.readouterr().err
+    assert (foreign / "episodes.csv").read_text() == "policy,level,steps\nrandom,1-1,5\n"
+
+
+def test_listening_beyond_this_machine_is_warned_about(tmp_path, capsys):
+    play = load_script("play")
+    assert play.is_loopback("127.0.0.1") and play.is_loopback("::1") and play.is_loopback("localhost")
+    assert not play.is_loopback("0.0.0.0") and not play.is_loopback("192.168.1.5")
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    assert play.main(["host=0.0.0.0", "port=0", f"out={blocker / 'x'}"]) == 1  # warned, then stopped
+    assert "WARNING: listening on 0.0.0.0, not on this machine only" in capsys.readouterr().err
+
+
+def test_a_vanished_browser_leaves_no_traceback(capsys):
+    play = load_script("play")
+
+    class Gone(io.RawIOBase):
+        def write(self, data):
+            raise BrokenPipeError(32, "Broken pipe")
+
+    handler = play.PlayHandler.__new__(play.PlayHandler)
+    handler.request_version, handler.command, handler.requestline = "HTTP/1.1", "GET", "GET / HTTP/1.1"
+    handler.client_address, handler.close_connection, handler.wfile = ("127.0.0.1", 1), False, Gone()
+    handler.send_body(200, "text/plain", b"x" * 100)
+    assert handler.close_connection is True
+    server = play.PlayServer.__new__(play.PlayServer)
+    try:
+        raise ConnectionResetError(104, "Connection reset by peer")
+    except ConnectionResetError:
+        server.handle_error(None, ("127.0.0.1", 1))
+    assert capsys.readouterr().err == ""
