@@ -12,25 +12,30 @@ over 0.01) and of the four decisions' total.  The README's wall-hit figure comes
 from __future__ import annotations
 
 import sys
+from dataclasses import dataclass
 
 import numpy as np
 
 import evaaa
+from baselines import cli
+from baselines.cli import option
 from evaaa.sim import FORWARD, Simulator
 
-ANGLES = (0.0, 10.0, 20.0, 30.0)
+
+@dataclass
+class WallHitsConfig:
+    angles: list[float] = option([0.0, 10.0, 20.0, 30.0], "headings off the wall's normal, in degrees",
+                                 check=(lambda v: 0.0 <= v < 90.0, "angles in [0, 90)"))
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    if argv:
-        print(__doc__)
-        return 0 if argv[0] in ("-h", "--help") else 2
+    cfg = cli.parse(WallHitsConfig, argv, prog="wall_hits.py", description=__doc__.split("\n\n")[0],
+                    examples=["angles=[0,45]"])
     level = evaaa.load_level("1-1", {"resources.food.count": 0, "resources.water.count": 0, "agent.start": "fixed"})
     sim = Simulator(level, 1, ["collision"], seed=0, threads=1)
     sim.reset()
     print("angle  damage per decision that hits  total of the four decisions")
-    for angle in ANGLES:
+    for angle in cfg.angles:
         hits, totals = [], []
         for start in np.linspace(44.0, 46.0, 41):
             sim.reset()

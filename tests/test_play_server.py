@@ -68,7 +68,7 @@ def state(address) -> dict:
 
 def test_requests_from_other_sites_are_refused_and_change_nothing(tmp_path):
     out = tmp_path / "records"
-    with server(tmp_path, "episode.max_steps=2", f"out={out}") as address:
+    with server(tmp_path, "overrides.episode.max_steps=2", f"out={out}") as address:
         host, port = address
         own = f"http://{host}:{port}"
         status, _, _ = call(address, "POST", "/api/step", b'{"action": 1}',
@@ -133,7 +133,7 @@ def test_records_name_their_session_and_time(tmp_path):
     out = tmp_path / "records"
     sessions = []
     for _ in range(2):  # the same participant comes back: episode indices start at 0 again
-        with server(tmp_path, "episode.max_steps=1", f"out={out}") as address:
+        with server(tmp_path, "overrides.episode.max_steps=1", f"out={out}") as address:
             first = state(address)["session"]
             call(address, "POST", "/api/step", b'{"action": 0}')
             sessions.append(first)
