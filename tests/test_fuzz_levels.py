@@ -22,6 +22,10 @@ _DRAWN = ("sensors.vision", "daynight")
 
 
 def _names_a_changed_field(message: str, overrides: dict) -> bool:
+    if "found no free spot" in message:
+        # obstacle groups are placed in turn, each around the ones before it: changing one group (its kind, size
+        # or count) can leave no room for a later one, and the refusal names the group that could not be placed
+        return any(path.startswith(("obstacles.", "arena.")) for path in overrides)
     return any(path.split(".")[-1] in message for path in overrides)
 
 
