@@ -293,7 +293,7 @@ def test_curriculum_hands_weights_over_and_resumes_mid_curriculum(tmp_path, monk
 
 def test_atomic_save_keeps_the_previous_checkpoint_when_writing_fails(tmp_path, monkeypatch):
     path = tmp_path / "checkpoint.pt"
-    checkpoint.save_atomic({"step": 1}, path)
+    checkpoint.save_checkpoint({"step": 1}, path)
 
     def failing_save(obj, f):
         f.write(b"partial")
@@ -301,7 +301,7 @@ def test_atomic_save_keeps_the_previous_checkpoint_when_writing_fails(tmp_path, 
 
     monkeypatch.setattr(torch, "save", failing_save)
     with pytest.raises(OSError):
-        checkpoint.save_atomic({"step": 2}, path)
+        checkpoint.save_checkpoint({"step": 2}, path)
     monkeypatch.undo()
     assert checkpoint.load_checkpoint(path) == {"step": 1}
 
