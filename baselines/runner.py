@@ -148,8 +148,8 @@ def _decide(cfg: DictConfig, run_dir: Path, plan: list) -> tuple[dict | None, li
         raise RunRefused("resume=true and start_over=true contradict each other: choose one")
     contents = run_contents(run_dir)
     has_checkpoint = any(name in contents for name in (CHECKPOINT, PREVIOUS))
-    start_over = ("start over: pass start_over=true to move it aside (to a hidden folder beside it, which "
-                  "reports skip) and train from zero, or choose another run.name / run.root")
+    start_over = ("start_over=true moves it aside (to a hidden folder beside it, which reports skip) and trains from "
+                  "zero; or choose another run.name / run.root")
     if cfg.get("start_over"):
         if not contents:
             return None, [(logging.INFO, f"start_over=true: {run_dir} holds no run; starting from zero")], None
@@ -158,17 +158,17 @@ def _decide(cfg: DictConfig, run_dir: Path, plan: list) -> tuple[dict | None, li
                                         f"is now in {target}; starting from zero")], target
     if not cfg.resume:
         if has_checkpoint:
-            raise RunExists(f"{run_dir} already holds a run (checkpoint.pt): pass resume=true to continue it, or "
-                            f"{start_over}; nothing was changed")
+            raise RunExists(f"{run_dir} already holds a run (checkpoint.pt); nothing was changed. resume=true "
+                            f"continues it; {start_over}")
         if contents:
-            raise RunExists(f"{run_dir} already holds a run's results ({', '.join(contents)}): nothing was changed; "
-                            f"to {start_over}")
+            raise RunExists(f"{run_dir} already holds a run's results ({', '.join(contents)}); nothing was "
+                            f"changed. {start_over}")
         return None, [], None
     if has_checkpoint:
         try:
             found = load_latest(run_dir)
         except CheckpointError as err:
-            raise CheckpointError(f"cannot resume {run_dir}: {err}; nothing was changed; to {start_over}") from None
+            raise CheckpointError(f"cannot resume {run_dir}: {err}; nothing was changed. {start_over}") from None
         assert found is not None
         state, path, note = found
         changed = _check_same_run(state, cfg, plan)
@@ -181,8 +181,8 @@ def _decide(cfg: DictConfig, run_dir: Path, plan: list) -> tuple[dict | None, li
     if not contents:
         return None, [(logging.WARNING, f"resume=true: {run_dir} holds no checkpoint yet: starting from zero")], None
     if any(name.startswith("model-") for name in contents):
-        raise RunExists(f"cannot resume {run_dir}: it holds a run's results ({', '.join(contents)}) but no "
-                        f"checkpoint (checkpoint.pt was deleted or lost); nothing was changed; to {start_over}")
+        raise RunExists(f"cannot resume {run_dir}: it holds a trained run's results ({', '.join(contents)}) but "
+                        f"no checkpoint (checkpoint.pt was deleted or lost); nothing was changed. {start_over}")
     # a run stopped before its first checkpoint: nothing to continue, and nothing finished to keep in place
     target = _aside(run_dir)
     return None, [(logging.WARNING, f"resume=true: {run_dir} stopped before its first checkpoint, so it starts from "

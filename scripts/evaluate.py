@@ -17,7 +17,9 @@ Arguments (``key=value``, lists as ``[a,b]``):
     epsilon    for checkpoints: chance of a uniformly random action at each step (default 0: the policy's
                deterministic action; 0.05 is DQN's customary evaluation epsilon); said in summary.md
 
-Writes to ``out``: ``episodes.csv`` (one row per episode, appended), ``summary.md`` (success rate ± standard
+Writes to ``out``, which must not hold an earlier evaluation (it is refused, changing nothing: each evaluation is a
+complete result of its own): ``episodes.csv`` (one row per episode, put in place once every episode is done),
+``summary.md`` (success rate ± standard
 error per testbed, mean survival ± standard error per training level, one column per policy), ``success.png``,
 ``survival.png`` and ``outcomes.png`` (what the agent did: consumed the right or wrong resource, died of which
 EV, ran out of time; mean collisions).
@@ -25,6 +27,7 @@ EV, ran out of time; mean collisions).
 
 from __future__ import annotations
 
+import os
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -41,6 +44,8 @@ from evaaa.analysis import markdown_table, plot_bars, plot_outcomes, read_episod
 from evaaa.records import EpisodeTracker, append_rows
 
 GROUPS = {"testbeds": evaaa.TESTBEDS, "training": evaaa.LEVELS, "all": evaaa.LEVELS + evaaa.TESTBEDS}
+#: what an evaluation writes to ``out``: any of them there means ``out`` already holds one
+OUTPUTS = ("episodes.csv", "summary.md", "success.png", "survival.png", "outcomes.png")
 
 
 @dataclass
@@ -169,14 +174,23 @@ def run_level(policy: Policy, level: str, cfg: EvalConfig, bar: tqdm) -> list[di
 def main(argv: list[str] | None = None) -> int:
     cfg = parse(sys.argv[1:] if argv is None else argv)
     out = Path(cfg.out)
+    earlier = [name for name in OUTPUTS if (out / name).exists()]
+    if earlier:
+        # appending would pool two evaluations (n doubles, the standard error shrinks); replacing would lose one
+        raise SystemExit(f"evaluate.py: {out} already holds an evaluation ({', '.join(earlier)}); nothing was "
+                         "changed: choose another out=, or move those files away first")
     out.mkdir(parents=True, exist_ok=True)
     policies = [Policy(spec, cfg.seed, cfg.modalities, cfg.epsilon, cfg.sample) for spec in cfg.policy]
     total = len(policies) * len(cfg.levels) * cfg.episodes
+    # episodes go to a hidden file until the last one is done: an interrupted evaluation leaves no episodes.csv
+    partial = out / ".episodes.csv.partial"
+    partial.unlink(missing_ok=True)  # an earlier interrupted evaluation's
     with tqdm(total=total, desc="episodes", unit="ep", dynamic_ncols=True) as bar:
         for policy in policies:
             for level in cfg.levels:
                 bar.set_postfix_str(f"{policy.name} on {level}")
-                append_rows(out / "episodes.csv", run_level(policy, level, cfg, bar))
+                append_rows(partial, run_level(policy, level, cfg, bar))
+    os.replace(partial, out / "episodes.csv")
     rows = read_episodes([out / "episodes.csv", *cfg.include])
     rows = rows[rows["level"].isin(cfg.levels)]
     summary = summarize(rows)
