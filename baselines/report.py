@@ -312,7 +312,8 @@ def load_evaluations(paths: Iterable[str | Path], notes: list[str] | None = None
         if not file.is_file():
             raise ReportError(f"evals: {p} is neither an episode CSV nor a directory holding episodes.csv")
         text = csv_text(file, notes)
-        missing = [c for c in EVAL_FILE_COLUMNS if c not in pd.read_csv(text, nrows=0).columns]
+        columns = set(pd.read_csv(text, nrows=0).columns)
+        missing = [c for c in EVAL_FILE_COLUMNS if c not in columns]
         if missing:
             raise ReportError(f"evals: {file} is not an episode file of scripts/evaluate.py or scripts/play.py "
                               f"(no column {', '.join(missing)})")

@@ -7,7 +7,9 @@ from __future__ import annotations
 
 import csv
 import itertools
+import logging
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -304,6 +306,51 @@ def test_atomic_save_keeps_the_previous_checkpoint_when_writing_fails(tmp_path, 
         checkpoint.save_checkpoint({"step": 2}, path)
     monkeypatch.undo()
     assert checkpoint.load_checkpoint(path) == {"step": 1}
+
+
+def assert_same_run(whole: Path, resumed: Path) -> None:
+    a = checkpoint.load_checkpoint(whole / checkpoint.CHECKPOINT)
+    b = checkpoint.load_checkpoint(resumed / checkpoint.CHECKPOINT)
+    assert a["counters"] == b["counters"]
+    assert all(torch.equal(v, b["model"][k]) for k, v in a["model"].items())
+    assert read_csv(whole / "episodes.csv") == read_csv(resumed / "episodes.csv")
+    assert read_csv(whole / "eval.csv") == read_csv(resumed / "eval.csv")
+
+
+def test_a_damaged_latest_checkpoint_resumes_exactly_from_the_previous_one(runs, tmp_path, monkeypatch, caplog):
+    run_dir = tmp_path / "run"
+    run_killed(debug_cfg("ppo"), run_dir, KILL_AT, monkeypatch)
+    latest = run_dir / checkpoint.CHECKPOINT
+    weight = max(checkpoint.load_checkpoint(latest)["model"].values(), key=torch.Tensor.numel)
+    data = bytearray(latest.read_bytes())
+    start = data.find(weight.numpy().tobytes()[:256])
+    data[start + 256: start + 1280] = bytes(1024)  # 1 KB zeroed inside a weight
+    latest.write_bytes(bytes(data))
+    (run_dir / ".checkpoint.pt.tmp").write_bytes(b"cut short by a kill")
+    with caplog.at_level(logging.INFO, logger="baselines.runner"):
+        train(debug_cfg("ppo", "resume=true"), run_dir)
+    assert f"{latest} is damaged" in caplog.text and f"previous checkpoint {run_dir / checkpoint.PREVIOUS}" in caplog.text
+    assert not (run_dir / ".checkpoint.pt.tmp").exists() and ".checkpoint.pt.tmp" in caplog.text
+    assert_same_run(runs("ppo")["whole"], run_dir)
+
+
+def test_ctrl_c_checkpoints_after_the_iteration_and_resume_continues_exactly(runs, tmp_path, monkeypatch):
+    """The first SIGINT lets the iteration finish, writes a checkpoint and stops; the resumed run is the whole run."""
+    end_iteration = runtime.Run.end_iteration
+
+    def ctrl_c_at(self, td):
+        if self.steps == 96:
+            os.kill(os.getpid(), signal.SIGINT)
+        end_iteration(self, td)
+
+    monkeypatch.setattr(runtime.Run, "end_iteration", ctrl_c_at)
+    with pytest.raises(runtime.Interrupted, match="interrupted at env step 96 of 1-1: checkpoint written to"):
+        train(debug_cfg("ppo"), tmp_path / "run")
+    monkeypatch.undo()
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handler is put back
+    assert checkpoint.load_checkpoint(tmp_path / "run" / checkpoint.CHECKPOINT)["counters"]["steps"] == 96
+    train(debug_cfg("ppo", "resume=true"), tmp_path / "run")
+    assert_same_run(runs("ppo")["whole"], tmp_path / "run")
 
 
 @pytest.mark.parametrize("backend", ["tensorboard", "wandb"])
