@@ -9,6 +9,7 @@ import csv
 import itertools
 import logging
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -353,6 +354,22 @@ def test_ctrl_c_checkpoints_after_the_iteration_and_resume_continues_exactly(run
     assert_same_run(runs("ppo")["whole"], tmp_path / "run")
 
 
+def test_a_second_ctrl_c_stops_at_once_and_names_the_checkpoint_left(tmp_path, monkeypatch):
+    end_iteration = runtime.Run.end_iteration
+
+    def ctrl_c_twice_at(self, td):
+        if self.steps == 96:
+            os.kill(os.getpid(), signal.SIGINT)
+            os.kill(os.getpid(), signal.SIGINT)
+        end_iteration(self, td)
+
+    monkeypatch.setattr(runtime.Run, "end_iteration", ctrl_c_twice_at)
+    latest = tmp_path / "run" / checkpoint.CHECKPOINT
+    with pytest.raises(runtime.Interrupted, match=f"stopped at once: .*from the last one, {re.escape(str(latest))}"):
+        train(debug_cfg("ppo"), tmp_path / "run")
+    assert checkpoint.load_checkpoint(latest)["counters"]["steps"] == 64  # the last one due (every 64 env steps)
+
+
 @pytest.mark.parametrize("backend", ["tensorboard", "wandb"])
 def test_other_loggers_write_under_the_run_directory(tmp_path, backend):
     cfg = make_cfg(f"logger={backend}")
@@ -373,7 +390,7 @@ def test_train_script_multirun_sweeps_seeds(tmp_path):
                           env={**os.environ, "HYDRA_FULL_ERROR": "1"})
     assert done.returncode == 0, done.stderr[-3000:]
     for seed in (0, 1):
-        run_dir = tmp_path / "1-1" / "ppo" / "all-squared" / f"seed{seed}"
+        run_dir = tmp_path / "1-1" / "ppo" / "all-squared-debug" / f"seed{seed}"  # the preset has its own folders
         assert (run_dir / checkpoint.CHECKPOINT).exists() and (run_dir / ".hydra" / "config.yaml").exists()
         assert checkpoint.load_checkpoint(run_dir / checkpoint.CHECKPOINT)["config"]["seed"] == seed
 
