@@ -57,7 +57,8 @@ def to_plain(obj: Any, where: str = "state") -> Any:
         if obj.dtype.hasobject:
             raise TypeError(f"{where}: a numpy array of Python objects cannot be stored in a checkpoint")
         raw = np.ascontiguousarray(obj).reshape(-1).view(np.uint8)  # any dtype (uint32, float16...) as its bytes
-        return {_TAG: "ndarray", "dtype": obj.dtype.str, "shape": list(obj.shape), "bytes": torch.from_numpy(raw.copy())}
+        return {_TAG: "ndarray", "dtype": obj.dtype.str, "shape": list(obj.shape),
+                "bytes": torch.from_numpy(raw.copy())}
     if isinstance(obj, np.generic):
         return {_TAG: "npscalar", "array": to_plain(np.asarray(obj), where)}
     if isinstance(obj, TensorDictBase):

@@ -173,8 +173,9 @@ def _decide(cfg: DictConfig, run_dir: Path, plan: list) -> tuple[dict | None, li
         state, path, note = found
         changed = _check_same_run(state, cfg, plan)
         notes = [(logging.WARNING, note)] if note else []  # a damaged latest checkpoint: said once the run goes on
-        notes.append((logging.INFO, f"resuming {run_dir} from {path.name} at stage {state['stage']} ({state['level']}), env step "
-                     f"{state['counters']['steps']:,}"))
+        # "resuming ... env step <digits>": scripts/bench_train.py finds a run's sessions by it in train.log
+        notes.append((logging.INFO, f"resuming {run_dir} from {path.name} at stage {state['stage']} "
+                                    f"({state['level']}), env step {state['counters']['steps']}"))
         if changed:
             notes.append((logging.WARNING, "resuming with changed settings in: " + ", ".join(changed)))
         return state, notes, None

@@ -330,7 +330,8 @@ def test_a_damaged_latest_checkpoint_resumes_exactly_from_the_previous_one(runs,
     (run_dir / ".checkpoint.pt.tmp").write_bytes(b"cut short by a kill")
     with caplog.at_level(logging.INFO, logger="baselines.runner"):
         train(debug_cfg("ppo", "resume=true"), run_dir)
-    assert f"{latest} is damaged" in caplog.text and f"previous checkpoint {run_dir / checkpoint.PREVIOUS}" in caplog.text
+    assert f"{latest} is damaged" in caplog.text
+    assert f"previous checkpoint {run_dir / checkpoint.PREVIOUS}" in caplog.text
     assert not (run_dir / ".checkpoint.pt.tmp").exists() and ".checkpoint.pt.tmp" in caplog.text
     assert_same_run(runs("ppo")["whole"], run_dir)
 
