@@ -20,10 +20,24 @@ import sys
 
 
 def _stop_before_start(signum, frame):
-    # Ctrl-C while no run is training (libraries loading, config being composed, between a sweep's jobs): no run
-    # has anything unsaved (baselines/runner.py handles Ctrl-C while a run trains)
+    # Ctrl-C while no run is training (libraries loading, config being composed): no run has anything unsaved
+    # (baselines/runner.py handles Ctrl-C while a run trains)
     print("train.py: interrupted while no run was training; nothing was lost", file=sys.stderr, flush=True)
     os._exit(130)
+
+
+_sweep_stopping = False
+
+
+def _stop_sweep(signum, frame):
+    # a sweep's parent process: its jobs (other processes, or this one between jobs) get the same Ctrl-C from the
+    # terminal and each stops after writing a checkpoint; exiting here at once would leave them orphaned
+    global _sweep_stopping
+    if _sweep_stopping:
+        raise KeyboardInterrupt
+    _sweep_stopping = True
+    print("train.py: Ctrl-C: the sweep stops once its running jobs have written their checkpoints (Ctrl-C again to "
+          "stop at once)", file=sys.stderr, flush=True)
 
 
 signal.signal(signal.SIGINT, _stop_before_start)  # first, so that even the imports below stop in one line
@@ -51,6 +65,8 @@ faulthandler.enable(all_threads=True)
 
 @hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> None:
+    if _sweep_stopping:  # Ctrl-C between two jobs of a sweep run in this process
+        raise SystemExit(130)
     hydra_cfg = HydraConfig.get()
     # what Hydra would have written to .hydra/ itself (conf/config.yaml: output_subdir null)
     records = {"config.yaml": cfg, "hydra.yaml": OmegaConf.create({"hydra": hydra_cfg}),
@@ -67,8 +83,11 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    if {"-m", "--multirun"} & set(sys.argv[1:]):
+        signal.signal(signal.SIGINT, _stop_sweep)
     try:
         main()
-    except KeyboardInterrupt:  # Ctrl-C while Hydra composes the config or launches a sweep's jobs
-        print("train.py: interrupted while no run was training; nothing was lost", file=sys.stderr, flush=True)
+    except KeyboardInterrupt:  # a second Ctrl-C in a sweep's parent process
+        print("train.py: sweep stopped at once; each job resumes from its last checkpoint with resume=true",
+              file=sys.stderr, flush=True)
         raise SystemExit(130) from None
