@@ -132,13 +132,6 @@ def _aside(run_dir: Path) -> Path:
     raise RunExists(f"{run_dir}: no free name to move the old run to")
 
 
-def _move_aside(run_dir: Path) -> Path:
-    target = _aside(run_dir)
-    run_dir.rename(target)
-    run_dir.mkdir(parents=True)
-    return target
-
-
 def _decide(cfg: DictConfig, run_dir: Path, plan: list) -> tuple[dict | None, list[tuple[int, str]], Path | None]:
     """What to do with ``run_dir``, decided before anything is written: the checkpoint state to resume (or None),
     the lines to log (level, message) once the run goes ahead, and where an old run is to be moved first (or None).
@@ -256,7 +249,7 @@ def train(cfg: DictConfig, run_dir: str | Path, *, records: Mapping[str, Any] | 
 
     # from here on the run goes ahead: the directory may change
     if aside is not None:
-        _move_aside(run_dir)
+        run_dir.rename(aside)  # the name the notes below give
     run_dir.mkdir(parents=True, exist_ok=True)
     for tmp in remove_stale_temporaries(run_dir):
         notes.append((logging.INFO, f"removed {tmp}, left by a process killed while writing it"))
@@ -274,11 +267,12 @@ def train(cfg: DictConfig, run_dir: str | Path, *, records: Mapping[str, Any] | 
     cfg.stages = [{"level": s.level, "budget": s.budget} for s in plan]
 
     with _graceful_interrupts() as stop:
-        logger = make_logger(cfg, run_dir, state["logs"]["logger"] if state else None)
-        if state is None:
-            logger.log_hparams(flat_hparams(cfg))
-        weights = None
+        logger = None
         try:
+            logger = make_logger(cfg, run_dir, state["logs"]["logger"] if state else None)
+            if state is None:
+                logger.log_hparams(flat_hparams(cfg))
+            weights = None
             for stage in plan[state["stage"] if state else 0:]:
                 run = Run(cfg, run_dir, stage, algo, logger, resume=state, init_weights=weights,
                           fresh_logs=state is None and stage.index == 0, stop_requested=stop.is_set)
@@ -296,9 +290,10 @@ def train(cfg: DictConfig, run_dir: str | Path, *, records: Mapping[str, Any] | 
                 raise Interrupted(f"stopped at once: no new checkpoint; the same command with resume=true continues "
                                   f"from the last one, {latest}") from None
             raise Interrupted(f"stopped at once, before the first checkpoint: there is no checkpoint to continue "
-                              f"from; the same command with resume=true starts {run_dir} again from zero") from None
+                              f"from; the same command with start_over=true starts {run_dir} again from zero") from None
         finally:
-            _quietly(logger.shutdown)
+            if logger is not None:
+                _quietly(logger.shutdown)
     return run_dir
 
 

@@ -88,6 +88,6 @@ if __name__ == "__main__":
     try:
         main()
     except KeyboardInterrupt:  # a second Ctrl-C in a sweep's parent process
-        print("train.py: sweep stopped at once; each job resumes from its last checkpoint with resume=true",
-              file=sys.stderr, flush=True)
+        print("train.py: sweep stopped at once; each job resumes from its last checkpoint, if it has one, with "
+              "resume=true", file=sys.stderr, flush=True)
         raise SystemExit(130) from None
