@@ -238,9 +238,25 @@ def train(cfg: DictConfig, run_dir: str | Path, *, records: Mapping[str, Any] | 
     Raises :class:`RunRefused` (or ``CheckpointError``) before writing anything when the command would change an
     existing run (see the module docstring), and :class:`~baselines.runtime.Interrupted` on Ctrl-C.
     """
+    run_dir = Path(run_dir)
+    # from the start: a Ctrl-C while the checks run or an old run is moved aside waits for a consistent state too
+    with _graceful_interrupts() as stop:
+        try:
+            return _train(cfg, run_dir, records, stop)
+        except Interrupted:
+            raise
+        except KeyboardInterrupt:
+            latest = run_dir / CHECKPOINT
+            if latest.exists():
+                raise Interrupted(f"stopped at once: no new checkpoint; the same command with resume=true continues "
+                                  f"from the last one, {latest}") from None
+            raise Interrupted(f"stopped at once, before the first checkpoint: there is no checkpoint to continue "
+                              f"from; the same command with start_over=true starts {run_dir} again from zero") from None
+
+
+def _train(cfg: DictConfig, run_dir: Path, records: Mapping[str, Any] | None, stop: threading.Event) -> Path:
     from . import ALGOS
 
-    run_dir = Path(run_dir)
     if cfg.algo.name not in ALGOS:
         raise ValueError(f"unknown algo {cfg.algo.name!r}; known: {', '.join(ALGOS)}")
     algo = ALGOS[cfg.algo.name]
@@ -266,34 +282,22 @@ def train(cfg: DictConfig, run_dir: str | Path, *, records: Mapping[str, Any] | 
     OmegaConf.set_struct(cfg, False)
     cfg.stages = [{"level": s.level, "budget": s.budget} for s in plan]
 
-    with _graceful_interrupts() as stop:
-        logger = None
-        try:
-            logger = make_logger(cfg, run_dir, state["logs"]["logger"] if state else None)
-            if state is None:
-                logger.log_hparams(flat_hparams(cfg))
-            weights = None
-            for stage in plan[state["stage"] if state else 0:]:
-                run = Run(cfg, run_dir, stage, algo, logger, resume=state, init_weights=weights,
-                          fresh_logs=state is None and stage.index == 0, stop_requested=stop.is_set)
-                try:
-                    algo.train(run)
-                finally:
-                    _quietly(run.close)
-                weights = run.model.state_dict()
-                state = None
-        except Interrupted:
-            raise
-        except KeyboardInterrupt:
-            latest = run_dir / CHECKPOINT
-            if latest.exists():
-                raise Interrupted(f"stopped at once: no new checkpoint; the same command with resume=true continues "
-                                  f"from the last one, {latest}") from None
-            raise Interrupted(f"stopped at once, before the first checkpoint: there is no checkpoint to continue "
-                              f"from; the same command with start_over=true starts {run_dir} again from zero") from None
-        finally:
-            if logger is not None:
-                _quietly(logger.shutdown)
+    logger = make_logger(cfg, run_dir, state["logs"]["logger"] if state else None)
+    try:
+        if state is None:
+            logger.log_hparams(flat_hparams(cfg))
+        weights = None
+        for stage in plan[state["stage"] if state else 0:]:
+            run = Run(cfg, run_dir, stage, algo, logger, resume=state, init_weights=weights,
+                      fresh_logs=state is None and stage.index == 0, stop_requested=stop.is_set)
+            try:
+                algo.train(run)
+            finally:
+                _quietly(run.close)
+            weights = run.model.state_dict()
+            state = None
+    finally:
+        _quietly(logger.shutdown)
     return run_dir
 
 
