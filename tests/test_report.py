@@ -463,6 +463,20 @@ def test_command_line_rejects_bad_input(world, tmp_path, args, message):
         script.main([*args, f"out={tmp_path / 'out'}"])
 
 
+def test_how_a_run_was_started_does_not_split_its_group(tmp_path):
+    from baselines.report import describe_extras, load_run
+
+    sim = Sim(tmp_path / "runs")
+    dirs = [sim.run("ppo", 0, level="1-1", finish=1), sim.run("ppo", 1, level="1-1", finish=1)]
+    config = dirs[1] / ".hydra" / "config.yaml"
+    config.write_text(config.read_text().replace("start_over: false", "start_over: true")
+                      .replace("resume: false", "resume: true"))
+    runs = [load_run(d) for d in dirs]
+    assert runs[1].config["start_over"] and runs[1].config["resume"]
+    describe_extras(runs)
+    assert runs[0].extras == runs[1].extras == ()
+
+
 def test_a_row_cut_short_at_the_end_of_a_csv_is_skipped_and_said(world, tmp_path):
     from baselines.report import load_evaluations, load_run
 
