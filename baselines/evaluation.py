@@ -137,6 +137,9 @@ def load_policy(path: str | Path, *, modalities: Iterable[str] | str | None = No
         path: the checkpoint file.
         modalities: the observation keys the caller will feed (e.g. an ablation's); if given and different from
             the keys the checkpoint was trained on, a ``ValueError`` says which keys differ.
+
+    A file that is damaged, cut short or holds anything but tensors and plain data (so could run code) is refused
+    with a :class:`~baselines.checkpoint.CheckpointError` (a ``ValueError``) naming it.
     """
     from . import ALGOS  # the algorithm modules import this one
 

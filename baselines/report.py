@@ -18,6 +18,7 @@ unfinished runs and evaluations whose run directory is gone are listed in the re
 
 from __future__ import annotations
 
+import io
 import os
 import re
 from collections.abc import Iterable, Sequence
@@ -40,8 +41,8 @@ MODEL_FILE = re.compile(r"^model-(\d+)-(.+)\.pt$")
 #: the network of a stage's best evaluation (runtime.Run.best_model_path)
 BEST_MODEL_FILE = re.compile(r"^model-best-(\d+)-(.+)\.pt$")
 #: Settings that do not change what is trained: runs differing only in these (and the seed) are pooled.
-BOOKKEEPING = ("seed", "resume", "threads", "progress", "progress_window", "log_every", "total_steps", "stages",
-               "run.", "logger.", "checkpoint.", "eval.", "level.", "hydra.")
+BOOKKEEPING = ("seed", "resume", "start_over", "threads", "progress", "progress_window", "log_every", "total_steps",
+               "stages", "run.", "logger.", "checkpoint.", "eval.", "level.", "hydra.")
 RUN_COLUMNS = ("env_steps", "stage", "level", "survival_steps")
 EVAL_RUN_COLUMNS = ("env_steps", "stage", "level", "survival_mean")
 EVAL_FILE_COLUMNS = ("policy", "level", "steps", "success", "episode")
@@ -72,6 +73,7 @@ class Run:
     problem: str | None = None  # why the run is missing or partial (None: finished)
     usable: bool = True  # False: nothing of it can be reported (no config or no episodes file)
     extras: tuple = ()  # other settings that tell this run's group apart (filled by describe_extras)
+    notes: list[str] = field(default_factory=list)  # what was skipped while reading its files
 
     @property
     def total(self) -> int:
@@ -141,8 +143,8 @@ def load_run(run_dir: str | Path) -> Run:
     except Exception as err:  # noqa: BLE001 - any malformed config is reported, not fatal
         run.problem, run.usable = f"unreadable .hydra/config.yaml ({err}); left out", False
         return run
-    run.episodes = _read_run_csv(run.dir / "episodes.csv", RUN_COLUMNS)
-    run.evals = _read_run_csv(run.dir / "eval.csv", EVAL_RUN_COLUMNS)
+    run.episodes = _read_run_csv(run.dir / "episodes.csv", RUN_COLUMNS, run.notes)
+    run.evals = _read_run_csv(run.dir / "eval.csv", EVAL_RUN_COLUMNS, run.notes)
     for index, level, budget in run.stages:
         later = any(df is not None and (df["stage"] > index).any() for df in (run.episodes, run.evals))
         evaluated_at_end = run.evals is not None and ((run.evals["stage"] == index)
@@ -169,10 +171,26 @@ def load_run(run_dir: str | Path) -> Run:
     return run
 
 
-def _read_run_csv(path: Path, needed: Sequence[str]) -> pd.DataFrame | None:
+def csv_text(path: Path, notes: list[str]) -> io.StringIO:
+    """A CSV file's text, less a last row cut short (every writer here ends its rows with a newline: a file that
+    does not end with one was being written when its process stopped); ``notes`` gets a line saying so.
+
+    Raises :class:`ReportError` for an empty file (it has not even a header)."""
+    data = path.read_bytes()
+    if not data.strip():
+        raise ReportError(f"{path} is empty ({len(data)} bytes, not even a header line): remove it or write it again")
+    text = data.decode("utf-8", errors="replace")
+    if not text.endswith("\n") and "\n" in text.rstrip("\r"):
+        text = text[: text.rindex("\n") + 1]
+        notes.append(f"{path}: its last row was cut short (the file was being written when its process stopped); "
+                     "that row is skipped")
+    return io.StringIO(text)
+
+
+def _read_run_csv(path: Path, needed: Sequence[str], notes: list[str]) -> pd.DataFrame | None:
     if not path.is_file():
         return None
-    df = pd.read_csv(path)
+    df = pd.read_csv(csv_text(path, notes))
     missing = [c for c in needed if c not in df.columns]
     if missing:
         raise ReportError(f"{path} is not a training {path.name} (no column {', '.join(missing)})")
@@ -283,20 +301,24 @@ def across_seeds(values: pd.DataFrame, by: Sequence[str], value: str) -> pd.Data
 
 
 # ------------------------------------------------------------------------------------------------ evaluations
-def load_evaluations(paths: Iterable[str | Path]) -> pd.DataFrame:
+def load_evaluations(paths: Iterable[str | Path], notes: list[str] | None = None) -> pd.DataFrame:
     """Episode rows of evaluation outputs (an ``out`` directory of evaluate.py or an episode CSV, e.g. human
-    play records), in one frame with a ``file`` column."""
+    play records), in one frame with a ``file`` column.  ``notes`` gets a line per skipped (cut short) row."""
+    notes = [] if notes is None else notes
     frames = []
     for p in paths:
         p = Path(p)
         file = p / "episodes.csv" if p.is_dir() else p
         if not file.is_file():
             raise ReportError(f"evals: {p} is neither an episode CSV nor a directory holding episodes.csv")
-        missing = [c for c in EVAL_FILE_COLUMNS if c not in pd.read_csv(file, nrows=0).columns]
+        text = csv_text(file, notes)
+        columns = set(pd.read_csv(text, nrows=0).columns)
+        missing = [c for c in EVAL_FILE_COLUMNS if c not in columns]
         if missing:
             raise ReportError(f"evals: {file} is not an episode file of scripts/evaluate.py or scripts/play.py "
                               f"(no column {', '.join(missing)})")
-        rows = read_episodes([file])
+        text.seek(0)
+        rows = read_episodes([text])  # type: ignore[list-item]  (pandas reads a text buffer like a path)
         frames.append(rows.assign(file=str(file)))
     if not frames:
         return pd.DataFrame(columns=[*EVAL_FILE_COLUMNS, "participant", "file"])
@@ -569,7 +591,8 @@ def build_report(run_paths: Sequence[str | Path], eval_paths: Sequence[str | Pat
                           "(evaluate.py outputs)")
     runs = {d: load_run(d) for d in find_run_dirs(run_paths)}
     # attach may add the runs of evaluated checkpoints
-    evals = attach(select_acting(load_evaluations(eval_paths), acting), runs)
+    read_notes: list[str] = []
+    evals = attach(select_acting(load_evaluations(eval_paths, read_notes), acting), runs)
     run_list = sorted(runs.values(), key=lambda r: str(r.dir))
     usable = [r for r in run_list if r.usable]
     describe_extras(usable)
@@ -606,6 +629,7 @@ def build_report(run_paths: Sequence[str | Path], eval_paths: Sequence[str | Pat
         md.append(f"| {rel(r.dir)} | {r.algo} | {r.modality} | {r.reward} | {r.training} | "
                   f"{'' if r.seed is None else r.seed} | {r.steps:,} / {r.total:,} | {status} |")
     problems = [f"{rel(r.dir)}: {r.problem}" for r in run_list if r.problem] + evals.orphans
+    problems += [note for r in run_list for note in r.notes] + read_notes
     groups: dict[tuple, list[Run]] = {}
     for r in usable:
         groups.setdefault((r.algo, r.modality, r.reward, r.extras, r.training, r.seed), []).append(r)

@@ -2,21 +2,41 @@
 or the resume of a killed run, and the logger the stages share.
 
 ``scripts/train.py`` calls :func:`train` with Hydra's run directory; tests call it with a config from Hydra's
-compose API.  A run directory holds one run: starting again where a checkpoint exists needs ``resume=true``.
+compose API.
+
+A run directory is an append-only record of one run.  Every check is made before anything in it is written (the
+config files included: ``scripts/train.py`` has Hydra leave ``.hydra/`` to :func:`train`), so a refused command
+leaves every file of the existing run as it was:
+
+- a directory holding a checkpoint needs ``resume=true`` (continue exactly) or ``start_over=true``;
+- ``resume=true`` continues from ``checkpoint.pt``, or from ``checkpoint-previous.pt`` when the latest is damaged;
+  with no checkpoint it starts from zero, saying so, if the directory holds no results, or moves the results of a
+  run that never reached its first checkpoint aside; it refuses where a finished run's checkpoint is gone;
+- ``start_over=true`` moves an existing run aside (a hidden sibling folder, named in the log) and starts from zero.
+
+Ctrl-C: the first one lets the iteration under way finish, writes a checkpoint and stops
+(:class:`~baselines.runtime.Interrupted`, one line); a second one stops at once.
 """
 
 from __future__ import annotations
 
 import logging
+import signal
+import sys
+import threading
+import time
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager, suppress
 from pathlib import Path
+from typing import Any
 
 import torch
 from omegaconf import DictConfig, OmegaConf
 from torchrl.record.loggers import Logger, get_logger
 
-from .checkpoint import CHECKPOINT, load_checkpoint, seed_everything
+from .checkpoint import CHECKPOINT, PREVIOUS, CheckpointError, load_latest, remove_stale_temporaries, seed_everything
 from .config import observation_keys, stages
-from .runtime import Run
+from .runtime import Interrupted, Run
 
 log = logging.getLogger(__name__)
 
@@ -47,8 +67,20 @@ def flat_hparams(cfg: DictConfig) -> dict[str, int | float | str | bool]:
     return flat
 
 
-def _check_same_run(state: dict, cfg: DictConfig, plan: list) -> None:
-    """Refuse to resume a checkpoint of a different experiment; note the settings that changed."""
+class RunRefused(Exception):
+    """The command would change an existing run's files: nothing was written."""
+
+
+class RunExists(RunRefused, FileExistsError):
+    """The run directory already holds a run that this command may not continue."""
+
+
+class OtherExperiment(RunRefused, ValueError):
+    """The checkpoint to resume was made by a different experiment."""
+
+
+def _check_same_run(state: dict, cfg: DictConfig, plan: list) -> list[str]:
+    """Refuse to resume a checkpoint of a different experiment; returns the settings that changed."""
     saved = state["config"]
     expected = {
         "algo": (state["algo"], cfg.algo.name),
@@ -60,45 +92,189 @@ def _check_same_run(state: dict, cfg: DictConfig, plan: list) -> None:
     wrong = {k: v for k, v in expected.items() if v[0] != v[1]}
     if wrong:
         detail = "; ".join(f"{k}: checkpoint {a}, now {b}" for k, (a, b) in wrong.items())
-        raise ValueError(f"cannot resume: the checkpoint belongs to another experiment ({detail})")
+        raise OtherExperiment(f"cannot resume: the checkpoint belongs to another experiment ({detail}); nothing "
+                              "was changed")
     now, before = flat_hparams(cfg), flat_hparams(OmegaConf.create(saved))
-    changed = sorted(k for k in now.keys() | before.keys()
-                     if k != "resume" and not k.startswith("stages") and now.get(k) != before.get(k))
-    if changed:
-        log.warning("resuming with changed settings in: %s", ", ".join(changed))
+    return sorted(k for k in now.keys() | before.keys()
+                  if k not in ("resume", "start_over") and not k.startswith("stages") and now.get(k) != before.get(k))
 
 
-def train(cfg: DictConfig, run_dir: str | Path) -> Path:
+# ------------------------------------------------------------------------------------------------ run directory
+#: what Hydra or this module write before training: not results of a run
+_BOOKKEEPING = (".hydra",)
+
+
+def run_contents(run_dir: Path) -> list[str]:
+    """Names of what ``run_dir`` holds beyond bookkeeping (Hydra's ``.hydra/`` and job logs, temporary files of a
+    killed write, training CSVs holding only their header): the results of a run."""
+    if not run_dir.is_dir():
+        return []
+    found = []
+    for entry in sorted(run_dir.iterdir()):
+        name = entry.name
+        if name in _BOOKKEEPING or name.endswith(".log") or name.endswith(".tmp"):
+            continue
+        if name in ("episodes.csv", "eval.csv") and entry.is_file():
+            with open(entry, "rb") as f:
+                if len(f.read(1 << 16).splitlines()) <= 1:  # at most a header
+                    continue
+        found.append(name)
+    return found
+
+
+def _aside(run_dir: Path) -> Path:
+    """A new hidden sibling of ``run_dir`` (reports skip hidden folders) to move an old run to."""
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    for n in range(1000):
+        target = run_dir.with_name(f".{run_dir.name}.replaced-{stamp}" + (f"-{n}" if n else ""))
+        if not target.exists():
+            return target
+    raise RunExists(f"{run_dir}: no free name to move the old run to")
+
+
+def _decide(cfg: DictConfig, run_dir: Path, plan: list) -> tuple[dict | None, list[tuple[int, str]], Path | None]:
+    """What to do with ``run_dir``, decided before anything is written: the checkpoint state to resume (or None),
+    the lines to log (level, message) once the run goes ahead, and where an old run is to be moved first (or None).
+
+    Raises :class:`RunRefused` or :class:`~baselines.checkpoint.CheckpointError` when the command may not go on."""
+    if cfg.get("start_over") and cfg.resume:
+        raise RunRefused("resume=true and start_over=true contradict each other: choose one")
+    contents = run_contents(run_dir)
+    has_checkpoint = any(name in contents for name in (CHECKPOINT, PREVIOUS))
+    start_over = ("start_over=true moves it aside (to a hidden folder beside it, which reports skip) and trains from "
+                  "zero; or choose another run.name / run.root")
+    if cfg.get("start_over"):
+        if not contents:
+            return None, [(logging.INFO, f"start_over=true: {run_dir} holds no run; starting from zero")], None
+        target = _aside(run_dir)
+        return None, [(logging.WARNING, f"start_over=true: the run that was in {run_dir} ({', '.join(contents)}) "
+                                        f"is now in {target}; starting from zero")], target
+    if not cfg.resume:
+        if has_checkpoint:
+            raise RunExists(f"{run_dir} already holds a run (checkpoint.pt); nothing was changed. resume=true "
+                            f"continues it; {start_over}")
+        if contents:
+            raise RunExists(f"{run_dir} already holds a run's results ({', '.join(contents)}); nothing was "
+                            f"changed. {start_over}")
+        return None, [], None
+    if has_checkpoint:
+        try:
+            found = load_latest(run_dir)
+        except CheckpointError as err:
+            raise CheckpointError(f"cannot resume {run_dir}: {err}; nothing was changed. {start_over}") from None
+        assert found is not None
+        state, path, note = found
+        changed = _check_same_run(state, cfg, plan)
+        notes = [(logging.WARNING, note)] if note else []  # a damaged latest checkpoint: said once the run goes on
+        # "resuming ... env step <digits>": scripts/bench_train.py finds a run's sessions by it in train.log
+        notes.append((logging.INFO, f"resuming {run_dir} from {path.name} at stage {state['stage']} "
+                                    f"({state['level']}), env step {state['counters']['steps']}"))
+        if changed:
+            notes.append((logging.WARNING, "resuming with changed settings in: " + ", ".join(changed)))
+        return state, notes, None
+    if not contents:
+        return None, [(logging.WARNING, f"resume=true: {run_dir} holds no checkpoint yet: starting from zero")], None
+    if any(name.startswith("model-") for name in contents):
+        raise RunExists(f"cannot resume {run_dir}: it holds a trained run's results ({', '.join(contents)}) but "
+                        f"no checkpoint (checkpoint.pt was deleted or lost); nothing was changed. {start_over}")
+    # a run stopped before its first checkpoint: nothing to continue, and nothing finished to keep in place
+    target = _aside(run_dir)
+    return None, [(logging.WARNING, f"resume=true: {run_dir} stopped before its first checkpoint, so it starts from "
+                                    f"zero; what it had written ({', '.join(contents)}) is now in {target}")], target
+
+
+def _write_records(run_dir: Path, records: Mapping[str, Any] | None, resumed: bool) -> None:
+    """Hydra's record of the command (``.hydra/config.yaml``, ``hydra.yaml``, ``overrides.yaml``), once the run goes
+    ahead; a resumed run keeps the files of its earlier sessions as ``<name>.session-<n>.yaml`` when they differ."""
+    if not records:
+        return
+    folder = run_dir / ".hydra"
+    folder.mkdir(exist_ok=True)
+    for name, content in records.items():
+        path = folder / name
+        text = OmegaConf.to_yaml(content if OmegaConf.is_config(content) else OmegaConf.create(content))
+        if path.exists():
+            old = path.read_text()
+            if old == text:
+                continue
+            if resumed:
+                n = 1
+                while (kept := path.with_name(f"{path.stem}.session-{n}.yaml")).exists():
+                    n += 1
+                path.rename(kept)
+        path.write_text(text)
+
+
+@contextmanager
+def _graceful_interrupts() -> Iterator[threading.Event]:
+    """The first SIGINT (Ctrl-C) sets the returned event (the loop checkpoints and stops after its iteration); a
+    second one raises ``KeyboardInterrupt`` at once.  Outside the main thread, Ctrl-C keeps its usual meaning."""
+    stop = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield stop
+        return
+
+    def handler(signum, frame):
+        if stop.is_set():
+            raise KeyboardInterrupt
+        stop.set()
+        log.warning("Ctrl-C: finishing this iteration and writing a checkpoint (Ctrl-C again to stop at once)")
+
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield stop
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def train(cfg: DictConfig, run_dir: str | Path, *, records: Mapping[str, Any] | None = None) -> Path:
     """Train the configured algorithm on the configured level(s) in ``run_dir``; returns the run directory.
 
-    Writes ``checkpoint.pt`` (latest state, every ``checkpoint.every`` env steps and at the end of each stage),
-    ``model-<stage>-<level>.pt`` (the weights at the end of each stage), ``episodes.csv``, ``eval.csv`` and the
-    logger's files.  With ``resume=true`` a run with a checkpoint continues exactly where that checkpoint was taken.
+    Writes ``checkpoint.pt`` (latest state, every ``checkpoint.every`` env steps, at the end of each stage and on
+    Ctrl-C) beside ``checkpoint-previous.pt``, ``model-<stage>-<level>.pt`` (the weights at the end of each stage),
+    ``episodes.csv``, ``eval.csv``, the logger's files and ``records`` (Hydra's config files, under ``.hydra/``).
+    With ``resume=true`` a run with a checkpoint continues exactly where that checkpoint was taken.
+
+    Raises :class:`RunRefused` (or ``CheckpointError``) before writing anything when the command would change an
+    existing run (see the module docstring), and :class:`~baselines.runtime.Interrupted` on Ctrl-C.
     """
+    run_dir = Path(run_dir)
+    # from the start: a Ctrl-C while the checks run or an old run is moved aside waits for a consistent state too
+    with _graceful_interrupts() as stop:
+        try:
+            return _train(cfg, run_dir, records, stop)
+        except Interrupted:
+            raise
+        except KeyboardInterrupt:
+            latest = run_dir / CHECKPOINT
+            if latest.exists():
+                raise Interrupted(f"stopped at once: no new checkpoint; the same command with resume=true continues "
+                                  f"from the last one, {latest}") from None
+            raise Interrupted(f"stopped at once, before the first checkpoint: there is no checkpoint to continue "
+                              f"from; the same command with start_over=true starts {run_dir} again from zero") from None
+
+
+def _train(cfg: DictConfig, run_dir: Path, records: Mapping[str, Any] | None, stop: threading.Event) -> Path:
     from . import ALGOS
 
-    run_dir = Path(run_dir)
-    run_dir.mkdir(parents=True, exist_ok=True)
     if cfg.algo.name not in ALGOS:
         raise ValueError(f"unknown algo {cfg.algo.name!r}; known: {', '.join(ALGOS)}")
     algo = ALGOS[cfg.algo.name]
+    plan = stages(cfg)
+    state, notes, aside = _decide(cfg, run_dir, plan)
+
+    # from here on the run goes ahead: the directory may change
+    if aside is not None:
+        run_dir.rename(aside)  # the name the notes below give
+    run_dir.mkdir(parents=True, exist_ok=True)
+    for tmp in remove_stale_temporaries(run_dir):
+        notes.append((logging.INFO, f"removed {tmp}, left by a process killed while writing it"))
+    for level, note in notes:
+        log.log(level, note)
+    _write_records(run_dir, records, resumed=state is not None)
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
-    plan = stages(cfg)
-
-    latest = run_dir / CHECKPOINT
-    state = None
-    if latest.exists():
-        if not cfg.resume:
-            raise FileExistsError(f"{run_dir} already holds a run (checkpoint.pt): pass resume=true to continue it, "
-                                  "or choose another run.name / run.root")
-        state = load_checkpoint(latest)
-        _check_same_run(state, cfg, plan)
-        log.info("resuming %s at stage %d (%s), env step %d", run_dir, state["stage"], state["level"],
-                 state["counters"]["steps"])
-    else:
-        if cfg.resume:
-            log.info("nothing to resume in %s: starting afresh", run_dir)
+    if state is None:
         seed_everything(cfg.seed)
 
     # the stage plan goes into the saved config, so a resume can check it trains the same levels in the same order
@@ -107,19 +283,28 @@ def train(cfg: DictConfig, run_dir: str | Path) -> Path:
     cfg.stages = [{"level": s.level, "budget": s.budget} for s in plan]
 
     logger = make_logger(cfg, run_dir, state["logs"]["logger"] if state else None)
-    if state is None:
-        logger.log_hparams(flat_hparams(cfg))
-    weights = None
     try:
+        if state is None:
+            logger.log_hparams(flat_hparams(cfg))
+        weights = None
         for stage in plan[state["stage"] if state else 0:]:
             run = Run(cfg, run_dir, stage, algo, logger, resume=state, init_weights=weights,
-                      fresh_logs=state is None and stage.index == 0)
+                      fresh_logs=state is None and stage.index == 0, stop_requested=stop.is_set)
             try:
                 algo.train(run)
             finally:
-                run.close()
+                _quietly(run.close)
             weights = run.model.state_dict()
             state = None
     finally:
-        logger.shutdown()
+        _quietly(logger.shutdown)
     return run_dir
+
+
+def _quietly(cleanup) -> None:
+    """Run a clean-up step; while an error or interrupt is on its way out, a failing clean-up must not replace it."""
+    if sys.exc_info()[1] is None:
+        cleanup()
+        return
+    with suppress(Exception):
+        cleanup()

@@ -11,6 +11,9 @@ and the sizes of ``episodes.csv`` and ``eval.csv`` (cut back to them on resume, 
 checkpoint by the killed process are not duplicated).  Evaluation uses its own worlds, seeded afresh each time, and a
 deterministic policy (or, with ``eval.sample``, a sampling one on a forked torch RNG), so it draws nothing from the
 training RNGs.  The model of the best evaluation so far is kept as ``model-best-<stage>-<level>.pt``.
+
+Interrupts: when ``stop_requested`` says so (the first Ctrl-C, see ``baselines/runner.py``), the iteration under way
+finishes, a checkpoint is written and :class:`Interrupted` says where, so an interrupted run always resumes exactly.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ import logging
 import os
 import time
 from collections import deque
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -39,7 +42,7 @@ from tqdm import tqdm
 import evaaa
 from evaaa import END_TYPES, EV_NAMES
 
-from .checkpoint import CHECKPOINT, CHECKPOINT_FORMAT, rng_state, save_atomic, set_rng_state
+from .checkpoint import CHECKPOINT, CHECKPOINT_FORMAT, rng_state, save_checkpoint, set_rng_state
 from .config import Stage, env_overrides, observation_keys
 from .evaluation import evaluate, wrap_env
 
@@ -49,6 +52,10 @@ EPISODE_COLUMNS = ("env_steps", "stage", "level", "episode", "world", "survival_
                    *EV_NAMES, "wall_time")
 EVAL_COLUMNS = ("env_steps", "stage", "level", "episodes", "survival_mean", "survival_min", "survival_max",
                 "return_mean", "end_types", "wall_time")
+
+
+class Interrupted(KeyboardInterrupt):
+    """Training stopped on request; the message says what a resume continues from."""
 
 
 # ------------------------------------------------------------------------------------------------ files
@@ -109,11 +116,14 @@ class Run:
         resume: a checkpoint of this stage to continue from.
         init_weights: the previous stage's model weights (curriculum), for a fresh stage.
         fresh_logs: start ``episodes.csv`` / ``eval.csv`` empty (a run's first stage started from scratch).
+        stop_requested: asked at the end of every iteration; true: checkpoint now and raise :class:`Interrupted`.
     """
 
     def __init__(self, cfg: DictConfig, run_dir: Path, stage: Stage, algo: ModuleType, logger: Logger, *,
-                 resume: dict | None = None, init_weights: Mapping | None = None, fresh_logs: bool = False):
+                 resume: dict | None = None, init_weights: Mapping | None = None, fresh_logs: bool = False,
+                 stop_requested: Callable[[], bool] | None = None):
         self.cfg, self.dir, self.stage, self.algo, self.logger = cfg, Path(run_dir), stage, algo, logger
+        self.stop_requested = stop_requested or (lambda: False)
         self.resume_state, self.init_weights = resume, init_weights
         self.obs_keys = observation_keys(cfg)
         self.overrides = env_overrides(cfg)
@@ -239,7 +249,8 @@ class Run:
 
     def end_iteration(self, td: TensorDictBase) -> None:
         """Evaluate and checkpoint when due: every ``eval.every`` / ``checkpoint.every`` env steps, and at the end of
-        the stage, where the final model is also written as ``model-<stage>-<level>.pt``."""
+        the stage, where the final model is also written as ``model-<stage>-<level>.pt``; and when a stop was
+        requested, after which :class:`Interrupted` is raised."""
         prev, now = self.counters["last_end"], self.steps
         self.counters["last_end"] = now
 
@@ -249,9 +260,13 @@ class Run:
         if crossed(self.cfg.eval.every) or (self.done and self.cfg.eval.every > 0):
             self.evaluate()
         if self.done:
-            save_atomic(self._identity() | {"model": self.model.state_dict(), "env_steps": now}, self.model_path)
-        if crossed(self.cfg.checkpoint.every) or self.done:
+            save_checkpoint(self._identity() | {"model": self.model.state_dict(), "env_steps": now}, self.model_path)
+        stop = self.stop_requested()
+        if crossed(self.cfg.checkpoint.every) or self.done or stop:
             self._checkpoint(td)
+        if stop:
+            raise Interrupted(f"interrupted at env step {now:,} of {self.stage.level}: checkpoint written to "
+                              f"{self.dir / CHECKPOINT}; the same command with resume=true continues from it")
 
     @property
     def model_path(self) -> Path:
@@ -279,7 +294,7 @@ class Run:
         self.last_eval = result.survival_mean
         if self.best_eval is None or result.survival_mean > self.best_eval:
             self.best_eval = result.survival_mean
-            save_atomic(self._identity() | {"model": self.model.state_dict(), "env_steps": self.steps,
+            save_checkpoint(self._identity() | {"model": self.model.state_dict(), "env_steps": self.steps,
                                             "eval_survival_mean": result.survival_mean}, self.best_model_path)
         row = {"env_steps": self.steps, "stage": self.stage.index, "level": self.stage.level,
                "episodes": len(result.survival), "survival_mean": result.survival_mean,
@@ -327,7 +342,7 @@ class Run:
                      "logger": self.logger.state_dict(), "recent": list(self.recent), "last_eval": self.last_eval,
                      "best_eval": self.best_eval},
         }
-        save_atomic(state, self.dir / CHECKPOINT)
+        save_checkpoint(state, self.dir / CHECKPOINT, keep_previous=True)
 
     def _restore(self, state: dict) -> TensorDictBase:
         self.model.load_state_dict(state["model"])

@@ -6,7 +6,9 @@
 Arguments are ``key=value`` (lists as ``[a,b]``), the keys of :class:`EvalConfig`; ``--help`` lists them with their
 types, defaults and meanings.
 
-Writes to ``out``: ``episodes.csv`` (one row per episode, appended), ``summary.md`` (success rate ± standard
+Writes to ``out``, which must not hold an earlier evaluation (it is refused, changing nothing: each evaluation is a
+complete result of its own): ``episodes.csv`` (one row per episode, put in place once every episode is done),
+``summary.md`` (success rate ± standard
 error per testbed, mean survival ± standard error per training level, one column per policy), ``success.png``,
 ``survival.png`` and ``outcomes.png`` (what the agent did: consumed the right or wrong resource, died of which
 EV, ran out of time; mean collisions).
@@ -14,6 +16,7 @@ EV, ran out of time; mean collisions).
 
 from __future__ import annotations
 
+import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,6 +33,8 @@ from evaaa.analysis import markdown_table, plot_bars, plot_outcomes, read_episod
 from evaaa.records import EpisodeTracker, StepLog, append_rows, new_log_path
 
 GROUPS = {"testbeds": evaaa.TESTBEDS, "training": evaaa.LEVELS, "all": evaaa.LEVELS + evaaa.TESTBEDS}
+#: what an evaluation writes to ``out``: any of them there means ``out`` already holds one
+OUTPUTS = ("episodes.csv", "summary.md", "success.png", "survival.png", "outcomes.png")
 
 
 def _policy_ok(spec: str) -> bool:
@@ -155,15 +160,24 @@ def run_level(policy: Policy, level: str, cfg: EvalConfig, bar: tqdm, step_log: 
 def main(argv: list[str] | None = None) -> int:
     cfg = parse(argv)
     out = Path(cfg.out)
+    earlier = [name for name in OUTPUTS if (out / name).exists()]
+    if earlier:
+        # appending would pool two evaluations (n doubles, the standard error shrinks); replacing would lose one
+        raise SystemExit(f"evaluate.py: {out} already holds an evaluation ({', '.join(earlier)}); nothing was "
+                         "changed: choose another out=, or move those files away first")
     out.mkdir(parents=True, exist_ok=True)
     policies = [Policy(spec, cfg.seed, cfg.modalities, cfg.epsilon, cfg.sample) for spec in cfg.policy]
     total = len(policies) * len(cfg.levels) * cfg.episodes
+    # episodes go to a hidden file until the last one is done: an interrupted evaluation leaves no episodes.csv
+    partial = out / ".episodes.csv.partial"
+    partial.unlink(missing_ok=True)  # an earlier interrupted evaluation's
     step_log = StepLog(new_log_path(out)) if cfg.step_log else None
     with tqdm(total=total, desc="episodes", unit="ep", dynamic_ncols=True) as bar:
         for policy in policies:
             for level in cfg.levels:
                 bar.set_postfix_str(f"{policy.name} on {level}")
-                append_rows(out / "episodes.csv", run_level(policy, level, cfg, bar, step_log))
+                append_rows(partial, run_level(policy, level, cfg, bar, step_log))
+    os.replace(partial, out / "episodes.csv")
     if step_log is not None:
         step_log.close()
         print(f"step log: {step_log.path}")

@@ -1,9 +1,11 @@
 """Train a baseline: ``python scripts/train.py algo=<dqn|ppo|ppo_lstm|dreamer|dreamer_xs> level=<level|curriculum>``.
 
 Hydra composes conf/config.yaml with its groups (algo, level, modality, reward, logger, preset); the run directory
-is ``runs/<level>/<algo>/<modality>-<reward>/seed<seed>`` (``run.root``, ``run.name``), for single runs and for
-sweeps (``-m seed=0,1,2``) alike, so the same command with ``resume=true`` continues a killed run.  See
-docs/training.md.
+is ``runs/<level>/<algo>/<modality>-<reward>/seed<seed>`` (``run.root``, ``run.name``; a preset adds its name, e.g.
+``all-squared-debug``), for single runs and for sweeps (``-m seed=0,1,2``) alike, so the same command with
+``resume=true`` continues a killed run.  A folder that already holds a run is never overwritten: the command is
+refused (in one line, changing nothing) unless it says ``resume=true`` or ``start_over=true``.  Ctrl-C writes a
+checkpoint after the iteration under way and stops; a second Ctrl-C stops at once.  See docs/training.md.
 
     python scripts/train.py algo=ppo level=1-1
     python scripts/train.py algo=dqn level=curriculum resume=true
@@ -12,20 +14,49 @@ docs/training.md.
 
 from __future__ import annotations
 
-import faulthandler
-import logging
+import os
+import signal
 import sys
-from pathlib import Path
 
-import hydra
-from hydra.core.hydra_config import HydraConfig
-from omegaconf import DictConfig
+
+def _stop_before_start(signum, frame):
+    # Ctrl-C while no run is training (libraries loading, config being composed): no run has anything unsaved
+    # (baselines/runner.py handles Ctrl-C while a run trains)
+    print("train.py: interrupted while no run was training; nothing was lost", file=sys.stderr, flush=True)
+    os._exit(130)
+
+
+_sweep_stopping = False
+
+
+def _stop_sweep(signum, frame):
+    # a sweep's parent process: its jobs (other processes, or this one between jobs) get the same Ctrl-C from the
+    # terminal and each stops after writing a checkpoint; exiting here at once would leave them orphaned
+    global _sweep_stopping
+    if _sweep_stopping:
+        raise KeyboardInterrupt
+    _sweep_stopping = True
+    print("train.py: Ctrl-C: the sweep stops once its running jobs have written their checkpoints (Ctrl-C again to "
+          "stop at once)", file=sys.stderr, flush=True)
+
+
+signal.signal(signal.SIGINT, _stop_before_start)  # first, so that even the imports below stop in one line
+
+import faulthandler  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import hydra  # noqa: E402
+from hydra.core.hydra_config import HydraConfig  # noqa: E402
+from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
 
 import evaaa  # noqa: E402,F401  (sets MUJOCO_GL before mujoco loads)
 from baselines import train  # noqa: E402
+from baselines.checkpoint import CheckpointError  # noqa: E402
 from baselines.config import CONF_DIR, check_command_line, register_levels  # noqa: E402
+from baselines.runner import RunRefused  # noqa: E402
+from baselines.runtime import Interrupted  # noqa: E402
 
 register_levels()
 # a crash in native code (MuJoCo, OpenGL, torch) leaves every thread's Python stack in the run's output
@@ -34,15 +65,30 @@ faulthandler.enable(all_threads=True)
 
 @hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> None:
-    run_dir = HydraConfig.get().runtime.output_dir
+    if _sweep_stopping:  # Ctrl-C between two jobs of a sweep run in this process
+        raise SystemExit(130)
+    hydra_cfg = HydraConfig.get()
+    # what Hydra would have written to .hydra/ itself (conf/config.yaml: output_subdir null)
+    records = {"config.yaml": cfg, "hydra.yaml": OmegaConf.create({"hydra": hydra_cfg}),
+               "overrides.yaml": OmegaConf.create(list(hydra_cfg.overrides.task))}
     try:
-        train(cfg, run_dir)
-    except KeyboardInterrupt:
-        logging.getLogger(__name__).warning("interrupted: the same command with resume=true continues %s from its "
-                                            "last checkpoint", run_dir)
+        train(cfg, hydra_cfg.runtime.output_dir, records=records)
+    except (RunRefused, CheckpointError) as err:
+        # printed, not logged: logging would append to the existing run's log file
+        print(f"train.py: {err}", file=sys.stderr, flush=True)
+        raise SystemExit(1) from None
+    except Interrupted as err:
+        print(f"train.py: {err}", file=sys.stderr, flush=True)
         raise SystemExit(130) from None
 
 
 if __name__ == "__main__":
     check_command_line(sys.argv[1:], __doc__)  # --help, and a malformed override: before Hydra writes anything
-    main()
+    if {"-m", "--multirun"} & set(sys.argv[1:]):
+        signal.signal(signal.SIGINT, _stop_sweep)
+    try:
+        main()
+    except KeyboardInterrupt:  # a second Ctrl-C in a sweep's parent process
+        print("train.py: sweep stopped at once; each job resumes from its last checkpoint, if it has one, with "
+              "resume=true", file=sys.stderr, flush=True)
+        raise SystemExit(130) from None

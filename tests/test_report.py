@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import csv
 import os
+import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -461,6 +463,59 @@ def test_command_line_rejects_bad_input(world, tmp_path, args, message, capsys):
         script.main([*args, f"out={tmp_path / 'out'}"])
     err = capsys.readouterr().err
     assert exit_.value.code == 2 and err.startswith("report.py: error: ") and message in err, err
+
+
+def test_how_a_run_was_started_does_not_split_its_group(tmp_path):
+    from baselines.report import describe_extras, load_run
+
+    sim = Sim(tmp_path / "runs")
+    dirs = [sim.run("ppo", 0, level="1-1", finish=1), sim.run("ppo", 1, level="1-1", finish=1)]
+    config = dirs[1] / ".hydra" / "config.yaml"
+    config.write_text(config.read_text().replace("start_over: false", "start_over: true")
+                      .replace("resume: false", "resume: true"))
+    runs = [load_run(d) for d in dirs]
+    assert runs[1].config["start_over"] and runs[1].config["resume"]
+    describe_extras(runs)
+    assert runs[0].extras == runs[1].extras == ()
+
+
+def test_a_row_cut_short_at_the_end_of_a_csv_is_skipped_and_said(world, tmp_path):
+    from baselines.report import load_evaluations, load_run
+
+    source = next(d for d in world["sim"].runs if d != world["missing"])
+    run_dir = tmp_path / "run"
+    shutil.copytree(source, run_dir)
+    rows = len(pd.read_csv(run_dir / "episodes.csv"))
+    with open(run_dir / "episodes.csv", "a") as f:
+        f.write("100,1,1-2,37,0,")  # a process killed while writing its row
+    run = load_run(run_dir)
+    assert len(run.episodes) == rows
+    assert [n for n in run.notes if str(run_dir / "episodes.csv") in n and "skipped" in n]
+
+    evals = tmp_path / "episodes.csv"
+    shutil.copy(world["base"] / "eval" / "episodes.csv", evals)
+    with open(evals, "a") as f:
+        f.write("random,,two-resource-food,9,0,3")
+    notes: list[str] = []
+    assert len(load_evaluations([evals], notes)) == len(world["eval_rows"])
+    assert len(notes) == 1 and str(evals) in notes[0]
+    report = build_report([run_dir], [evals], tmp_path / "out")
+    assert any(str(evals) in p and "skipped" in p for p in report.problems)
+    assert str(evals) in report.markdown.read_text()
+
+
+def test_an_empty_csv_is_refused_in_one_line(world, tmp_path):
+    script = load_report()
+    empty = tmp_path / "episodes.csv"
+    empty.write_bytes(b"")
+    with pytest.raises(SystemExit, match=re.escape(f"report.py: {empty} is empty (0 bytes")) as refused:
+        script.main([f"evals=[{empty}]", f"out={tmp_path / 'out'}"])
+    assert "\n" not in str(refused.value)
+    run_dir = tmp_path / "run"
+    shutil.copytree(next(d for d in world["sim"].runs if d != world["missing"]), run_dir)
+    (run_dir / "eval.csv").write_bytes(b"")
+    with pytest.raises(ReportError, match=re.escape(str(run_dir / "eval.csv")) + " is empty"):
+        build_report([run_dir], [], tmp_path / "out2")
 
 
 # ------------------------------------------------------------------------------------------------ launchers

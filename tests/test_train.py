@@ -7,7 +7,10 @@ from __future__ import annotations
 
 import csv
 import itertools
+import logging
 import os
+import re
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -296,7 +299,7 @@ def test_curriculum_hands_weights_over_and_resumes_mid_curriculum(tmp_path, monk
 
 def test_atomic_save_keeps_the_previous_checkpoint_when_writing_fails(tmp_path, monkeypatch):
     path = tmp_path / "checkpoint.pt"
-    checkpoint.save_atomic({"step": 1}, path)
+    checkpoint.save_checkpoint({"step": 1}, path)
 
     def failing_save(obj, f):
         f.write(b"partial")
@@ -304,9 +307,71 @@ def test_atomic_save_keeps_the_previous_checkpoint_when_writing_fails(tmp_path, 
 
     monkeypatch.setattr(torch, "save", failing_save)
     with pytest.raises(OSError):
-        checkpoint.save_atomic({"step": 2}, path)
+        checkpoint.save_checkpoint({"step": 2}, path)
     monkeypatch.undo()
     assert checkpoint.load_checkpoint(path) == {"step": 1}
+
+
+def assert_same_run(whole: Path, resumed: Path) -> None:
+    a = checkpoint.load_checkpoint(whole / checkpoint.CHECKPOINT)
+    b = checkpoint.load_checkpoint(resumed / checkpoint.CHECKPOINT)
+    assert a["counters"] == b["counters"]
+    assert all(torch.equal(v, b["model"][k]) for k, v in a["model"].items())
+    assert read_csv(whole / "episodes.csv") == read_csv(resumed / "episodes.csv")
+    assert read_csv(whole / "eval.csv") == read_csv(resumed / "eval.csv")
+
+
+def test_a_damaged_latest_checkpoint_resumes_exactly_from_the_previous_one(runs, tmp_path, monkeypatch, caplog):
+    run_dir = tmp_path / "run"
+    run_killed(debug_cfg("ppo"), run_dir, KILL_AT, monkeypatch)
+    latest = run_dir / checkpoint.CHECKPOINT
+    weight = max(checkpoint.load_checkpoint(latest)["model"].values(), key=torch.Tensor.numel)
+    data = bytearray(latest.read_bytes())
+    start = data.find(weight.numpy().tobytes()[:256])
+    data[start + 256: start + 1280] = bytes(1024)  # 1 KB zeroed inside a weight
+    latest.write_bytes(bytes(data))
+    (run_dir / ".checkpoint.pt.tmp").write_bytes(b"cut short by a kill")
+    with caplog.at_level(logging.INFO, logger="baselines.runner"):
+        train(debug_cfg("ppo", "resume=true"), run_dir)
+    assert f"{latest} is damaged" in caplog.text
+    assert f"previous checkpoint {run_dir / checkpoint.PREVIOUS}" in caplog.text
+    assert not (run_dir / ".checkpoint.pt.tmp").exists() and ".checkpoint.pt.tmp" in caplog.text
+    assert_same_run(runs("ppo")["whole"], run_dir)
+
+
+def test_ctrl_c_checkpoints_after_the_iteration_and_resume_continues_exactly(runs, tmp_path, monkeypatch):
+    """The first SIGINT lets the iteration finish, writes a checkpoint and stops; the resumed run is the whole run."""
+    end_iteration = runtime.Run.end_iteration
+
+    def ctrl_c_at(self, td):
+        if self.steps == 96:
+            os.kill(os.getpid(), signal.SIGINT)
+        end_iteration(self, td)
+
+    monkeypatch.setattr(runtime.Run, "end_iteration", ctrl_c_at)
+    with pytest.raises(runtime.Interrupted, match="interrupted at env step 96 of 1-1: checkpoint written to"):
+        train(debug_cfg("ppo"), tmp_path / "run")
+    monkeypatch.undo()
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handler is put back
+    assert checkpoint.load_checkpoint(tmp_path / "run" / checkpoint.CHECKPOINT)["counters"]["steps"] == 96
+    train(debug_cfg("ppo", "resume=true"), tmp_path / "run")
+    assert_same_run(runs("ppo")["whole"], tmp_path / "run")
+
+
+def test_a_second_ctrl_c_stops_at_once_and_names_the_checkpoint_left(tmp_path, monkeypatch):
+    end_iteration = runtime.Run.end_iteration
+
+    def ctrl_c_twice_at(self, td):
+        if self.steps == 96:
+            os.kill(os.getpid(), signal.SIGINT)
+            os.kill(os.getpid(), signal.SIGINT)
+        end_iteration(self, td)
+
+    monkeypatch.setattr(runtime.Run, "end_iteration", ctrl_c_twice_at)
+    latest = tmp_path / "run" / checkpoint.CHECKPOINT
+    with pytest.raises(runtime.Interrupted, match=f"stopped at once: .*from the last one, {re.escape(str(latest))}"):
+        train(debug_cfg("ppo"), tmp_path / "run")
+    assert checkpoint.load_checkpoint(latest)["counters"]["steps"] == 64  # the last one due (every 64 env steps)
 
 
 @pytest.mark.parametrize("backend", ["tensorboard", "wandb"])
@@ -329,7 +394,7 @@ def test_train_script_multirun_sweeps_seeds(tmp_path):
                           env={**os.environ, "HYDRA_FULL_ERROR": "1"})
     assert done.returncode == 0, done.stderr[-3000:]
     for seed in (0, 1):
-        run_dir = tmp_path / "1-1" / "ppo" / "all-squared" / f"seed{seed}"
+        run_dir = tmp_path / "1-1" / "ppo" / "all-squared-debug" / f"seed{seed}"  # the preset has its own folders
         assert (run_dir / checkpoint.CHECKPOINT).exists() and (run_dir / ".hydra" / "config.yaml").exists()
         assert checkpoint.load_checkpoint(run_dir / checkpoint.CHECKPOINT)["config"]["seed"] == seed
 
