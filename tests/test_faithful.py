@@ -396,6 +396,7 @@ def test_evaluate_writes_a_step_log_only_when_asked(tmp_path):
     assert evaluate.main(["policy=oracle", "levels=two-resource-water", "episodes=2", "num_envs=2",
                           f"out={out}"]) == 0
     assert not list(out.glob("steps-*.csv"))
+    out = tmp_path / "eval-logged"  # an out= holding an evaluation is refused
     assert evaluate.main(["policy=oracle", "levels=two-resource-water", "episodes=2", "num_envs=2",
                           f"out={out}", "step_log=true"]) == 0
     logs = list(out.glob("steps-*.csv"))
