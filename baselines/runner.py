@@ -16,7 +16,7 @@ from torchrl.record.loggers import Logger, get_logger
 
 from .checkpoint import CHECKPOINT, load_checkpoint, seed_everything
 from .config import observation_keys, stages
-from .runtime import Run
+from .runtime import Run, resolve_device
 
 log = logging.getLogger(__name__)
 
@@ -77,6 +77,7 @@ def train(cfg: DictConfig, run_dir: str | Path) -> Path:
     """
     from . import ALGOS
 
+    resolve_device(cfg.get("device", "auto"))  # a device this machine lacks fails here, before anything is written
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     if cfg.algo.name not in ALGOS:

@@ -25,6 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a check
 
 import evaaa  # noqa: E402,F401  (sets MUJOCO_GL before mujoco loads)
 from baselines import train  # noqa: E402
+from baselines.runtime import DeviceError  # noqa: E402
 from baselines.config import CONF_DIR, register_levels  # noqa: E402
 
 register_levels()
@@ -37,6 +38,9 @@ def main(cfg: DictConfig) -> None:
     run_dir = HydraConfig.get().runtime.output_dir
     try:
         train(cfg, run_dir)
+    except DeviceError as err:  # a setting, not a bug: one line, not a traceback
+        print(f"train.py: {err}", file=sys.stderr)
+        raise SystemExit(2) from None
     except KeyboardInterrupt:
         logging.getLogger(__name__).warning("interrupted: the same command with resume=true continues %s from its "
                                             "last checkpoint", run_dir)
