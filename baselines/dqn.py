@@ -82,6 +82,9 @@ def train(run: Run) -> None:
 
     td = run.start(model, {"loss": loss_fn, "optimizer": optimizer, "explore": explore, "buffer": buffer,
                            "counters": counters})
+    storage = buffer.storage
+    if storage.initialized and storage._storage.device != run.device:  # restored rows arrive on the CPU
+        storage._storage = storage._storage.to(run.device)
     while not run.done:
         transition, td = run.step(policy, td)
         buffer.extend(transition.select(*stored))

@@ -16,6 +16,7 @@ Arguments (``key=value``, lists as ``[a,b]``):
                taking its most likely action (default false); said in summary.md
     epsilon    for checkpoints: chance of a uniformly random action at each step (default 0: the policy's
                deterministic action; 0.05 is DQN's customary evaluation epsilon); said in summary.md
+    device     for checkpoints: where the networks run, auto (CUDA when available), cpu, cuda or cuda:N (default auto)
 
 Writes to ``out``: ``episodes.csv`` (one row per episode, appended), ``summary.md`` (success rate ± standard
 error per testbed, mean survival ± standard error per training level, one column per policy), ``success.png``,
@@ -58,6 +59,8 @@ class EvalConfig:
     sample: bool = False
     #: for checkpoints: chance of a uniformly random action at each step (0: deterministic)
     epsilon: float = 0.0
+    #: for checkpoints: where the networks run (auto, cpu, cuda, cuda:N); the worlds stay on the CPU
+    device: str = "auto"
 
 
 def parse(argv: list[str]) -> EvalConfig:
@@ -95,7 +98,7 @@ class Policy:
     """One policy to evaluate: builds the env for a level and picks actions for a batch of worlds."""
 
     def __init__(self, spec: str, seed: int, modalities: list[str] | None = None, epsilon: float = 0.0,
-                 sample: bool = False):
+                 sample: bool = False, device: str = "cpu"):
         self.spec = spec
         self.seed = seed
         self.epsilon = epsilon
@@ -109,7 +112,7 @@ class Policy:
             from baselines.evaluation import load_policy
 
             try:
-                self.loaded = load_policy(path, modalities=modalities)
+                self.loaded = load_policy(path, modalities=modalities, device=device)
             except ValueError as err:
                 raise SystemExit(f"evaluate.py: {err}") from None
         # a checkpoint is named by its path: reports look the run's configuration up from it
@@ -170,7 +173,7 @@ def main(argv: list[str] | None = None) -> int:
     cfg = parse(sys.argv[1:] if argv is None else argv)
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
-    policies = [Policy(spec, cfg.seed, cfg.modalities, cfg.epsilon, cfg.sample) for spec in cfg.policy]
+    policies = [Policy(spec, cfg.seed, cfg.modalities, cfg.epsilon, cfg.sample, cfg.device) for spec in cfg.policy]
     total = len(policies) * len(cfg.levels) * cfg.episodes
     with tqdm(total=total, desc="episodes", unit="ep", dynamic_ncols=True) as bar:
         for policy in policies:
