@@ -418,8 +418,10 @@ class Run:
         if self.steps // every <= self.counters["logged"] // every:
             return
         self.counters["logged"] = self.steps
-        self.logger.log_metrics({**{f"train/{k}": float(v) for k, v in metrics.items()},
-                                 "time/env_steps_per_s": self.steps_per_second()}, step=self.steps)
+        timing = {"time/env_steps_per_s": self.steps_per_second()}
+        if self.device.type == "cuda":
+            timing["time/gpu_memory_peak_gb"] = torch.cuda.max_memory_allocated(self.device) / 1e9
+        self.logger.log_metrics({**{f"train/{k}": float(v) for k, v in metrics.items()}, **timing}, step=self.steps)
 
     def steps_per_second(self) -> float:
         """Env steps per second of this session's whole loop (collection, updates, evaluation, checkpoints)."""

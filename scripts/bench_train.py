@@ -1,8 +1,10 @@
-"""Training throughput of each baseline: env steps and gradient steps per second of the whole training loop.
+"""Training throughput of each baseline: env steps and gradient steps per second of the whole training loop, and
+the memory it took.
 
     python scripts/bench_train.py                                 # ppo, ppo_lstm, dqn, dreamer_xs: 3 minutes each
     python scripts/bench_train.py --algos ppo,dqn --minutes 2 --threads 1
     python scripts/bench_train.py --algos dreamer --minutes 10    # DreamerV3 size S: ~10 s per gradient step here
+    python scripts/bench_train.py --algos ppo --device cuda bf16=true compile=true   # options, as train.py overrides
     python scripts/bench_train.py --runs runs/acceptance/*/seed0  # the same figures for runs already made
 
 Each algorithm trains with its defaults (``scripts/train.py algo=<name> level=<level>``, ``env.num_envs=8``, all
@@ -18,6 +20,11 @@ algorithm logs one; a resumed run's sessions, found in its ``train.log``, are ad
 
 Evaluations and checkpoints are pushed beyond the budget (``eval.every=0``, ``checkpoint.every`` larger than any run)
 so that both rates measure training alone; the final evaluation and model of the stage are not timed.
+
+Memory: **peak RSS** is the training process's maximum resident set (``wait4``'s ``ru_maxrss``: memory-mapped
+replay pages it touched count too); **GPU memory** the peak of ``torch.cuda.max_memory_allocated`` the run logged
+(``time/gpu_memory_peak_gb``, CUDA only).  **First gradient step**: seconds from launching the process to the end
+of its first gradient step (DreamerV3, from its ``train.log``).
 """
 
 from __future__ import annotations
@@ -30,7 +37,9 @@ import re
 import subprocess
 import sys
 import tempfile
-from dataclasses import asdict, dataclass
+import time
+from dataclasses import asdict, dataclass, replace
+from datetime import datetime
 from pathlib import Path
 
 import pandas as pd
@@ -50,6 +59,10 @@ class Throughput:
     steady_env_steps_per_s: float
     gradient_steps: int | None
     steady_gradient_steps_per_s: float | None
+    device: str | None = None
+    peak_rss_gb: float | None = None
+    gpu_memory_gb: float | None = None
+    first_gradient_step_s: float | None = None
 
 
 def read_throughput(run_dir: Path, algo: str, skip: float = 0.25) -> Throughput:
@@ -84,8 +97,38 @@ def read_throughput(run_dir: Path, algo: str, skip: float = 0.25) -> Throughput:
         if first["step"] in by_step.index and last["step"] in by_step.index:
             grad_steps = int(by_step[last["step"]])
             grad_rate = (by_step[last["step"]] - by_step[first["step"]]) / span
+    gpu = run_dir / "logs" / "scalars" / "time" / "gpu_memory_peak_gb.csv"
+    gpu_gb = float(pd.read_csv(gpu, header=None, names=["step", "gb"])["gb"].max()) if gpu.exists() else None
     return Throughput(algo, int(last["step"]), float(last["seconds"]), float(last["step"] / last["seconds"]),
-                      float(steady), grad_steps, None if grad_rate is None else float(grad_rate))
+                      float(steady), grad_steps, None if grad_rate is None else float(grad_rate),
+                      device=run_device(run_dir), gpu_memory_gb=gpu_gb)
+
+
+def run_device(run_dir: Path) -> str | None:
+    """The device the run trained on, from the first line of its ``train.log`` that names it."""
+    log = run_dir / "train.log"
+    match = re.search(r"parameters on (\S+) \(", log.read_text()) if log.exists() else None
+    return match.group(1) if match else None
+
+
+def first_gradient_step(run_dir: Path, launched: float) -> float | None:
+    """Seconds from ``launched`` (a ``time.time()``) to the log line of the run's first gradient step, if any."""
+    log = run_dir / "train.log"
+    if not log.exists():
+        return None
+    match = re.search(r"^\[(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d+)\].*first gradient step", log.read_text(), re.M)
+    if match is None:
+        return None
+    return datetime.strptime(match.group(1), "%Y-%m-%d %H:%M:%S,%f").timestamp() - launched
+
+
+def run_measured(cmd: list[str], out_path: Path) -> tuple[int, int]:
+    """Run ``cmd`` with its output in ``out_path``; returns its exit status and peak resident memory in bytes."""
+    with open(out_path, "w") as out:
+        child = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, cwd=ROOT, env=os.environ.copy())
+        _, status, usage = os.wait4(child.pid, 0)
+    child.returncode = os.waitstatus_to_exitcode(status)
+    return child.returncode, usage.ru_maxrss * 1024  # kilobytes on Linux
 
 
 def resume_steps(run_dir: Path) -> list[int]:
@@ -104,30 +147,39 @@ def run_algo(run_dir: Path) -> str:
     return str(OmegaConf.load(config).algo.name)
 
 
-def run_one(algo: str, level: str, minutes: float, threads: int | None, root: Path, extra: list[str]) -> Path:
-    """Train ``algo`` for ``minutes`` in ``root/<algo>``; returns the run directory."""
+def run_one(algo: str, level: str, minutes: float, threads: int | None, root: Path, extra: list[str],
+            device: str = "auto", skip: float = 0.25) -> Throughput:
+    """Train ``algo`` for ``minutes`` in ``root/<algo>`` on ``device``; returns its figures."""
     run_dir = root / algo
     cmd = [sys.executable, str(ROOT / "scripts" / "train.py"), f"algo={algo}", f"level={level}",
            "total_steps=1000000000", f"max_minutes={minutes}", "eval.every=0", "checkpoint.every=1000000000",
-           "eval.episodes=1", "logger=csv", "progress=false", f"run.root={root}", f"run.name={algo}", *extra]
+           "eval.episodes=1", "logger=csv", "progress=false", f"device={device}", f"run.root={root}",
+           f"run.name={algo}", *extra]
     if threads is not None:
         cmd.append(f"threads={threads}")
     log = root / f"{algo}.out"
-    with open(log, "w") as out:
-        done = subprocess.run(cmd, stdout=out, stderr=subprocess.STDOUT, cwd=ROOT, env=os.environ.copy())
-    if done.returncode:
+    launched = time.time()
+    code, peak_rss = run_measured(cmd, log)
+    if code:
         tail = "\n".join(log.read_text().splitlines()[-40:])
-        raise SystemExit(f"bench_train.py: {algo} failed (exit {done.returncode}); the end of its output:\n{tail}")
-    return run_dir
+        raise SystemExit(f"bench_train.py: {algo} failed (exit {code}); the end of its output:\n{tail}")
+    return replace(read_throughput(run_dir, algo, skip), peak_rss_gb=peak_rss / 1e9,
+                   first_gradient_step_s=first_gradient_step(run_dir, launched))
 
 
 def table(rows: list[Throughput]) -> str:
-    head = f"{'algo':<12}{'env steps':>11}{'minutes':>9}{'env steps/s':>13}{'steady':>9}{'grad steps/s':>14}"
+    def fmt(value: float | None, spec: str) -> str:
+        return "–" if value is None else format(value, spec)
+
+    head = (f"{'algo':<12}{'device':>8}{'env steps':>11}{'minutes':>9}{'env steps/s':>13}{'steady':>9}"
+            f"{'grad steps/s':>14}{'grad steps':>12}{'1st grad s':>12}{'peak RSS GB':>13}{'GPU GB':>8}")
     lines = [head]
     for r in rows:
-        grad = "–" if r.steady_gradient_steps_per_s is None else f"{r.steady_gradient_steps_per_s:.3g}"
-        lines.append(f"{r.algo:<12}{r.env_steps:>11,}{r.seconds / 60:>9.1f}{r.env_steps_per_s:>13.1f}"
-                     f"{r.steady_env_steps_per_s:>9.1f}{grad:>14}")
+        lines.append(f"{r.algo:<12}{r.device or '?':>8}{r.env_steps:>11,}{r.seconds / 60:>9.1f}"
+                     f"{r.env_steps_per_s:>13.1f}{r.steady_env_steps_per_s:>9.1f}"
+                     f"{fmt(r.steady_gradient_steps_per_s, '.3g'):>14}{fmt(r.gradient_steps, ','):>12}"
+                     f"{fmt(r.first_gradient_step_s, '.0f'):>12}{fmt(r.peak_rss_gb, '.2f'):>13}"
+                     f"{fmt(r.gpu_memory_gb, '.2f'):>8}")
     return "\n".join(lines)
 
 
@@ -137,6 +189,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--level", default="1-1")
     parser.add_argument("--minutes", type=float, default=3.0, help="wall-clock training time per algorithm")
     parser.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
+    parser.add_argument("--device", default="auto", help="auto (CUDA when available), cpu, cuda or cuda:N")
     parser.add_argument("--skip", type=float, default=0.25, help="share of each run left out of the steady rates")
     parser.add_argument("--keep", help="keep the run directories under this folder (default: a temporary one)")
     parser.add_argument("--json", help="also write the figures to this file")
@@ -161,7 +214,15 @@ def main(argv: list[str] | None = None) -> int:
         if args.json:
             write_json(args.json, {"runs": args.runs, "rows": [asdict(r) for r in rows]})
         return 0
-    print(f"evaaa bench_train: level {args.level}, {args.minutes:g} min per algorithm, threads "
+    sys.path.insert(0, str(ROOT))
+    from baselines.runtime import DeviceError, resolve_device
+
+    try:
+        device = resolve_device(args.device)
+    except DeviceError as err:
+        parser.error(f"--{err}")
+    gpu = f", {torch_device_name(device)}" if device.type == "cuda" else ""
+    print(f"evaaa bench_train: level {args.level}, {args.minutes:g} min per algorithm, device {device}{gpu}, threads "
           f"{args.threads or 'default'}, {platform.machine()}, {os.cpu_count()} cores", flush=True)
     rows = []
     with tempfile.TemporaryDirectory(prefix="evaaa-bench-train-") as scratch:
@@ -169,13 +230,20 @@ def main(argv: list[str] | None = None) -> int:
         root.mkdir(parents=True, exist_ok=True)
         for algo in algos:
             print(f"  {algo} ...", flush=True)
-            run_dir = run_one(algo, args.level, args.minutes, args.threads, root.resolve(), args.overrides)
-            rows.append(read_throughput(run_dir, algo, args.skip))
+            rows.append(run_one(algo, args.level, args.minutes, args.threads, root.resolve(), args.overrides,
+                                str(device), args.skip))
     print(table(rows))
     if args.json:
         write_json(args.json, {"level": args.level, "minutes": args.minutes, "threads": args.threads,
-                               "cores": os.cpu_count(), "rows": [asdict(r) for r in rows]})
+                               "device": str(device), "overrides": args.overrides, "cores": os.cpu_count(),
+                               "rows": [asdict(r) for r in rows]})
     return 0
+
+
+def torch_device_name(device) -> str:
+    import torch
+
+    return torch.cuda.get_device_name(device)
 
 
 def write_json(path: str, data: dict) -> None:
