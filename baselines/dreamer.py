@@ -243,6 +243,15 @@ def value_model(model: DreamerModel) -> TensorDictSequential:
     )
 
 
+def prefill_policy(td: TensorDictBase) -> TensorDictBase:
+    """Uniform random actions (and the matching ``prev_action``), as sheeprl's DreamerV3 fills its buffer before the
+    first gradient step: the untrained networks would act about as randomly, at the cost of a forward pass per step
+    (with size S on a CPU, most of the prefill's time).  The carried latent stays zero until the policy takes over."""
+    action = torch.randint(NUM_ACTIONS, td.batch_size)
+    td["action"], td["prev_action"] = action, _one_hot(action)
+    return td
+
+
 def _carry(action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     # the one-hot is the next step's previous action; the env takes its index
     return action.float(), action.argmax(-1)
@@ -592,9 +601,10 @@ def train(run: Run) -> None:
              f"{parameter_count(model.value):,}")
     log.info("replay: %s transitions (%s when full, %s each), %s", f"{cfg.buffer_size:,}",
              _gb(cfg.buffer_size * row_bytes), f"{row_bytes / 1e3:.3g} kB", replay.place)
-    log.info("prefill: %s env steps with the untrained policy before the first gradient step; then %g gradient "
-             "steps per env step, each on %d sequences of %d steps", f"{start:,}", cfg.replay_ratio,
-             cfg.batch_size, cfg.sequence_length)
+    log.info("prefill: %s env steps of %s before the first gradient step; then %g gradient steps per env step, "
+             "each on %d sequences of %d steps", f"{start:,}",
+             "random actions" if cfg.prefill_random else "the untrained policy", cfg.replay_ratio, cfg.batch_size,
+             cfg.sequence_length)
 
     def step(name: str, loss: torch.Tensor, params: list[nn.Parameter], clip: float) -> torch.Tensor:
         optimizer = optimizers[name]
@@ -637,7 +647,7 @@ def train(run: Run) -> None:
                            "return_norm": actor_loss.retnorm, "replay": replay, "counters": counters})
     first_update = counters["updates"] == 0
     while not run.done:
-        transition, td = run.step(policy, td)
+        transition, td = run.step(prefill_policy if cfg.prefill_random and run.steps < start else policy, td)
         replay.extend(transition.select(*stored))
         metrics = None
         due = _updates_due(cfg, run.steps, replay.rows, num_envs)

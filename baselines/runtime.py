@@ -330,7 +330,7 @@ class Run:
         # with the loop's phases; Progress gives smoothed ones
         self.progress = tqdm(total=self.stage.budget, initial=self.steps, unit="step", dynamic_ncols=True,
                              desc=self._desc(), disable=not self.cfg.progress,
-                             bar_format="{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]")
+                             bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]")
         self._session = (time.perf_counter(), self.steps)
         self.meter = Progress(self.cfg.get("progress_seconds", 60), self.steps, now=self._session[0])
         return td
