@@ -76,7 +76,7 @@ def compile_networks(model: nn.Module, types: tuple[type, ...] = (MultimodalEnco
     count = 0
     for child in model.children():
         if isinstance(child, types):
-            child.compile()
+            child.compile(dynamic=False)  # a few fixed shapes (acting, minibatch); dynamic ones failed in inductor
             count += 1
         else:
             count += compile_networks(child, types)
