@@ -82,6 +82,7 @@ def train(run: Run) -> None:
 
     td = run.start(model, {"loss": loss_fn, "optimizer": optimizer, "explore": explore, "buffer": buffer,
                            "counters": counters})
+    run.updates = counters["updates"]  # a resumed run's bar counts on from its checkpoint
     storage = buffer.storage
     if storage.initialized and storage._storage.device != run.device:  # restored rows arrive on the CPU
         storage._storage = storage._storage.to(run.device)

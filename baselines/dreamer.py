@@ -645,6 +645,7 @@ def train(run: Run) -> None:
 
     td = run.start(model, {**{f"optimizer_{k}": v for k, v in optimizers.items()}, "value_loss": value_loss,
                            "return_norm": actor_loss.retnorm, "replay": replay, "counters": counters})
+    run.updates = counters["updates"]  # a resumed run's bar counts on from its checkpoint
     first_update = counters["updates"] == 0
     while not run.done:
         transition, td = run.step(prefill_policy if cfg.prefill_random and run.steps < start else policy, td)

@@ -137,6 +137,7 @@ def train(run: Run) -> None:
     run.planned_updates = lambda steps: -(-steps // cfg.frames_per_batch) * per_batch
 
     td = run.start(model, {"optimizer": optimizer, "scheduler": scheduler})
+    run.updates = run.planned_updates(run.steps)  # a resumed run's bar counts on from its checkpoint
     while not run.done:
         if cfg.anneal_clip:
             clip = cfg.clip * remaining(run.steps // cfg.frames_per_batch)

@@ -494,7 +494,9 @@ class Run:
             if self._ratio is not None:
                 grad += f" ratio {self._ratio:.3g}"
             parts.append(grad)
-        planned = None if self.planned_updates is None else max(self.planned_updates(self.stage.budget) - self.updates, 0)
+        planned = None
+        if self.planned_updates is not None:
+            planned = max(self.planned_updates(self.stage.budget) - self.updates, 0)
         parts.append(f"ETA {_duration(m.eta(self.stage.budget - self.steps, planned))}")
         parts.append(f"surv {np.mean(self.recent):.0f}" if self.recent else "surv -")
         if self.last_eval is not None:

@@ -104,7 +104,8 @@ def runs(tmp_path_factory):
     root = tmp_path_factory.mktemp("dreamer")
     train(debug_cfg(), root / "whole")
     at_kill = killed_and_resumed(root / "resumed", resume_with=("device=cpu",))
-    return {"whole": root / "whole", "resumed": root / "resumed", "steps_at_kill_checkpoint": at_kill["counters"]["steps"]}
+    return {"whole": root / "whole", "resumed": root / "resumed",
+            "steps_at_kill_checkpoint": at_kill["counters"]["steps"]}
 
 
 def replay_rows(run_dir: Path) -> TensorDict:
