@@ -148,13 +148,14 @@ def run_algo(run_dir: Path) -> str:
 
 
 def run_one(algo: str, level: str, minutes: float, threads: int | None, root: Path, extra: list[str],
-            device: str = "auto", skip: float = 0.25) -> Throughput:
-    """Train ``algo`` for ``minutes`` in ``root/<algo>`` on ``device``; returns its figures."""
+            device: str = "auto", skip: float = 0.25, progress: bool = False) -> Throughput:
+    """Train ``algo`` for ``minutes`` in ``root/<algo>`` on ``device``; returns its figures (``progress``: the run
+    draws its progress bar into ``root/<algo>.out``)."""
     run_dir = root / algo
     cmd = [sys.executable, str(ROOT / "scripts" / "train.py"), f"algo={algo}", f"level={level}",
            "total_steps=1000000000", f"max_minutes={minutes}", "eval.every=0", "checkpoint.every=1000000000",
-           "eval.episodes=1", "logger=csv", "progress=false", f"device={device}", f"run.root={root}",
-           f"run.name={algo}", *extra]
+           "eval.episodes=1", "logger=csv", f"progress={str(progress).lower()}", f"device={device}",
+           f"run.root={root}", f"run.name={algo}", *extra]
     if threads is not None:
         cmd.append(f"threads={threads}")
     log = root / f"{algo}.out"
@@ -190,6 +191,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--minutes", type=float, default=3.0, help="wall-clock training time per algorithm")
     parser.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
     parser.add_argument("--device", default="auto", help="auto (CUDA when available), cpu, cuda or cuda:N")
+    parser.add_argument("--progress", action="store_true", help="keep each run's progress bar (in <keep>/<algo>.out)")
     parser.add_argument("--skip", type=float, default=0.25, help="share of each run left out of the steady rates")
     parser.add_argument("--keep", help="keep the run directories under this folder (default: a temporary one)")
     parser.add_argument("--json", help="also write the figures to this file")
@@ -231,7 +233,7 @@ def main(argv: list[str] | None = None) -> int:
         for algo in algos:
             print(f"  {algo} ...", flush=True)
             rows.append(run_one(algo, args.level, args.minutes, args.threads, root.resolve(), args.overrides,
-                                str(device), args.skip))
+                                str(device), args.skip, args.progress))
     print(table(rows))
     if args.json:
         write_json(args.json, {"level": args.level, "minutes": args.minutes, "threads": args.threads,
