@@ -382,6 +382,12 @@ def test_loaded_policy_moves_to_the_device_asked_for(runs):
     assert {p.device for p in loaded.model.parameters()} == {torch.device("cpu")}
     with pytest.raises(DeviceError, match="allowed: auto, cpu, cuda, cuda:N"):
         load_policy(runs("dqn")["whole"] / "model-0-1-1.pt", device="tpu")
+    from helpers import load_script
+
+    script = load_script("evaluate")
+    assert script.parse([f"policy={runs('dqn')['whole'] / 'model-0-1-1.pt'}"]).device == "auto"
+    with pytest.raises(SystemExit, match=r"evaluate.py: device=tpu: not a device; allowed: auto, cpu, cuda"):
+        script.Policy(str(runs("dqn")["whole"] / "model-0-1-1.pt"), seed=0, device="tpu")
 
 
 # ------------------------------------------------------------------------------------------------ progress
