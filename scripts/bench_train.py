@@ -69,13 +69,19 @@ def read_throughput(run_dir: Path, algo: str, skip: float = 0.25) -> Throughput:
     """The rates of a finished run from its CSV log (see the module docstring); ``skip``: share of the run's
     wall time left out of the steady rates."""
     rate_file = run_dir / "logs" / "scalars" / "time" / "env_steps_per_s.csv"
+    if not rate_file.exists() and (session := session_totals(run_dir, algo)) is not None:
+        return session
     if not rate_file.exists():
         raise SystemExit(f"bench_train.py: {algo}: no {rate_file.relative_to(run_dir)} in {run_dir} (the run logged "
                          "nothing: give it more --minutes, or see its train.log)")
     rates = pd.read_csv(rate_file, header=None, names=["step", "rate"]).drop_duplicates("step", keep="last")
     rates = rates[rates["rate"] > 0]
     if len(rates) < 2:
-        raise SystemExit(f"bench_train.py: {algo}: fewer than two log rows in {rate_file}; give it more --minutes")
+        session = session_totals(run_dir, algo)
+        if session is not None:  # too slow to log twice (e.g. DreamerV3 S on a CPU): the whole run's figures only
+            return session
+        raise SystemExit(f"bench_train.py: {algo}: fewer than two log rows in {rate_file}; give it more --minutes "
+                         "or a smaller log_every")
     # each row's rate is (step - the session's first step) / the session's seconds so far; a resumed run has a
     # session per resume (train.log: "resuming ... env step N"), laid end to end on one wall-time axis
     starts = resume_steps(run_dir)
@@ -102,6 +108,18 @@ def read_throughput(run_dir: Path, algo: str, skip: float = 0.25) -> Throughput:
     return Throughput(algo, int(last["step"]), float(last["seconds"]), float(last["step"] / last["seconds"]),
                       float(steady), grad_steps, None if grad_rate is None else float(grad_rate),
                       device=run_device(run_dir), gpu_memory_gb=gpu_gb)
+
+
+def session_totals(run_dir: Path, algo: str) -> Throughput | None:
+    """The whole-run figures from the last session line of ``train.log`` (env steps, env steps/s, gradient steps),
+    for a run that logged fewer than two rows; no steady rates."""
+    log = run_dir / "train.log"
+    found = re.findall(r"on \S+: (\d+) env steps, ([\d.e+-]+) env steps/s this session, (\d+) gradient steps",
+                       log.read_text()) if log.exists() else []
+    if not found:
+        return None
+    steps, rate, updates = int(found[-1][0]), float(found[-1][1]), int(found[-1][2])
+    return Throughput(algo, steps, steps / rate, rate, float("nan"), updates, None, device=run_device(run_dir))
 
 
 def run_device(run_dir: Path) -> str | None:
@@ -176,8 +194,9 @@ def table(rows: list[Throughput]) -> str:
             f"{'grad steps/s':>14}{'grad steps':>12}{'1st grad s':>12}{'peak RSS GB':>13}{'GPU GB':>8}")
     lines = [head]
     for r in rows:
+        steady = None if r.steady_env_steps_per_s != r.steady_env_steps_per_s else r.steady_env_steps_per_s  # nan
         lines.append(f"{r.algo:<12}{r.device or '?':>8}{r.env_steps:>11,}{r.seconds / 60:>9.1f}"
-                     f"{r.env_steps_per_s:>13.1f}{r.steady_env_steps_per_s:>9.1f}"
+                     f"{r.env_steps_per_s:>13.1f}{fmt(steady, '.1f'):>9}"
                      f"{fmt(r.steady_gradient_steps_per_s, '.3g'):>14}{fmt(r.gradient_steps, ','):>12}"
                      f"{fmt(r.first_gradient_step_s, '.0f'):>12}{fmt(r.peak_rss_gb, '.2f'):>13}"
                      f"{fmt(r.gpu_memory_gb, '.2f'):>8}")

@@ -121,3 +121,15 @@ def test_an_absent_device_is_refused_in_one_line(capsys):
     with pytest.raises(SystemExit):
         load_bench().main(["--algos", "ppo", "--device", "cuda"])
     assert "--device=cuda: no CUDA device is available here" in capsys.readouterr().err
+
+
+def test_a_run_too_slow_to_log_twice_reports_its_session_totals(tmp_path):
+    # DreamerV3 S on a CPU: 10 minutes, fewer env steps than log_every; train.log's last session line has the totals
+    (tmp_path / "train.log").write_text(
+        "[2026-11-25 09:11:29,839][baselines.runtime][INFO] - dreamer on 1-1: 20,306,279 parameters on cpu (bf16 ...\n"
+        "[2026-11-25 09:22:25,542][baselines.runtime][INFO] - dreamer on 1-1: 1064 env steps, 1.62 env steps/s this "
+        "session, 41 gradient steps\n")
+    got = load_bench().read_throughput(tmp_path, "dreamer")
+    assert (got.env_steps, got.gradient_steps, got.device) == (1064, 41, "cpu")
+    assert got.env_steps_per_s == pytest.approx(1.62) and got.seconds == pytest.approx(1064 / 1.62)
+    assert got.steady_gradient_steps_per_s is None
