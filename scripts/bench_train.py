@@ -134,7 +134,7 @@ def first_gradient_step(run_dir: Path, launched: float) -> float | None:
     log = run_dir / "train.log"
     if not log.exists():
         return None
-    match = re.search(r"^\[(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d+)\].*first gradient step", log.read_text(), re.M)
+    match = re.search(r"^\[(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d+)\].* - first gradient step at", log.read_text(), re.M)
     if match is None:
         return None
     return datetime.strptime(match.group(1), "%Y-%m-%d %H:%M:%S,%f").timestamp() - launched

@@ -105,6 +105,8 @@ def test_first_gradient_step_and_device_come_from_the_run_log(tmp_path):
 
     (tmp_path / "train.log").write_text(
         "[2026-11-25 08:00:05,000][baselines.runtime][INFO] - dreamer on 1-1: 20,327,000 parameters on cpu (bf16 ...\n"
+        "[2026-11-25 08:00:05,000][baselines.dreamer][INFO] - prefill: 1,024 env steps of random actions before the "
+        "first gradient step; then ...\n"
         "[2026-11-25 08:00:41,500][baselines.dreamer][INFO] - first gradient step at env step 1,032: 30 s (36 s ...)\n")
     bench = load_bench()
     launched = datetime(2026, 11, 25, 8, 0, 0).timestamp()
