@@ -13,12 +13,19 @@ critic updated by ``SoftUpdate``).
 
 Only the enabled observation keys are encoded and decoded: an ablation removes the key from both.
 
-The replay buffer is part of the checkpoint (exact resume): the rows written so far, about 12.4 kB per transition
-with pixels (e.g. 1.2 GB for 100,000 transitions).
+The networks, losses and optimisers live on ``device`` (``run.device``).  The replay buffer (about 12.4 kB per
+transition with pixels, 12.4 GB for S's million) is memory-mapped under the run directory by default
+(``algo.buffer_on_disk``): the checkpoint holds its cursor and the few rows the next checkpoint interval could
+overwrite, not the rows again.  In memory (``buffer_on_disk=false``) it sits on the device, must fit the memory
+there, and the checkpoint holds the rows written so far.  Either way ``resume=true`` continues exactly.
 """
 
 from __future__ import annotations
 
+import logging
+import os
+import shutil
+import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -29,7 +36,7 @@ from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModule, TensorDictModuleBase, TensorDictSequential
 from torch import nn
 from torch.nn import functional as F
-from torchrl.data import Composite, LazyTensorStorage, OneHot, ReplayBuffer, SliceSampler, Unbounded
+from torchrl.data import Composite, LazyMemmapStorage, LazyTensorStorage, OneHot, ReplayBuffer, SliceSampler, Unbounded
 from torchrl.envs import InitTracker, TensorDictPrimer, Transform
 from torchrl.envs.model_based.dreamer import DreamerEnv
 from torchrl.modules import (
@@ -50,8 +57,10 @@ from torchrl.objectives.utils import ValueEstimators
 
 from evaaa import ACTION_NAMES
 
-from .nets import symlog
-from .runtime import Counters, Run
+from .nets import compile_networks, symlog
+from .runtime import Counters, Run, parameter_count
+
+log = logging.getLogger(__name__)
 
 NUM_ACTIONS = len(ACTION_NAMES)
 LATENT = ("state", "belief")  # the stochastic sample z (flattened one-hots) and the GRU's deterministic state h
@@ -201,19 +210,21 @@ def world_model(model: DreamerModel) -> TensorDictSequential:
     )
 
 
-def imagination_env(model: DreamerModel) -> DreamerEnv:
-    """torchrl's ``DreamerEnv`` on the prior and the reward head: the latent world the actor is trained in."""
+def imagination_env(model: DreamerModel, device: torch.device | str = "cpu") -> DreamerEnv:
+    """torchrl's ``DreamerEnv`` on the prior and the reward head: the latent world the actor is trained in, on the
+    device the model is on."""
     transition = TensorDictModule(model.prior, in_keys=["state", "belief", "action"], out_keys=["_", *LATENT])
     reward = TensorDictSequential(
         TensorDictModule(model.reward, in_keys=list(LATENT), out_keys=["reward_logits"]),
         TensorDictModule(model.two_hot, in_keys=["reward_logits"], out_keys=["reward"]),
     )
     env = DreamerEnv(WorldModelWrapper(transition, reward), prior_shape=(model.state_dim,),
-                     belief_shape=(model.belief_dim,))
-    env.observation_spec = Composite(state=Unbounded(model.state_dim), belief=Unbounded(model.belief_dim))
+                     belief_shape=(model.belief_dim,), device=device)
+    env.observation_spec = Composite(state=Unbounded(model.state_dim, device=device),
+                                     belief=Unbounded(model.belief_dim, device=device), device=device)
     env.state_spec = env.observation_spec.clone()
-    env.action_spec = OneHot(NUM_ACTIONS)
-    env.reward_spec = Unbounded((1,))
+    env.action_spec = OneHot(NUM_ACTIONS, device=device)
+    env.reward_spec = Unbounded((1,), device=device)
     return env
 
 
@@ -230,6 +241,15 @@ def value_model(model: DreamerModel) -> TensorDictSequential:
         TensorDictModule(model.value, in_keys=list(LATENT), out_keys=["state_value_logits"]),
         TensorDictModule(model.two_hot, in_keys=["state_value_logits"], out_keys=["state_value"]),
     )
+
+
+def prefill_policy(td: TensorDictBase) -> TensorDictBase:
+    """Uniform random actions (and the matching ``prev_action``), as sheeprl's DreamerV3 fills its buffer before the
+    first gradient step: the untrained networks would act about as randomly, at the cost of a forward pass per step
+    (with size S on a CPU, most of the prefill's time).  The carried latent stays zero until the policy takes over."""
+    action = torch.randint(NUM_ACTIONS, td.batch_size)
+    td["action"], td["prev_action"] = action, _one_hot(action)
+    return td
 
 
 def _carry(action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -287,20 +307,34 @@ def make_transforms(cfg: DictConfig, obs_keys: Sequence[str], model: DreamerMode
 class SequenceReplay:
     """Every world's transitions in time order, sampled as sequences.
 
-    A torchrl ``ReplayBuffer`` on a two-dimensional ``LazyTensorStorage`` (rows = time, one column per world;
-    ``capacity`` transitions in all) with a ``SliceSampler`` whose trajectories are the worlds' streams (``world``),
-    so a sequence may run across an episode's end: ``is_init`` marks where the RSSM restarts, as in DreamerV3.
-    Its state for a checkpoint is the rows written so far and the writer's cursor (not the whole preallocated
-    storage).
+    A torchrl ``ReplayBuffer`` on a two-dimensional storage (rows = time, one column per world; ``capacity``
+    transitions in all) with a ``SliceSampler`` whose trajectories are the worlds' streams (``world``), so a sequence
+    may run across an episode's end: ``is_init`` marks where the RSSM restarts, as in DreamerV3.
+
+    The storage is a ``LazyMemmapStorage`` in ``directory`` (files of the full size, filled as the run goes; only the
+    pages in use take memory) or, without a directory, a ``LazyTensorStorage`` on ``device``.  Sampled batches are
+    moved to ``device`` (from pinned memory on a GPU).
+
+    Checkpoint state: in memory, the rows written so far and the writer's cursor.  On disk, the rows are already
+    there: the state is the cursor, the length, and a copy of the rows the next ``guard_rows`` writes would
+    overwrite (none until the buffer is full and wraps), so that a run killed after its checkpoint, whose later
+    writes have reached the files, resumes on exactly the rows it checkpointed.
     """
 
-    def __init__(self, capacity: int, num_envs: int, sequence_length: int, batch_size: int):
+    def __init__(self, capacity: int, num_envs: int, sequence_length: int, batch_size: int, *,
+                 directory: Path | None = None, device: torch.device | str = "cpu", guard_rows: int = 0):
         if capacity // num_envs < sequence_length:
             raise ValueError(f"algo.buffer_size ({capacity}) holds fewer than algo.sequence_length "
                              f"({sequence_length}) steps of each of the {num_envs} worlds")
         self.num_envs, self.sequence_length, self.batch_size = num_envs, sequence_length, batch_size
+        self.directory, self.device, self.guard_rows = directory, torch.device(device), guard_rows
+        self.capacity = capacity - capacity % num_envs
+        if directory is not None:
+            storage = LazyMemmapStorage(self.capacity, scratch_dir=directory, ndim=2, existsok=True)
+        else:
+            storage = LazyTensorStorage(self.capacity, ndim=2, device=self.device)
         self.buffer = ReplayBuffer(
-            storage=LazyTensorStorage(capacity - capacity % num_envs, ndim=2),
+            storage=storage,
             sampler=SliceSampler(slice_len=sequence_length, traj_key="world", truncated_key=None),
             batch_size=batch_size * sequence_length,
         )
@@ -310,30 +344,102 @@ class SequenceReplay:
         """Steps stored per world."""
         return len(self.buffer) // self.num_envs
 
+    @property
+    def place(self) -> str:
+        return f"memory-mapped in {self.directory}" if self.directory is not None else f"in memory on {self.device}"
+
     def extend(self, transition: TensorDictBase) -> None:
         """One step of every world (batch ``[num_envs]``)."""
-        transition["world"] = torch.arange(self.num_envs)
+        transition["world"] = torch.arange(self.num_envs, device=transition.device)
         self.buffer.extend(transition.unsqueeze(1))  # [world, time]; the storage keeps time first
 
+    def _to_device(self, batch: TensorDictBase) -> TensorDictBase:
+        if self.device.type == "cuda" and batch.device != self.device:
+            return batch.pin_memory().to(self.device, non_blocking=True)
+        return batch.to(self.device)
+
     def sample(self, sequences: int | None = None, length: int | None = None) -> TensorDictBase:
-        """``[sequences, length]`` consecutive steps of random worlds (default: the training batch)."""
+        """``[sequences, length]`` consecutive steps of random worlds (default: the training batch), on the device."""
         if sequences is None and length is None:
             batch = self.buffer.sample()
-            return batch.reshape(self.batch_size, self.sequence_length)
+            return self._to_device(batch.reshape(self.batch_size, self.sequence_length))
         sampler = SliceSampler(slice_len=length, traj_key="world", truncated_key=None)
         index, _ = sampler.sample(self.buffer.storage, sequences * length)
-        return self.buffer.storage[index].reshape(sequences, length)
+        return self._to_device(self.buffer.storage[index].reshape(sequences, length))
+
+    def _overwritten_next(self) -> torch.Tensor:
+        """Rows holding data now that the next ``guard_rows`` writes go to, in writing order."""
+        storage_rows = self.capacity // self.num_envs
+        cursor = int(self.buffer._writer._cursor) % storage_rows
+        ahead = (cursor + torch.arange(min(self.guard_rows, storage_rows))) % storage_rows
+        return ahead[ahead < self.rows]
 
     def state_dict(self) -> dict:
         storage = self.buffer.storage
-        rows = storage._storage[: self.rows].clone() if self.rows else None
-        return {"rows": rows, "writer": self.buffer._writer.state_dict()}
+        writer = self.buffer._writer.state_dict()
+        if self.directory is None:
+            rows = storage._storage[: self.rows].clone() if self.rows else None
+            return {"rows": rows, "writer": writer}
+        guard = self._overwritten_next() if self.rows else torch.zeros(0, dtype=torch.long)
+        self.flush()
+        return {"on_disk": str(self.directory), "length": len(self.buffer), "writer": writer,
+                "guard_index": guard, "guard_rows": storage._storage[guard].clone() if len(guard) else None}
 
     def load_state_dict(self, state: Mapping) -> None:
+        if ("on_disk" in state) != (self.directory is not None):
+            raise ValueError("the checkpoint's replay buffer was " + ("on disk" if "on_disk" in state else "in memory")
+                             + f"; this run's is {self.place}: resume with the algo.buffer_on_disk it was made with")
         self.buffer.empty()
-        if state["rows"] is not None:
-            self.buffer.extend(state["rows"].transpose(0, 1))  # rows 0.. in storage order, as they were
+        if self.directory is None:
+            if state["rows"] is not None:
+                self.buffer.extend(state["rows"].transpose(0, 1))  # rows 0.. in storage order, as they were
+            self.buffer._writer.load_state_dict(state["writer"])
+            return
+        if state["length"]:
+            if not (self.directory / "meta.json").exists():
+                raise FileNotFoundError(f"the checkpoint's replay buffer is memory-mapped in {self.directory}, which "
+                                        "is missing: this run cannot resume exactly")
+            storage = self.buffer.storage
+            storage._storage = TensorDict.load_memmap(self.directory, mode="r+")
+            storage.initialized = True
+            storage._len = state["length"]
+            if state["guard_rows"] is not None:  # the rows the killed process overwrote after its checkpoint
+                storage._storage[state["guard_index"]] = state["guard_rows"]
         self.buffer._writer.load_state_dict(state["writer"])
+
+    def flush(self) -> None:
+        """Write the memory-mapped rows to the disk (so a checkpoint never refers to rows only in the page cache)."""
+        if self.directory is None or not self.directory.exists():
+            return
+        for path in self.directory.rglob("*.memmap"):
+            fd = os.open(path, os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+
+
+def transition_bytes(env, stored: Sequence) -> int:
+    """Bytes one world's transition takes in the replay buffer (what :func:`train` stores, plus the world index)."""
+    fake = env.fake_tensordict().select(*stored)
+    per_world = sum(t.element_size() * t.numel() for t in fake.values(True, True)) // env.batch_size.numel()
+    return per_world + torch.tensor(0).element_size()
+
+
+def available_memory(device: torch.device) -> int | None:
+    """Bytes free for a buffer on ``device``: the GPU's free memory, or the system's MemAvailable."""
+    if device.type == "cuda":
+        return torch.cuda.mem_get_info(device)[0]
+    try:
+        with open("/proc/meminfo") as f:
+            info = dict(line.split(":", 1) for line in f)
+        return int(info["MemAvailable"].split()[0]) * 1024
+    except (OSError, KeyError, ValueError):
+        return None
+
+
+def _gb(n: float) -> str:
+    return f"{n / 1e9:.3g} GB"
 
 
 # ------------------------------------------------------------------------------------------------ pictures
@@ -344,8 +450,9 @@ def openloop_frames(model: DreamerModel, sequences: TensorDictBase, context: int
     Returns uint8 ``[n, T, H, W, 3]`` truth and model."""
     n, length = sequences.shape
     seq = sequences.select("action", "is_init", *_next(*model.obs_keys)).clone()
-    seq["state"] = torch.zeros(n, length, model.state_dim)
-    seq["belief"] = torch.zeros(n, length, model.belief_dim)
+    device = next(model.parameters()).device
+    seq["state"] = torch.zeros(n, length, model.state_dim, device=device)
+    seq["belief"] = torch.zeros(n, length, model.belief_dim, device=device)
     filtered = world_model(model)[:3](seq[:, :context])  # one-hot, encoder, RSSM rollout
     state, belief = filtered["next", "state"][:, -1], filtered["next", "belief"][:, -1]
     states, beliefs = [filtered["next", "state"]], [filtered["next", "belief"]]
@@ -357,7 +464,7 @@ def openloop_frames(model: DreamerModel, sequences: TensorDictBase, context: int
     pixel_index = model.obs_keys.index("pixels")
     predicted = model.decoder(torch.cat(states, 1), torch.cat(beliefs, 1))[pixel_index]
     truth = seq["next", "pixels"]
-    return truth, (predicted.clamp(0, 1) * 255).round().to(torch.uint8)
+    return truth.cpu(), (predicted.float().clamp(0, 1) * 255).round().to(torch.uint8).cpu()
 
 
 def openloop_grid(truth: torch.Tensor, predicted: torch.Tensor, context: int) -> np.ndarray:
@@ -387,7 +494,8 @@ def save_openloop(model: DreamerModel, replay: SequenceReplay, cfg: DictConfig, 
         return None
     import matplotlib.image
 
-    with torch.random.fork_rng():
+    device = next(model.parameters()).device
+    with torch.random.fork_rng(devices=[device] if device.type == "cuda" else []):
         torch.manual_seed(len(replay.buffer))
         sequences = replay.sample(cfg.openloop.sequences, length)
         truth, predicted = openloop_frames(model, sequences, cfg.openloop.context)
@@ -406,13 +514,51 @@ def _updates_due(cfg: DictConfig, steps: int, rows: int, num_envs: int) -> int:
     return int(cfg.replay_ratio * (steps - start)) + 1
 
 
+def replay_directory(run: Run) -> Path:
+    """Where a stage's memory-mapped replay buffer lives: ``replay/<stage>-<level>/`` in the run directory."""
+    return run.dir / "replay" / f"{run.stage.index}-{run.stage.level}"
+
+
+def make_replay(run: Run, num_envs: int, row_bytes: int) -> SequenceReplay:
+    """The stage's replay buffer, on disk or in memory (``algo.buffer_on_disk``), after checking that it fits."""
+    cfg = run.cfg.algo
+    full = cfg.buffer_size * row_bytes
+    # a stage's rows are rewritten at most every checkpoint.every env steps: a checkpoint keeps a copy of those
+    guard = -(-int(run.cfg.checkpoint.every) // num_envs) + 2
+    if cfg.buffer_on_disk:
+        directory = replay_directory(run)
+        if run.resume_state is None and directory.exists():
+            shutil.rmtree(directory)  # a stage started afresh: rows left by a run killed before its first checkpoint
+        directory.mkdir(parents=True, exist_ok=True)
+        for stale in sorted(directory.parent.glob("*-*")):  # stages before the previous one: no checkpoint needs them
+            if stale != directory and int(stale.name.split("-", 1)[0]) < run.stage.index - 1:
+                shutil.rmtree(stale)
+        free = shutil.disk_usage(directory).free
+        if full > free:
+            log.warning("replay: a full buffer (algo.buffer_size=%s, %s) needs more than the %s free on the disk of "
+                        "%s; lower algo.buffer_size before it fills", f"{cfg.buffer_size:,}", _gb(full), _gb(free),
+                        directory)
+        return SequenceReplay(cfg.buffer_size, num_envs, cfg.sequence_length, cfg.batch_size, directory=directory,
+                              device=run.device, guard_rows=guard)
+    free = available_memory(run.device)
+    if free is not None and full > free:
+        raise ValueError(f"algo.buffer_size={cfg.buffer_size:,} transitions need {_gb(full)} when full, but "
+                         f"{run.device} has {_gb(free)} available: use algo.buffer_on_disk=true (memory-mapped under "
+                         f"the run directory) or algo.buffer_size<={free // row_bytes:,}")
+    return SequenceReplay(cfg.buffer_size, num_envs, cfg.sequence_length, cfg.batch_size, device=run.device)
+
+
 def train(run: Run) -> None:
     cfg = run.cfg.algo
-    model = make_model(cfg, run.obs_shapes)
+    device = run.device
+    model = make_model(cfg, run.obs_shapes).to(device)
     env = run.train_env(make_transforms(cfg, run.obs_keys, model))
     num_envs = env.batch_size.numel()
-    policy = acting_policy(model)
+    policy = run.acting(acting_policy(model))
     keys = run.obs_keys
+    if run.cfg.get("compile"):
+        # the plain-torch networks the loops call many times: the RSSM in every replayed and imagined step
+        compile_networks(model, (DreamerEncoder, DreamerDecoder, RSSMPriorV3, RSSMPosteriorV3, DreamerV3MLP))
 
     # world model: KL balancing (dynamics / representation weights, free nats, unimix), pixels as x/255 and the
     # vector keys in symlog space, two-hot reward, continue predicted from "terminated" (not truncation)
@@ -424,13 +570,14 @@ def train(run: Run) -> None:
     model_loss.set_keys(pixels=list(keys), reco_pixels=[f"reco_{k}" for k in keys])
     critic = value_model(model)
     actor_loss = DreamerV3ActorLoss(
-        model.actor, critic, imagination_env(model), continuation_model=continuation_model(model),
+        model.actor, critic, imagination_env(model, device), continuation_model=continuation_model(model),
         imagination_horizon=cfg.horizon, use_reinforce=True, entropy_bonus=cfg.actor.entropy,
         return_normalization=True, return_normalization_rate=1 - cfg.actor.return_decay,
         return_normalization_quantiles=tuple(cfg.actor.return_percentiles), return_normalization_min_scale=1.0)
     actor_loss.make_value_estimator(ValueEstimators.TDLambda, gamma=cfg.gamma, lmbda=cfg.lmbda)
     value_loss = DreamerV3ValueLoss(critic, value_loss="two_hot", num_value_bins=cfg.model.bins,
                                     actor_loss=actor_loss, slow_critic_regularization=cfg.critic.slow_regularizer)
+    model_loss.to(device), actor_loss.to(device), value_loss.to(device)
     slow_critic = SoftUpdate(value_loss, tau=cfg.critic.tau)
 
     def adam(params, section: DictConfig) -> torch.optim.Adam:
@@ -439,9 +586,25 @@ def train(run: Run) -> None:
     optimizers = {"world_model": adam(model.world_model_parameters(), cfg.world_model),
                   "actor": adam(model.actor.parameters(), cfg.actor),
                   "critic": adam(model.value.parameters(), cfg.critic)}
-    replay = SequenceReplay(cfg.buffer_size, num_envs, cfg.sequence_length, cfg.batch_size)
     stored = ["action", "is_init", *_next(*keys, "reward", "done", "terminated")]
+    row_bytes = transition_bytes(env, stored)
+    replay = make_replay(run, num_envs, row_bytes)
     counters = Counters(updates=0)
+    start = max(cfg.learning_starts, cfg.sequence_length * num_envs)  # env steps before the first gradient step
+    run.planned_updates = lambda steps: _updates_due(cfg, steps, cfg.sequence_length, num_envs)
+
+    def world_model_parameters() -> int:
+        return sum(p.numel() for p in model.world_model_parameters())
+
+    log.info("DreamerV3 size %s on %s: %s parameters (world model %s, actor %s, critic %s)", cfg.size, device,
+             f"{parameter_count(model):,}", f"{world_model_parameters():,}", f"{parameter_count(model.actor):,}",
+             f"{parameter_count(model.value):,}")
+    log.info("replay: %s transitions (%s when full, %s each), %s", f"{cfg.buffer_size:,}",
+             _gb(cfg.buffer_size * row_bytes), f"{row_bytes / 1e3:.3g} kB", replay.place)
+    log.info("prefill: %s env steps of %s before the first gradient step; then %g gradient steps per env step, "
+             "each on %d sequences of %d steps", f"{start:,}",
+             "random actions" if cfg.prefill_random else "the untrained policy", cfg.replay_ratio, cfg.batch_size,
+             cfg.sequence_length)
 
     def step(name: str, loss: torch.Tensor, params: list[nn.Parameter], clip: float) -> torch.Tensor:
         optimizer = optimizers[name]
@@ -451,40 +614,55 @@ def train(run: Run) -> None:
         optimizer.step()
         return norm
 
-    def update() -> dict[str, float]:
+    def update() -> dict[str, torch.Tensor]:
         batch = replay.sample()
-        batch["state"] = torch.zeros(*batch.shape, model.state_dim)
-        batch["belief"] = torch.zeros(*batch.shape, model.belief_dim)
-        losses, posterior = model_loss(batch)
-        wm_loss = sum(v for k, v in losses.items() if k.startswith("loss_")).squeeze()
+        batch["state"] = torch.zeros(*batch.shape, model.state_dim, device=device)
+        batch["belief"] = torch.zeros(*batch.shape, model.belief_dim, device=device)
+        with run.autocast():
+            losses, posterior = model_loss(batch)
+            wm_loss = sum(v for k, v in losses.items() if k.startswith("loss_")).squeeze()
         wm_norm = step("world_model", wm_loss, model.world_model_parameters(), cfg.world_model.grad_clip)
         # behaviour learning starts from every posterior latent of the batch, without gradient into the model
-        start = TensorDict({k: posterior["next", k].reshape(-1, posterior["next", k].shape[-1]) for k in LATENT},
-                           [batch.numel()])
-        actor_out, imagined = actor_loss(start)
+        latents = TensorDict({k: posterior["next", k].reshape(-1, posterior["next", k].shape[-1]).float()
+                              for k in LATENT}, [batch.numel()], device=device)
+        with run.autocast():
+            actor_out, imagined = actor_loss(latents)
         actor_norm = step("actor", actor_out["loss_actor"], list(model.actor.parameters()), cfg.actor.grad_clip)
-        critic_out, _ = value_loss(imagined.detach())
+        with run.autocast():
+            critic_out, _ = value_loss(imagined.detach())
         critic_norm = step("critic", critic_out["loss_value"], list(model.value.parameters()), cfg.critic.grad_clip)
         slow_critic.step()
-        metrics = {f"model_{k.removeprefix('loss_model_')}": v.item() for k, v in losses.items()}
-        metrics |= {"model_loss": wm_loss.item(), "model_grad_norm": wm_norm.item(),
-                    "actor_loss": actor_out["loss_actor"].item(), "actor_entropy": actor_out["actor_entropy"].item(),
-                    "return_scale": actor_out["return_scale"].item(), "actor_grad_norm": actor_norm.item(),
-                    "imagined_reward": imagined["next", "reward"].mean().item(),
-                    "imagined_continuation": actor_out["continuation_mean"].item(),
-                    "critic_loss": critic_out["loss_value"].item(), "critic_grad_norm": critic_norm.item(),
-                    "imagined_return": imagined["lambda_target"].mean().item()}
+        # tensors, not floats: run.log reads them (a host sync on a GPU) only when a log is due
+        metrics = {f"model_{k.removeprefix('loss_model_')}": v.detach() for k, v in losses.items()}
+        metrics |= {"model_loss": wm_loss.detach(), "model_grad_norm": wm_norm,
+                    "actor_loss": actor_out["loss_actor"].detach(), "actor_entropy": actor_out["actor_entropy"],
+                    "return_scale": actor_out["return_scale"], "actor_grad_norm": actor_norm,
+                    "imagined_reward": imagined["next", "reward"].mean(),
+                    "imagined_continuation": actor_out["continuation_mean"],
+                    "critic_loss": critic_out["loss_value"].detach(), "critic_grad_norm": critic_norm,
+                    "imagined_return": imagined["lambda_target"].mean()}
         return metrics
 
     td = run.start(model, {**{f"optimizer_{k}": v for k, v in optimizers.items()}, "value_loss": value_loss,
                            "return_norm": actor_loss.retnorm, "replay": replay, "counters": counters})
+    run.updates = counters["updates"]  # a resumed run's bar counts on from its checkpoint
+    first_update = counters["updates"] == 0
     while not run.done:
-        transition, td = run.step(policy, td)
+        transition, td = run.step(prefill_policy if cfg.prefill_random and run.steps < start else policy, td)
         replay.extend(transition.select(*stored))
         metrics = None
-        while counters["updates"] < _updates_due(cfg, run.steps, replay.rows, num_envs):
+        due = _updates_due(cfg, run.steps, replay.rows, num_envs)
+        run.set_phase("prefill" if due == 0 else None)
+        while counters["updates"] < due:
+            began = time.perf_counter()
             metrics = update()
             counters["updates"] += 1
+            seconds = time.perf_counter() - began
+            run.updated(1, seconds, counters["updates"], counters["updates"] / max(run.steps - start + 1, 1))
+            if first_update:
+                first_update = False
+                log.info("first gradient step at env step %s: %.3g s (%.0f s after the stage began)",
+                         f"{run.steps:,}", seconds, time.perf_counter() - run._session[0])
             if cfg.openloop.every and counters["updates"] % cfg.openloop.every == 0:
                 save_openloop(model, replay, cfg, run.dir / "openloop" /
                               f"openloop-{run.stage.index}-{run.stage.level}-{run.steps:09d}.png")

@@ -130,18 +130,24 @@ class LoadedPolicy:
         return self.wrap(env)
 
 
-def load_policy(path: str | Path, *, modalities: Iterable[str] | str | None = None) -> LoadedPolicy:
+def load_policy(path: str | Path, *, modalities: Iterable[str] | str | None = None,
+                device: str | torch.device = "cpu") -> LoadedPolicy:
     """Load a checkpoint (``checkpoint.pt`` or ``model-*.pt`` of a run directory) as a policy.
 
     Args:
         path: the checkpoint file.
         modalities: the observation keys the caller will feed (e.g. an ablation's); if given and different from
             the keys the checkpoint was trained on, a ``ValueError`` says which keys differ.
+        device: where the network runs (``auto``, ``cpu``, ``cuda``, ``cuda:N``), whatever device trained it; the
+            policy still acts on tensordicts of CPU worlds.
 
     A file that is damaged, cut short or holds anything but tensors and plain data (so could run code) is refused
     with a :class:`~baselines.checkpoint.CheckpointError` (a ``ValueError``) naming it.
     """
     from . import ALGOS  # the algorithm modules import this one
+    from .runtime import OnDevice, resolve_device
+
+    device = resolve_device(device)
 
     path = Path(path)
     state = load_checkpoint(path)
@@ -160,8 +166,9 @@ def load_policy(path: str | Path, *, modalities: Iterable[str] | str | None = No
     algo_cfg: DictConfig = OmegaConf.create(state["config"]["algo"])
     model = algo.make_model(algo_cfg, {k: tuple(s) for k, s in state["obs_shapes"].items()})
     model.load_state_dict(state["model"])
-    model.eval()
+    model.to(device).eval()
     return LoadedPolicy(path=path, algo=state["algo"], config=state["config"], level=state["level"],
                         modalities=tuple(state["modalities"]), obs_keys=obs_keys,
-                        env_overrides=state["env_overrides"], model=model, policy=algo.make_policy(model))
+                        env_overrides=state["env_overrides"], model=model,
+                        policy=OnDevice(algo.make_policy(model), device))
 

@@ -67,3 +67,17 @@ def head(in_features: int, units: Sequence[int], out_features: int, layer_norm: 
     norm = {"norm_class": nn.LayerNorm, "norm_kwargs": [{"normalized_shape": u} for u in units]} if layer_norm else {}
     return MLP(in_features=in_features, out_features=out_features, num_cells=list(units), activation_class=nn.ReLU,
                **norm)
+
+
+def compile_networks(model: nn.Module, types: tuple[type, ...] = (MultimodalEncoder, MLP)) -> int:
+    """``compile=true``: ``torch.compile`` in place (``nn.Module.compile``, so parameter names do not change) every
+    outermost submodule of ``types`` — the plain-torch networks; the tensordict wiring around them stays eager.
+    Returns how many were compiled."""
+    count = 0
+    for child in model.children():
+        if isinstance(child, types):
+            child.compile(dynamic=False)  # a few fixed shapes (acting, minibatch); dynamic ones failed in inductor
+            count += 1
+        else:
+            count += compile_networks(child, types)
+    return count

@@ -6,6 +6,9 @@ pixel frames; for the LSTM ``InitTracker`` and the LSTM's tensordict primer), th
 (``frames_per_batch`` transitions split over the worlds), GAE, ``ClipPPOLoss``, Adam/AdamW with linear annealing of
 learning rate and clip, and the loop.
 
+The networks, the loss and the optimiser live on ``device`` (``run.device``): each collected batch goes there once,
+for GAE and every epoch of minibatches.
+
 The recurrent variant trains on sequences of ``sequence_length`` steps cut from each world's rollout; each sequence
 starts from the LSTM state stored when it was collected, and the state is reset where an episode starts
 (``is_init``), so no state leaks across episodes.
@@ -13,6 +16,7 @@ starts from the LSTM state stored when it was collected, and the state is reset 
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator, Mapping, Sequence
 
 import torch
@@ -28,7 +32,7 @@ from torchrl.objectives.value import GAE
 
 from evaaa import ACTION_NAMES
 
-from .nets import MultimodalEncoder, head, stacked_shapes
+from .nets import MultimodalEncoder, compile_networks, head, stacked_shapes
 from .runtime import Run
 
 LOSS_TERMS = ("loss_objective", "loss_critic", "loss_entropy")
@@ -87,7 +91,7 @@ def _minibatches(batch: TensorDictBase, cfg: DictConfig) -> Iterator[TensorDictB
         units = batch.reshape(worlds, steps // cfg.sequence_length, cfg.sequence_length).flatten(0, 1)
     else:
         units = batch.reshape(-1)
-    for index in torch.randperm(units.shape[0]).chunk(cfg.num_minibatches):
+    for index in torch.randperm(units.shape[0]).chunk(cfg.num_minibatches):  # drawn on the CPU on every device
         yield units[index]
 
 
@@ -95,7 +99,9 @@ def _minibatches(batch: TensorDictBase, cfg: DictConfig) -> Iterator[TensorDictB
 def train(run: Run) -> None:
     cfg = run.cfg.algo
     recurrent = bool(cfg.lstm)
-    model = make_model(cfg, run.obs_shapes)
+    model = make_model(cfg, run.obs_shapes).to(run.device)
+    if run.cfg.get("compile"):
+        compile_networks(model)
     env = run.train_env(make_transforms(cfg, run.obs_keys, model))
     num_envs = env.batch_size.numel()
     if cfg.frames_per_batch % num_envs:
@@ -106,6 +112,7 @@ def train(run: Run) -> None:
         raise ValueError(f"each world's rollout ({rollout} steps) must be a multiple of algo.sequence_length "
                          f"({cfg.sequence_length})")
     policy = make_policy(model)
+    acting = run.acting(policy)
 
     # GAE runs the whole critic: trunk and head, for the LSTM over each world's rollout from the stored state, and
     # without vmap, which has no batching rule for the LSTM.  The loss's critic is the value head alone: it reads the
@@ -115,7 +122,7 @@ def train(run: Run) -> None:
                     average_gae=False, deactivate_vmap=True)
     loss_fn = ClipPPOLoss(policy, model.get_value_head(), clip_epsilon=cfg.clip, entropy_coeff=cfg.entropy_coef,
                           critic_coeff=cfg.value_coef, loss_critic_type="l2",
-                          normalize_advantage=cfg.normalize_advantage, clip_value=cfg.clip_value_loss)
+                          normalize_advantage=cfg.normalize_advantage, clip_value=cfg.clip_value_loss).to(run.device)
 
     optimizer_cls = {"adam": torch.optim.Adam, "adamw": torch.optim.AdamW}[cfg.optimizer.name]
     optimizer = optimizer_cls(model.parameters(), lr=cfg.lr, eps=cfg.optimizer.eps,
@@ -126,23 +133,29 @@ def train(run: Run) -> None:
         return max(0.0, 1.0 - iteration / iterations)
 
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, remaining if cfg.anneal_lr else lambda _: 1.0)
+    per_batch = cfg.epochs * cfg.num_minibatches
+    run.planned_updates = lambda steps: -(-steps // cfg.frames_per_batch) * per_batch
 
     td = run.start(model, {"optimizer": optimizer, "scheduler": scheduler})
+    run.updates = run.planned_updates(run.steps)  # a resumed run's bar counts on from its checkpoint
     while not run.done:
         if cfg.anneal_clip:
             clip = cfg.clip * remaining(run.steps // cfg.frames_per_batch)
             loss_fn.clip_epsilon.fill_(clip)
             if cfg.clip_value_loss:
                 loss_fn.clip_value.fill_(clip)
-        batch, td = run.collect(policy, td, rollout)
-        with torch.no_grad(), set_recurrent_mode(recurrent):
+        batch, td = run.collect(acting, td, rollout)
+        began = time.perf_counter()
+        batch = batch.to(run.device)
+        with torch.no_grad(), set_recurrent_mode(recurrent), run.autocast():
             advantage(batch)
 
-        totals: dict[str, float] = {}
+        # summed on the device: read (one host sync) when logged
+        totals: dict[str, torch.Tensor] = {}
         updates = 0
         for _ in range(cfg.epochs):
             for minibatch in _minibatches(batch, cfg):
-                with set_recurrent_mode(recurrent):
+                with set_recurrent_mode(recurrent), run.autocast():
                     losses = loss_fn(minibatch)
                 loss = sum(losses[k] for k in LOSS_TERMS)
                 optimizer.zero_grad(set_to_none=True)
@@ -152,9 +165,11 @@ def train(run: Run) -> None:
                 updates += 1
                 stats = {k: losses[k] for k in (*LOSS_TERMS, *LOGGED)} | {"grad_norm": grad_norm}
                 for key, value in stats.items():
-                    totals[key] = totals.get(key, 0.0) + value.item()
+                    totals[key] = totals.get(key, 0.0) + value.detach().float()
         scheduler.step()
+        done_updates = -(-run.steps // cfg.frames_per_batch) * updates  # every iteration makes as many
+        run.updated(updates, time.perf_counter() - began, done_updates)
         run.log({**{k: v / updates for k, v in totals.items()}, "lr": optimizer.param_groups[0]["lr"],
-                 "clip": loss_fn.clip_epsilon.item(),
-                 "updates": -(-run.steps // cfg.frames_per_batch) * updates})  # every iteration makes as many
+                 "clip": loss_fn.clip_epsilon,
+                 "updates": done_updates})
         run.end_iteration(td)

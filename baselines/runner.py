@@ -36,7 +36,7 @@ from torchrl.record.loggers import Logger, get_logger
 
 from .checkpoint import CHECKPOINT, PREVIOUS, CheckpointError, load_latest, remove_stale_temporaries, seed_everything
 from .config import observation_keys, stages
-from .runtime import Interrupted, Run
+from .runtime import Interrupted, Run, resolve_device
 
 log = logging.getLogger(__name__)
 
@@ -257,6 +257,7 @@ def train(cfg: DictConfig, run_dir: str | Path, *, records: Mapping[str, Any] | 
 def _train(cfg: DictConfig, run_dir: Path, records: Mapping[str, Any] | None, stop: threading.Event) -> Path:
     from . import ALGOS
 
+    resolve_device(cfg.get("device", "auto"))  # a device this machine lacks fails here, before anything is written
     if cfg.algo.name not in ALGOS:
         raise ValueError(f"unknown algo {cfg.algo.name!r}; known: {', '.join(ALGOS)}")
     algo = ALGOS[cfg.algo.name]

@@ -14,13 +14,21 @@ training RNGs.  The model of the best evaluation so far is kept as ``model-best-
 
 Interrupts: when ``stop_requested`` says so (the first Ctrl-C, see ``baselines/runner.py``), the iteration under way
 finishes, a checkpoint is written and :class:`Interrupted` says where, so an interrupted run always resumes exactly.
+
+Devices: the worlds live on the CPU; the networks, losses, optimisers and replay live on ``device``
+(:func:`resolve_device`).  Acting sends each step's observations to the device and brings the policy's outputs back
+(:class:`OnDevice`).  The progress bar (:class:`Progress`) shows rates smoothed over ``progress_seconds`` and the
+session's average, gradient steps and their cost, and an ETA that adds the acting time and the gradient steps still
+owed.
 """
 
 from __future__ import annotations
 
 import csv
 import logging
+import math
 import os
+import re
 import time
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
@@ -56,6 +64,142 @@ EVAL_COLUMNS = ("env_steps", "stage", "level", "episodes", "survival_mean", "sur
 
 class Interrupted(KeyboardInterrupt):
     """Training stopped on request; the message says what a resume continues from."""
+
+
+# ------------------------------------------------------------------------------------------------ devices
+class DeviceError(ValueError):
+    """``device=`` names a device this machine does not have, or is not a device at all."""
+
+
+def resolve_device(spec: str | torch.device) -> torch.device:
+    """``auto`` (CUDA when available, else the CPU), ``cpu``, ``cuda`` or ``cuda:N`` as a ``torch.device``;
+    :class:`DeviceError` names the key and the allowed values, or says why this machine has no such device."""
+    text = str(spec).strip().lower()
+    if text == "auto":
+        return torch.device("cuda") if torch.cuda.is_available() else torch.device("cpu")
+    if text == "cpu":
+        return torch.device("cpu")
+    match = re.fullmatch(r"cuda(?::(\d+))?", text)
+    if match is None:
+        raise DeviceError(f"device={spec}: not a device; allowed: auto, cpu, cuda, cuda:N")
+    if not torch.cuda.is_available():
+        build = f"CUDA {torch.version.cuda}" if torch.version.cuda else "without CUDA"
+        raise DeviceError(f"device={spec}: no CUDA device is available here (torch {torch.__version__}, built "
+                          f"{build}); use device=cpu or device=auto")
+    index, count = int(match.group(1) or 0), torch.cuda.device_count()
+    if index >= count:
+        raise DeviceError(f"device={spec}: this machine has {count} CUDA device(s): cuda:0 to cuda:{count - 1}")
+    return torch.device("cuda", index)
+
+
+class OnDevice(TensorDictModuleBase):
+    """A policy whose networks live on ``device``, acting on tensordicts of CPU worlds: the observations go to the
+    device, the policy's outputs come back (tensordict's ``to`` overlaps the copies and synchronises once).  On
+    the CPU it is the policy itself, at no cost."""
+
+    def __init__(self, policy: TensorDictModuleBase, device: torch.device):
+        super().__init__()
+        self.policy, self.device = policy, torch.device(device)
+        self.in_keys, self.out_keys = policy.in_keys, policy.out_keys
+
+    def forward(self, td: TensorDictBase) -> TensorDictBase:
+        if self.device.type == "cpu":
+            return self.policy(td)
+        acted = self.policy(td.select(*self.in_keys, strict=False).to(self.device))
+        return td.update(acted.select(*self.out_keys, strict=False).to(td.device or "cpu"))
+
+
+def autocast(device: torch.device, enabled: bool):
+    """bf16 autocast of the networks' forward passes on ``device`` (``bf16=true``); a no-op when disabled."""
+    return torch.autocast(device.type, dtype=torch.bfloat16, enabled=bool(enabled))
+
+
+def parameter_count(model: nn.Module) -> int:
+    return sum(p.numel() for p in model.parameters())
+
+
+# ------------------------------------------------------------------------------------------------ progress
+def _duration(seconds: float) -> str:
+    if not math.isfinite(seconds):
+        return "?"
+    seconds = max(0.0, seconds)
+    if seconds >= 2 * 86400:
+        return f"{seconds / 86400:.1f} d"
+    if seconds >= 3600:
+        return f"{int(seconds // 3600)}:{int(seconds % 3600 // 60):02d} h"
+    return f"{int(seconds // 60)}:{int(seconds % 60):02d}"
+
+
+def _rate(x: float) -> str:
+    return f"{x:.3g}" if x < 100 else f"{x:.0f}"
+
+
+class Progress:
+    """What the progress bar says about speed, from the times the loop reports.
+
+    Every report adds the env steps, gradient steps and seconds since the previous one to sums that decay with a
+    time constant of ``window`` seconds: the rates are over roughly the last ``window`` seconds of the whole loop, so
+    PPO's alternation of fast collection and slow updates, or DreamerV3's few long gradient steps, do not make the
+    rate swing.  The session's average (env steps / seconds since :meth:`__init__`) is given beside it.
+
+    The ETA adds the two costs of what is left: env steps still to take times the time one takes outside gradient
+    steps (acting, logging, evaluation), and gradient steps still owed times the time one takes.
+    """
+
+    def __init__(self, window: float, steps: int, now: float | None = None):
+        self.window = float(window)
+        now = time.perf_counter() if now is None else now
+        self.start, self.start_steps, self.last, self.steps = now, steps, now, steps
+        self.sums = {"seconds": 0.0, "steps": 0.0, "update_seconds": 0.0, "updates": 0.0}
+
+    def add(self, steps: int, updates: int = 0, update_seconds: float = 0.0, now: float | None = None) -> None:
+        """The loop is at ``steps`` env steps and made ``updates`` gradient steps, taking ``update_seconds``, since
+        the last report."""
+        now = time.perf_counter() if now is None else now
+        elapsed = max(now - self.last, 0.0)
+        decay = math.exp(-elapsed / self.window)
+        increments = {"seconds": elapsed, "steps": steps - self.steps, "update_seconds": min(update_seconds, elapsed),
+                      "updates": updates}
+        for key, value in increments.items():
+            self.sums[key] = self.sums[key] * decay + value
+        self.last, self.steps = now, steps
+
+    @property
+    def env_rate(self) -> float:
+        """Env steps per second of the whole loop over the window."""
+        return self.sums["steps"] / self.sums["seconds"] if self.sums["seconds"] > 0 else math.nan
+
+    @property
+    def session_rate(self) -> float:
+        """Env steps per second of the whole loop since the session began."""
+        seconds = self.last - self.start
+        return (self.steps - self.start_steps) / seconds if seconds > 0 else math.nan
+
+    @property
+    def update_rate(self) -> float:
+        return self.sums["updates"] / self.sums["seconds"] if self.sums["seconds"] > 0 else math.nan
+
+    @property
+    def seconds_per_update(self) -> float:
+        return self.sums["update_seconds"] / self.sums["updates"] if self.sums["updates"] > 0 else math.nan
+
+    @property
+    def seconds_per_step(self) -> float:
+        """Seconds of one env step outside gradient steps (acting, logging, evaluation)."""
+        acting = self.sums["seconds"] - self.sums["update_seconds"]
+        return acting / self.sums["steps"] if self.sums["steps"] > 0 else math.nan
+
+    def eta(self, steps_left: int, updates_left: int | None) -> float:
+        """Seconds until the stage ends: the steps left at the acting cost, plus the gradient steps still owed at
+        their cost (``updates_left=None``: an algorithm without gradient steps to count, only the whole-loop rate)."""
+        if steps_left <= 0:
+            return 0.0
+        if updates_left is None:
+            return steps_left / self.env_rate if self.env_rate > 0 else math.nan
+        cost = steps_left * self.seconds_per_step
+        if updates_left > 0:
+            cost += updates_left * self.seconds_per_update
+        return cost
 
 
 # ------------------------------------------------------------------------------------------------ files
@@ -124,6 +268,8 @@ class Run:
                  stop_requested: Callable[[], bool] | None = None):
         self.cfg, self.dir, self.stage, self.algo, self.logger = cfg, Path(run_dir), stage, algo, logger
         self.stop_requested = stop_requested or (lambda: False)
+        #: where the networks, losses, optimisers and replay live (the worlds stay on the CPU)
+        self.device = resolve_device(cfg.get("device", "auto"))
         self.resume_state, self.init_weights = resume, init_weights
         self.obs_keys = observation_keys(cfg)
         self.overrides = env_overrides(cfg)
@@ -143,6 +289,14 @@ class Run:
         self.model: nn.Module | None = None
         self._eval_env: TransformedEnv | None = None
         self.progress: tqdm | None = None
+        self.meter: Progress | None = None
+        #: shown in the bar beside the level, e.g. "prefill" while DreamerV3 or DQN fill their buffer
+        self.phase: str | None = None
+        #: gradient steps so far (:meth:`updated`), and a function of env steps giving those owed by then (for the ETA)
+        self.updates = 0
+        self.planned_updates: Callable[[int], int] | None = None
+        self._ratio: float | None = None
+        self._shown = 0.0
 
     # -------------------------------------------------------------------------------------------- set-up
     @property
@@ -171,17 +325,51 @@ class Run:
         replay buffer, exploration module, counters): anything with ``state_dict`` / ``load_state_dict``.
         """
         self.model, self.components = model, dict(components)
-        self.policy = self.algo.make_policy(model)
+        self.policy = OnDevice(self.algo.make_policy(model), self.device)
         if self.resume_state is not None:
             td = self._restore(self.resume_state)
         else:
             if self.init_weights is not None:
                 model.load_state_dict(self.init_weights)
             td = self.env.reset()
+        log.info("%s on %s: %s parameters on %s (bf16 autocast %s, compile %s), %d worlds on the CPU, %s env steps",
+                 self.cfg.algo.name, self.stage.level, f"{parameter_count(model):,}", self.device,
+                 "on" if self.cfg.get("bf16") else "off", "on" if self.cfg.get("compile") else "off",
+                 self.base_env.num_envs, f"{self.stage.budget:,}")
+        # the bar's own rate and ETA (tqdm's) are left out: they follow the last few updates of the bar and swing
+        # with the loop's phases; Progress gives smoothed ones
         self.progress = tqdm(total=self.stage.budget, initial=self.steps, unit="step", dynamic_ncols=True,
-                             desc=f"{self.cfg.algo.name} {self.stage.level}", disable=not self.cfg.progress)
+                             desc=self._desc(), disable=not self.cfg.progress,
+                             bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]")
         self._session = (time.perf_counter(), self.steps)
+        self.meter = Progress(self.cfg.get("progress_seconds", 60), self.steps, now=self._session[0])
         return td
+
+    def acting(self, policy: TensorDictModuleBase) -> OnDevice:
+        """``policy`` (on :attr:`device`) acting on the CPU worlds' tensordicts."""
+        return OnDevice(policy, self.device)
+
+    def autocast(self):
+        """bf16 autocast for an update's forward passes when ``bf16=true``."""
+        return autocast(self.device, self.cfg.get("bf16", False))
+
+    def updated(self, count: int, seconds: float, total: int, ratio: float | None = None) -> None:
+        """``count`` gradient steps were made in ``seconds``; ``total`` so far this stage; ``ratio``: the replay
+        ratio kept (gradient steps per env step since learning began), if the algorithm keeps one."""
+        self.updates, self._ratio = total, ratio
+        self.meter.add(self.steps, count, seconds)
+        self._show()
+
+    def set_phase(self, phase: str | None) -> None:
+        if phase != self.phase:
+            self.phase = phase
+            if self.progress is not None:
+                self.progress.set_description(self._desc(), refresh=False)
+                self._show(force=True)
+
+    def _desc(self) -> str:
+        desc = f"{self.cfg.algo.name} {self.stage.level}"
+        return f"{desc} {self.phase}" if self.phase else desc
 
     # -------------------------------------------------------------------------------------------- acting
     def step(self, policy: TensorDictModuleBase, td: TensorDictBase) -> tuple[TensorDictBase, TensorDictBase]:
@@ -197,6 +385,8 @@ class Run:
         done = out["next", "done"].reshape(-1)
         if done.any():
             self._log_episodes(out["next"], done)
+        self.meter.add(self.steps)
+        self._show()
         self.progress.update(n)
         return out, td
 
@@ -230,7 +420,6 @@ class Run:
                 **{f"episode/end/{name}": float(name == row["end_type"]) for name in END_TYPES[1:]},
             }, step=self.steps)
             self.recent.append(row["survival_steps"])
-        self._show()
 
     # -------------------------------------------------------------------------------------------- bookkeeping
     def log(self, metrics: Mapping[str, float]) -> None:
@@ -239,8 +428,10 @@ class Run:
         if self.steps // every <= self.counters["logged"] // every:
             return
         self.counters["logged"] = self.steps
-        self.logger.log_metrics({**{f"train/{k}": float(v) for k, v in metrics.items()},
-                                 "time/env_steps_per_s": self.steps_per_second()}, step=self.steps)
+        timing = {"time/env_steps_per_s": self.steps_per_second()}
+        if self.device.type == "cuda":
+            timing["time/gpu_memory_peak_gb"] = torch.cuda.max_memory_allocated(self.device) / 1e9
+        self.logger.log_metrics({**{f"train/{k}": float(v) for k, v in metrics.items()}, **timing}, step=self.steps)
 
     def steps_per_second(self) -> float:
         """Env steps per second of this session's whole loop (collection, updates, evaluation, checkpoints)."""
@@ -288,7 +479,7 @@ class Run:
         self._eval_env.set_seed(seed, static_seed=True)
         sample = bool(self.cfg.eval.get("sample", False))
         # a sampling policy draws from torch's RNG: a forked, freshly seeded one leaves the training stream as it was
-        with torch.random.fork_rng(devices=[]):
+        with torch.random.fork_rng(devices=[self.device] if self.device.type == "cuda" else []):
             torch.manual_seed(seed)
             result = evaluate(self._eval_env, self.policy, sample=sample)
         self.last_eval = result.survival_mean
@@ -304,15 +495,37 @@ class Run:
         self.eval_csv.write(row)
         self.logger.log_metrics({"eval/survival_mean": result.survival_mean, "eval/return_mean": result.return_mean},
                                 step=self.steps)
-        self._show()
+        self._show(force=True)
 
-    def _show(self) -> None:
-        if self.progress is None:
-            return
-        postfix = {"surv": f"{np.mean(self.recent):.0f}" if self.recent else "-"}
+    def status(self) -> str:
+        """The bar's text after the step counter: smoothed and session env steps/s, gradient steps (count, rate,
+        seconds each, replay ratio kept), the ETA, the mean survival of recent episodes and the last evaluation."""
+        m = self.meter
+        parts = [f"env {_rate(m.env_rate)}/s (avg {_rate(m.session_rate)})"]
+        if self.planned_updates is not None or self.updates:
+            grad = f"grad {self.updates:,}"
+            if m.sums["updates"] > 0:
+                grad += f" {_rate(m.update_rate)}/s {m.seconds_per_update:.3g} s/update"
+            if self._ratio is not None:
+                grad += f" ratio {self._ratio:.3g}"
+            parts.append(grad)
+        planned = None
+        if self.planned_updates is not None:
+            planned = max(self.planned_updates(self.stage.budget) - self.updates, 0)
+        parts.append(f"ETA {_duration(m.eta(self.stage.budget - self.steps, planned))}")
+        parts.append(f"surv {np.mean(self.recent):.0f}" if self.recent else "surv -")
         if self.last_eval is not None:
-            postfix["eval"] = f"{self.last_eval:.0f}"
-        self.progress.set_postfix(postfix, refresh=False)
+            parts.append(f"eval {self.last_eval:.0f}")
+        return " | ".join(parts)
+
+    def _show(self, force: bool = False) -> None:
+        """Rewrite the bar's text at most twice a second (and redraw it: a long gradient step moves no step count)."""
+        if self.progress is None or self.progress.disable:
+            return
+        now = time.perf_counter()
+        if force or now - self._shown >= 0.5:
+            self._shown = now
+            self.progress.set_postfix_str(self.status(), refresh=True)
 
     # -------------------------------------------------------------------------------------------- checkpoints
     def _identity(self) -> dict:
@@ -362,8 +575,8 @@ class Run:
         if self.progress is not None:
             self.progress.close()
             if self.steps > self._session[1]:
-                log.info("%s on %s: %d env steps, %.0f env steps/s this session", self.cfg.algo.name,
-                         self.stage.level, self.steps, self.steps_per_second())
+                log.info("%s on %s: %d env steps, %.3g env steps/s this session, %d gradient steps", self.cfg.algo.name,
+                         self.stage.level, self.steps, self.steps_per_second(), self.updates)
         self.episodes_csv.close()
         self.eval_csv.close()
         # close explicitly: an evaaa env collected later, while another env's GL context is current, frees its

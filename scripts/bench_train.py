@@ -1,9 +1,11 @@
-"""Training throughput of each baseline: env steps and gradient steps per second of the whole training loop.
+"""Training throughput of each baseline: env steps and gradient steps per second of the whole training loop, and
+the memory it took.
 
     python scripts/bench_train.py                                 # ppo, ppo_lstm, dqn, dreamer_xs: 3 minutes each
     python scripts/bench_train.py algos=[ppo,dqn] minutes=2 threads=1
     python scripts/bench_train.py algos=[dreamer] minutes=10      # DreamerV3 size S: ~10 s per gradient step here
     python scripts/bench_train.py "runs=[runs/acceptance/*/seed0]"  # the same figures for runs already made
+    python scripts/bench_train.py algos=[ppo] device=cuda "overrides=[bf16=true,compile=true]"  # options, as train.py's
 
 Each algorithm trains with its defaults (``scripts/train.py algo=<name> level=<level>``, ``env.num_envs=8``, all
 modalities) for ``minutes`` of wall time in a scratch run directory, one after another, so that the runs do not
@@ -20,6 +22,11 @@ Evaluations and checkpoints are pushed beyond the budget (``eval.every=0``, ``ch
 so that both rates measure training alone; the final evaluation and model of the stage are not timed.
 
 Arguments are ``key=value`` (lists as ``[a,b]``), the keys of :class:`BenchConfig`; ``--help`` lists them.
+
+Memory: **peak RSS** is the training process's maximum resident set (``wait4``'s ``ru_maxrss``: memory-mapped
+replay pages it touched count too); **GPU memory** the peak of ``torch.cuda.max_memory_allocated`` the run logged
+(``time/gpu_memory_peak_gb``, CUDA only).  **First gradient step**: seconds from launching the process to the end
+of its first gradient step (DreamerV3, from its ``train.log``).
 """
 
 from __future__ import annotations
@@ -32,7 +39,9 @@ import re
 import subprocess
 import sys
 import tempfile
-from dataclasses import asdict, dataclass
+import time
+from dataclasses import asdict, dataclass, replace
+from datetime import datetime
 from pathlib import Path
 
 import pandas as pd
@@ -58,19 +67,29 @@ class Throughput:
     steady_env_steps_per_s: float
     gradient_steps: int | None
     steady_gradient_steps_per_s: float | None
+    device: str | None = None
+    peak_rss_gb: float | None = None
+    gpu_memory_gb: float | None = None
+    first_gradient_step_s: float | None = None
 
 
 def read_throughput(run_dir: Path, algo: str, skip: float = 0.25) -> Throughput:
     """The rates of a finished run from its CSV log (see the module docstring); ``skip``: share of the run's
     wall time left out of the steady rates."""
     rate_file = run_dir / "logs" / "scalars" / "time" / "env_steps_per_s.csv"
+    if not rate_file.exists() and (session := session_totals(run_dir, algo)) is not None:
+        return session
     if not rate_file.exists():
         raise SystemExit(f"bench_train.py: {algo}: no {rate_file.relative_to(run_dir)} in {run_dir} (the run logged "
                          "nothing: give it more minutes=, or see its train.log)")
     rates = pd.read_csv(rate_file, header=None, names=["step", "rate"]).drop_duplicates("step", keep="last")
     rates = rates[rates["rate"] > 0]
     if len(rates) < 2:
-        raise SystemExit(f"bench_train.py: {algo}: fewer than two log rows in {rate_file}; give it more minutes=")
+        session = session_totals(run_dir, algo)
+        if session is not None:  # too slow to log twice (e.g. DreamerV3 S on a CPU): the whole run's figures only
+            return session
+        raise SystemExit(f"bench_train.py: {algo}: fewer than two log rows in {rate_file}; give it more minutes= "
+                         "or a smaller log_every")
     # each row's rate is (step - the session's first step) / the session's seconds so far; a resumed run has a
     # session per resume (train.log: "resuming ... env step N"), laid end to end on one wall-time axis
     starts = resume_steps(run_dir)
@@ -92,8 +111,50 @@ def read_throughput(run_dir: Path, algo: str, skip: float = 0.25) -> Throughput:
         if first["step"] in by_step.index and last["step"] in by_step.index:
             grad_steps = int(by_step[last["step"]])
             grad_rate = (by_step[last["step"]] - by_step[first["step"]]) / span
+    gpu = run_dir / "logs" / "scalars" / "time" / "gpu_memory_peak_gb.csv"
+    gpu_gb = float(pd.read_csv(gpu, header=None, names=["step", "gb"])["gb"].max()) if gpu.exists() else None
     return Throughput(algo, int(last["step"]), float(last["seconds"]), float(last["step"] / last["seconds"]),
-                      float(steady), grad_steps, None if grad_rate is None else float(grad_rate))
+                      float(steady), grad_steps, None if grad_rate is None else float(grad_rate),
+                      device=run_device(run_dir), gpu_memory_gb=gpu_gb)
+
+
+def session_totals(run_dir: Path, algo: str) -> Throughput | None:
+    """The whole-run figures from the last session line of ``train.log`` (env steps, env steps/s, gradient steps),
+    for a run that logged fewer than two rows; no steady rates."""
+    log = run_dir / "train.log"
+    found = re.findall(r"on \S+: (\d+) env steps, ([\d.e+-]+) env steps/s this session, (\d+) gradient steps",
+                       log.read_text()) if log.exists() else []
+    if not found:
+        return None
+    steps, rate, updates = int(found[-1][0]), float(found[-1][1]), int(found[-1][2])
+    return Throughput(algo, steps, steps / rate, rate, float("nan"), updates, None, device=run_device(run_dir))
+
+
+def run_device(run_dir: Path) -> str | None:
+    """The device the run trained on, from the first line of its ``train.log`` that names it."""
+    log = run_dir / "train.log"
+    match = re.search(r"parameters on (\S+) \(", log.read_text()) if log.exists() else None
+    return match.group(1) if match else None
+
+
+def first_gradient_step(run_dir: Path, launched: float) -> float | None:
+    """Seconds from ``launched`` (a ``time.time()``) to the log line of the run's first gradient step, if any."""
+    log = run_dir / "train.log"
+    if not log.exists():
+        return None
+    match = re.search(r"^\[(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d+)\].* - first gradient step at", log.read_text(), re.M)
+    if match is None:
+        return None
+    return datetime.strptime(match.group(1), "%Y-%m-%d %H:%M:%S,%f").timestamp() - launched
+
+
+def run_measured(cmd: list[str], out_path: Path) -> tuple[int, int]:
+    """Run ``cmd`` with its output in ``out_path``; returns its exit status and peak resident memory in bytes."""
+    with open(out_path, "w") as out:
+        child = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, cwd=ROOT, env=os.environ.copy())
+        _, status, usage = os.wait4(child.pid, 0)
+    child.returncode = os.waitstatus_to_exitcode(status)
+    return child.returncode, usage.ru_maxrss * 1024  # kilobytes on Linux
 
 
 def resume_steps(run_dir: Path) -> list[int]:
@@ -112,30 +173,41 @@ def run_algo(run_dir: Path) -> str:
     return str(OmegaConf.load(config).algo.name)
 
 
-def run_one(algo: str, level: str, minutes: float, threads: int | None, root: Path, extra: list[str]) -> Path:
-    """Train ``algo`` for ``minutes`` in ``root/<algo>``; returns the run directory."""
+def run_one(algo: str, level: str, minutes: float, threads: int | None, root: Path, extra: list[str],
+            device: str = "auto", skip: float = 0.25, progress: bool = False) -> Throughput:
+    """Train ``algo`` for ``minutes`` in ``root/<algo>`` on ``device``; returns its figures (``progress``: the run
+    draws its progress bar into ``root/<algo>.out``)."""
     run_dir = root / algo
     cmd = [sys.executable, str(ROOT / "scripts" / "train.py"), f"algo={algo}", f"level={level}",
            "total_steps=1000000000", f"max_minutes={minutes}", "eval.every=0", "checkpoint.every=1000000000",
-           "eval.episodes=1", "logger=csv", "progress=false", f"run.root={root}", f"run.name={algo}", *extra]
+           "eval.episodes=1", "logger=csv", f"progress={str(progress).lower()}", f"device={device}",
+           f"run.root={root}", f"run.name={algo}", *extra]
     if threads is not None:
         cmd.append(f"threads={threads}")
     log = root / f"{algo}.out"
-    with open(log, "w") as out:
-        done = subprocess.run(cmd, stdout=out, stderr=subprocess.STDOUT, cwd=ROOT, env=os.environ.copy())
-    if done.returncode:
+    launched = time.time()
+    code, peak_rss = run_measured(cmd, log)
+    if code:
         tail = "\n".join(log.read_text().splitlines()[-40:])
-        raise SystemExit(f"bench_train.py: {algo} failed (exit {done.returncode}); the end of its output:\n{tail}")
-    return run_dir
+        raise SystemExit(f"bench_train.py: {algo} failed (exit {code}); the end of its output:\n{tail}")
+    return replace(read_throughput(run_dir, algo, skip), peak_rss_gb=peak_rss / 1e9,
+                   first_gradient_step_s=first_gradient_step(run_dir, launched))
 
 
 def table(rows: list[Throughput]) -> str:
-    head = f"{'algo':<12}{'env steps':>11}{'minutes':>9}{'env steps/s':>13}{'steady':>9}{'grad steps/s':>14}"
+    def fmt(value: float | None, spec: str) -> str:
+        return "–" if value is None else format(value, spec)
+
+    head = (f"{'algo':<12}{'device':>8}{'env steps':>11}{'minutes':>9}{'env steps/s':>13}{'steady':>9}"
+            f"{'grad steps/s':>14}{'grad steps':>12}{'1st grad s':>12}{'peak RSS GB':>13}{'GPU GB':>8}")
     lines = [head]
     for r in rows:
-        grad = "–" if r.steady_gradient_steps_per_s is None else f"{r.steady_gradient_steps_per_s:.3g}"
-        lines.append(f"{r.algo:<12}{r.env_steps:>11,}{r.seconds / 60:>9.1f}{r.env_steps_per_s:>13.1f}"
-                     f"{r.steady_env_steps_per_s:>9.1f}{grad:>14}")
+        steady = None if r.steady_env_steps_per_s != r.steady_env_steps_per_s else r.steady_env_steps_per_s  # nan
+        lines.append(f"{r.algo:<12}{r.device or '?':>8}{r.env_steps:>11,}{r.seconds / 60:>9.1f}"
+                     f"{r.env_steps_per_s:>13.1f}{fmt(steady, '.1f'):>9}"
+                     f"{fmt(r.steady_gradient_steps_per_s, '.3g'):>14}{fmt(r.gradient_steps, ','):>12}"
+                     f"{fmt(r.first_gradient_step_s, '.0f'):>12}{fmt(r.peak_rss_gb, '.2f'):>13}"
+                     f"{fmt(r.gpu_memory_gb, '.2f'):>8}")
     return "\n".join(lines)
 
 
@@ -153,6 +225,10 @@ class BenchConfig:
     json: str | None = option(None, "also write the figures to this file")
     runs: list[str] | None = option(None, "report these finished run directories (glob patterns allowed) instead of "
                                           "training")
+    device: str = option("auto", "where the networks train: auto (CUDA when available), cpu, cuda or cuda:N",
+                         check=(lambda v: re.fullmatch(r"auto|cpu|cuda(:\d+)?", v) is not None,
+                                "auto, cpu, cuda or cuda:N"))
+    progress: bool = option(False, "keep each run's progress bar (in <keep>/<algo>.out)")
     overrides: list[str] = option([], "more train.py overrides for every run, e.g. [env.num_envs=16,preset=debug]")
 
 
@@ -176,7 +252,15 @@ def main(argv: list[str] | None = None) -> int:
         if args.json:
             write_json(args.json, {"runs": args.runs, "rows": [asdict(r) for r in rows]})
         return 0
-    print(f"evaaa bench_train: level {args.level}, {args.minutes:g} min per algorithm, threads "
+    sys.path.insert(0, str(ROOT))
+    from baselines.runtime import DeviceError, resolve_device
+
+    try:
+        device = resolve_device(args.device)
+    except DeviceError as err:
+        cli.fail("bench_train.py", str(err))
+    gpu = f", {torch_device_name(device)}" if device.type == "cuda" else ""
+    print(f"evaaa bench_train: level {args.level}, {args.minutes:g} min per algorithm, device {device}{gpu}, threads "
           f"{args.threads or 'default'}, {platform.machine()}, {os.cpu_count()} cores", flush=True)
     rows = []
     with tempfile.TemporaryDirectory(prefix="evaaa-bench-train-") as scratch:
@@ -184,13 +268,20 @@ def main(argv: list[str] | None = None) -> int:
         root.mkdir(parents=True, exist_ok=True)
         for algo in algos:
             print(f"  {algo} ...", flush=True)
-            run_dir = run_one(algo, args.level, args.minutes, args.threads, root.resolve(), args.overrides)
-            rows.append(read_throughput(run_dir, algo, args.skip))
+            rows.append(run_one(algo, args.level, args.minutes, args.threads, root.resolve(), args.overrides,
+                                str(device), args.skip, args.progress))
     print(table(rows))
     if args.json:
         write_json(args.json, {"level": args.level, "minutes": args.minutes, "threads": args.threads,
-                               "cores": os.cpu_count(), "rows": [asdict(r) for r in rows]})
+                               "device": str(device), "overrides": args.overrides, "cores": os.cpu_count(),
+                               "rows": [asdict(r) for r in rows]})
     return 0
+
+
+def torch_device_name(device) -> str:
+    import torch
+
+    return torch.cuda.get_device_name(device)
 
 
 def write_json(path: str, data: dict) -> None:

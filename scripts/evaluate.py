@@ -17,6 +17,7 @@ EV, ran out of time; mean collisions).
 from __future__ import annotations
 
 import os
+import re
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -64,6 +65,10 @@ class EvalConfig:
                                  "summary.md", check=(lambda v: 0.0 <= v <= 1.0, "a number in [0, 1]"))
     step_log: bool = option(False, "also write a per-step behaviour log, out/steps-<UTC time>.csv (one row per "
                                    "world and decision: evaaa.records.STEP_FIELDS)")
+    device: str = option("auto", "for checkpoints: where the networks run: auto (CUDA when available), cpu, cuda or "
+                                 "cuda:N; the worlds stay on the CPU",
+                         check=(lambda v: re.fullmatch(r"auto|cpu|cuda(:\d+)?", v) is not None,
+                                "auto, cpu, cuda or cuda:N"))
 
 
 def parse(argv: list[str] | None = None) -> EvalConfig:
@@ -82,7 +87,7 @@ class Policy:
     """One policy to evaluate: builds the env for a level and picks actions for a batch of worlds."""
 
     def __init__(self, spec: str, seed: int, modalities: list[str] | None = None, epsilon: float = 0.0,
-                 sample: bool = False):
+                 sample: bool = False, device: str = "cpu"):
         self.spec = spec
         self.seed = seed
         self.epsilon = epsilon
@@ -96,7 +101,7 @@ class Policy:
             from baselines.evaluation import load_policy
 
             try:
-                self.loaded = load_policy(path, modalities=modalities)
+                self.loaded = load_policy(path, modalities=modalities, device=device)
             except ValueError as err:  # e.g. modalities= names keys the checkpoint was not trained on
                 cli.fail("evaluate.py", f"policy={spec}: {err}")
         # a checkpoint is named by its path: reports look the run's configuration up from it
@@ -166,7 +171,7 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"evaluate.py: {out} already holds an evaluation ({', '.join(earlier)}); nothing was "
                          "changed: choose another out=, or move those files away first")
     out.mkdir(parents=True, exist_ok=True)
-    policies = [Policy(spec, cfg.seed, cfg.modalities, cfg.epsilon, cfg.sample) for spec in cfg.policy]
+    policies = [Policy(spec, cfg.seed, cfg.modalities, cfg.epsilon, cfg.sample, cfg.device) for spec in cfg.policy]
     total = len(policies) * len(cfg.levels) * cfg.episodes
     # episodes go to a hidden file until the last one is done: an interrupted evaluation leaves no episodes.csv
     partial = out / ".episodes.csv.partial"

@@ -56,7 +56,7 @@ from baselines import train  # noqa: E402
 from baselines.checkpoint import CheckpointError  # noqa: E402
 from baselines.config import CONF_DIR, check_command_line, register_levels  # noqa: E402
 from baselines.runner import RunRefused  # noqa: E402
-from baselines.runtime import Interrupted  # noqa: E402
+from baselines.runtime import DeviceError, Interrupted  # noqa: E402
 
 register_levels()
 # a crash in native code (MuJoCo, OpenGL, torch) leaves every thread's Python stack in the run's output
@@ -77,6 +77,9 @@ def main(cfg: DictConfig) -> None:
         # printed, not logged: logging would append to the existing run's log file
         print(f"train.py: {err}", file=sys.stderr, flush=True)
         raise SystemExit(1) from None
+    except DeviceError as err:  # a setting, not a bug: one line, not a traceback
+        print(f"train.py: {err}", file=sys.stderr, flush=True)
+        raise SystemExit(2) from None
     except Interrupted as err:
         print(f"train.py: {err}", file=sys.stderr, flush=True)
         raise SystemExit(130) from None

@@ -1,4 +1,5 @@
-"""bench_train.py: the rates it derives from a run's log, and one real (tiny) run end to end."""
+"""bench_train.py: the rates it derives from a run's log, the peak memory of the training process, the first gradient
+step and device from its log, and one real (tiny) run end to end."""
 
 from __future__ import annotations
 
@@ -90,3 +91,50 @@ def test_a_resumed_run_adds_its_sessions_wall_time(tmp_path):
     # steady from the first row (50 s) to the last (150 s): 1,500 steps and 15 updates in 100 s
     assert got.steady_env_steps_per_s == pytest.approx(15.0)
     assert got.steady_gradient_steps_per_s == pytest.approx(0.15)
+
+
+def test_peak_memory_is_the_training_process_own(tmp_path):
+    # a child that holds 300 MB: its peak resident set, not this test process's, is what comes back
+    code = "import numpy as np; a = np.ones(300_000_000 // 8); print(a.sum())"
+    import sys
+
+    status, peak = load_bench().run_measured([sys.executable, "-c", code], tmp_path / "out.txt")
+    assert status == 0 and (tmp_path / "out.txt").read_text().strip() == "37500000.0"
+    assert 300e6 < peak < 1e9
+
+
+def test_first_gradient_step_and_device_come_from_the_run_log(tmp_path):
+    from datetime import datetime
+
+    (tmp_path / "train.log").write_text(
+        "[2026-11-25 08:00:05,000][baselines.runtime][INFO] - dreamer on 1-1: 20,327,000 parameters on cpu (bf16 ...\n"
+        "[2026-11-25 08:00:05,000][baselines.dreamer][INFO] - prefill: 1,024 env steps of random actions before the "
+        "first gradient step; then ...\n"
+        "[2026-11-25 08:00:41,500][baselines.dreamer][INFO] - first gradient step at env step 1,032: 30 s (36 s ...)\n")
+    bench = load_bench()
+    launched = datetime(2026, 11, 25, 8, 0, 0).timestamp()
+    assert bench.first_gradient_step(tmp_path, launched) == pytest.approx(41.5)
+    assert bench.run_device(tmp_path) == "cpu"
+    assert bench.first_gradient_step(tmp_path / "missing", launched) is None
+
+
+def test_an_absent_device_is_refused_in_one_line(capsys):
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    with pytest.raises(SystemExit):
+        load_bench().main(["--algos", "ppo", "--device", "cuda"])
+    assert "--device=cuda: no CUDA device is available here" in capsys.readouterr().err
+
+
+def test_a_run_too_slow_to_log_twice_reports_its_session_totals(tmp_path):
+    # DreamerV3 S on a CPU: 10 minutes, fewer env steps than log_every; train.log's last session line has the totals
+    (tmp_path / "train.log").write_text(
+        "[2026-11-25 09:11:29,839][baselines.runtime][INFO] - dreamer on 1-1: 20,306,279 parameters on cpu (bf16 ...\n"
+        "[2026-11-25 09:22:25,542][baselines.runtime][INFO] - dreamer on 1-1: 1064 env steps, 1.62 env steps/s this "
+        "session, 41 gradient steps\n")
+    got = load_bench().read_throughput(tmp_path, "dreamer")
+    assert (got.env_steps, got.gradient_steps, got.device) == (1064, 41, "cpu")
+    assert got.env_steps_per_s == pytest.approx(1.62) and got.seconds == pytest.approx(1064 / 1.62)
+    assert got.steady_gradient_steps_per_s is None

@@ -1,8 +1,10 @@
 """DreamerV3 (``algo=dreamer`` / ``dreamer_xs``): the sizes compose as documented; only the enabled observation keys
-are encoded and decoded; a debug smoke run trains (world-model, actor and critic losses finite and logged), writes
-its checkpoint with the replay buffer and open-loop pictures, and a run killed between checkpoints and resumed ends
-exactly where an uninterrupted run ends; the loaded policy carries its recurrent state and ``scripts/evaluate.py``
-evaluates a Dreamer checkpoint."""
+are encoded and decoded; a debug smoke run trains (world-model, actor and critic losses finite and logged), keeps its
+replay buffer memory-mapped in the run directory (not copied into the checkpoint) and writes open-loop pictures; a run
+killed between checkpoints and resumed ends exactly where an uninterrupted run ends, also after the buffer has wrapped
+and the killed process overwrote rows, also resumed on another ``device`` setting, and with the buffer in memory; the
+bar says prefill, then counts gradient steps; the loaded policy carries its recurrent state and
+``scripts/evaluate.py`` evaluates a Dreamer checkpoint."""
 
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ import pytest
 from helpers import read_csv, train_scalars
 import torch
 from hydra import compose, initialize_config_dir
+from tensordict import TensorDict
 
 import evaaa
 from baselines import checkpoint, dreamer, evaluate, load_policy, runtime
@@ -76,11 +79,9 @@ class Killed(Exception):
     """Stands for the process being killed between two checkpoints."""
 
 
-@pytest.fixture(scope="module")
-def runs(tmp_path_factory):
-    """An uninterrupted debug run, and the same run killed at KILL_AT then resumed."""
-    root = tmp_path_factory.mktemp("dreamer")
-    train(debug_cfg(), root / "whole")
+def killed_and_resumed(run_dir: Path, *overrides: str, resume_with: tuple[str, ...] = ()) -> dict:
+    """Train until KILL_AT env steps and stop as a kill would (that iteration's checkpoint is lost), then resume;
+    returns the checkpoint the kill left."""
     end_iteration = runtime.Run.end_iteration
 
     def killing(self, td):
@@ -91,10 +92,41 @@ def runs(tmp_path_factory):
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(runtime.Run, "end_iteration", killing)
         with pytest.raises(Killed):
-            train(debug_cfg(), root / "resumed")
-    at_kill = checkpoint.load_checkpoint(root / "resumed" / checkpoint.CHECKPOINT)["counters"]["steps"]
-    train(debug_cfg("resume=true"), root / "resumed")
-    return {"whole": root / "whole", "resumed": root / "resumed", "steps_at_kill_checkpoint": at_kill}
+            train(debug_cfg(*overrides), run_dir)
+    at_kill = checkpoint.load_checkpoint(run_dir / checkpoint.CHECKPOINT)
+    train(debug_cfg(*overrides, *resume_with, "resume=true"), run_dir)
+    return at_kill
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """An uninterrupted debug run (device=auto), and the same run killed at KILL_AT then resumed with device=cpu."""
+    root = tmp_path_factory.mktemp("dreamer")
+    train(debug_cfg(), root / "whole")
+    at_kill = killed_and_resumed(root / "resumed", resume_with=("device=cpu",))
+    return {"whole": root / "whole", "resumed": root / "resumed",
+            "steps_at_kill_checkpoint": at_kill["counters"]["steps"]}
+
+
+def replay_rows(run_dir: Path) -> TensorDict:
+    """The rows a run's memory-mapped replay buffer holds (as its last checkpoint counts them)."""
+    state = checkpoint.load_checkpoint(run_dir / checkpoint.CHECKPOINT)["components"]["replay"]
+    rows = state["length"] // 2  # the debug preset's 2 worlds
+    return TensorDict.load_memmap(run_dir / "replay" / "0-1-1")[:rows]
+
+
+def same_training(a: dict, b: dict) -> None:
+    """Two checkpoints hold the same counters, networks, optimiser states and critics."""
+    assert a["counters"] == b["counters"]
+    assert a["components"]["counters"] == b["components"]["counters"]
+    for name, value in a["model"].items():
+        assert torch.equal(value, b["model"][name]), name
+    for name in ("optimizer_world_model", "optimizer_actor", "optimizer_critic"):
+        x, y = a["components"][name]["state"], b["components"][name]["state"]
+        assert x.keys() == y.keys()
+        assert all(torch.equal(v, y[i][k]) for i in x for k, v in x[i].items()), name
+    for name, value in a["components"]["value_loss"].items():  # critic and its slow target
+        assert torch.equal(value, b["components"]["value_loss"][name]), name
 
 
 def test_smoke_run_trains_logs_finite_losses_and_checkpoints_the_buffer(runs):
@@ -104,8 +136,12 @@ def test_smoke_run_trains_logs_finite_losses_and_checkpoints_the_buffer(runs):
     updates = state["components"]["counters"]["updates"]
     cfg = debug_cfg().algo
     assert updates == int(cfg.replay_ratio * (TOTAL - cfg.learning_starts)) + 1  # the replay ratio is kept
-    rows = state["components"]["replay"]["rows"]
+    replay = state["components"]["replay"]
+    # the rows are in the memory-mapped files, not in the checkpoint; the buffer has not wrapped: nothing to guard
+    assert replay["on_disk"].endswith("replay/0-1-1") and replay["length"] == TOTAL and replay["guard_rows"] is None
+    rows = replay_rows(run_dir)
     assert rows.shape == (TOTAL // 2, 2) and rows["next", "pixels"].dtype == torch.uint8  # every step of both worlds
+    assert rows["next", "pixels"].float().std() > 0 and (rows["world"] == torch.arange(2)).all()
     assert {"optimizer_world_model", "optimizer_actor", "optimizer_critic", "value_loss", "return_norm"} <= \
         set(state["components"])
     assert (run_dir / "model-0-1-1.pt").exists() and not list(run_dir.glob(".*.tmp"))
@@ -130,23 +166,61 @@ def test_open_loop_pictures_show_real_and_imagined_frames(runs):
 
 
 def test_killed_and_resumed_run_equals_uninterrupted_run(runs):
+    # killed under device=auto, resumed under device=cpu: the checkpoint loads under either setting
     assert runs["steps_at_kill_checkpoint"] < KILL_AT
     whole = checkpoint.load_checkpoint(runs["whole"] / checkpoint.CHECKPOINT)
     resumed = checkpoint.load_checkpoint(runs["resumed"] / checkpoint.CHECKPOINT)
-    assert whole["counters"] == resumed["counters"]
-    assert whole["components"]["counters"] == resumed["components"]["counters"]
-    for name, value in whole["model"].items():
-        assert torch.equal(value, resumed["model"][name]), name
-    for name in ("optimizer_world_model", "optimizer_actor", "optimizer_critic"):
-        a, b = whole["components"][name]["state"], resumed["components"][name]["state"]
-        assert a.keys() == b.keys()
-        assert all(torch.equal(v, b[i][k]) for i in a for k, v in a[i].items()), name
-    for name, value in whole["components"]["value_loss"].items():  # critic and its slow target
-        assert torch.equal(value, resumed["components"]["value_loss"][name]), name
-    assert (whole["components"]["replay"]["rows"] == resumed["components"]["replay"]["rows"]).all()
+    assert (whole["config"]["device"], resumed["config"]["device"]) == ("auto", "cpu")
+    same_training(whole, resumed)
+    assert (replay_rows(runs["whole"]) == replay_rows(runs["resumed"])).all()
     assert train_scalars(runs["whole"]) == train_scalars(runs["resumed"])
     assert read_csv(runs["whole"] / "episodes.csv") == read_csv(runs["resumed"] / "episodes.csv")
     assert read_csv(runs["whole"] / "eval.csv") == read_csv(runs["resumed"] / "eval.csv")
+
+
+def test_a_wrapped_buffer_resumes_exactly_although_the_killed_run_overwrote_rows(tmp_path):
+    # 32 rows per world, written 80 times by the kill: the buffer has wrapped, and after its last checkpoint (at 128)
+    # the killed process overwrote 16 rows that the resumed run samples (16 gradient steps) before rewriting them
+    small = ("algo.buffer_size=64", "checkpoint.every=32", "algo.replay_ratio=0.5")
+    train(debug_cfg(*small), tmp_path / "whole")
+    at_kill = killed_and_resumed(tmp_path / "resumed", *small)
+    guarded = at_kill["components"]["replay"]
+    assert at_kill["counters"]["steps"] == 128
+    assert guarded["length"] == 64 and len(guarded["guard_index"]) == 18  # checkpoint.every / 2 worlds + 2
+    whole = checkpoint.load_checkpoint(tmp_path / "whole" / checkpoint.CHECKPOINT)
+    resumed = checkpoint.load_checkpoint(tmp_path / "resumed" / checkpoint.CHECKPOINT)
+    same_training(whole, resumed)
+    assert (replay_rows(tmp_path / "whole") == replay_rows(tmp_path / "resumed")).all()
+
+
+def test_a_buffer_in_memory_is_checkpointed_and_resumes_exactly(tmp_path):
+    train(debug_cfg("algo.buffer_on_disk=false"), tmp_path / "whole")
+    killed_and_resumed(tmp_path / "resumed", "algo.buffer_on_disk=false")
+    whole = checkpoint.load_checkpoint(tmp_path / "whole" / checkpoint.CHECKPOINT)
+    resumed = checkpoint.load_checkpoint(tmp_path / "resumed" / checkpoint.CHECKPOINT)
+    assert not (tmp_path / "whole" / "replay").exists()
+    rows = whole["components"]["replay"]["rows"]
+    assert rows.shape == (TOTAL // 2, 2) and (rows == resumed["components"]["replay"]["rows"]).all()
+    same_training(whole, resumed)
+    with pytest.raises(ValueError, match="algo.buffer_on_disk"):  # a checkpoint's buffer stays where it was made
+        train(debug_cfg("resume=true", "total_steps=512"), tmp_path / "whole")
+
+
+def test_a_buffer_larger_than_the_memory_is_refused_naming_both(tmp_path, monkeypatch):
+    monkeypatch.setattr(dreamer, "available_memory", lambda device: 10_000_000)
+    with pytest.raises(ValueError, match=r"algo.buffer_size=1,024 transitions need .* but cpu has 0.01 GB "
+                                         r"available: use algo.buffer_on_disk=true"):
+        train(debug_cfg("algo.buffer_on_disk=false"), tmp_path / "run")
+
+
+def test_the_bar_says_prefill_then_counts_gradient_steps(tmp_path, capsys):
+    train(debug_cfg("progress=true", "total_steps=64"), tmp_path / "run")
+    bar = capsys.readouterr().err.replace("\r", "\n")
+    assert "dreamer 1-1 prefill:" in bar  # before learning_starts
+    trained = [line for line in bar.splitlines() if line.startswith("dreamer 1-1:") and "s/update" in line]
+    assert trained, bar[-2000:]
+    assert all(k in trained[-1] for k in ("env ", "/s (avg ", "grad ", "ratio ", "ETA ")), trained[-1]
+    assert "64/64" in trained[-1]
 
 
 # ------------------------------------------------------------------------------------------------ loading

@@ -1,7 +1,10 @@
 """Training: the Hydra config composes for every choice; smoke runs of each baseline (debug preset) finish and write
 what a run directory holds; a run killed between checkpoints and resumed ends exactly where an uninterrupted run
-ends (parameters, optimiser state, losses, episodes, evaluations), in direct training and in a curriculum; the
-loader refuses a checkpoint trained on other observation keys; ``scripts/train.py`` runs a multirun sweep."""
+ends (parameters, optimiser state, losses, episodes, evaluations), in direct training and in a curriculum, also when
+written under ``device=auto`` and resumed under ``device=cpu``; ``device`` names only devices the machine has, and
+``scripts/train.py device=cuda`` without CUDA is one line and exit code 2; the progress bar's rates are smoothed and
+its ETA adds acting and gradient steps; the loader refuses a checkpoint trained on other observation keys;
+``scripts/train.py`` runs a multirun sweep."""
 
 from __future__ import annotations
 
@@ -22,6 +25,7 @@ from hydra import compose, initialize_config_dir
 
 import evaaa
 from baselines import checkpoint, evaluate, load_policy, runtime
+from baselines.runtime import DeviceError, Progress, resolve_device
 from baselines.config import CONF_DIR, env_overrides, observation_keys, register_levels, stages
 from baselines.runner import make_logger, train
 
@@ -118,7 +122,8 @@ def run_killed(cfg, run_dir: Path, at: int, monkeypatch, stage: int = 0) -> None
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    """Per algorithm: an uninterrupted smoke run, and the same run killed at KILL_AT then resumed (made once)."""
+    """Per algorithm: an uninterrupted smoke run (device=auto), and the same run killed at KILL_AT then resumed with
+    device=cpu (made once)."""
     made: dict[str, dict] = {}
 
     def get(algo: str) -> dict:
@@ -128,7 +133,7 @@ def runs(tmp_path_factory):
             with pytest.MonkeyPatch.context() as patch:
                 run_killed(debug_cfg(algo), root / "resumed", KILL_AT, patch)
             at_kill = checkpoint.load_checkpoint(root / "resumed" / checkpoint.CHECKPOINT)
-            train(debug_cfg(algo, "resume=true"), root / "resumed")
+            train(debug_cfg(algo, "resume=true", "device=cpu"), root / "resumed")
             made[algo] = {"whole": root / "whole", "resumed": root / "resumed",
                           "steps_at_kill_checkpoint": at_kill["counters"]["steps"]}
         return made[algo]
@@ -182,6 +187,7 @@ def test_killed_and_resumed_run_equals_uninterrupted_run(runs, algo):
     assert r["steps_at_kill_checkpoint"] < KILL_AT  # the kill lost work that the resumed run had to redo
     whole = checkpoint.load_checkpoint(r["whole"] / checkpoint.CHECKPOINT)
     resumed = checkpoint.load_checkpoint(r["resumed"] / checkpoint.CHECKPOINT)
+    assert (whole["config"]["device"], resumed["config"]["device"]) == ("auto", "cpu")
     assert whole["counters"] == resumed["counters"]
     for name, value in whole["model"].items():
         assert torch.equal(value, resumed["model"][name]), name
@@ -406,3 +412,87 @@ def test_a_wall_clock_budget_ends_the_stage_early(tmp_path):
     rows = list(csv.DictReader(open(tmp_path / "run" / "eval.csv")))
     assert rows and int(rows[-1]["env_steps"]) < 10 * TOTAL
     assert (tmp_path / "run" / "model-0-1-1.pt").exists()
+
+
+# ------------------------------------------------------------------------------------------------ devices
+def test_device_names_only_devices_this_machine_has(monkeypatch):
+    assert resolve_device("cpu") == torch.device("cpu")
+    assert resolve_device("auto") == torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    with pytest.raises(DeviceError, match=r"device=gpu: not a device; allowed: auto, cpu, cuda, cuda:N"):
+        resolve_device("gpu")
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    for spec in ("cuda", "cuda:1"):
+        with pytest.raises(DeviceError, match=rf"device={spec}: no CUDA device is available here"):
+            resolve_device(spec)
+    assert resolve_device("auto") == torch.device("cpu")
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 2)
+    assert resolve_device("auto") == torch.device("cuda") and resolve_device("cuda:1") == torch.device("cuda", 1)
+    with pytest.raises(DeviceError, match=r"device=cuda:2: this machine has 2 CUDA device\(s\): cuda:0 to cuda:1"):
+        resolve_device("cuda:2")
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has CUDA")
+def test_train_script_without_cuda_refuses_device_cuda_in_one_line(tmp_path):
+    cmd = [sys.executable, str(ROOT / "scripts" / "train.py"), "algo=ppo", "preset=debug", "logger=csv",
+           "device=cuda", f"run.root={tmp_path}"]
+    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("train.py: device=cuda: no CUDA device is available here"), \
+        done.stderr
+    assert "Traceback" not in done.stdout + done.stderr
+    assert not list(tmp_path.rglob("checkpoint.pt")) and not list(tmp_path.rglob("episodes.csv"))
+
+
+def test_loaded_policy_moves_to_the_device_asked_for(runs):
+    loaded = load_policy(runs("dqn")["whole"] / "model-0-1-1.pt", device="cpu")
+    assert {p.device for p in loaded.model.parameters()} == {torch.device("cpu")}
+    with pytest.raises(DeviceError, match="allowed: auto, cpu, cuda, cuda:N"):
+        load_policy(runs("dqn")["whole"] / "model-0-1-1.pt", device="tpu")
+    from helpers import load_script
+
+    script = load_script("evaluate")
+    assert script.parse([f"policy={runs('dqn')['whole'] / 'model-0-1-1.pt'}"]).device == "auto"
+    with pytest.raises(SystemExit, match=r"evaluate.py: device=tpu: not a device; allowed: auto, cpu, cuda"):
+        script.Policy(str(runs("dqn")["whole"] / "model-0-1-1.pt"), seed=0, device="tpu")
+
+
+# ------------------------------------------------------------------------------------------------ progress
+def test_progress_rate_is_smoothed_over_ppo_like_bursts():
+    # 1,024 env steps collected in 1.6 s (one report per 8), then 0.4 s of 12 gradient steps: 512 env steps/s
+    meter = Progress(window=60, steps=0, now=0.0)
+    now, steps, rates = 0.0, 0, []
+    for _ in range(60):  # two minutes
+        for _ in range(128):
+            now, steps = now + 1.6 / 128, steps + 8
+            meter.add(steps, now=now)
+            rates.append(meter.env_rate)
+        now += 0.4
+        meter.add(steps, updates=12, update_seconds=0.4, now=now)
+        rates.append(meter.env_rate)
+    late = rates[len(rates) // 2:]
+    assert 0.97 * 512 < min(late) and max(late) < 1.03 * 512  # steady within 3 %, where tqdm's swung 30-fold
+    assert meter.session_rate == pytest.approx(512)
+    assert meter.seconds_per_update == pytest.approx(0.4 / 12)
+    assert meter.seconds_per_step == pytest.approx(1.6 / 1024)
+    # 10,240 env steps and 120 gradient steps left: 16 s of acting and 4 s of updates
+    assert meter.eta(10_240, 120) == pytest.approx(20.0)
+    assert meter.eta(10_240, None) == pytest.approx(20.0, rel=0.03)  # from the smoothed whole-loop rate
+
+
+def test_progress_eta_counts_the_gradient_steps_owed():
+    # DreamerV3 S on a CPU: 8 env steps in 0.1 s, then 8 gradient steps of 10 s each
+    meter = Progress(window=60, steps=1024, now=0.0)
+    now, steps = 0.0, 1024
+    for _ in range(5):
+        now, steps = now + 0.1, steps + 8
+        meter.add(steps, now=now)
+        for _ in range(8):
+            now += 10.0
+            meter.add(steps, updates=1, update_seconds=10.0, now=now)
+    assert meter.seconds_per_update == pytest.approx(10.0)
+    assert meter.seconds_per_step == pytest.approx(0.1 / 8)
+    left = 2_000_000 - steps
+    assert meter.eta(left, left) == pytest.approx(left * (10.0 + 0.1 / 8))
+    assert runtime._duration(meter.eta(left, left)) == "231.6 d"  # (2,000,000 - 1,064) x 10.0125 s
