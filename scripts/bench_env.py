@@ -43,8 +43,8 @@ from evaaa.render import BatchRenderer
 from evaaa.sim import Simulator, default_threads
 from evaaa.spec import load_level
 from evaaa.scene import GROUP_AGENT
-from baselines import cli
-from baselines.cli import option
+from evaaa_baselines import cli
+from evaaa_baselines.cli import option
 
 torch.set_num_threads(1)
 

@@ -47,11 +47,10 @@ from pathlib import Path
 import pandas as pd
 from omegaconf import OmegaConf
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
 
 import evaaa  # noqa: E402
-from baselines import cli  # noqa: E402
-from baselines.cli import option  # noqa: E402
+from evaaa_baselines import cli  # noqa: E402
+from evaaa_baselines.cli import option  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 ALGOS = ("dqn", "ppo", "ppo_lstm", "dreamer", "dreamer_xs")
@@ -252,8 +251,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.json:
             write_json(args.json, {"runs": args.runs, "rows": [asdict(r) for r in rows]})
         return 0
-    sys.path.insert(0, str(ROOT))
-    from baselines.runtime import DeviceError, resolve_device
+    from evaaa_baselines.runtime import DeviceError, resolve_device
 
     try:
         device = resolve_device(args.device)

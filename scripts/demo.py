@@ -36,8 +36,8 @@ from tqdm import tqdm  # noqa: E402
 
 from evaaa import END_TYPES, EV_NAMES, make_env  # noqa: E402
 from evaaa.physiology import PhysiologyParams  # noqa: E402
-from baselines import cli  # noqa: E402
-from baselines.cli import option  # noqa: E402
+from evaaa_baselines import cli  # noqa: E402
+from evaaa_baselines.cli import option  # noqa: E402
 
 FPS = 10
 EYE_SCALE = 4

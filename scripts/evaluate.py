@@ -27,8 +27,8 @@ import torch
 from tqdm import tqdm
 
 import evaaa
-from baselines import cli
-from baselines.cli import option
+from evaaa_baselines import cli
+from evaaa_baselines.cli import option
 from evaaa.agents import OracleAgent, RandomAgent
 from evaaa.analysis import markdown_table, plot_bars, plot_outcomes, read_episodes, summarize
 from evaaa.records import EpisodeTracker, StepLog, append_rows, new_log_path
@@ -98,7 +98,7 @@ class Policy:
             path = Path(spec)
             if not path.is_file():
                 raise SystemExit(f"evaluate.py: policy {spec!r} is neither oracle, random nor a checkpoint file")
-            from baselines.evaluation import load_policy
+            from evaaa_baselines.evaluation import load_policy
 
             try:
                 self.loaded = load_policy(path, modalities=modalities, device=device)

@@ -56,8 +56,8 @@ from evaaa.physiology import END_TYPES, EV_NAMES
 from evaaa.records import EPISODE_FIELDS, OPTIONAL_FIELDS, EpisodeTracker, StepLog, append_rows, new_log_path
 from evaaa.sim import ACTION_NAMES, NUM_ACTIONS, Simulator
 from evaaa.spec import Level, LevelError, level_names, load_level
-from baselines import cli
-from baselines.cli import option
+from evaaa_baselines import cli
+from evaaa_baselines.cli import option
 
 # the sibling script render_levels draws the top-down view with the agent marked; make it importable however
 # this file is loaded (as a script, scripts/ is on the path already; under a test runner it is not)

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 import torch
 
 import evaaa
-from baselines import cli
-from baselines.cli import option
+from evaaa_baselines import cli
+from evaaa_baselines.cli import option
 
 
 @dataclass

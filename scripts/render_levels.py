@@ -31,8 +31,8 @@ import numpy as np  # noqa: E402
 from evaaa.sim import Simulator  # noqa: E402
 from evaaa.spec import Level  # noqa: E402
 from evaaa.worldgen import AGENT_HALF, FOOD, WATER  # noqa: E402
-from baselines import cli  # noqa: E402
-from baselines.cli import option  # noqa: E402
+from evaaa_baselines import cli  # noqa: E402
+from evaaa_baselines.cli import option  # noqa: E402
 
 EYE_SCALE = 4
 TOP_SIZE = 512

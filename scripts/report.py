@@ -17,13 +17,11 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
 
-from baselines import cli  # noqa: E402
-from baselines.cli import option  # noqa: E402
-from baselines.report import ReportError, build_report  # noqa: E402
+from evaaa_baselines import cli  # noqa: E402
+from evaaa_baselines.cli import option  # noqa: E402
+from evaaa_baselines.report import ReportError, build_report  # noqa: E402
 
 
 @dataclass

@@ -43,20 +43,18 @@ def _stop_sweep(signum, frame):
 signal.signal(signal.SIGINT, _stop_before_start)  # first, so that even the imports below stop in one line
 
 import faulthandler  # noqa: E402
-from pathlib import Path  # noqa: E402
 
 import hydra  # noqa: E402
 from hydra.core.hydra_config import HydraConfig  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
 
 import evaaa  # noqa: E402,F401  (sets MUJOCO_GL before mujoco loads)
-from baselines import train  # noqa: E402
-from baselines.checkpoint import CheckpointError  # noqa: E402
-from baselines.config import CONF_DIR, check_command_line, register_levels  # noqa: E402
-from baselines.runner import RunRefused  # noqa: E402
-from baselines.runtime import DeviceError, Interrupted  # noqa: E402
+from evaaa_baselines import train  # noqa: E402
+from evaaa_baselines.checkpoint import CheckpointError  # noqa: E402
+from evaaa_baselines.config import CONF_DIR, check_command_line, register_levels  # noqa: E402
+from evaaa_baselines.runner import RunRefused  # noqa: E402
+from evaaa_baselines.runtime import DeviceError, Interrupted  # noqa: E402
 
 register_levels()
 # a crash in native code (MuJoCo, OpenGL, torch) leaves every thread's Python stack in the run's output

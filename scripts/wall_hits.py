@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 
 import evaaa
-from baselines import cli
-from baselines.cli import option
+from evaaa_baselines import cli
+from evaaa_baselines.cli import option
 from evaaa.sim import FORWARD, Simulator
 
 

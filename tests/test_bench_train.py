@@ -85,7 +85,7 @@ def test_a_resumed_run_adds_its_sessions_wall_time(tmp_path):
     # session 1: 1,000 steps at 10 steps/s (100 s); resumed at step 1000, session 2: 1,000 more at 20 steps/s (50 s)
     rows = [(500, 10.0), (1000, 10.0), (1500, 20.0), (2000, 20.0)]
     write_log(tmp_path, rows, [(500, 5), (1000, 10), (1500, 15), (2000, 20)])
-    (tmp_path / "train.log").write_text("[x][baselines.runner][INFO] - resuming /r at stage 0 (1-1), env step 1000\n")
+    (tmp_path / "train.log").write_text("[x][evaaa_baselines.runner][INFO] - resuming /r at stage 0 (1-1), env step 1000\n")
     got = load_bench().read_throughput(tmp_path, "dqn", skip=0.0)
     assert got.seconds == pytest.approx(150.0) and got.env_steps_per_s == pytest.approx(2000 / 150)
     # steady from the first row (50 s) to the last (150 s): 1,500 steps and 15 updates in 100 s
@@ -107,10 +107,10 @@ def test_first_gradient_step_and_device_come_from_the_run_log(tmp_path):
     from datetime import datetime
 
     (tmp_path / "train.log").write_text(
-        "[2026-11-25 08:00:05,000][baselines.runtime][INFO] - dreamer on 1-1: 20,327,000 parameters on cpu (bf16 ...\n"
-        "[2026-11-25 08:00:05,000][baselines.dreamer][INFO] - prefill: 1,024 env steps of random actions before the "
+        "[2026-11-25 08:00:05,000][evaaa_baselines.runtime][INFO] - dreamer on 1-1: 20,327,000 parameters on cpu (bf16 ...\n"
+        "[2026-11-25 08:00:05,000][evaaa_baselines.dreamer][INFO] - prefill: 1,024 env steps of random actions before the "
         "first gradient step; then ...\n"
-        "[2026-11-25 08:00:41,500][baselines.dreamer][INFO] - first gradient step at env step 1,032: 30 s (36 s ...)\n")
+        "[2026-11-25 08:00:41,500][evaaa_baselines.dreamer][INFO] - first gradient step at env step 1,032: 30 s (36 s ...)\n")
     bench = load_bench()
     launched = datetime(2026, 11, 25, 8, 0, 0).timestamp()
     assert bench.first_gradient_step(tmp_path, launched) == pytest.approx(41.5)
@@ -131,8 +131,8 @@ def test_an_absent_device_is_refused_in_one_line(capsys):
 def test_a_run_too_slow_to_log_twice_reports_its_session_totals(tmp_path):
     # DreamerV3 S on a CPU: 10 minutes, fewer env steps than log_every; train.log's last session line has the totals
     (tmp_path / "train.log").write_text(
-        "[2026-11-25 09:11:29,839][baselines.runtime][INFO] - dreamer on 1-1: 20,306,279 parameters on cpu (bf16 ...\n"
-        "[2026-11-25 09:22:25,542][baselines.runtime][INFO] - dreamer on 1-1: 1064 env steps, 1.62 env steps/s this "
+        "[2026-11-25 09:11:29,839][evaaa_baselines.runtime][INFO] - dreamer on 1-1: 20,306,279 parameters on cpu (bf16 ...\n"
+        "[2026-11-25 09:22:25,542][evaaa_baselines.runtime][INFO] - dreamer on 1-1: 1064 env steps, 1.62 env steps/s this "
         "session, 41 gradient steps\n")
     got = load_bench().read_throughput(tmp_path, "dreamer")
     assert (got.env_steps, got.gradient_steps, got.device) == (1064, 41, "cpu")

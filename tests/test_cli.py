@@ -16,8 +16,8 @@ from helpers import load_script
 from hydra import initialize_config_dir
 from hydra._internal.utils import get_args_parser
 
-from baselines import cli
-from baselines.config import (CONF_DIR, ConfigError, check_command_line, check_overrides, compose_checked,
+from evaaa_baselines import cli
+from evaaa_baselines.config import (CONF_DIR, ConfigError, check_command_line, check_overrides, compose_checked,
                               job_overrides, register_levels)
 
 register_levels()

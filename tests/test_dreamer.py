@@ -22,9 +22,9 @@ from hydra import compose, initialize_config_dir
 from tensordict import TensorDict
 
 import evaaa
-from baselines import checkpoint, dreamer, evaluate, load_policy, runtime
-from baselines.config import CONF_DIR, observation_keys, register_levels
-from baselines.runner import train
+from evaaa_baselines import checkpoint, dreamer, evaluate, load_policy, runtime
+from evaaa_baselines.config import CONF_DIR, observation_keys, register_levels
+from evaaa_baselines.runner import train
 
 register_levels()
 

@@ -22,9 +22,9 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 import evaaa
-from baselines.config import CONF_DIR, observation_keys, register_levels
-from baselines.report import ReportError, build_report
-from baselines.runtime import EPISODE_COLUMNS, EVAL_COLUMNS
+from evaaa_baselines.config import CONF_DIR, observation_keys, register_levels
+from evaaa_baselines.report import ReportError, build_report
+from evaaa_baselines.runtime import EPISODE_COLUMNS, EVAL_COLUMNS
 from evaaa.records import append_rows
 
 register_levels()
@@ -405,7 +405,7 @@ def test_a_checkpoint_evaluated_in_two_ways_is_reported_one_way_at_a_time(world,
 
 
 def test_a_stage_best_model_is_tied_to_its_stage_and_the_final_model_is_preferred(world):
-    from baselines.report import attach, final_checkpoints, load_run
+    from evaaa_baselines.report import attach, final_checkpoints, load_run
 
     sim = world["sim"]
     run = next(d for d, info in sim.runs.items() if info["level"] == "curriculum")
@@ -466,7 +466,7 @@ def test_command_line_rejects_bad_input(world, tmp_path, args, message, capsys):
 
 
 def test_how_a_run_was_started_does_not_split_its_group(tmp_path):
-    from baselines.report import describe_extras, load_run
+    from evaaa_baselines.report import describe_extras, load_run
 
     sim = Sim(tmp_path / "runs")
     dirs = [sim.run("ppo", 0, level="1-1", finish=1), sim.run("ppo", 1, level="1-1", finish=1)]
@@ -480,7 +480,7 @@ def test_how_a_run_was_started_does_not_split_its_group(tmp_path):
 
 
 def test_a_row_cut_short_at_the_end_of_a_csv_is_skipped_and_said(world, tmp_path):
-    from baselines.report import load_evaluations, load_run
+    from evaaa_baselines.report import load_evaluations, load_run
 
     source = next(d for d in world["sim"].runs if d != world["missing"])
     run_dir = tmp_path / "run"

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from baselines.stats import binomial_interval, interval, iqm
+from evaaa_baselines.stats import binomial_interval, interval, iqm
 
 
 def test_iqm_is_the_mean_of_the_middle_half():

@@ -24,10 +24,10 @@ import torch
 from hydra import compose, initialize_config_dir
 
 import evaaa
-from baselines import checkpoint, evaluate, load_policy, runtime
-from baselines.runtime import DeviceError, Progress, resolve_device
-from baselines.config import CONF_DIR, env_overrides, observation_keys, register_levels, stages
-from baselines.runner import make_logger, train
+from evaaa_baselines import checkpoint, evaluate, load_policy, runtime
+from evaaa_baselines.runtime import DeviceError, Progress, resolve_device
+from evaaa_baselines.config import CONF_DIR, env_overrides, observation_keys, register_levels, stages
+from evaaa_baselines.runner import make_logger, train
 
 register_levels()
 
@@ -337,7 +337,7 @@ def test_a_damaged_latest_checkpoint_resumes_exactly_from_the_previous_one(runs,
     data[start + 256: start + 1280] = bytes(1024)  # 1 KB zeroed inside a weight
     latest.write_bytes(bytes(data))
     (run_dir / ".checkpoint.pt.tmp").write_bytes(b"cut short by a kill")
-    with caplog.at_level(logging.INFO, logger="baselines.runner"):
+    with caplog.at_level(logging.INFO, logger="evaaa_baselines.runner"):
         train(debug_cfg("ppo", "resume=true"), run_dir)
     assert f"{latest} is damaged" in caplog.text
     assert f"previous checkpoint {run_dir / checkpoint.PREVIOUS}" in caplog.text
