@@ -123,9 +123,11 @@ def test_an_absent_device_is_refused_in_one_line(capsys):
 
     if torch.cuda.is_available():
         pytest.skip("this machine has CUDA")
-    with pytest.raises(SystemExit):
-        load_bench().main(["--algos", "ppo", "--device", "cuda"])
-    assert "--device=cuda: no CUDA device is available here" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as refused:
+        load_bench().main(["algos=[ppo]", "device=cuda"])
+    err = capsys.readouterr().err
+    assert refused.value.code == 2 and err.count("\n") == 1
+    assert "bench_train.py: error: device=cuda: no CUDA device is available here" in err
 
 
 def test_a_run_too_slow_to_log_twice_reports_its_session_totals(tmp_path):
