@@ -445,7 +445,7 @@ def test_train_script_without_cuda_refuses_device_cuda_in_one_line(tmp_path):
     assert not list(tmp_path.rglob("checkpoint.pt")) and not list(tmp_path.rglob("episodes.csv"))
 
 
-def test_loaded_policy_moves_to_the_device_asked_for(runs):
+def test_loaded_policy_moves_to_the_device_asked_for(runs, capsys):
     loaded = load_policy(runs("dqn")["whole"] / "model-0-1-1.pt", device="cpu")
     assert {p.device for p in loaded.model.parameters()} == {torch.device("cpu")}
     with pytest.raises(DeviceError, match="allowed: auto, cpu, cuda, cuda:N"):
@@ -454,8 +454,12 @@ def test_loaded_policy_moves_to_the_device_asked_for(runs):
 
     script = load_script("evaluate")
     assert script.parse([f"policy={runs('dqn')['whole'] / 'model-0-1-1.pt'}"]).device == "auto"
-    with pytest.raises(SystemExit, match=r"evaluate.py: device=tpu: not a device; allowed: auto, cpu, cuda"):
+    with pytest.raises(SystemExit) as refused:
         script.Policy(str(runs("dqn")["whole"] / "model-0-1-1.pt"), seed=0, device="tpu")
+    assert refused.value.code == 2 and "device=tpu: not a device; allowed: auto, cpu, cuda" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as refused:  # and on the command line, before anything runs
+        script.parse([f"policy={runs('dqn')['whole'] / 'model-0-1-1.pt'}", "device=tpu"])
+    assert refused.value.code == 2 and "device=tpu: expected auto, cpu, cuda or cuda:N" in capsys.readouterr().err
 
 
 # ------------------------------------------------------------------------------------------------ progress
