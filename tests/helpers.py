@@ -1,11 +1,18 @@
-"""Helpers shared by the tests: importing a script, reading a run directory's CSV files."""
+"""Helpers shared by the tests: importing a script, running the play server, reading a run directory's CSV files."""
 
 from __future__ import annotations
 
 import csv
 import importlib.util
+import re
+import subprocess
 import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
+
+import pytest
 
 SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
 
@@ -18,6 +25,34 @@ def load_script(name: str):
     sys.modules[spec.name] = module
     spec.loader.exec_module(module)
     return module
+
+
+@contextmanager
+def play_server(workdir: Path, *args: str, participant: str = "tester", start_timeout: float = 120) -> Iterator[str]:
+    """Run ``scripts/play.py level=1-1 participant=<participant> port=0 *args`` in ``workdir``; yield its base URL
+    (``http://127.0.0.1:<port>/``).  On leaving, the server is sent SIGTERM and must exit cleanly (status 0)."""
+    log_path = workdir / "play.log"
+    with log_path.open("w") as log:
+        proc = subprocess.Popen([sys.executable, str(SCRIPTS / "play.py"), "level=1-1", f"participant={participant}",
+                                 "port=0", *args], cwd=workdir, stdout=log, stderr=subprocess.STDOUT)
+    try:
+        deadline = time.monotonic() + start_timeout
+        while not (found := re.search(r"open (http://\S+/) ", log_path.read_text())):
+            if proc.poll() is not None:
+                pytest.fail(f"play.py exited with status {proc.returncode}:\n{log_path.read_text()}")
+            if time.monotonic() > deadline:
+                pytest.fail(f"play.py did not start in {start_timeout} s:\n{log_path.read_text()}")
+            time.sleep(0.1)
+        yield found.group(1)
+    finally:
+        proc.terminate()
+        try:
+            code = proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+            pytest.fail(f"play.py did not stop on SIGTERM:\n{log_path.read_text()}")
+    assert code == 0, f"play.py exited with status {code} on SIGTERM:\n{log_path.read_text()}"
 
 
 def read_csv(path: Path) -> list[dict]:

@@ -130,7 +130,9 @@ def test_registration_carries_the_level_step_cap():
 
 def test_a_longer_cap_than_registered_warns_about_gymnasium_time_limit():
     with pytest.warns(UserWarning, match=r"also pass max_episode_steps=9000"):
-        EvaaaGymEnv("1-1", modalities="interoception", **{"episode.max_steps": 9000}).close()
+        env = EvaaaGymEnv("1-1", modalities="interoception", **{"episode.max_steps": 9000})
+    assert env.unwrapped.level.episode.max_steps == 9000  # the override itself is kept
+    env.close()
 
 
 def test_the_collision_sensor_is_declared_zero_or_one():

@@ -10,64 +10,24 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import shutil
-import subprocess
-import sys
 import time
 import urllib.error
 import urllib.request
 from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
-from helpers import load_script
+from helpers import load_script, play_server
 from playwright.sync_api import Browser, Page, sync_playwright
 
 from evaaa.records import read_rows
 
 ROOT = Path(__file__).resolve().parents[1]
-SCRIPT = ROOT / "scripts" / "play.py"
 SCREENSHOT = ROOT / "docs" / "images" / "play.png"
 CHROMIUM = shutil.which("chromium")
 #: as root in a container: no sandbox, no GPU, and /dev/shm may be tiny
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"]
-#: importing torch and compiling the first scene take a few seconds; a slow CI machine gets plenty more
-START_TIMEOUT_S = 120
-
-
-@contextmanager
-def play_server(workdir: Path, *args: str) -> Iterator[str]:
-    """Run ``scripts/play.py level=1-1 participant=tester port=0 *args`` in ``workdir``; yield its base URL.
-
-    On leaving, the server is sent SIGTERM and must exit cleanly (status 0).
-    """
-    log_path = workdir / "play.log"
-    with log_path.open("w") as log:
-        proc = subprocess.Popen([sys.executable, str(SCRIPT), "level=1-1", "participant=tester", "port=0", *args],
-                                cwd=workdir, stdout=log, stderr=subprocess.STDOUT)
-    try:
-        deadline = time.monotonic() + START_TIMEOUT_S
-        while True:
-            found = re.search(r"open (http://\S+/) ", log_path.read_text())
-            if found:
-                break
-            if proc.poll() is not None:
-                pytest.fail(f"play.py exited with status {proc.returncode}:\n{log_path.read_text()}")
-            if time.monotonic() > deadline:
-                pytest.fail(f"play.py did not start in {START_TIMEOUT_S} s:\n{log_path.read_text()}")
-            time.sleep(0.1)
-        yield found.group(1)
-    finally:
-        proc.terminate()
-        try:
-            code = proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-            pytest.fail(f"play.py did not stop on SIGTERM:\n{log_path.read_text()}")
-    assert code == 0, f"play.py exited with status {code} on SIGTERM:\n{log_path.read_text()}"
 
 
 def request(url: str, method: str = "GET", body: bytes | None = None) -> tuple[int, dict]:

@@ -7,39 +7,23 @@ import http.client
 import io
 import json
 import re
-import subprocess
-import sys
-import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from urllib.parse import urlsplit
 
-import pytest
-from helpers import load_script
+from helpers import load_script, play_server
 
 from evaaa.records import read_rows
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "play.py"
-START_TIMEOUT_S = 120
 
 
 @contextmanager
 def server(workdir: Path, *args: str) -> Iterator[tuple[str, int]]:
-    """``scripts/play.py level=1-1 port=0 *args`` running in ``workdir``; yields (host, port)."""
-    log_path = workdir / "play.log"
-    with log_path.open("w") as log:
-        proc = subprocess.Popen([sys.executable, str(SCRIPT), "level=1-1", "participant=p01", "port=0", *args],
-                                cwd=workdir, stdout=log, stderr=subprocess.STDOUT)
-    try:
-        deadline = time.monotonic() + START_TIMEOUT_S
-        while not (found := re.search(r"open http://([\d.]+):(\d+)/ ", log_path.read_text())):
-            if proc.poll() is not None or time.monotonic() > deadline:
-                pytest.fail(f"play.py did not start:\n{log_path.read_text()}")
-            time.sleep(0.1)
-        yield found.group(1), int(found.group(2))
-    finally:
-        proc.terminate()
-        assert proc.wait(timeout=30) == 0, log_path.read_text()
+    """``scripts/play.py level=1-1 participant=p01 port=0 *args`` running in ``workdir``; yields (host, port)."""
+    with play_server(workdir, *args, participant="p01") as url:
+        address = urlsplit(url)
+        yield address.hostname, address.port
 
 
 def call(address: tuple[str, int], method: str, path: str, body: bytes | None = None,
