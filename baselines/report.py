@@ -870,8 +870,9 @@ def build_report(run_paths: Sequence[str | Path], eval_paths: Sequence[str | Pat
                            ylabel="success rate (%)", title="Success per testbed")
         table = pivot_table(stats, "level", "label", rows=testbeds, percent=True, row_title="testbed")
     section("Success per testbed (Fig. 4b, left)",
-            "Each run's furthest-trained evaluated checkpoint; n: seeds for trained agents, episodes (or human "
-            "participants) for the others.", figure, table, "No testbed evaluation given (`evals=[...]`).")
+            "Each run's furthest-trained evaluated checkpoint; its episodes pooled over seeds (Wilson interval); n: "
+            "seeds × episodes for trained agents, episodes (or human participants) for the others.", figure, table,
+            "No testbed evaluation given (`evals=[...]`).")
 
     table = figure = None
     if len(tests):
@@ -907,8 +908,8 @@ def build_report(run_paths: Sequence[str | Path], eval_paths: Sequence[str | Pat
         stats = pd.concat([stats.assign(unit="seeds"), ref_train], ignore_index=True)
         tables["evaluation_survival"] = stats
         md += ["## Evaluation on training levels", "", "Survival (decisions) in evaluate.py's episodes (cells as "
-               "described under Statistics); checkpoints as above.", "", pivot_table(stats, "level", "label", rows=_level_sorted(stats["level"])),
-               ""]
+               "described under Statistics); checkpoints as above.", "",
+               pivot_table(stats, "level", "label", rows=_level_sorted(stats["level"])), ""]
 
     # ---- training curves per training set-up, one line per algorithm (and settings)
     all_curves = curves(usable, bins)

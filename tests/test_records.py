@@ -107,7 +107,8 @@ def test_summary_survival_is_the_interquartile_mean_and_rates_are_never_plus_min
     assert summary.loc["1-1", "survival_iqm"] == pytest.approx(45.0)
     assert summary.loc["1-1", "survival_mean"] == pytest.approx(660.0)
     assert summary.loc["y-maze", "success_rate"] == 0 and summary.loc["y-maze", "success_low"] == 0
-    assert summary.loc["y-maze", "success_high"] == pytest.approx(1.959963984540054 ** 2 / (5 + 1.959963984540054 ** 2))  # z²/(n+z²) at k=0
+    z2 = 1.959963984540054 ** 2
+    assert summary.loc["y-maze", "success_high"] == pytest.approx(z2 / (5 + z2))  # Wilson's upper end at 0 of n
     assert "| y-maze | 0.0% [0.0, 43.4] (n=5 ep.) |" in markdown_table(summarize(rows))
 
 
