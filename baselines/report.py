@@ -629,14 +629,14 @@ def whiskers(stats: pd.DataFrame, scale: float = 1.0) -> tuple[np.ndarray, np.nd
     return value, np.clip(np.vstack([low, high]), 0, None)
 
 
-def interval_note(stats: pd.DataFrame) -> str:
-    """What the figure's bars and whiskers show, for its caption."""
+def interval_note(stats: pd.DataFrame, drawn: str = "whiskers") -> str:
+    """What the figure's bars or lines and their ``drawn`` (whiskers, band) show, for its caption."""
     kinds = set(stats["statistic"])
     parts = []
     if "iqm" in kinds:
-        parts.append("interquartile mean, whiskers 95 % bootstrap interval")
+        parts.append(f"interquartile mean, {drawn} 95 % bootstrap interval")
     if "rate" in kinds:
-        parts.append("share of episodes, whiskers 95 % Wilson interval")
+        parts.append(f"share of episodes, {drawn} 95 % Wilson interval")
     return "; ".join(parts)
 
 
@@ -712,7 +712,8 @@ def plot_lines(stats: pd.DataFrame, path: Path, *, x: str, panel: str | None, yl
         ax.set_ylim(0, top)
         if name is not None:
             ax.set_title(str(name), fontsize=9)
-    return _finish(fig, list(axes.flat[:len(panels)]), path, f"{title}\n({interval_note(stats)})")
+    note = interval_note(stats, "band" if band else "whiskers")
+    return _finish(fig, list(axes.flat[:len(panels)]), path, f"{title}\n({note})")
 
 
 # ------------------------------------------------------------------------------------------------ the report
