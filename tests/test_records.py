@@ -178,3 +178,17 @@ def test_figures_label_checkpoints_by_what_differs_in_their_paths(tmp_path, monk
     assert {"ppo", "dqn", "random"} <= set(shown)
     assert not any(a in t or b in t for t in shown if not t.startswith("checkpoints: ") and "\n" not in t)
     assert any("checkpoints: runs/1-1/<label>/all-squared/seed0/model-0-1-1.pt" in t for t in shown)
+
+
+def test_summary_of_human_play_has_the_participants_as_units():
+    # p01 survived 10, 20, 30 decisions, p02 1000 and 40: bootstrap strata are the participants, mean ± se over
+    # the five episodes, the IQM (one cut at each end of 10, 20, 30, 40, 1000) is the mean of 20, 30, 40
+    rows = pd.DataFrame({"level": ["1-1"] * 5, "policy": ["human"] * 5, "participant": ["p01"] * 3 + ["p02"] * 2,
+                         "success": [np.nan] * 5, "steps": [10, 20, 30, 1000, 40], "collisions": [0] * 5,
+                         "end_type": ["FoodOutOfRange"] * 5, "food_eaten": [0] * 5})
+    row = summarize(rows).iloc[0]
+    assert (row["units"], row["unit"], row["episodes"]) == (2, "participants", 5)
+    assert row["survival_iqm"] == pytest.approx(30.0) and row["survival_mean"] == pytest.approx(220.0)
+    est = interval([[10.0, 20.0, 30.0], [1000.0, 40.0]])
+    assert (row["survival_low"], row["survival_high"]) == (est.low, est.high)
+    assert "(n=2 participants, 5 ep.) |" in markdown_table(summarize(rows))
