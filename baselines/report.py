@@ -6,9 +6,13 @@ Inputs are what the other tools write: run directories of ``scripts/train.py`` (
 An evaluated checkpoint is tied to its run through the run directory it lies in, whose ``.hydra/config.yaml`` says
 what was trained (algorithm, modality, reward, level or curriculum, seed, ...).
 
-Statistics: a trained agent's number is the mean over seeds of each seed's value, ± the standard error across seeds
-(n = seeds; no error with one seed).  Reference agents have no seeds: their numbers are over episodes (oracle,
-random) or, for ``human`` rows with several participants, over participants' means — as ``evaaa.analysis`` does.
+Statistics (:mod:`.stats`): a survival cell is the interquartile mean (IQM) of the episodes with its 95 % percentile
+bootstrap interval (episodes redrawn within each seed: seeds are the strata), beside the mean over seeds of each
+seed's value ± the standard error across seeds (no error with one seed); where a seed has only one number (the mean
+of its last evaluation in ``eval.csv``) the IQM and its bootstrap are over the seeds' numbers.  A success rate is the
+share of successful episodes of all seeds pooled, with its Wilson score interval.  Reference agents have no seeds:
+their numbers are over episodes (oracle, random) or, for ``human`` rows with several participants, over participants
+(the strata of the bootstrap, and the units of the standard error).  Every cell says how many seeds and episodes.
 
 Runs that differ only in their seed (and in bookkeeping: logger, evaluation and checkpoint cadence, threads, run
 directory) are pooled; anything else that differs (modality, reward, a hyperparameter, steps per stage, curriculum
@@ -21,7 +25,7 @@ from __future__ import annotations
 import io
 import os
 import re
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,9 +35,11 @@ import pandas as pd
 from omegaconf import OmegaConf
 
 import evaaa
-from evaaa.analysis import read_episodes, standard_error
+from evaaa.analysis import display_names, read_episodes, standard_error
+from evaaa.records import TRAINING_OLD_NAMES
 
 from .config import stages as config_stages
+from .stats import binomial_interval, interval
 
 #: Policies of evaluation files that are not checkpoints.
 REFERENCES = ("oracle", "random", "human")
@@ -43,7 +49,7 @@ BEST_MODEL_FILE = re.compile(r"^model-best-(\d+)-(.+)\.pt$")
 #: Settings that do not change what is trained: runs differing only in these (and the seed) are pooled.
 BOOKKEEPING = ("seed", "resume", "start_over", "threads", "progress", "progress_window", "log_every", "total_steps",
                "stages", "run.", "logger.", "checkpoint.", "eval.", "level.", "hydra.")
-RUN_COLUMNS = ("env_steps", "stage", "level", "survival_steps")
+RUN_COLUMNS = ("env_steps", "stage", "level", "steps")
 EVAL_RUN_COLUMNS = ("env_steps", "stage", "level", "survival_mean")
 EVAL_FILE_COLUMNS = ("policy", "level", "steps", "success", "episode")
 LEVEL_ORDER = {name: i for i, name in enumerate((*evaaa.LEVELS, *evaaa.TESTBEDS))}
@@ -191,6 +197,7 @@ def _read_run_csv(path: Path, needed: Sequence[str], notes: list[str]) -> pd.Dat
     if not path.is_file():
         return None
     df = pd.read_csv(csv_text(path, notes))
+    df = df.rename(columns={k: v for k, v in TRAINING_OLD_NAMES.items() if v not in df.columns})  # older runs
     missing = [c for c in needed if c not in df.columns]
     if missing:
         raise ReportError(f"{path} is not a training {path.name} (no column {', '.join(missing)})")
@@ -261,23 +268,29 @@ def final_survival(runs: Sequence[Run], source: str = "eval", window: int = 20) 
         for index, level, _ in r.stages:
             if index not in r.complete:
                 continue
-            value, used = float("nan"), "none"
+            value, used, scores, episodes = float("nan"), "none", (), 0
             ev = r.evals[r.evals["stage"] == index] if r.evals is not None else None
             if source == "eval" and ev is not None and len(ev):
-                value, used = float(ev.sort_values("env_steps", kind="stable")["survival_mean"].iloc[-1]), "eval"
+                last = ev.sort_values("env_steps", kind="stable").iloc[-1]
+                value, used = float(last["survival_mean"]), "eval"
+                # eval.csv keeps each evaluation's mean, not its episodes: the seed contributes that one number
+                scores = (value,)
+                episodes = int(last["episodes"]) if "episodes" in last and pd.notna(last["episodes"]) else 1
             else:
                 eps = r.episodes[r.episodes["stage"] == index]
                 if len(eps):
-                    value, used = float(eps["survival_steps"].iloc[-window:].mean()), "train"
+                    scores = tuple(float(v) for v in eps["steps"].iloc[-window:])
+                    value, used, episodes = float(np.mean(scores)), "train", len(scores)
             rows.append({"run": r.dir, "stage": index, "level": level, "survival": value, "source": used,
-                         "last": index == r.stages[-1][0]})
-    return pd.DataFrame(rows, columns=["run", "stage", "level", "survival", "source", "last"])
+                         "last": index == r.stages[-1][0], "scores": scores, "episodes": episodes})
+    return pd.DataFrame(rows, columns=["run", "stage", "level", "survival", "source", "last", "scores", "episodes"])
 
 
 def curves(runs: Sequence[Run], bins: int = 20) -> pd.DataFrame:
     """Training curves: survival of the training episodes against env steps (summed over stages), per run in
     ``bins`` equal bins of its group's longest budget (bin i holds episodes ending in (i·w, (i+1)·w]; the first
-    also holds step 0); columns run, bin, steps (bin centre), survival (mean of the run's episodes in the bin)."""
+    also holds step 0); columns run, bin, steps (bin centre), survival (mean of the run's episodes in the bin),
+    scores (those episodes' survival) and episodes (how many)."""
     rows = []
     for r in runs:
         if not r.usable or r.episodes is None or not len(r.episodes) or not r.total:
@@ -285,19 +298,56 @@ def curves(runs: Sequence[Run], bins: int = 20) -> pd.DataFrame:
         x = np.array([r.offset(int(s)) + int(e) for s, e in zip(r.episodes["stage"], r.episodes["env_steps"])])
         width = r.total / bins
         b = np.clip(np.ceil(x / width).astype(int) - 1, 0, bins - 1)
+        survival = r.episodes["steps"].to_numpy(dtype=float)
         for i in np.unique(b):
-            rows.append({"run": r.dir, "bin": int(i), "steps": (i + 0.5) * width,
-                         "survival": float(r.episodes["survival_steps"].to_numpy()[b == i].mean())})
-    return pd.DataFrame(rows, columns=["run", "bin", "steps", "survival"])
+            scores = tuple(survival[b == i].tolist())
+            rows.append({"run": r.dir, "bin": int(i), "steps": (i + 0.5) * width, "survival": float(np.mean(scores)),
+                         "scores": scores, "episodes": len(scores)})
+    return pd.DataFrame(rows, columns=["run", "bin", "steps", "survival", "scores", "episodes"])
 
 
-def across_seeds(values: pd.DataFrame, by: Sequence[str], value: str) -> pd.DataFrame:
-    """Per group of ``by``: mean, se and n of ``value`` over the group's rows (one row per seed)."""
+#: Columns of the statistics frames (:func:`across_seeds`), after the grouping columns.  ``statistic`` says what
+#: ``value`` and its interval ``low``..``high`` are: ``iqm`` (survival: interquartile mean, 95 % percentile
+#: bootstrap interval) or ``rate`` (success: pooled share of episodes, 95 % Wilson interval); ``mean`` ± ``se``: the
+#: mean over units (seeds, or episodes or participants for reference agents) and the standard error across them;
+#: ``n``: units, ``episodes``: episodes behind the numbers.
+STAT_COLUMNS = ("value", "low", "high", "statistic", "mean", "se", "n", "episodes", "unit")
+
+
+def estimate(samples: Sequence[Sequence[float]], success: bool = False, seed: int = 0,
+             episodes: int | None = None) -> dict[str, Any]:
+    """The statistics of one table cell from ``samples``: one sequence of episode scores per unit (seed,
+    participant; a success is 1.0, a failure 0.0).  Units that gave one number each (a seed's evaluation mean) are
+    bootstrapped as one stratum: there is nothing to redraw within a unit.  ``episodes``: the episodes behind the
+    scores, where a score is itself a mean (default: one per score)."""
+    samples = [np.asarray(s, dtype=float).ravel() for s in samples]
+    samples = [s for s in samples if s.size]
+    scored = int(sum(s.size for s in samples))
+    episodes = scored if episodes is None else int(episodes)
+    m, se, n = mean_se(s.mean() for s in samples)
+    if success:
+        est = binomial_interval(int(round(sum(s.sum() for s in samples))), scored)
+        return {"value": est.value, "low": est.low, "high": est.high, "statistic": "rate", "mean": m, "se": se,
+                "n": n, "episodes": episodes}
+    strata = [np.concatenate(samples)] if samples and all(s.size == 1 for s in samples) else samples
+    est = interval(strata, "iqm", seed=seed)
+    return {"value": est.value, "low": est.low, "high": est.high, "statistic": "iqm", "mean": m, "se": se, "n": n,
+            "episodes": episodes}
+
+
+def across_seeds(values: pd.DataFrame, by: Sequence[str], value: str, *, success: bool = False,
+                 unit: str = "seeds") -> pd.DataFrame:
+    """Per group of ``by``: the statistics of :data:`STAT_COLUMNS` over the group's rows (one row per seed, its
+    episodes' scores in a ``scores`` column, or ``value`` alone where there is none)."""
     out = []
     for key, part in values.groupby(list(by), sort=False, dropna=False):
-        m, se, n = mean_se(part[value])
-        out.append({**dict(zip(by, key if isinstance(key, tuple) else (key,))), "mean": m, "se": se, "n": n})
-    return pd.DataFrame(out, columns=[*by, "mean", "se", "n"])
+        if "scores" in part:
+            samples = [s if len(s) else () for s in part["scores"]]
+        else:
+            samples = [(v,) for v in part[value].astype(float).dropna()]
+        est = estimate(samples, success, episodes=int(part["episodes"].sum()) if "episodes" in part else None)
+        out.append({**dict(zip(by, key if isinstance(key, tuple) else (key,))), **est, "unit": unit})
+    return pd.DataFrame(out, columns=[*by, *STAT_COLUMNS])
 
 
 # ------------------------------------------------------------------------------------------------ evaluations
@@ -415,41 +465,57 @@ def final_checkpoints(ckpts: pd.DataFrame) -> pd.DataFrame:
 
 
 def per_run(ckpts: pd.DataFrame, value: str, by: Sequence[str] = ("run", "level")) -> pd.DataFrame:
-    """Each run's mean of ``value`` (success as 0/1, or steps) per ``by``: one value per seed."""
-    col = ckpts[value].astype(float)
-    return ckpts.assign(_v=col).groupby(list(by), sort=False)["_v"].mean().rename(value).reset_index()
+    """Each run's mean of ``value`` (success as 0/1, or steps) per ``by``: one value per seed, with its episodes'
+    values in ``scores``."""
+    grouped = ckpts.assign(_v=ckpts[value].astype(float)).groupby(list(by), sort=False)["_v"]
+    return grouped.agg(**{value: "mean", "scores": lambda v: tuple(v.dropna())}).reset_index()
 
 
 def reference_stats(refs: pd.DataFrame, value: str) -> pd.DataFrame:
-    """Per (policy, level): mean, se, n and unit of ``value`` for reference agents: over episodes, or over
-    participants' means for human rows of several participants."""
+    """Per (policy, level) the statistics (:data:`STAT_COLUMNS`) of ``value`` (``success`` or ``steps``) for
+    reference agents: over episodes, or with participants as units for human rows of several participants."""
     out = []
     for (policy, level), part in refs.groupby(["policy", "level"], sort=False):
-        vals, unit = part[value].astype(float), "episodes"
+        vals, unit, samples = part[value].astype(float), "episodes", None
         if "participant" in part and part["participant"].astype(str).str.len().gt(0).all() \
                 and part["participant"].nunique() > 1:
-            vals, unit = part.assign(_v=vals).groupby("participant")["_v"].mean(), "participants"
-        m, se, n = mean_se(vals)
-        out.append({"label": policy, "level": level, "mean": m, "se": se, "n": n, "unit": unit})
-    return pd.DataFrame(out, columns=["label", "level", "mean", "se", "n", "unit"])
+            unit = "participants"
+            samples = [tuple(v.dropna()) for _, v in part.assign(_v=vals).groupby("participant")["_v"]]
+        est = estimate(samples if samples is not None else [tuple(vals.dropna())], success=value == "success")
+        if unit == "episodes":  # mean ± se over episodes, not over the one stratum
+            est |= dict(zip(("mean", "se", "n"), mean_se(vals)))
+        out.append({"label": policy, "level": level, **est, "unit": unit})
+    return pd.DataFrame(out, columns=["label", "level", *STAT_COLUMNS])
 
 
 # ------------------------------------------------------------------------------------------------ tables
-def cell(mean: float, se: float, n: int, percent: bool = False) -> str:
-    """``mean ± se (n=N)`` as the report's tables write it (one decimal; percent for success rates)."""
-    if n == 0 or np.isnan(mean):
+def sample_size(n: int, episodes: int, unit: str = "seeds") -> str:
+    """``2 seeds × 20 ep.`` (or ``2 seeds, 37 ep.`` when the seeds have unequal numbers of episodes); reference
+    agents: ``20 ep.``, or ``3 participants, 30 ep.``."""
+    if unit == "episodes":
+        return f"{episodes} ep."
+    word = unit if n != 1 else unit.rstrip("s")
+    return f"{n} {word} × {episodes // n} ep." if n and episodes % n == 0 else f"{n} {word}, {episodes} ep."
+
+
+def cell(row: Mapping[str, Any], percent: bool = False) -> str:
+    """A table cell from a row of :data:`STAT_COLUMNS`: survival ``IQM [low, high]; mean ± se (n=…)``, success
+    ``rate% [low, high] (n=…)`` (one decimal)."""
+    if not row["n"] or np.isnan(row["value"]):
         return "–"
-    k, unit = (100.0, "%") if percent else (1.0, "")
-    text = f"{k * mean:.1f}{unit}"
-    if not np.isnan(se):
-        text += f" ± {k * se:.1f}"
-    return f"{text} (n={n})"
+    k, pct = (100.0, "%") if percent else (1.0, "")
+    text = f"{k * row['value']:.1f}{pct}"
+    if not np.isnan(row["low"]):
+        text += f" [{k * row['low']:.1f}, {k * row['high']:.1f}]"
+    if row["statistic"] == "iqm":
+        text += f"; {row['mean']:.1f}" + ("" if np.isnan(row["se"]) else f" ± {row['se']:.1f}")
+    return f"{text} (n={sample_size(int(row['n']), int(row['episodes']), row.get('unit', 'seeds'))})"
 
 
 def pivot_table(stats: pd.DataFrame, row: str, col: str, *, percent: bool = False, row_title: str = "level",
                 rows: Sequence[str] | None = None, cols: Sequence[str] | None = None) -> str:
-    """A Markdown table of ``stats`` (columns mean, se, n) with one row per ``row`` value and one column per
-    ``col`` value."""
+    """A Markdown table of ``stats`` (:data:`STAT_COLUMNS`) with one row per ``row`` value and one column per
+    ``col`` value (cells: :func:`cell`)."""
     rows = list(rows if rows is not None else dict.fromkeys(stats[row]))
     cols = list(cols if cols is not None else dict.fromkeys(stats[col]))
     lines = [f"| {row_title} | " + " | ".join(cols) + " |", "|---|" + "---|" * len(cols)]
@@ -457,14 +523,77 @@ def pivot_table(stats: pd.DataFrame, row: str, col: str, *, percent: bool = Fals
         cells = []
         for c in cols:
             hit = stats[(stats[row] == r) & (stats[col] == c)]
-            cells.append(cell(hit["mean"].iloc[0], hit["se"].iloc[0], int(hit["n"].iloc[0]), percent)
-                         if len(hit) else "–")
+            cells.append(cell(hit.iloc[0], percent) if len(hit) else "–")
         lines.append(f"| {r} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
 def _level_sorted(names: Iterable[str]) -> list[str]:
     return sorted(dict.fromkeys(names), key=lambda n: (LEVEL_ORDER.get(n, len(LEVEL_ORDER)), n))
+
+
+# ------------------------------------------------------------------------------------------------ evaluate.py
+#: What evaluate.py's summary table shows, for the text above it.
+SUMMARY_NOTE = ("Testbeds: success rate `rate [low, high]`, the share of successful episodes with its 95 % Wilson "
+                "score interval. Training levels: survival (decisions) `IQM [low, high]; mean ± se`, the "
+                "interquartile mean of the episodes with its 95 % percentile bootstrap interval (2000 resamples, "
+                "episodes redrawn within each seed; human play: within each participant), then the mean ± standard "
+                "error over episodes. n: episodes (and participants or seeds where there are several).")
+
+
+def summarize(rows: pd.DataFrame) -> pd.DataFrame:
+    """evaluate.py's summary: one row per (level, policy and how it acted; ``policy`` holds
+    :func:`evaaa.analysis.display_names`) with ``episodes``; the success rate with its Wilson interval
+    (``success_rate``, ``success_low``, ``success_high``; NaN where the level has no success rule); survival as
+    ``survival_iqm`` with its bootstrap interval (``survival_low``, ``survival_high``) and ``survival_mean`` ±
+    ``survival_se`` over episodes; ``units`` and ``unit`` (the strata: participants of human play when several, else
+    the evaluation seeds); mean ``collisions``."""
+    rows = rows.assign(policy=display_names(rows))
+    out = []
+    for (level, policy), part in rows.groupby(["level", "policy"], sort=False):
+        unit = "participants" if "participant" in part and part["participant"].astype(str).str.len().gt(0).all() \
+            and part["participant"].nunique() > 1 else "seeds"
+        key = "participant" if unit == "participants" else ("seed" if "seed" in part else None)
+        strata = [g for _, g in part.groupby(key, sort=False)] if key else [part]
+        steps = [tuple(g["steps"].astype(float)) for g in strata]
+        surv = estimate(steps)
+        mean, se, _ = mean_se(part["steps"].astype(float))
+        judged = part["success"].notna()
+        success = estimate([tuple(g.loc[judged.loc[g.index], "success"].astype(float)) for g in strata],
+                           success=True) if judged.any() else {"value": np.nan, "low": np.nan, "high": np.nan}
+        out.append({"level": level, "policy": policy, "episodes": len(part), "units": len(strata), "unit": unit,
+                    "success_rate": success["value"], "success_low": success["low"], "success_high": success["high"],
+                    "survival_iqm": surv["value"], "survival_low": surv["low"], "survival_high": surv["high"],
+                    "survival_mean": mean, "survival_se": se, "collisions": float(part["collisions"].mean())})
+    table = pd.DataFrame(out)
+    return table.sort_values(by="level", key=lambda c: c.map(lambda n: LEVEL_ORDER.get(n, len(LEVEL_ORDER))),
+                             kind="stable") if len(table) else table
+
+
+def markdown_table(summary: pd.DataFrame) -> str:
+    """evaluate.py's table: success rate (testbeds) or survival (training levels) per level, one column per policy
+    (cells as :data:`SUMMARY_NOTE` says)."""
+    policies = list(dict.fromkeys(summary["policy"]))
+    lines = ["| level | " + " | ".join(policies) + " |", "|---|" + "---|" * len(policies)]
+    for level, part in summary.groupby("level", sort=False):
+        cells = []
+        for policy in policies:
+            hit = part[part["policy"] == policy]
+            if hit.empty:
+                cells.append("–")
+                continue
+            r = hit.iloc[0]
+            n = f"{r['episodes']} ep." if r["units"] < 2 else sample_size(int(r["units"]), int(r["episodes"]),
+                                                                          r["unit"])
+            judged = not np.isnan(r["success_rate"])
+            cells.append(cell({"value": r["success_rate"] if judged else r["survival_iqm"],
+                               "low": r["success_low"] if judged else r["survival_low"],
+                               "high": r["success_high"] if judged else r["survival_high"],
+                               "statistic": "rate" if judged else "iqm", "mean": r["survival_mean"],
+                               "se": r["survival_se"], "n": r["episodes"], "episodes": r["episodes"]},
+                              percent=judged).rsplit(" (n=", 1)[0] + f" (n={n})")
+        lines.append(f"| {level} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
 
 
 # ------------------------------------------------------------------------------------------------ figures
@@ -491,10 +620,30 @@ def _finish(fig, axes, path: Path, title: str) -> Path:
     return Path(path)
 
 
+def whiskers(stats: pd.DataFrame, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Bar heights (``value``) and their whiskers as matplotlib's (2, N) ``yerr``: the distance down to ``low`` and
+    up to ``high`` (none where there is no interval)."""
+    value = scale * stats["value"].to_numpy(dtype=float)
+    low = np.nan_to_num(value - scale * stats["low"].to_numpy(dtype=float))
+    high = np.nan_to_num(scale * stats["high"].to_numpy(dtype=float) - value)
+    return value, np.clip(np.vstack([low, high]), 0, None)
+
+
+def interval_note(stats: pd.DataFrame, drawn: str = "whiskers") -> str:
+    """What the figure's bars or lines and their ``drawn`` (whiskers, band) show, for its caption."""
+    kinds = set(stats["statistic"])
+    parts = []
+    if "iqm" in kinds:
+        parts.append(f"interquartile mean, {drawn} 95 % bootstrap interval")
+    if "rate" in kinds:
+        parts.append(f"share of episodes, {drawn} 95 % Wilson interval")
+    return "; ".join(parts)
+
+
 def plot_bars(stats: pd.DataFrame, path: Path, *, ylabel: str, title: str, panel: str | None = None,
               scale: float = 1.0, levels: Sequence[str] | None = None, top: float | None = None) -> Path:
-    """Grouped bars — one group per ``level``, one bar per ``label`` (mean, ± se as whiskers) — in one panel per
-    ``panel`` value (or a single panel); the y axis starts at 0 and ends at ``top`` if given."""
+    """Grouped bars — one group per ``level``, one bar per ``label`` (``value``, its interval as whiskers) — in one
+    panel per ``panel`` value (or a single panel); the y axis starts at 0 and ends at ``top`` if given."""
     plt = _plt()
     panels = list(dict.fromkeys(stats[panel])) if panel else [None]
     n_levels = stats["level"].nunique()
@@ -507,24 +656,24 @@ def plot_bars(stats: pd.DataFrame, path: Path, *, ylabel: str, title: str, panel
         width = 0.8 / max(len(names), 1)
         for i, label in enumerate(names):
             one = part[part["label"] == label].set_index("level").reindex(order)
-            ax.bar(np.arange(len(order)) + (i - (len(names) - 1) / 2) * width,
-                   scale * one["mean"].to_numpy(dtype=float), width,
-                   yerr=scale * one["se"].fillna(0.0).to_numpy(dtype=float), capsize=3, label=label)
+            heights, yerr = whiskers(one, scale)
+            ax.bar(np.arange(len(order)) + (i - (len(names) - 1) / 2) * width, heights, width, yerr=yerr, capsize=3,
+                   label=label)
         ax.set_xticks(range(len(order)), order, rotation=30 if len(order) > 2 else 0,
                       ha="right" if len(order) > 2 else "center")
         ax.set_ylabel(ylabel)
         ax.set_ylim(0, top)
         if name is not None:
             ax.set_title(str(name), fontsize=9)
-    return _finish(fig, axes[:, 0], path, title)
+    return _finish(fig, axes[:, 0], path, f"{title}\n({interval_note(stats)})")
 
 
 def plot_lines(stats: pd.DataFrame, path: Path, *, x: str, panel: str | None, ylabel: str, xlabel: str,
                title: str, band: bool, scale: float = 1.0, order: Sequence[str] | None = None,
                hlines: pd.DataFrame | None = None, top: float | None = None) -> Path:
-    """Mean lines per ``label`` (one panel per ``panel`` value), with ± standard error as a band or whiskers;
+    """Lines of ``value`` per ``label`` (one panel per ``panel`` value), with its interval as a band or whiskers;
     ``order``: categorical x values in this order (labels drawn side by side, slightly apart, so that equal values
-    stay visible); ``hlines``: (label, mean) rows drawn as dashed lines; the y axis starts at 0, ends at ``top``."""
+    stay visible); ``hlines``: (label, value) rows drawn as dashed lines; the y axis starts at 0, ends at ``top``."""
     plt = _plt()
     panels = list(dict.fromkeys(stats[panel])) if panel else [None]
     cols = min(len(panels), 2)
@@ -542,16 +691,15 @@ def plot_lines(stats: pd.DataFrame, path: Path, *, x: str, panel: str | None, yl
             else:
                 line = line.sort_values(x)
                 xs = line[x].to_numpy(dtype=float)
-            m = scale * line["mean"].to_numpy(dtype=float)
-            se = scale * np.nan_to_num(line["se"].to_numpy(dtype=float))
+            m, yerr = whiskers(line, scale)
             if band:
                 (drawn,) = ax.plot(xs, m, marker="." if len(xs) < 30 else None, label=label)
-                ax.fill_between(xs, m - se, m + se, alpha=0.25, color=drawn.get_color(), linewidth=0)
+                ax.fill_between(xs, m - yerr[0], m + yerr[1], alpha=0.25, color=drawn.get_color(), linewidth=0)
             else:
-                ax.errorbar(xs, m, yerr=se, marker="o", capsize=3, label=label)
+                ax.errorbar(xs, m, yerr=yerr, marker="o", capsize=3, label=label)
         for style, (_, ref) in zip(("--", ":", "-.", (0, (5, 1))), (hlines if hlines is not None else
                                                                     pd.DataFrame()).iterrows()):
-            ax.axhline(scale * ref["mean"], linestyle=style, linewidth=1, color="0.35", label=ref["label"])
+            ax.axhline(scale * ref["value"], linestyle=style, linewidth=1, color="0.35", label=ref["label"])
         if order is not None:
             ax.set_xticks(range(len(order)), order)
             ax.set_xlim(-0.3, len(order) - 0.7)
@@ -564,7 +712,8 @@ def plot_lines(stats: pd.DataFrame, path: Path, *, x: str, panel: str | None, yl
         ax.set_ylim(0, top)
         if name is not None:
             ax.set_title(str(name), fontsize=9)
-    return _finish(fig, list(axes.flat[:len(panels)]), path, title)
+    note = interval_note(stats, "band" if band else "whiskers")
+    return _finish(fig, list(axes.flat[:len(panels)]), path, f"{title}\n({note})")
 
 
 # ------------------------------------------------------------------------------------------------ the report
@@ -612,8 +761,15 @@ def build_report(run_paths: Sequence[str | Path], eval_paths: Sequence[str | Pat
     n_policies = evals.checkpoints["policy"].nunique() + evals.references["policy"].nunique()
     md += [f"{len(run_list)} run directories; {n_policies} evaluated policies "
            f"({len(evals.checkpoints) + len(evals.references)} evaluation episodes).", "",
-           "Trained agents: mean over seeds ± standard error across seeds (n = seeds; no error with one seed). "
-           "Reference agents (oracle, random): over episodes; human: over participants when there are several. "
+           "**Statistics.** Survival cells: `IQM [low, high]; mean ± se (n=…)` — the interquartile mean (mean of "
+           "the middle 50 %) of the episodes with its 95 % percentile bootstrap interval (2000 resamples; episodes "
+           "redrawn within each seed, seeds as strata; where a seed gives one number, its last evaluation's mean, "
+           "the seeds' numbers are redrawn), then the mean over seeds of each seed's value ± the standard error "
+           "across seeds (none with one seed). Success cells: `rate [low, high] (n=…)` — the share of successful "
+           "episodes of all seeds pooled, with its 95 % Wilson score interval (not degenerate at 0 % or 100 %). "
+           "n: seeds × episodes per seed (`2 seeds, 37 ep.` when seeds have unequal episodes). Reference agents "
+           "(oracle, random): over episodes; human: participants as the units when there are several. Figures: "
+           "bars and lines show the IQM or rate, whiskers and bands its 95 % interval. "
            "Runs that differ only in their seed are pooled; labels name what else differs.", ""]
     ways = list(dict.fromkeys(evals.checkpoints["acting"].astype(str))) if len(evals.checkpoints) else []
     if ways:
@@ -707,7 +863,7 @@ def build_report(run_paths: Sequence[str | Path], eval_paths: Sequence[str | Pat
     table = figure = None
     if len(best) or len(ref_tests):
         stats = across_seeds(per_run(best, "success").assign(label=lambda d: d["run"].map(ck_lab)),
-                             ["label", "level"], "success") if len(best) else ref_tests.iloc[:0]
+                             ["label", "level"], "success", success=True) if len(best) else ref_tests.iloc[:0]
         stats = pd.concat([stats.assign(unit="seeds"), ref_tests], ignore_index=True)
         tables["success_per_testbed"] = stats
         testbeds = _level_sorted(stats["level"])
@@ -715,21 +871,24 @@ def build_report(run_paths: Sequence[str | Path], eval_paths: Sequence[str | Pat
                            ylabel="success rate (%)", title="Success per testbed")
         table = pivot_table(stats, "level", "label", rows=testbeds, percent=True, row_title="testbed")
     section("Success per testbed (Fig. 4b, left)",
-            "Each run's furthest-trained evaluated checkpoint; n: seeds for trained agents, episodes (or human "
-            "participants) for the others.", figure, table, "No testbed evaluation given (`evals=[...]`).")
+            "Each run's furthest-trained evaluated checkpoint; its episodes pooled over seeds (Wilson interval); n: "
+            "seeds × episodes for trained agents, episodes (or human participants) for the others.", figure, table,
+            "No testbed evaluation given (`evals=[...]`).")
 
     table = figure = None
     if len(tests):
         per_ckpt = per_run(tests, "success", ("run", "policy", "ckpt_stage", "ckpt_level", "level"))
-        mean_tb = per_ckpt.groupby(["run", "policy", "ckpt_stage", "ckpt_level"], sort=False)["success"].agg(
-            ["mean", "size"]).reset_index().rename(columns={"mean": "success", "size": "testbeds"})
+        mean_tb = per_ckpt.groupby(["run", "policy", "ckpt_stage", "ckpt_level"], sort=False).agg(
+            success=("success", "mean"), testbeds=("success", "size"),
+            scores=("scores", lambda s: tuple(x for one in s for x in one))).reset_index()
         mean_tb = mean_tb.sort_values("policy", key=lambda p: p.map(lambda s: not MODEL_FILE.match(Path(s).name)),
                                       kind="stable").drop_duplicates(["run", "ckpt_stage"])
         stats = across_seeds(mean_tb.assign(label=lambda d: d["run"].map(ck_lab)), ["label", "ckpt_level"],
-                             "success").rename(columns={"ckpt_level": "level"})
+                             "success", success=True).rename(columns={"ckpt_level": "level"})
         tables["generalisation"] = stats
         order = _level_sorted(stats["level"])
-        ref_mean = across_seeds(ref_tests, ["label"], "mean") if len(ref_tests) else None
+        ref_tb = refs[refs["level"].isin(evaaa.TESTBEDS)]
+        ref_mean = reference_stats(ref_tb.assign(level="testbeds"), "success") if len(ref_tb) else None
         figure = plot_lines(stats, out / "fig4b_generalisation.png", x="level", panel=None, order=order,
                             ylabel="mean testbed success (%)", xlabel="trained up to level", scale=100, top=105,
                             band=False, title="Generalisation by training level", hlines=ref_mean)
@@ -749,9 +908,9 @@ def build_report(run_paths: Sequence[str | Path], eval_paths: Sequence[str | Pat
                              ["label", "level"], "steps") if len(train_ck) else ref_train.iloc[:0]
         stats = pd.concat([stats.assign(unit="seeds"), ref_train], ignore_index=True)
         tables["evaluation_survival"] = stats
-        md += ["## Evaluation on training levels", "", "Mean survival (decisions) in evaluate.py's episodes; "
-               "checkpoints as above.", "", pivot_table(stats, "level", "label", rows=_level_sorted(stats["level"])),
-               ""]
+        md += ["## Evaluation on training levels", "", "Survival (decisions) in evaluate.py's episodes (cells as "
+               "described under Statistics); checkpoints as above.", "",
+               pivot_table(stats, "level", "label", rows=_level_sorted(stats["level"])), ""]
 
     # ---- training curves per training set-up, one line per algorithm (and settings)
     all_curves = curves(usable, bins)
@@ -773,8 +932,8 @@ def build_report(run_paths: Sequence[str | Path], eval_paths: Sequence[str | Pat
         ends = stats.sort_values("bin").groupby(["group", "label"], sort=False).tail(1)
         table = pivot_table(ends.rename(columns={"group": "level"}), "level", "label", row_title="training")
         table += (f"\n\nCurves: survival of the training episodes (exploring policy) in {bins} bins of env steps, "
-                  "mean ± standard error across seeds (band); table: the last bin. Dashed/dotted: reference agents' "
-                  "mean survival in evaluate.py's episodes on that level, when given.")
+                  "IQM of the bin's episodes with its 95 % bootstrap interval (band); table: the last bin. "
+                  "Dashed/dotted: reference agents' IQM survival in evaluate.py's episodes on that level, when given.")
     section("Training curves",
             "One panel per training set-up, one line per algorithm and settings.", figure, table,
             "No finished training episode in the runs given.")
@@ -797,8 +956,8 @@ def build_report(run_paths: Sequence[str | Path], eval_paths: Sequence[str | Pat
         tables["ablation_final_survival"] = fstats
         table = pivot_table(fstats, "label", "group", row_title="modality",
                             rows=sorted(dict.fromkeys(fstats["label"]), key=_modality_key)) if len(fstats) else ""
-        table += (f"\n\nCurves: survival of training episodes in {bins} bins of env steps, mean ± standard error "
-                  "across seeds (band). Table: survival at the end of each run (" +
+        table += (f"\n\nCurves: survival of training episodes in {bins} bins of env steps, IQM with its 95 % "
+                  "bootstrap interval (band). Table: survival at the end of each run (" +
                   ("last evaluation" if survival == "eval" else f"last {window} training episodes") + ").")
     section("Modality ablations: training curves (Fig. 25)",
             "One panel per algorithm (and training set-up), one line per modality set.", figure, table,
@@ -809,7 +968,7 @@ def build_report(run_paths: Sequence[str | Path], eval_paths: Sequence[str | Pat
         ab_ck = labels(ck_runs, ("algo", "reward", "extras", "training"))
         stats = across_seeds(per_run(best, "success").assign(group=lambda d: d["run"].map(ab_ck),
                                                              label=lambda d: d["run"].map(lambda x: runs[x].modality)),
-                             ["group", "label", "level"], "success")
+                             ["group", "label", "level"], "success", success=True)
         order = {g: i for i, g in enumerate(dict.fromkeys(stats["group"]))}
         stats = stats.sort_values("label", key=lambda s: s.map(_modality_key), kind="stable").sort_values(
             "group", key=lambda s: s.map(order), kind="stable")

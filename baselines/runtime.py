@@ -49,6 +49,7 @@ from tqdm import tqdm
 
 import evaaa
 from evaaa import END_TYPES, EV_NAMES
+from evaaa.records import TRAINING_EPISODE_FIELDS
 
 from .checkpoint import CHECKPOINT, CHECKPOINT_FORMAT, rng_state, save_checkpoint, set_rng_state
 from .config import Stage, env_overrides, observation_keys
@@ -56,8 +57,8 @@ from .evaluation import evaluate, wrap_env
 
 log = logging.getLogger(__name__)
 
-EPISODE_COLUMNS = ("env_steps", "stage", "level", "episode", "world", "survival_steps", "return", "end_type",
-                   *EV_NAMES, "wall_time")
+#: training's episodes.csv: the episode format of evaluations (evaaa.records), as far as training knows it
+EPISODE_COLUMNS = TRAINING_EPISODE_FIELDS
 EVAL_COLUMNS = ("env_steps", "stage", "level", "episodes", "survival_mean", "survival_min", "survival_max",
                 "return_mean", "end_types", "wall_time")
 
@@ -406,20 +407,20 @@ class Run:
             row = {
                 "env_steps": self.steps, "stage": self.stage.index, "level": self.stage.level,
                 "episode": self.counters["episodes"], "world": world,
-                "survival_steps": int(info["step_count"][world]),
+                "steps": int(info["step_count"][world]),
                 "return": float(nxt["episode_reward"][world]),
                 "end_type": END_TYPES[int(info["end_type"][world])],
-                **{ev: float(info[ev][world]) for ev in EV_NAMES},
+                **{f"final_{ev}": float(info[ev][world]) for ev in EV_NAMES},
                 "wall_time": _now(),
             }
             self.episodes_csv.write(row)
             self.logger.log_metrics({
-                "episode/survival_steps": row["survival_steps"], "episode/return": row["return"],
-                **{f"episode/{ev}": row[ev] for ev in EV_NAMES},
+                "episode/survival_steps": row["steps"], "episode/return": row["return"],
+                **{f"episode/{ev}": row[f"final_{ev}"] for ev in EV_NAMES},
                 # one 0/1 series per end type: its running mean is how often episodes end that way
                 **{f"episode/end/{name}": float(name == row["end_type"]) for name in END_TYPES[1:]},
             }, step=self.steps)
-            self.recent.append(row["survival_steps"])
+            self.recent.append(row["steps"])
 
     # -------------------------------------------------------------------------------------------- bookkeeping
     def log(self, metrics: Mapping[str, float]) -> None:

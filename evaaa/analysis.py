@@ -1,7 +1,9 @@
-"""From episode records to numbers and pictures: success rates, survival, outcomes, with standard errors.
+"""From episode records to pictures: reading episode files, outcomes, figure labels, bar and outcome figures.
 
 Works on the rows of :mod:`evaaa.records` (a pandas DataFrame read from ``episodes.csv`` files), so agents,
-reference agents and human players are summarised the same way.
+reference agents and human players are drawn the same way.  The numbers with their intervals (interquartile mean,
+bootstrap and Wilson intervals) are computed with the reports, in ``evaaa_baselines.report`` (``summarize``,
+``markdown_table``) over ``evaaa_baselines.stats``: the environment package does not import the baselines.
 """
 
 from __future__ import annotations
@@ -13,7 +15,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .spec import LEVELS, TESTBEDS
 
 #: Outcome of an episode, in the order they are stacked in the outcome plots.
 OUTCOMES: tuple[str, ...] = (
@@ -108,50 +109,11 @@ def short_labels(names: Sequence[str]) -> tuple[dict[str, str], str]:
     return out, note
 
 
-def summarize(rows: pd.DataFrame) -> pd.DataFrame:
-    """One row per (level, policy and how it acted): episodes, success rate and survival, each with its standard
-    error; the ``policy`` column holds :func:`display_names`."""
-    groups = rows.assign(policy=display_names(rows)).groupby(["level", "policy"], sort=False)
-    table = groups.agg(
-        episodes=("steps", "size"),
-        success_rate=("success", lambda s: float(s.astype(float).mean()) if s.notna().any() else np.nan),
-        success_se=("success", lambda s: standard_error(s.astype(float)) if s.notna().any() else np.nan),
-        survival=("steps", "mean"),
-        survival_se=("steps", standard_error),
-        collisions=("collisions", "mean"),
-    ).reset_index()
-    order = {name: i for i, name in enumerate(TESTBEDS + LEVELS)}
-    return table.sort_values(by="level", key=lambda c: c.map(lambda n: order.get(n, len(order))), kind="stable")
-
-
-def markdown_table(summary: pd.DataFrame) -> str:
-    """Success rate (testbeds) or mean survival (training levels) per level, one column per policy."""
-    policies = list(dict.fromkeys(summary["policy"]))
-    lines = ["| level | " + " | ".join(policies) + " |", "|---|" + "---|" * len(policies)]
-    for level, part in summary.groupby("level", sort=False):
-        cells = []
-        for policy in policies:
-            row = part[part["policy"] == policy]
-            if row.empty:
-                cells.append("–")
-                continue
-            row = row.iloc[0]
-            if not np.isnan(row["success_rate"]):
-                cells.append(f"{100 * row['success_rate']:.0f}% ± {100 * _nan0(row['success_se']):.0f} "
-                             f"(n={row['episodes']})")
-            else:
-                cells.append(f"{row['survival']:.0f} ± {_nan0(row['survival_se']):.0f} steps (n={row['episodes']})")
-        lines.append(f"| {level} | " + " | ".join(cells) + " |")
-    return "\n".join(lines)
-
-
-def _nan0(x: float) -> float:
-    return 0.0 if np.isnan(x) else x
-
-
-def plot_bars(summary: pd.DataFrame, value: str, error: str, path: str | Path, *, ylabel: str, title: str,
+def plot_bars(summary: pd.DataFrame, value: str, low: str, high: str, path: str | Path, *, ylabel: str, title: str,
               scale: float = 1.0) -> Path:
-    """Grouped bar chart: one group per level, one bar per policy, standard errors as whiskers."""
+    """Grouped bar chart: one group per level, one bar per policy, the bars' heights from column ``value`` and the
+    whiskers from ``low`` to ``high`` (an interval; no whisker where they are NaN).  ``title`` should say which
+    statistic and interval are shown."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -166,11 +128,14 @@ def plot_bars(summary: pd.DataFrame, value: str, error: str, path: str | Path, *
     x = np.arange(len(levels))
     for i, policy in enumerate(policies):
         part = summary[summary["policy"] == policy].set_index("level").reindex(levels)
-        ax.bar(x + (i - (len(policies) - 1) / 2) * width, scale * part[value].to_numpy(dtype=float), width,
-               yerr=scale * part[error].fillna(0.0).to_numpy(dtype=float), capsize=3, label=policy)
+        heights = scale * part[value].to_numpy(dtype=float)
+        yerr = np.vstack([heights - scale * part[low].to_numpy(dtype=float),
+                          scale * part[high].to_numpy(dtype=float) - heights])
+        ax.bar(x + (i - (len(policies) - 1) / 2) * width, heights, width,
+               yerr=np.clip(np.nan_to_num(yerr), 0, None), capsize=3, label=policy)
     ax.set_xticks(x, levels, rotation=30, ha="right")
     ax.set_ylabel(ylabel)
-    ax.set_title(title)
+    ax.set_title(title, fontsize=10)
     # the legend goes beside the axes, not over the bars
     ax.legend(frameon=False, fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.spines[["top", "right"]].set_visible(False)

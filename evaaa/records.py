@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from .physiology import END_TYPES, ORIGINAL_END_TYPES
+from .physiology import END_TYPES, EV_NAMES, ORIGINAL_END_TYPES
 from .sim import ACTION_NAMES
 
 #: Columns of an episode row, in order.
@@ -44,6 +44,18 @@ EPISODE_FIELDS: tuple[str, ...] = (
     "final_temperature",
     "final_damage",
 )
+#: Columns of a training run's ``episodes.csv`` (scripts/train.py): the :data:`EPISODE_FIELDS` the training loop
+#: knows of an episode without per-decision bookkeeping, under the same names and meanings (``episode`` counts a run's
+#: episodes from 1), framed by :data:`TRAINING_ONLY_FIELDS`.  Positions are those of the files written before the
+#: names were shared, so that a resumed old run appends rows that line up with its header.
+TRAINING_EPISODE_FIELDS: tuple[str, ...] = (
+    "env_steps", "stage", "level", "episode", "world", "steps", "return", "end_type",
+    *(f"final_{name}" for name in EV_NAMES), "wall_time",
+)
+#: The training columns that are not episode fields: where in the run the episode ended.
+TRAINING_ONLY_FIELDS: tuple[str, ...] = ("env_steps", "stage", "world", "wall_time")
+#: Names of training columns in files written before they were shared with :data:`EPISODE_FIELDS`: old -> current.
+TRAINING_OLD_NAMES: dict[str, str] = {"survival_steps": "steps", **{name: f"final_{name}" for name in EV_NAMES}}
 #: Per-episode event counters: column -> the ``info`` flag summed over the episode.
 EVENT_FIELDS: dict[str, str] = {"trigger_crossed": "trigger_crossed", "steps_near_heat": "near_heat"}
 #: Per-episode reward statistics over the episode's decisions (the original's AvgReward, MaxReward, MinReward).

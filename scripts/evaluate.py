@@ -8,8 +8,8 @@ types, defaults and meanings.
 
 Writes to ``out``, which must not hold an earlier evaluation (it is refused, changing nothing: each evaluation is a
 complete result of its own): ``episodes.csv`` (one row per episode, put in place once every episode is done),
-``summary.md`` (success rate ± standard
-error per testbed, mean survival ± standard error per training level, one column per policy), ``success.png``,
+``summary.md`` (per testbed the success rate with its 95 % Wilson interval, per training level the interquartile
+mean survival with its 95 % bootstrap interval beside mean ± standard error, one column per policy), ``success.png``,
 ``survival.png`` and ``outcomes.png`` (what the agent did: consumed the right or wrong resource, died of which
 EV, ran out of time; mean collisions).
 """
@@ -29,8 +29,9 @@ from tqdm import tqdm
 import evaaa
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
+from evaaa_baselines.report import SUMMARY_NOTE, markdown_table, summarize
 from evaaa.agents import OracleAgent, RandomAgent
-from evaaa.analysis import markdown_table, plot_bars, plot_outcomes, read_episodes, summarize
+from evaaa.analysis import plot_bars, plot_outcomes, read_episodes
 from evaaa.records import EpisodeTracker, StepLog, append_rows, new_log_path
 
 GROUPS = {"testbeds": evaaa.TESTBEDS, "training": evaaa.LEVELS, "all": evaaa.LEVELS + evaaa.TESTBEDS}
@@ -162,6 +163,12 @@ def run_level(policy: Policy, level: str, cfg: EvalConfig, bar: tqdm, step_log: 
     return rows
 
 
+def episodes(summary) -> str:
+    """How many episodes each bar of a figure stands for, for its title."""
+    counts = sorted(set(summary["episodes"]))
+    return f"{counts[0]} episodes per bar" if len(counts) == 1 else f"{counts[0]}–{counts[-1]} episodes per bar"
+
+
 def main(argv: list[str] | None = None) -> int:
     cfg = parse(argv)
     out = Path(cfg.out)
@@ -194,17 +201,20 @@ def main(argv: list[str] | None = None) -> int:
         f"# Evaluation ({cfg.episodes} episodes per level and policy, seed {cfg.seed}"
         + ("; checkpoints sample their actions" if cfg.sample else "")
         + (f"; checkpoints act epsilon-greedily, epsilon {cfg.epsilon:g}" if cfg.epsilon else "") + ")\n\n"
-        "Testbeds: success rate ± standard error; training levels: mean survival (decisions) ± standard error.\n\n"
+        + SUMMARY_NOTE + "\n\n"
         + table + "\n")
     written = [out / "episodes.csv", out / "summary.md"]
     tests = summary[summary["level"].isin(evaaa.TESTBEDS)]
     if len(tests):
-        written.append(plot_bars(tests, "success_rate", "success_se", out / "success.png", scale=100,
-                                 ylabel="success rate (%)", title="Success per testbed"))
+        written.append(plot_bars(tests, "success_rate", "success_low", "success_high", out / "success.png",
+                                 scale=100, ylabel="success rate (%)",
+                                 title=f"Success per testbed ({episodes(tests)}; whiskers: 95 % Wilson interval)"))
     training = summary[summary["level"].isin(evaaa.LEVELS)]
     if len(training):
-        written.append(plot_bars(training, "survival", "survival_se", out / "survival.png",
-                                 ylabel="survival (decisions)", title="Survival per training level"))
+        written.append(plot_bars(training, "survival_iqm", "survival_low", "survival_high", out / "survival.png",
+                                 ylabel="survival (decisions)",
+                                 title=f"Survival per training level: interquartile mean ({episodes(training)}; "
+                                       "whiskers: 95 % bootstrap interval)"))
     written.append(plot_outcomes(rows, out / "outcomes.png"))
     print(table)
     print("\nwrote " + ", ".join(str(p) for p in written))

@@ -8,7 +8,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from evaaa.analysis import markdown_table, outcome, plot_bars, plot_outcomes, read_episodes, short_labels, summarize
+from evaaa.analysis import outcome, plot_bars, plot_outcomes, read_episodes, short_labels
+from evaaa_baselines.report import markdown_table, summarize
+from evaaa_baselines.stats import interval
 from evaaa.physiology import END_TYPES
 from evaaa.records import EPISODE_FIELDS, EpisodeTracker, append_rows, read_rows
 
@@ -74,14 +76,40 @@ def test_summary_numbers_match_the_inputs(tmp_path):
         "food_eaten": [1, 0, 1, 1, 0, 0, 0],
     })
     summary = summarize(rows).set_index("level")
+    # Wilson score interval of 3 successes in 4, by its formula
+    k, n, z = 3, 4, 1.959963984540054
+    centre, half = (k / n + z * z / (2 * n)) / (1 + z * z / n), z / (1 + z * z / n) * np.sqrt(
+        k / n * (1 - k / n) / n + z * z / (4 * n * n))
     assert summary.loc["two-resource-food", "success_rate"] == pytest.approx(0.75)
-    assert summary.loc["two-resource-food", "success_se"] == pytest.approx(np.std([1, 0, 1, 1], ddof=1) / 2)
-    assert summary.loc["1-1", "survival"] == pytest.approx(300.0)
+    assert (summary.loc["two-resource-food", "success_low"], summary.loc["two-resource-food", "success_high"]) \
+        == pytest.approx((centre - half, centre + half))
+    # interquartile mean of 100, 200, 600: a quarter of 3 rounds down to none cut, so all three
+    assert summary.loc["1-1", "survival_iqm"] == pytest.approx(300.0)
+    assert summary.loc["1-1", "survival_mean"] == pytest.approx(300.0)
     assert summary.loc["1-1", "survival_se"] == pytest.approx(np.std([100, 200, 600], ddof=1) / np.sqrt(3))
+    low, high = summary.loc["1-1", "survival_low"], summary.loc["1-1", "survival_high"]
+    assert (low, high) == (interval([[100.0, 200.0, 600.0]]).low, interval([[100.0, 200.0, 600.0]]).high)
+    assert 100 <= low < 300 < high <= 600
     assert np.isnan(summary.loc["1-1", "success_rate"])
     table = markdown_table(summarize(rows))
-    assert "| two-resource-food | 75% ± 25 (n=4) |" in table and "| 1-1 | 300 ± 153 steps (n=3) |" in table
+    assert (f"| two-resource-food | 75.0% [{100 * (centre - half):.1f}, {100 * (centre + half):.1f}] (n=4 ep.) |"
+            in table)
+    assert f"| 1-1 | 300.0 [{low:.1f}, {high:.1f}]; 300.0 ± 152.8 (n=3 ep.) |" in table
     assert [outcome(r) for _, r in rows.iloc[:2].iterrows()] == ["success", "drank water (wrong)"]
+
+
+def test_summary_survival_is_the_interquartile_mean_and_rates_are_never_plus_minus_zero():
+    # 8 episodes: the IQM drops 2 at each end and averages 30, 40, 50, 60; an outlier does not move it
+    rows = pd.DataFrame({"level": ["1-1"] * 8 + ["y-maze"] * 5, "policy": ["a"] * 13,
+                         "success": [np.nan] * 8 + [False] * 5, "steps": [10, 20, 30, 40, 50, 60, 70, 5000] + [9] * 5,
+                         "collisions": [0] * 13, "end_type": ["FoodOutOfRange"] * 13, "food_eaten": [0] * 13})
+    summary = summarize(rows).set_index("level")
+    assert summary.loc["1-1", "survival_iqm"] == pytest.approx(45.0)
+    assert summary.loc["1-1", "survival_mean"] == pytest.approx(660.0)
+    assert summary.loc["y-maze", "success_rate"] == 0 and summary.loc["y-maze", "success_low"] == 0
+    z2 = 1.959963984540054 ** 2
+    assert summary.loc["y-maze", "success_high"] == pytest.approx(z2 / (5 + z2))  # Wilson's upper end at 0 of n
+    assert "| y-maze | 0.0% [0.0, 43.4] (n=5 ep.) |" in markdown_table(summarize(rows))
 
 
 def test_read_episodes_parses_success(tmp_path):
@@ -104,8 +132,8 @@ def test_how_a_checkpoint_acted_is_recorded_and_kept_apart(tmp_path):
     rows = read_episodes([path])
     assert list(rows["acting"]) == ["mode", "sample", "sample", ""]
     summary = summarize(rows).set_index("policy")
-    assert summary.loc["run/model-0-1-1.pt [sample]", "survival"] == pytest.approx(800.0)
-    assert summary.loc["run/model-0-1-1.pt [mode]", "survival"] == pytest.approx(100.0)
+    assert summary.loc["run/model-0-1-1.pt [sample]", "survival_mean"] == pytest.approx(800.0)
+    assert summary.loc["run/model-0-1-1.pt [mode]", "survival_iqm"] == pytest.approx(100.0)
     assert summary.loc["random", "episodes"] == 1
 
 
@@ -144,8 +172,23 @@ def test_figures_label_checkpoints_by_what_differs_in_their_paths(tmp_path, monk
     rows = pd.DataFrame({"level": ["two-resource-food"] * 3, "policy": [a, b, "random"], "success": [True, False, True],
                          "steps": [10, 20, 30], "collisions": [0, 1, 2], "end_type": ["ResourceConsumed"] * 3,
                          "food_eaten": [1, 0, 1], "water_eaten": [0, 1, 0]})
-    plot_bars(summarize(rows), "success_rate", "success_se", tmp_path / "s.png", ylabel="%", title="t")
+    plot_bars(summarize(rows), "success_rate", "success_low", "success_high", tmp_path / "s.png", ylabel="%",
+              title="t")
     plot_outcomes(rows, tmp_path / "o.png")
     assert {"ppo", "dqn", "random"} <= set(shown)
     assert not any(a in t or b in t for t in shown if not t.startswith("checkpoints: ") and "\n" not in t)
     assert any("checkpoints: runs/1-1/<label>/all-squared/seed0/model-0-1-1.pt" in t for t in shown)
+
+
+def test_summary_of_human_play_has_the_participants_as_units():
+    # p01 survived 10, 20, 30 decisions, p02 1000 and 40: bootstrap strata are the participants, mean ± se over
+    # the five episodes, the IQM (one cut at each end of 10, 20, 30, 40, 1000) is the mean of 20, 30, 40
+    rows = pd.DataFrame({"level": ["1-1"] * 5, "policy": ["human"] * 5, "participant": ["p01"] * 3 + ["p02"] * 2,
+                         "success": [np.nan] * 5, "steps": [10, 20, 30, 1000, 40], "collisions": [0] * 5,
+                         "end_type": ["FoodOutOfRange"] * 5, "food_eaten": [0] * 5})
+    row = summarize(rows).iloc[0]
+    assert (row["units"], row["unit"], row["episodes"]) == (2, "participants", 5)
+    assert row["survival_iqm"] == pytest.approx(30.0) and row["survival_mean"] == pytest.approx(220.0)
+    est = interval([[10.0, 20.0, 30.0], [1000.0, 40.0]])
+    assert (row["survival_low"], row["survival_high"]) == (est.low, est.high)
+    assert "(n=2 participants, 5 ep.) |" in markdown_table(summarize(rows))

@@ -1,5 +1,7 @@
 """Reports: every figure is built from small run directories and evaluation files written here by hand, and the
-numbers in the report's tables are the means and standard errors of those inputs across seeds; missing, partial
+numbers in the report's tables are computed here from those inputs (interquartile means, Wilson intervals, means and
+standard errors across seeds; the bootstrap interval from evaaa_baselines.stats, tested on its own, over the strata
+assembled here); missing, partial
 and orphaned inputs are listed; bad input gives clear errors; the launcher presets compose; a modality ablation
 removes a key and nothing else."""
 
@@ -25,6 +27,7 @@ import evaaa
 from evaaa_baselines.config import CONF_DIR, observation_keys, register_levels
 from evaaa_baselines.report import ReportError, build_report
 from evaaa_baselines.runtime import EPISODE_COLUMNS, EVAL_COLUMNS
+from evaaa_baselines.stats import interval
 from evaaa.records import append_rows
 
 register_levels()
@@ -83,8 +86,9 @@ class Sim:
             for step in np.linspace(end / 5, end, 5).astype(int)[:-1 if index == finish else None]:
                 survival = int(self.rng.integers(10, 400))
                 episodes.append({"env_steps": step, "stage": index, "level": name, "episode": len(episodes) + 1,
-                                 "world": 0, "survival_steps": survival, "return": -1.5, "end_type": "FoodOutOfRange",
-                                 "satiation": -15.1, "hydration": 0.0, "temperature": 0.0, "damage": 0.0,
+                                 "world": 0, "steps": survival, "return": -1.5, "end_type": "FoodOutOfRange",
+                                 "final_satiation": -15.1, "final_hydration": 0.0, "final_temperature": 0.0,
+                                 "final_damage": 0.0,
                                  "wall_time": "2026-01-01T00:00:00"})
                 info["episodes"].append((index * BUDGET + step, survival))
             for step in (end // 2, end):
@@ -171,11 +175,51 @@ def stats(values) -> tuple[float, float, int]:
     return v.mean(), (v.std(ddof=1) / np.sqrt(len(v)) if len(v) > 1 else float("nan")), len(v)
 
 
-def expect(values, percent: bool = False) -> str:
-    """The table cell for ``values``: ``mean ± se (n=N)`` with one decimal (percent for success rates)."""
-    m, se, n = stats(values)
-    k, unit = (100, "%") if percent else (1, "")
-    return f"{k * m:.1f}{unit}" + ("" if n == 1 else f" ± {k * se:.1f}") + f" (n={n})"
+def hand_iqm(values) -> float:
+    """Interquartile mean by its definition: sort, drop a quarter (rounded down) at each end, average the rest."""
+    v = np.sort(np.asarray(values, dtype=float))
+    cut = len(v) // 4
+    return float(v[cut:len(v) - cut].mean())
+
+
+def wilson(k: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
+    p = k / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z / (1 + z * z / n) * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+    return centre - half, centre + half
+
+
+def size(samples, unit: str) -> str:
+    n, episodes = len(samples), sum(len(s) for s in samples)
+    if unit == "episodes":
+        return f"{episodes} ep."
+    word = unit if n != 1 else unit[:-1]
+    return f"{n} {word} × {episodes // n} ep." if episodes % n == 0 else f"{n} {word}, {episodes} ep."
+
+
+def expect(samples, unit: str = "seeds", *, per_seed: int | None = None) -> str:
+    """The survival cell for ``samples`` (one list of episode survivals per seed, or per participant; ``unit``
+    ``episodes``: one list, a reference agent's episodes): ``IQM [95 % bootstrap]; mean ± se (n=…)``.
+    ``per_seed``: each seed gave one number (an evaluation's mean) over this many episodes."""
+    samples = [list(map(float, s)) for s in samples]
+    pooled = [v for s in samples for v in s]
+    strata = [pooled] if all(len(s) == 1 for s in samples) else samples
+    est = interval(strata, "iqm")
+    text = f"{hand_iqm(pooled):.1f}"
+    if len(pooled) > 1:
+        text += f" [{est.low:.1f}, {est.high:.1f}]"
+    m, se, _ = stats(pooled if unit == "episodes" else [np.mean(s) for s in samples])
+    text += f"; {m:.1f}" + ("" if np.isnan(se) else f" ± {se:.1f}")
+    shown = [[0.0] * per_seed for _ in samples] if per_seed else samples
+    return f"{text} (n={size(shown, unit)})"
+
+
+def expect_rate(samples, unit: str = "seeds") -> str:
+    """The success cell for ``samples`` (one list of outcomes per seed or participant; ``unit`` ``episodes``: one
+    list): the pooled share with its Wilson interval, ``rate% [low, high] (n=…)``."""
+    pooled = [float(v) for s in samples for v in s]
+    low, high = wilson(int(sum(pooled)), len(pooled))
+    return f"{100 * np.mean(pooled):.1f}% [{100 * low:.1f}, {100 * high:.1f}] (n={size(samples, unit)})"
 
 
 def table(text: str, heading: str) -> dict[str, dict[str, str]]:
@@ -213,21 +257,21 @@ def test_survival_per_level_is_the_mean_and_se_across_seeds_of_each_stage_final_
     for label, algo, modality in (("ppo · all", "ppo", "all"), ("dqn · all", "dqn", "all"),
                                   ("ppo · no_vision", "ppo", "no_vision")):
         for level in STAGES:
-            values = [info["final"][level] for _, info in runs_of(world, algo=algo, modality=modality,
-                                                                  level="curriculum") if level in info["final"]]
-            assert got[level][label] == expect(values), (label, level)
+            values = [[info["final"][level]] for _, info in runs_of(world, algo=algo, modality=modality,
+                                                                    level="curriculum") if level in info["final"]]
+            assert got[level][label] == expect(values, per_seed=2), (label, level)
     # the run killed in stage 2 counts for the level it finished, not for the one it did not
-    assert "(n=4)" in got["1-1"]["dqn · all"] and "(n=3)" in got["1-2"]["dqn · all"]
+    assert "(n=4 seeds × 2 ep.)" in got["1-1"]["dqn · all"] and "(n=3 seeds × 2 ep.)" in got["1-2"]["dqn · all"]
     assert set(got["1-1"]) == {"ppo · all", "dqn · all", "ppo · no_vision"}  # direct ppo runs are in 4a right
 
 
 def test_curriculum_vs_direct_compares_the_same_level(world):
     got = table(world["text"], "## With and without curriculum")
     for level in STAGES:
-        curriculum = [i["final"][level] for _, i in runs_of(world, algo="ppo", modality="all", level="curriculum")]
-        direct = [i["final"][level] for _, i in runs_of(world, algo="ppo", level=level)]
-        assert len(direct) == 2 and got[level]["ppo · curriculum"] == expect(curriculum)
-        assert got[level]["ppo · direct"] == expect(direct)
+        curriculum = [[i["final"][level]] for _, i in runs_of(world, algo="ppo", modality="all", level="curriculum")]
+        direct = [[i["final"][level]] for _, i in runs_of(world, algo="ppo", level=level)]
+        assert len(direct) == 2 and got[level]["ppo · curriculum"] == expect(curriculum, per_seed=2)
+        assert got[level]["ppo · direct"] == expect(direct, per_seed=2)
 
 
 def test_survival_from_training_episodes_on_request(world, tmp_path):
@@ -236,7 +280,7 @@ def test_survival_from_training_episodes_on_request(world, tmp_path):
     values = []
     for _, info in runs_of(world, algo="ppo", modality="all", level="curriculum"):
         stage0 = [s for step, s in info["episodes"] if step <= BUDGET]
-        values.append(np.mean(stage0[-2:]))
+        values.append(stage0[-2:])
     assert got["1-1"]["ppo · all"] == expect(values)
 
 
@@ -255,20 +299,20 @@ def test_success_per_testbed_uses_each_run_final_checkpoint_and_the_references(w
     ev = world["evaluated"]
     for (algo, modality, level), label in success_labels().items():
         for testbed in TESTBEDS:
-            rates = []
+            outcomes = []
             for run_dir, info in runs_of(world, algo=algo, modality=modality, level=level):
                 final = info["stages"][-1] if level == "curriculum" else level
-                rates.append(np.mean(ev[(run_dir, final, testbed)]))
-            assert got[testbed][label] == expect(rates, percent=True), (label, testbed)
+                outcomes.append(ev[(run_dir, final, testbed)])
+            assert got[testbed][label] == expect_rate(outcomes), (label, testbed)
     rows = world["eval_rows"]
     for policy in ("oracle", "random"):
         for testbed in TESTBEDS:
             values = [float(r["success"]) for r in rows if r["policy"] == policy and r["level"] == testbed]
-            assert got[testbed][policy] == expect(values, percent=True)
-    # human: the mean of the participants' success rates, n = participants
-    per_person = [np.mean([float(r["success"]) for r in world["human"] if r["participant"] == p])
-                  for p in ("p01", "p02")]
-    assert got["two-resource-food"]["human"] == expect(per_person, percent=True)
+            assert got[testbed][policy] == expect_rate([values], "episodes")
+    # human: participants are the units, all their episodes pooled for the rate
+    per_person = [[float(r["success"]) for r in world["human"] if r["participant"] == p] for p in ("p01", "p02")]
+    assert got["two-resource-food"]["human"] == expect_rate(per_person, "participants")
+    assert "(n=2 participants, 5 ep.)" in got["two-resource-food"]["human"]
     assert got["y-maze"]["human"] == "–"
 
 
@@ -277,17 +321,17 @@ def test_generalisation_averages_testbeds_per_checkpoint_then_seeds(world):
     ev = world["evaluated"]
     for (algo, modality, level), label in success_labels().items():
         for trained_to in STAGES:
-            values = [np.mean([np.mean(ev[(d, trained_to, tb)]) for tb in TESTBEDS])
+            values = [[x for tb in TESTBEDS for x in ev[(d, trained_to, tb)]]
                       for d, _ in runs_of(world, algo=algo, modality=modality, level=level)
                       if (d, trained_to, TESTBEDS[0]) in ev]
-            expected = expect(values, percent=True) if values else "–"
+            expected = expect_rate(values) if values else "–"
             assert got[trained_to][label] == expected, (label, trained_to)
 
 
 def test_training_level_evaluations_report_survival(world):
     got = table(world["text"], "## Evaluation on training levels")
     steps = [r["steps"] for r in world["eval_rows"] if r["policy"] == "random" and r["level"] == "1-1"]
-    assert got["1-1"]["random"] == expect(steps)
+    assert got["1-1"]["random"] == expect([steps], "episodes")
 
 
 # ------------------------------------------------------------------------------------------------ Figs. 25-26
@@ -297,7 +341,7 @@ def test_ablation_curves_are_binned_means_across_seeds(world):
     curves = pd.read_csv(world["base"] / "out" / "data" / "ablation_curves.csv")
     width = len(STAGES) * BUDGET / 4
     for modality in ("all", "no_vision"):
-        per_seed = {b: [] for b in range(4)}
+        per_seed, episodes = {b: [] for b in range(4)}, {b: [] for b in range(4)}
         for _, info in runs_of(world, algo="ppo", modality=modality, level="curriculum"):
             steps = np.array([s for s, _ in info["episodes"]])
             surv = np.array([v for _, v in info["episodes"]])
@@ -305,12 +349,16 @@ def test_ablation_curves_are_binned_means_across_seeds(world):
             for b in range(4):
                 if (bins == b).any():
                     per_seed[b].append(surv[bins == b].mean())
+                    episodes[b] += surv[bins == b].tolist()
         got = curves[(curves["group"] == "ppo · curriculum") & (curves["label"] == modality)].set_index("bin")
         for b, values in per_seed.items():
             m, se, n = stats(values)
             assert got.loc[b, "mean"] == pytest.approx(m) and got.loc[b, "n"] == n
             assert got.loc[b, "se"] == pytest.approx(se, nan_ok=True)
             assert got.loc[b, "steps"] == pytest.approx((b + 0.5) * width)
+            assert got.loc[b, "value"] == pytest.approx(hand_iqm(episodes[b])) and got.loc[b, "statistic"] == "iqm"
+            assert got.loc[b, "low"] <= got.loc[b, "value"] <= got.loc[b, "high"]
+            assert got.loc[b, "episodes"] == len(episodes[b])
 
 
 def test_training_curves_have_a_line_per_algorithm_and_settings_per_training_set_up(world):
@@ -332,8 +380,8 @@ def test_training_curves_have_a_line_per_algorithm_and_settings_per_training_set
 def test_ablation_final_survival_per_modality(world):
     got = table(world["text"], "## Modality ablations: training curves")
     for modality in ("all", "no_vision"):
-        values = [i["final"]["1-2"] for _, i in runs_of(world, algo="ppo", modality=modality, level="curriculum")]
-        assert got[modality]["ppo · curriculum"] == expect(values)
+        values = [[i["final"]["1-2"]] for _, i in runs_of(world, algo="ppo", modality=modality, level="curriculum")]
+        assert got[modality]["ppo · curriculum"] == expect(values, per_seed=2)
     assert got["no_vision"]["dqn · curriculum"] == "–"
 
 
@@ -342,9 +390,9 @@ def test_ablation_success_per_modality(world):
     ev = world["evaluated"]
     for modality in ("all", "no_vision"):
         for testbed in TESTBEDS:
-            rates = [np.mean(ev[(d, "1-2", testbed)]) for d, _ in runs_of(world, algo="ppo", modality=modality,
-                                                                              level="curriculum")]
-            assert got[testbed][f"ppo · curriculum · {modality}"] == expect(rates, percent=True)
+            outcomes = [ev[(d, "1-2", testbed)] for d, _ in runs_of(world, algo="ppo", modality=modality,
+                                                                    level="curriculum")]
+            assert got[testbed][f"ppo · curriculum · {modality}"] == expect_rate(outcomes)
 
 
 # ------------------------------------------------------------------------------------------------ what is missing
@@ -400,7 +448,7 @@ def test_a_checkpoint_evaluated_in_two_ways_is_reported_one_way_at_a_time(world,
         text = report.markdown.read_text()
         got = table(text, "## Evaluation on training levels")["1-1"]
         checkpoint_cells = [v for k, v in got.items() if k not in ("level", "random")]
-        assert checkpoint_cells == [expect([np.mean([r["steps"] for r in rows])])]
+        assert checkpoint_cells == [expect([[r["steps"] for r in rows]])]
         assert f"Checkpoints acted: `{acting}`" in text and "random" in got
 
 
@@ -581,3 +629,37 @@ def test_an_ablation_removes_the_key_and_keeps_reward_and_termination():
         env.close()
         results.append((rewards, ends))
     assert results[0] == results[1] and any(results[0][1])  # same reward and episode ends, one episode ended
+
+
+def test_known_scores_give_their_iqm_and_old_training_files_still_read(tmp_path):
+    """Hand-made training episodes, written under the column names of runs from before training shared evaluation's
+    episode fields (survival_steps, satiation, ...): the IQM of 10, 20, 30, 1000 (seed 0) and 40, 50, 60, 70 (seed 1)
+    is the mean of 30, 40, 50, 60 = 45; the seeds' means are 265 and 55: 160 ± 105."""
+    sim = Sim(tmp_path / "runs")
+    old = ["env_steps", "stage", "level", "episode", "world", "survival_steps", "return", "end_type", "satiation",
+           "hydration", "temperature", "damage", "wall_time"]
+    for seed, scores in ((0, (10, 20, 30, 1000)), (1, (40, 50, 60, 70))):
+        run_dir = sim.run("ppo", seed, level="1-1", finish=1)
+        rows = [dict(zip(old, (10 * (i + 1), 0, "1-1", i + 1, 0, v, -1.0, "FoodOutOfRange", -15.0, 0, 0, 0,
+                               "2026-01-01T00:00:00"))) for i, v in enumerate(scores)]
+        write_csv(run_dir / "episodes.csv", old, rows)
+    report = build_report([tmp_path / "runs"], [], tmp_path / "out", survival="train", window=4)
+    got = table(report.markdown.read_text(), "## Survival per training level")["1-1"]["ppo"]
+    assert got.startswith("45.0 [") and got.endswith("; 160.0 ± 105.0 (n=2 seeds × 4 ep.)"), got
+    low, high = map(float, got[len("45.0 ["):got.index("]")].split(", "))
+    assert 10 <= low <= 45 <= high <= 1000 and high > low
+    data = pd.read_csv(tmp_path / "out" / "data" / "survival_per_level.csv")
+    assert data.loc[0, "value"] == pytest.approx(45.0) and data.loc[0, "episodes"] == 8
+
+
+def test_training_writes_the_episode_fields_of_evaluations():
+    """One episode format: training's episodes.csv columns are evaluation's episode fields (same names, same
+    meanings) plus where in the run the episode ended; the columns of older files map onto them."""
+    from evaaa.records import EPISODE_FIELDS, TRAINING_EPISODE_FIELDS, TRAINING_OLD_NAMES, TRAINING_ONLY_FIELDS
+
+    assert EPISODE_COLUMNS == TRAINING_EPISODE_FIELDS
+    shared = [f for f in TRAINING_EPISODE_FIELDS if f not in TRAINING_ONLY_FIELDS]
+    assert shared and set(shared) <= set(EPISODE_FIELDS)
+    assert shared == [f for f in EPISODE_FIELDS if f in shared]  # in evaluation's order
+    assert {"steps", "return", "end_type", "final_satiation"} <= set(shared)
+    assert set(TRAINING_OLD_NAMES.values()) <= set(shared) and not set(TRAINING_OLD_NAMES) & set(EPISODE_FIELDS)

@@ -3,6 +3,7 @@ and the evaluation tool."""
 
 from __future__ import annotations
 
+import re
 
 import numpy as np
 import pytest
@@ -173,7 +174,9 @@ def test_evaluate_writes_records_table_and_figures(tmp_path):
     assert [r["success"] for r in oracle_water] == ["True"] * 3
     assert all(r["success"] == "" for r in rows if r["level"] == "1-2")  # training levels are not judged
     table = (out / "summary.md").read_text()
-    assert "| two-resource-water | 100% ± 0 (n=3) |" in table and "steps (n=3)" in table
+    # oracle: 3 of 3, with its Wilson interval rather than "± 0"; training levels: survival IQM [interval]; mean ± se
+    assert "| two-resource-water | 100.0% [43.9, 100.0] (n=3 ep.) |" in table
+    assert re.search(r"\| 1-2 \| [\d.]+ \[[\d.]+, [\d.]+\]; [\d.]+ ± [\d.]+ \(n=3 ep\.\) \|", table)
     for name in ("success.png", "survival.png", "outcomes.png"):
         assert (out / name).stat().st_size > 1000
 

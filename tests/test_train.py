@@ -158,8 +158,8 @@ def test_smoke_run_writes_checkpoint_csvs_and_final_model(runs, algo):
     assert len(episodes) >= 2  # the debug preset's 48-step episodes end several times in 128 steps per world
     for row in episodes:
         assert row["end_type"] in evaaa.END_TYPES[1:]
-        assert 0 < int(row["survival_steps"]) <= 48
-        assert (int(row["survival_steps"]) == 48) == (row["end_type"] == "MaxStepReached")
+        assert 0 < int(row["steps"]) <= 48
+        assert (int(row["steps"]) == 48) == (row["end_type"] == "MaxStepReached")
     evaluations = read_csv(run_dir / "eval.csv")
     assert [int(r["env_steps"]) for r in evaluations] == [128, 256]  # every eval.every, and at the end
     assert all(0 < float(r["survival_mean"]) <= 48 for r in evaluations)
