@@ -55,6 +55,21 @@ def play_server(workdir: Path, *args: str, participant: str = "tester", start_ti
     assert code == 0, f"play.py exited with status {code} on SIGTERM:\n{log_path.read_text()}"
 
 
+def decode_mp4(path: Path) -> list:
+    """Every frame of an mp4 file as RGB uint8 arrays, decoded with OpenCV."""
+    import cv2
+
+    video = cv2.VideoCapture(str(path))
+    frames = []
+    while True:
+        ok, frame = video.read()
+        if not ok:
+            break
+        frames.append(cv2.cvtColor(frame, cv2.COLOR_BGR2RGB))
+    video.release()
+    return frames
+
+
 def read_csv(path: Path) -> list[dict]:
     """A run's CSV rows without their wall-clock column (the one thing two identical runs differ in)."""
     with open(path, newline="") as f:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-
 import re
 from functools import partial
 
@@ -11,6 +10,7 @@ import pytest
 import torch
 from torchrl.envs import SerialEnv, TransformedEnv
 from torchrl.envs.transforms import StepCounter
+from helpers import decode_mp4
 from torchrl.envs.utils import check_env_specs
 
 import evaaa
@@ -685,7 +685,6 @@ def test_mujoco_warnings_go_to_logging_not_to_a_file(tmp_path, monkeypatch, capl
 
 
 def test_a_torchrl_video_recorder_writes_a_playable_mp4(tmp_path):
-    import cv2
     from torchrl.envs import TransformedEnv
     from torchrl.record import VideoRecorder
 
@@ -698,14 +697,7 @@ def test_a_torchrl_video_recorder_writes_a_playable_mp4(tmp_path):
     env.transform.dump()
     env.close()
     assert logger.written == [tmp_path / "videos" / "eye_0.mp4"]
-    video = cv2.VideoCapture(str(logger.written[0]))
-    frames = []
-    while True:
-        ok, frame = video.read()
-        if not ok:
-            break
-        frames.append(cv2.cvtColor(frame, cv2.COLOR_BGR2RGB))
-    video.release()
+    frames = decode_mp4(logger.written[0])
     assert len(frames) == 13  # the reset frame and one per step
     last = td["next", "pixels"][0, -1].numpy()  # world 0, last step
     assert frames[-1].shape == last.shape and np.abs(frames[-1].astype(int) - last).mean() < 20

@@ -6,6 +6,7 @@ import gymnasium
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
+from helpers import decode_mp4
 
 import evaaa
 from evaaa.gym import EvaaaGymEnv, register_envs
@@ -84,11 +85,11 @@ def test_same_seed_same_episode_different_seed_different():
     assert not all(np.array_equal(a["pixels"], c["pixels"]) for a, c in zip(obs_a, obs_c))
 
 
-@pytest.mark.parametrize("action", [5, -1])
-def test_invalid_action_raises(action: int):
+@pytest.mark.parametrize("action", [5, -1, True, False, np.bool_(True)])  # booleans are not actions either
+def test_invalid_action_raises(action):
     env = gymnasium.make("evaaa/1-1-v0", modalities="interoception")
     env.reset(seed=0)
-    with pytest.raises(ValueError, match=r"0\.\.4"):
+    with pytest.raises(ValueError, match=r"action must be an integer in 0\.\.4"):
         env.step(action)
     env.close()
 
@@ -143,15 +144,6 @@ def test_the_collision_sensor_is_declared_zero_or_one():
     env.close()
 
 
-@pytest.mark.parametrize("action", [True, False, np.bool_(True)])
-def test_booleans_are_not_actions(action):
-    env = gymnasium.make("evaaa/1-1-v0", modalities="interoception")
-    env.reset(seed=0)
-    with pytest.raises(ValueError, match=r"action must be an integer in 0\.\.4"):
-        env.step(action)
-    env.close()
-
-
 def test_stepping_a_closed_env_is_an_error():
     env = EvaaaGymEnv("1-1", modalities="interoception", render_mode="rgb_array")
     env.reset(seed=0)
@@ -170,8 +162,6 @@ def test_repr_names_the_level_and_modalities():
 
 
 def test_rendered_frames_make_a_playable_video(tmp_path):
-    import cv2
-
     from evaaa.video import write_mp4
 
     env = gymnasium.make("evaaa/1-1-v0", modalities="interoception", render_mode="rgb_array")
@@ -182,14 +172,7 @@ def test_rendered_frames_make_a_playable_video(tmp_path):
         frames.append(env.render())
     env.close()
     path = write_mp4(tmp_path / "eye.mp4", frames, fps=10)
-    video = cv2.VideoCapture(str(path))
-    decoded = []
-    while True:
-        ok, frame = video.read()
-        if not ok:
-            break
-        decoded.append(cv2.cvtColor(frame, cv2.COLOR_BGR2RGB))
-    video.release()
+    decoded = decode_mp4(path)
     assert len(decoded) == 10 and decoded[0].shape == (64, 64, 3)
     # lossy, but each decoded frame is closer to its own source frame than to the others
     for i, frame in enumerate(decoded):
