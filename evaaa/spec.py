@@ -28,6 +28,9 @@ from pydantic import (
     model_validator,
 )
 
+from .entities import OBSTACLE_KINDS, RESOURCE_KINDS
+from .physiology import REWARDS
+
 __all__ = [
     "Level",
     "LevelError",
@@ -196,7 +199,7 @@ class ResourceGroup(_Spec):
     """A group of identical consumable items placed uniformly in a box."""
 
     #: food and apple feed, water and pond water; a pond is a solid slab the body cannot enter
-    kind: Literal["food", "water", "apple", "pond"]
+    kind: Literal[tuple(RESOURCE_KINDS)]  # type: ignore[valid-type]
     count: Annotated[int, Field(ge=0, le=1000)]
     #: random: a consumed item reappears uniformly in its group's box; static: never depletes; grouped: one
     #: grouped group holds items at a time, and when its items are all eaten a group is drawn anew
@@ -218,7 +221,7 @@ class ObstacleGroup(_Spec):
     """Obstacles of one kind.  A group of one obstacle at a fixed spot is static (placed once, never moved);
     the others are re-drawn every episode by rejection sampling with ``padding``."""
 
-    kind: Literal["block", "bush", "rock", "bonfire", "tree", "rockwall"]
+    kind: Literal[tuple(OBSTACLE_KINDS)]  # type: ignore[valid-type]
     count: Annotated[int, Field(ge=0, le=1000)]
     x: Interval
     y: Interval
@@ -432,7 +435,7 @@ class Episode(_Spec):
 
 
 class Reward(_Spec):
-    name: Literal["squared", "drive_reduction", "neg_distance", "sparse", "shaped"]
+    name: Literal[REWARDS]  # type: ignore[valid-type]  # evaaa.physiology.REWARD_FUNCTIONS
     #: added on the step an EV leaves its range
     terminal_penalty: float
     #: also add the terminal penalty when the episode is truncated at max_steps (the original did)
@@ -484,8 +487,6 @@ class Level(_Spec):
 
     @model_validator(mode="after")
     def _entities_fit(self) -> "Level":
-        from .entities import RESOURCE_KINDS  # entities is data about kinds; imported here to keep spec first
-
         solid = sum(g.count for g in self.obstacles.values()) + sum(
             g.count for g in self.resources.values() if getattr(RESOURCE_KINDS.get(g.kind), "solid", False))
         if solid > MAX_SOLID_BODIES:
