@@ -125,6 +125,16 @@ def test_eating_needs_the_eat_action_and_the_zone():
     assert info["food_eaten"][0, 0] == 0  # out of reach
 
 
+def test_the_simulator_offers_every_query_of_the_world_protocol():
+    from evaaa.sensors import World
+
+    sim = bare_sim(["interoception"])
+    assert isinstance(sim, World)
+    members = [m for m in vars(World) if not m.startswith("_")]
+    assert {"pos", "heading_rad", "can_eat", "item_distances2", "obs_xy"} <= set(members)
+    assert all(hasattr(sim, m) for m in members)
+
+
 def test_the_worlds_can_eat_query_is_the_test_eating_applies():
     """Planners (the oracle) ask ``Simulator.can_eat``; an Eat decision consumes exactly where it says yes."""
     sim = bare_sim(["interoception"])
