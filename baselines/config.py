@@ -3,7 +3,8 @@ training code derives from a composed config (observation keys, env overrides, c
 
 Every level and testbed evaaa lists is a ``level=<name>`` option without a file to keep in sync: :func:`register_levels`
 stores one ``{name, overrides}`` node per name in Hydra's ConfigStore.  Files in ``conf/level/`` add options
-beside them (``curriculum.yaml``) and would take precedence over a registered name.
+beside them (``curriculum.yaml``; ``file.yaml``, a level from the user's own YAML file, ``level=file
+level.file=path/to/my.yaml``) and would take precedence over a registered name.
 """
 
 from __future__ import annotations
@@ -27,7 +28,10 @@ CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
 
 
 def register_levels() -> None:
-    """Make ``level=<name>`` available for every name in ``evaaa.LEVELS + evaaa.TESTBEDS``."""
+    """Make ``level=<name>`` available for every name in ``evaaa.LEVELS + evaaa.TESTBEDS``, and the ``level_stem``
+    resolver that names a ``level=file`` run after its file."""
+    if not OmegaConf.has_resolver("level_stem"):
+        OmegaConf.register_new_resolver("level_stem", lambda path: Path(str(path)).stem)
     store = ConfigStore.instance()
     for name in (*evaaa.LEVELS, *evaaa.TESTBEDS):
         store.store(group="level", name=name, node={"name": name, "overrides": {}})
@@ -45,7 +49,9 @@ class Stage:
 def stages(cfg: DictConfig) -> list[Stage]:
     """The stages of a run: the level alone, or the curriculum's levels in order (default: ``evaaa.LEVELS``)."""
     if "stages" not in cfg.level:
-        return [Stage(0, cfg.level.name, int(cfg.total_steps))]
+        # a level from the user's file is made loadable by its name (the file's stem), which the run's files carry
+        name = evaaa.register_level(cfg.level.file) if "file" in cfg.level else cfg.level.name
+        return [Stage(0, name, int(cfg.total_steps))]
     names = list(cfg.level.stages) if cfg.level.stages is not None else list(evaaa.LEVELS)
     unknown = [n for n in names if n not in (*evaaa.LEVELS, *evaaa.TESTBEDS)]
     if unknown or not names:
@@ -90,6 +96,7 @@ GROUP_KEYS = {"algo.name": "the algorithm (algo=<name> chooses it)", "modality.n
               "reward.name": "the reward function (reward=<name> chooses it)",
               "logger.backend": "where training metrics go (logger=<name> chooses it)",
               "level.name": "the level or testbed trained on (level=<name> chooses it)",
+              "level.file": "the YAML file of your own level (level=file level.file=path/to/my.yaml)",
               "level.overrides": "level-field changes for this level, e.g. ++level.overrides.episode.max_steps=2000"}
 
 
@@ -144,11 +151,13 @@ def validate(cfg: DictConfig, defaults: DictConfig, path: str = "") -> None:
         full = f"{path}{key}"
         if full.startswith(FREE_FORM):
             continue
-        if key not in defaults:
+        if key not in defaults.keys():  # ``in`` alone is false for a mandatory value (``???``) such as level.file
             allowed = ", ".join(f"{path}{k}" for k in defaults.keys())
             raise ConfigError(f"unknown key '{full}'; keys here: {allowed} (see --help)")
         if OmegaConf.is_interpolation(cfg, key) or OmegaConf.is_interpolation(defaults, key):
             continue  # a reference to another key: that key is checked
+        if OmegaConf.is_missing(defaults, key):
+            continue  # no default to take a type from (level.file: evaaa checks the file when the env is made)
         value, default = cfg[key], defaults[key]
         if default is None:
             types = NULLABLE.get(full)

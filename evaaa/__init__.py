@@ -24,7 +24,7 @@ from .env import EvaaaEnv, make_env  # noqa: E402
 from .physiology import END_TYPES, EV_NAMES, REWARDS  # noqa: E402
 from .sensors import MODALITIES  # noqa: E402
 from .sim import ACTION_NAMES  # noqa: E402
-from .spec import LEVELS, TESTBEDS, Level, LevelError, load_level  # noqa: E402
+from .spec import LEVELS, TESTBEDS, Level, LevelError, load_level, register_level  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -41,6 +41,7 @@ __all__ = [
     "TESTBEDS",
     "load_level",
     "make_env",
+    "register_level",
 ]
 
 

@@ -192,7 +192,7 @@ class OracleAgent:
             if not len(slots):
                 return NONE
             for slot in slots:
-                if self._can_eat(sim, w, slot, sim.pos[w], sim.heading_rad[w]):
+                if sim.can_eat(w, slot, sim.pos[w], sim.heading_rad[w]):
                     return EAT
             # the nearest item the planner can reach (one hard against a wall may have no standing room)
             here = planner.state(sim.pos[w], sim.heading_rad[w])
@@ -260,7 +260,7 @@ class OracleAgent:
             reach = np.ones((len(planner.centres), planner.k), dtype=bool)
             for dx, dy in ((0, 0), (-1, -1), (-1, 1), (1, -1), (1, 1)):
                 corner = planner.centres + 0.45 * CELL * np.array([dx, dy])
-                reach &= self._can_eat(sim, w, slot, corner[:, None, :], planner.headings[None, :])
+                reach &= sim.can_eat(w, slot, corner[:, None, :], planner.headings[None, :])
                 goals = np.flatnonzero(reach.reshape(-1) & free)
                 if dx == 0 and dy == 0:
                     centre_goals = goals
@@ -279,15 +279,3 @@ class OracleAgent:
         felt = self._felt(sim, w, centres)
         cost = np.abs(felt - target) + 0.5 * np.linalg.norm(centres - sim.pos[w], axis=1)
         return centres[np.argmin(cost)]
-
-    # ------------------------------------------------------------------------------------------ eating
-    def _can_eat(self, sim: Simulator, w: int, slot: int, pos: np.ndarray, heading) -> np.ndarray:
-        """Whether the eating sphere of bodies at ``pos`` (..., 2) facing ``heading`` overlaps item ``slot``."""
-        pos = np.asarray(pos, dtype=np.float64)
-        heading = np.asarray(heading, dtype=np.float64)
-        centre = pos + sim.eat_offset * np.stack([np.sin(heading), np.cos(heading)], axis=-1)
-        rel = centre - sim.res_xy[w, slot]
-        c, s = sim.res_cos[slot], sim.res_sin[slot]
-        local = np.stack([rel[..., 0] * c - rel[..., 1] * s, rel[..., 0] * s + rel[..., 1] * c], axis=-1)
-        gap = np.maximum(np.abs(local) - sim.res_half3[slot, :2], 0.0)
-        return (gap**2).sum(-1) + sim._eat_dz2[slot] <= sim.eat_radius2

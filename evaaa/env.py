@@ -46,7 +46,8 @@ class EvaaaEnv(EnvBase):
     """A homeostatic survival task in a 3-D MuJoCo world.
 
     Args:
-        level: a level name (``evaaa.LEVELS`` / ``evaaa.TESTBEDS``) or a loaded :class:`~evaaa.spec.Level`.
+        level: a level name (``evaaa.LEVELS`` / ``evaaa.TESTBEDS``), the path of a level's ``.yaml`` file (see
+            :func:`evaaa.load_level`) or a loaded :class:`~evaaa.spec.Level`.
         num_envs: independent worlds stepped together in this process (the env's batch size).
         seed: seed for the worlds' generators; same seed and actions give the same trajectories.
         modalities: observation keys to emit (default all): ``pixels``, ``interoception``, ``olfaction``,

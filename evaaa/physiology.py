@@ -7,11 +7,14 @@ touches MuJoCo, so the dynamics can be checked analytically.  EVs are ordered as
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .spec import Level
+if TYPE_CHECKING:  # spec takes the reward names from here, so this module must not import it at run time
+    from .spec import Level
 
 EV_NAMES: tuple[str, ...] = ("satiation", "hydration", "temperature", "damage")
 SATIATION, HYDRATION, TEMPERATURE, DAMAGE = range(4)
@@ -41,7 +44,6 @@ ORIGINAL_END_TYPES: dict[str, str] = {
 DEATHS = (END_FOOD, END_WATER, END_TEMPERATURE, END_DAMAGE)
 _IS_DEATH = np.isin(np.arange(len(END_TYPES)), DEATHS)
 
-REWARDS: tuple[str, ...] = ("squared", "drive_reduction", "neg_distance", "sparse", "shaped")
 #: The original's hand-shaped reward (its Python wrapper with the homeostatic reward switched off): the sum of
 #: the 10 odour values over ODOUR_DIVISOR, minus the sum of the 8 thermal readings' magnitudes over
 #: HEAT_DIVISOR, plus CONSUMPTION_BONUS when something was eaten or drunk, minus COLLISION_COST on a collision.
@@ -87,7 +89,7 @@ class PhysiologyParams:
     clip: float | None = None
 
     @classmethod
-    def from_level(cls, level: Level) -> "PhysiologyParams":
+    def from_level(cls, level: "Level") -> "PhysiologyParams":
         p, r = level.physiology, level.reward
 
         def vec(evs) -> np.ndarray:
@@ -170,6 +172,50 @@ def drive(ev: np.ndarray, params: PhysiologyParams) -> np.ndarray:
     return ((ev - params.setpoint) ** 2 * params.weights).sum(axis=-1)
 
 
+# A reward function maps (EV before, EV after, params, senses) to the step's reward before the action cost, the
+# terminal penalty and clipping.  Its name is a level's ``reward.name``: the level schema, the ``reward=<name>``
+# training options and :func:`reward` all read this one table.
+RewardFunction = Callable[..., np.ndarray]
+
+
+def _squared(ev_before, ev_after, params, **senses) -> np.ndarray:
+    return -drive(ev_after, params)
+
+
+def _drive_reduction(ev_before, ev_after, params, **senses) -> np.ndarray:
+    return drive(ev_before, params) - drive(ev_after, params)
+
+
+def _neg_distance(ev_before, ev_after, params, **senses) -> np.ndarray:
+    sigma = np.maximum(np.abs(params.high - params.setpoint), np.abs(params.low - params.setpoint))
+    sigma = np.where(sigma > 0, sigma, 1.0)
+    return -np.sqrt((((ev_after - params.setpoint) / sigma) ** 2).sum(axis=-1))
+
+
+def _sparse(ev_before, ev_after, params, **senses) -> np.ndarray:
+    return np.zeros(len(ev_after))
+
+
+def _shaped(ev_before, ev_after, params, *, odour=None, thermal=None, consumed=None, collided=None) -> np.ndarray:
+    if odour is None or thermal is None or consumed is None or collided is None:
+        raise ValueError("reward 'shaped' needs odour, thermal, consumed and collided")
+    return (np.asarray(odour, dtype=np.float64).sum(axis=-1) / SHAPED_ODOUR_DIVISOR
+            - np.abs(np.asarray(thermal, dtype=np.float64)).sum(axis=-1) / SHAPED_HEAT_DIVISOR
+            + SHAPED_CONSUMPTION_BONUS * np.asarray(consumed, dtype=bool)
+            - SHAPED_COLLISION_COST * np.asarray(collided, dtype=bool))
+
+
+#: every reward function by its name (``reward.name`` of a level)
+REWARD_FUNCTIONS: dict[str, RewardFunction] = {
+    "squared": _squared,
+    "drive_reduction": _drive_reduction,
+    "neg_distance": _neg_distance,
+    "sparse": _sparse,
+    "shaped": _shaped,
+}
+REWARDS: tuple[str, ...] = tuple(REWARD_FUNCTIONS)
+
+
 def reward(
     ev_before: np.ndarray,
     ev_after: np.ndarray,
@@ -198,25 +244,10 @@ def reward(
     ``penalize_consumption``; ``terminal_mode`` says whether it is added to the step's reward or replaces it.
     Last, the reward is clipped to ``[-clip, clip]`` when ``clip`` is set.
     """
-    if params.reward == "squared":
-        r = -drive(ev_after, params)
-    elif params.reward == "drive_reduction":
-        r = drive(ev_before, params) - drive(ev_after, params)
-    elif params.reward == "neg_distance":
-        sigma = np.maximum(np.abs(params.high - params.setpoint), np.abs(params.low - params.setpoint))
-        sigma = np.where(sigma > 0, sigma, 1.0)
-        r = -np.sqrt((((ev_after - params.setpoint) / sigma) ** 2).sum(axis=-1))
-    elif params.reward == "sparse":
-        r = np.zeros(len(ev_after))
-    elif params.reward == "shaped":
-        if odour is None or thermal is None or consumed is None or collided is None:
-            raise ValueError("reward 'shaped' needs odour, thermal, consumed and collided")
-        r = (np.asarray(odour, dtype=np.float64).sum(axis=-1) / SHAPED_ODOUR_DIVISOR
-             - np.abs(np.asarray(thermal, dtype=np.float64)).sum(axis=-1) / SHAPED_HEAT_DIVISOR
-             + SHAPED_CONSUMPTION_BONUS * np.asarray(consumed, dtype=bool)
-             - SHAPED_COLLISION_COST * np.asarray(collided, dtype=bool))
-    else:  # the level schema makes this unreachable; guard against direct construction
+    if params.reward not in REWARD_FUNCTIONS:  # the level schema rules this out; guards direct construction
         raise ValueError(f"reward.name must be one of {', '.join(REWARDS)}, got {params.reward!r}")
+    r = REWARD_FUNCTIONS[params.reward](ev_before, ev_after, params, odour=odour, thermal=thermal,
+                                        consumed=consumed, collided=collided)
     if params.action_cost and costly is not None:
         r = r - params.action_cost * np.asarray(costly, dtype=bool)
     penalised = _IS_DEATH[end]

@@ -421,7 +421,7 @@ class Simulator:
         """
         actions = self._check_actions(actions)
         self.apply_actions(actions)
-        return self._advance(actions)
+        return self.advance(actions)
 
     def apply_actions(self, actions: np.ndarray) -> None:
         """Set each world's heading and velocity from its (validated) action; physics has not run yet."""
@@ -454,7 +454,10 @@ class Simulator:
             mujoco.mj_camlight(model, data)
             pos[w] = data.qpos[:2]
 
-    def _advance(self, actions: np.ndarray):
+    def advance(self, actions: np.ndarray):
+        """The rest of a decision after :meth:`apply_actions` set the (validated) ``actions``: physics, eating,
+        the EVs, the end of the episode and the observations; returns what :meth:`step` returns.  A caller that
+        inspects or records the physics' starting state does so between the two."""
         previous = self.pos.copy()
         # 2. physics
         damage = np.zeros(self.n)
@@ -648,6 +651,18 @@ class Simulator:
             total += d
             hit |= d > threshold
         return total, hit
+
+    def can_eat(self, world: int, slot: int, pos: np.ndarray, heading) -> np.ndarray:
+        """Whether the eating sphere of a body at ``pos`` (..., 2) facing ``heading`` (radians, compass) in
+        ``world`` would overlap item ``slot`` (present or not): the test :meth:`_consume` applies, for planners."""
+        pos = np.asarray(pos, dtype=np.float64)
+        heading = np.asarray(heading, dtype=np.float64)
+        centre = pos + self.eat_offset * np.stack([np.sin(heading), np.cos(heading)], axis=-1)
+        rel = centre - self.res_xy[world, slot]
+        c, s = self.res_cos[slot], self.res_sin[slot]
+        local = np.stack([rel[..., 0] * c - rel[..., 1] * s, rel[..., 0] * s + rel[..., 1] * c], axis=-1)
+        gap = np.maximum(np.abs(local) - self.res_half3[slot, :2], 0.0)
+        return (gap**2).sum(-1) + self._eat_dz2[slot] <= self.eat_radius2
 
     def _consume(self, eating: np.ndarray) -> np.ndarray | None:
         """Items consumed this decision, (N, P) bool (None if nothing was); respawns them and updates the scene."""

@@ -11,8 +11,10 @@ from __future__ import annotations
 
 import copy
 import math
+import os
 from collections.abc import Mapping
 from importlib import resources
+from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import yaml
@@ -26,6 +28,9 @@ from pydantic import (
     model_validator,
 )
 
+from .entities import OBSTACLE_KINDS, RESOURCE_KINDS
+from .physiology import REWARDS
+
 __all__ = [
     "Level",
     "LevelError",
@@ -33,6 +38,7 @@ __all__ = [
     "TESTBEDS",
     "load_level",
     "level_names",
+    "register_level",
 ]
 
 
@@ -193,7 +199,7 @@ class ResourceGroup(_Spec):
     """A group of identical consumable items placed uniformly in a box."""
 
     #: food and apple feed, water and pond water; a pond is a solid slab the body cannot enter
-    kind: Literal["food", "water", "apple", "pond"]
+    kind: Literal[tuple(RESOURCE_KINDS)]  # type: ignore[valid-type]
     count: Annotated[int, Field(ge=0, le=1000)]
     #: random: a consumed item reappears uniformly in its group's box; static: never depletes; grouped: one
     #: grouped group holds items at a time, and when its items are all eaten a group is drawn anew
@@ -215,7 +221,7 @@ class ObstacleGroup(_Spec):
     """Obstacles of one kind.  A group of one obstacle at a fixed spot is static (placed once, never moved);
     the others are re-drawn every episode by rejection sampling with ``padding``."""
 
-    kind: Literal["block", "bush", "rock", "bonfire", "tree", "rockwall"]
+    kind: Literal[tuple(OBSTACLE_KINDS)]  # type: ignore[valid-type]
     count: Annotated[int, Field(ge=0, le=1000)]
     x: Interval
     y: Interval
@@ -429,7 +435,7 @@ class Episode(_Spec):
 
 
 class Reward(_Spec):
-    name: Literal["squared", "drive_reduction", "neg_distance", "sparse", "shaped"]
+    name: Literal[REWARDS]  # type: ignore[valid-type]  # evaaa.physiology.REWARD_FUNCTIONS
     #: added on the step an EV leaves its range
     terminal_penalty: float
     #: also add the terminal penalty when the episode is truncated at max_steps (the original did)
@@ -481,8 +487,6 @@ class Level(_Spec):
 
     @model_validator(mode="after")
     def _entities_fit(self) -> "Level":
-        from .entities import RESOURCE_KINDS  # entities is data about kinds; imported here to keep spec first
-
         solid = sum(g.count for g in self.obstacles.values()) + sum(
             g.count for g in self.resources.values() if getattr(RESOURCE_KINDS.get(g.kind), "solid", False))
         if solid > MAX_SOLID_BODIES:
@@ -531,39 +535,61 @@ class Level(_Spec):
 
 
 # --------------------------------------------------------------------------------------------------- loading
-LEVELS: tuple[str, ...] = ("1-1", "1-2", "2-1", "2-2", "3-1", "3-2", "4-1", "4-2")
-TESTBEDS: tuple[str, ...] = (
-    "two-resource-food",
-    "two-resource-water",
-    "two-resource-temp",
-    "collision-avoidance",
-    "risk-taking",
-    "y-maze",
-    "goal-manipulation-food-to-water",
-    "goal-manipulation-water-to-food",
-    "multi-goal-planning",
-    "predator-day-night",
-)
-
-
-def level_names() -> tuple[str, ...]:
-    """Every loadable level: the training levels, then the testbeds."""
-    return LEVELS + TESTBEDS
-
-
 #: libyaml's safe loader where PyYAML was built with it (same documents, about 7x faster than the Python one)
 _YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+#: keys of a level file about the file itself, not the level: they are not inherited through ``extends:``
+_FILE_KEYS = ("extends", "order")
 
 
-def _read_yaml(name: str) -> dict[str, Any]:
+def _is_path(name: str | os.PathLike) -> bool:
+    """A level given as a file (``my.yaml``, ``levels/my.yml``, a ``Path``) rather than a packaged level's name."""
+    return isinstance(name, os.PathLike) or str(name).endswith((".yaml", ".yml"))
+
+
+def _read_yaml(name: str | os.PathLike) -> dict[str, Any]:
+    """The mapping of a packaged level file (by name) or of the user's file (by path); safe YAML only."""
+    if _is_path(name):
+        path = Path(name)
+        try:
+            text = path.read_text()
+        except OSError as err:
+            raise LevelError(f"level file '{path}' cannot be read: {err.strerror or err}") from None
+        label = str(path)
+    else:
+        try:
+            text = resources.files("evaaa.levels").joinpath(f"{name}.yaml").read_text()
+        except FileNotFoundError:
+            raise LevelError(f"level file '{name}.yaml' is missing from evaaa/levels") from None
+        label = f"{name}.yaml"
     try:
-        text = resources.files("evaaa.levels").joinpath(f"{name}.yaml").read_text()
-    except FileNotFoundError:
-        raise LevelError(f"level file '{name}.yaml' is missing from evaaa/levels") from None
-    data = yaml.load(text, Loader=_YAML_LOADER) or {}
+        data = yaml.load(text, Loader=_YAML_LOADER) or {}
+    except yaml.YAMLError as err:
+        raise LevelError(f"level file '{label}' is not valid YAML: {err}") from None
     if not isinstance(data, dict):
-        raise LevelError(f"level file '{name}.yaml' must hold a mapping at the top")
+        raise LevelError(f"level file '{label}' must hold a mapping at the top")
     return data
+
+
+def _packaged_files() -> dict[str, dict[str, Any]]:
+    """Every packaged level file that is a level (not a ``_base`` shared by others), by name."""
+    return {entry.name[:-5]: _read_yaml(entry.name[:-5])
+            for entry in resources.files("evaaa.levels").iterdir()
+            if entry.name.endswith(".yaml") and not entry.name.startswith("_")}
+
+
+def _listed_levels() -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """The training levels and the testbeds, each in the ``order:`` their files give (then by name).
+
+    A level's ``kind`` may come from the file it extends (the testbeds inherit it from ``_testbed``); ``order`` is
+    the file's own."""
+    files = _packaged_files()
+    groups: dict[str, list[tuple[float, str]]] = {"training": [], "testbed": []}
+    for name, data in files.items():
+        kind = _raw_level(name).get("kind")
+        if kind not in groups:
+            raise LevelError(f"level file '{name}.yaml': kind must be training or testbed, got {kind!r}")
+        groups[kind].append((data.get("order", math.inf), name))
+    return tuple(n for _, n in sorted(groups["training"])), tuple(n for _, n in sorted(groups["testbed"]))
 
 
 def _deep_merge(base: dict[str, Any], update: Mapping[str, Any]) -> dict[str, Any]:
@@ -579,14 +605,21 @@ def _deep_merge(base: dict[str, Any], update: Mapping[str, Any]) -> dict[str, An
     return out
 
 
-def _raw_level(name: str, _seen: tuple[str, ...] = ()) -> dict[str, Any]:
-    if name in _seen:
-        raise LevelError(f"level '{name}' extends itself through {' -> '.join(_seen + (name,))}")
+def _raw_level(name: str | os.PathLike, _seen: tuple[str, ...] = ()) -> dict[str, Any]:
+    key = str(Path(name).resolve()) if _is_path(name) else name
+    if key in _seen:
+        raise LevelError(f"level '{name}' extends itself through {' -> '.join(_seen + (key,))}")
     data = _read_yaml(name)
     parent = data.pop("extends", "_defaults" if name != "_defaults" else None)
+    for file_key in _FILE_KEYS:
+        data.pop(file_key, None)
     if parent is None:
         return data
-    return _deep_merge(_raw_level(parent, _seen + (name,)), data)
+    if not isinstance(parent, str):
+        raise LevelError(f"level '{name}': extends must be a level's name or a file, got {parent!r}")
+    if _is_path(parent) and _is_path(name):  # a user's file may extend another file beside it
+        parent = Path(name).parent / parent
+    return _deep_merge(_raw_level(parent, _seen + (key,)), data)
 
 
 def _set_dotted(tree: dict[str, Any], path: str, value: Any) -> None:
@@ -661,21 +694,59 @@ def _format_errors(name: str, err: ValidationError) -> str:
     return f"invalid level '{name}':\n  " + "\n  ".join(lines)
 
 
-def load_level(name: str, overrides: Mapping[str, Any] | None = None) -> Level:
-    """Load a level by name, apply dotted-path overrides and validate it.
+def load_level(name: str | os.PathLike, overrides: Mapping[str, Any] | None = None) -> Level:
+    """Load a level by name, or from the user's own YAML file (a path ending in ``.yaml``), apply dotted-path
+    overrides and validate it.
+
+    A file outside the package is read as the packaged ones are: it starts from ``_defaults.yaml`` and may
+    ``extends:`` a packaged level by name (or another file, relative to its own folder).  Its level's name is the
+    file's stem unless it says ``name:``.
 
     >>> load_level("1-1", {"agent.move_speed": 10}).agent.move_speed
     10.0
     """
-    if not isinstance(name, str) or name not in level_names():
-        raise LevelError(f"unknown level {name!r}; available: {', '.join(level_names())}")
+    if isinstance(name, str) and name in _USER_FILES:
+        name, label = _USER_FILES[name], name
+    elif isinstance(name, (str, os.PathLike)) and _is_path(name):
+        label = Path(name).stem
+    elif not isinstance(name, str) or name not in level_names():
+        raise LevelError(f"unknown level {name!r}; available: {', '.join(level_names())}, or a path to a .yaml "
+                         "level file")
+    else:
+        label = name
     raw = _raw_level(name)
     for path, value in _flatten_overrides(overrides or {}).items():
         if path in ("name", "kind"):
             raise LevelError(f"override '{path}' cannot change a level's identity")
         _set_dotted(raw, path, value)
-    raw.setdefault("name", name)
+    raw.setdefault("name", label)
     try:
         return Level.model_validate(raw)
     except ValidationError as err:
-        raise LevelError(_format_errors(name, err)) from None
+        raise LevelError(_format_errors(str(name), err)) from None
+
+
+#: the packaged training levels and testbeds, in their files' ``order:``
+LEVELS, TESTBEDS = _listed_levels()
+#: levels from the user's own files that :func:`register_level` made loadable by name in this process
+_USER_FILES: dict[str, Path] = {}
+
+
+def register_level(path: str | os.PathLike) -> str:
+    """Make the level in the user's YAML file at ``path`` loadable by its name (the file's stem) in this process,
+    e.g. for code that takes level names, and return the name.  The file is loaded (and so checked) at once."""
+    path = Path(path).resolve()
+    if not _is_path(path):
+        raise LevelError(f"a level file must end in .yaml or .yml, got '{path}'")
+    name = path.stem
+    if name in LEVELS + TESTBEDS or _USER_FILES.get(name, path) != path:
+        taken = "a packaged level" if name in LEVELS + TESTBEDS else f"the file '{_USER_FILES[name]}'"
+        raise LevelError(f"level file '{path}': its name '{name}' is already {taken}'s; rename the file")
+    load_level(path)
+    _USER_FILES[name] = path
+    return name
+
+
+def level_names() -> tuple[str, ...]:
+    """Every packaged level: the training levels, then the testbeds."""
+    return LEVELS + TESTBEDS

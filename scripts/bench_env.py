@@ -101,7 +101,7 @@ def record_states(level: str, n: int, seed: int, actions: np.ndarray) -> list[np
         for w, data in enumerate(sim.datas):
             mujoco.mj_getState(sim.model, data, frame[w], what)
         states.append(frame)
-        _, _, term, trunc, _ = sim._advance(actions[t])
+        _, _, term, trunc, _ = sim.advance(actions[t])
         done = term | trunc
         if done.any():
             sim.reset(done)

@@ -125,6 +125,29 @@ def test_eating_needs_the_eat_action_and_the_zone():
     assert info["food_eaten"][0, 0] == 0  # out of reach
 
 
+def test_the_simulator_offers_every_query_of_the_world_protocol():
+    from evaaa.sensors import World
+
+    sim = bare_sim(["interoception"])
+    assert isinstance(sim, World)
+    members = [m for m in vars(World) if not m.startswith("_")]
+    assert {"pos", "heading_rad", "can_eat", "item_distances2", "obs_xy"} <= set(members)
+    assert all(hasattr(sim, m) for m in members)
+
+
+def test_the_worlds_can_eat_query_is_the_test_eating_applies():
+    """Planners (the oracle) ask ``Simulator.can_eat``; an Eat decision consumes exactly where it says yes."""
+    sim = bare_sim(["interoception"])
+    answers = []
+    for x, y in [(0.0, 0.9), (0.0, 1.8), (0.0, 1.95), (0.0, 2.1), (0.8, 1.5), (1.2, 1.2), (0.0, -0.9), (0.3, 1.0)]:
+        sim.place_item(0, 0, (x, y))
+        said = bool(sim.can_eat(0, 0, sim.pos[0], sim.heading_rad[0]))
+        _, _, _, _, info = sim.step(np.array([EAT]))
+        assert bool(info["food_eaten"][0, 0]) == said, (x, y)
+        answers.append(said)
+    assert any(answers) and not all(answers)
+
+
 @pytest.mark.parametrize(
     "column,value,end",
     [(0, -14.999, "FoodOutOfRange"), (0, 14.5, "FoodOutOfRange"), (1, -14.995, "WaterOutOfRange"),

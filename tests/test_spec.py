@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import re
+from importlib import resources
 
 import pytest
+import yaml
 
 import evaaa
 from evaaa.spec import Level, LevelError, level_names, load_level
@@ -263,3 +265,48 @@ def test_hotspots_and_landmarks_are_bounded_in_all():
                            "thermal.hotspots.size": 999})
     with pytest.raises(LevelError, match=r"landmarks: pattern places 12100 landmark points; at most 10000"):
         load_level("4-1", {"landmarks.pattern": [[10] * 11] * 11})
+
+
+# ------------------------------------------------------------------------------------------------ level lists and files
+def test_level_lists_come_from_the_files_kind_and_order():
+    for names, kind in ((evaaa.LEVELS, "training"), (evaaa.TESTBEDS, "testbed")):
+        assert [evaaa.load_level(n).kind for n in names] == [kind] * len(names)
+        orders = [yaml.safe_load(resources.files("evaaa.levels").joinpath(f"{n}.yaml").read_text())["order"]
+                  for n in names]
+        assert orders == list(range(1, len(names) + 1))
+    listed = {p.name[:-5] for p in resources.files("evaaa.levels").iterdir()
+              if p.name.endswith(".yaml") and not p.name.startswith("_")}
+    assert listed == set(evaaa.LEVELS + evaaa.TESTBEDS)
+
+
+def test_a_users_level_file_extends_a_packaged_level_and_registers_by_name(tmp_path):
+    base = tmp_path / "hot-field.yaml"
+    base.write_text('extends: "1-1"\nthermal: {base_temperature: 10.0}\n')
+    mine = tmp_path / "sub" / "hot-and-bare.yaml"
+    mine.parent.mkdir()
+    mine.write_text('extends: ../hot-field.yaml\nresources: {water: null}\n')
+    level = evaaa.load_level(mine, {"episode.max_steps": 7})
+    assert level.name == "hot-and-bare" and level.kind == "training"
+    assert level.thermal.base_temperature == 10.0 and list(level.resources) == ["food"]
+    assert level.episode.max_steps == 7 and level.agent == evaaa.load_level("1-1").agent
+    assert evaaa.register_level(mine) == "hot-and-bare"
+    assert evaaa.load_level("hot-and-bare") == evaaa.load_level(mine)
+    clash = tmp_path / "1-1.yaml"
+    clash.write_text('extends: "1-2"\n')
+    with pytest.raises(LevelError, match="already a packaged level"):
+        evaaa.register_level(clash)
+
+
+@pytest.mark.parametrize("text, message", [
+    ("extends: no-such-level\n", "no-such-level.yaml' is missing"),
+    ("[1, 2]\n", "must hold a mapping"),
+    ("agent: {move_speed: [\n", "not valid YAML"),
+    ("agent: {move_sped: 3}\n", "agent.move_sped: unknown field"),
+])
+def test_a_bad_users_level_file_is_refused_naming_the_problem(tmp_path, text, message):
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    with pytest.raises(LevelError, match=message):
+        evaaa.load_level(path)
+    with pytest.raises(LevelError, match="cannot be read"):
+        evaaa.load_level(tmp_path / "absent.yaml")

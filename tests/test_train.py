@@ -501,3 +501,22 @@ def test_progress_eta_counts_the_gradient_steps_owed():
     left = 2_000_000 - steps
     assert meter.eta(left, left) == pytest.approx(left * (10.0 + 0.1 / 8))
     assert runtime._duration(meter.eta(left, left)) == "231.6 d"  # (2,000,000 - 1,064) x 10.0125 s
+
+
+def test_a_level_from_the_users_own_file_trains(tmp_path):
+    """A new level is one YAML file, anywhere: it extends a packaged level and ``level=file`` trains on it."""
+    level_file = tmp_path / "levels" / "few-cubes.yaml"
+    level_file.parent.mkdir()
+    level_file.write_text('extends: "1-2"\ndescription: three food cubes\nresources:\n  food: {count: 3}\n')
+    env = evaaa.make_env(str(level_file), num_envs=2, seed=0)
+    assert env.level.name == "few-cubes" and env.level.resources["food"].count == 3
+    assert env.rollout(4).shape == (2, 4)
+    env.close()
+    cmd = [sys.executable, str(ROOT / "scripts" / "train.py"), "algo=ppo", "preset=debug", "logger=csv",
+           "progress=false", "total_steps=64", "level=file", f"level.file={level_file}", f"run.root={tmp_path}"]
+    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    run_dir = tmp_path / "few-cubes" / "ppo" / "all-squared-debug" / "seed0"  # named after the file's stem
+    saved = checkpoint.load_checkpoint(run_dir / checkpoint.CHECKPOINT)
+    assert saved["config"]["level"]["file"] == str(level_file)
+    assert (run_dir / "model-0-few-cubes.pt").exists()  # the stage carries the registered name

@@ -4,7 +4,7 @@ flag (the key disappears; nothing is zeroed)."""
 
 from __future__ import annotations
 
-from .base import Sensor
+from .base import Sensor, World
 from .collision import CollisionRays
 from .interoception import Interoception
 from .olfaction import Olfaction
@@ -23,7 +23,7 @@ MODALITIES: tuple[str, ...] = tuple(SENSORS)
 #: Other names accepted for a modality in ``modalities=``.
 ALIASES = {"vision": "pixels", "rgb": "pixels", "ev": "interoception"}
 
-__all__ = ["Sensor", "SENSORS", "MODALITIES", "ALIASES", "resolve_modalities"]
+__all__ = ["Sensor", "World", "SENSORS", "MODALITIES", "ALIASES", "resolve_modalities"]
 
 
 def resolve_modalities(modalities) -> tuple[str, ...]:

@@ -1,20 +1,77 @@
-"""The interface every sensor implements."""
+"""The interface every sensor implements, and the read-only view of the world that sensors and agents query."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from ..sim import Simulator
+if TYPE_CHECKING:  # types only: the simulator imports the sensors, never the other way round
+    from ..spec import Level
+
+
+@runtime_checkable
+class World(Protocol):
+    """What a sensor (or a scripted agent) may read of the batched world after a decision's physics.
+
+    Arrays have the world on their first axis and are the simulator's own: readers must not write to them.
+    :class:`evaaa.sim.Simulator` is the one implementation.
+    """
+
+    @property
+    def level(self) -> Level: ...
+    @property
+    def n(self) -> int: ...
+    #: height of the body's centre (the rays' and the nose's height)
+    @property
+    def agent_z(self) -> float: ...
+    # pose: (N, 2) positions and (N,) compass headings in radians
+    @property
+    def pos(self) -> np.ndarray: ...
+    @property
+    def heading_rad(self) -> np.ndarray: ...
+    #: (N, 4) essential variables, ordered as evaaa.physiology.EV_NAMES
+    @property
+    def ev(self) -> np.ndarray: ...
+    #: (N, 8) temperatures at the body's thermal sensors
+    @property
+    def thermal_readings(self) -> np.ndarray: ...
+    # items: the pool's fixed per-slot data, and per world their (N, P, 2) positions and (N, P) presence
+    @property
+    def pool(self) -> Any: ...
+    @property
+    def res_xy(self) -> np.ndarray: ...
+    @property
+    def res_present(self) -> np.ndarray: ...
+    # obstacles: fixed per-slot data, per world (N, O, 2) positions and (N, O) presence
+    @property
+    def obstacles(self) -> Any: ...
+    @property
+    def obs_xy(self) -> np.ndarray: ...
+    @property
+    def obs_present(self) -> np.ndarray: ...
+    #: predators: ``k`` per world, their (N, k, 2) ``xy`` and (N, k) ``heading``
+    @property
+    def predators(self) -> Any: ...
+
+    def item_distances2(self) -> np.ndarray:
+        """(N, P) squared floor distances from each body's centre to each item's."""
+        ...
+
+    def can_eat(self, world: int, slot: int, pos: np.ndarray, heading: Any) -> np.ndarray:
+        """Whether a body at ``pos`` facing ``heading`` would reach item ``slot`` of ``world`` with its mouth."""
+        ...
+
+    def render_eye(self, worlds: np.ndarray) -> np.ndarray:
+        """(len(worlds), H, W, 3) uint8 frames from the agents' eyes."""
+        ...
 
 
 class Sensor:
     """A modality: an observation key, its per-world shape and dtype, and how to read it.
 
     ``read`` returns a fresh array of shape ``(len(worlds), *shape)`` for the given world indices, from the
-    simulator's state after the physics of the current decision.
+    world's state after the physics of the current decision (through :class:`World` only).
     """
 
     key: str = ""
@@ -22,7 +79,7 @@ class Sensor:
     #: (low, high) every reading lies in, declared in the observation specs; None: unbounded
     bounds: tuple[float, float] | None = None
 
-    def __init__(self, sim: "Simulator"):
+    def __init__(self, sim: World):
         self.sim = sim
 
     @property

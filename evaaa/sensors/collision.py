@@ -16,14 +16,14 @@ from __future__ import annotations
 import numpy as np
 
 from ..entities import ELLIPSE, OBSTACLE_KINDS, PREDATOR, RECT, RESOURCE_KINDS, cross_section
-from .base import Sensor
+from .base import Sensor, World
 
 
 class CollisionRays(Sensor):
     key = "collision"
     bounds = (0.0, 1.0)  # one 0/1 flag per sector
 
-    def __init__(self, sim):
+    def __init__(self, sim: World):
         super().__init__(sim)
         spec = sim.level.sensors.collision
         self.rays, self.sectors, self.range = spec.rays, spec.sectors, spec.range

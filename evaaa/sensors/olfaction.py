@@ -9,13 +9,13 @@ from __future__ import annotations
 import numpy as np
 
 from ..worldgen import AGENT_HALF
-from .base import Sensor
+from .base import Sensor, World
 
 
 class Olfaction(Sensor):
     key = "olfaction"
 
-    def __init__(self, sim):
+    def __init__(self, sim: World):
         super().__init__(sim)
         spec = sim.level.sensors.olfaction
         self.radius2 = spec.radius**2
