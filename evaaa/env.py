@@ -136,18 +136,22 @@ class EvaaaEnv(EnvBase):
     def _action(self, tensordict: TensorDictBase) -> np.ndarray:
         """The ``"action"`` entry as one integer per world, or a clear error."""
         n = self.num_envs
-        allowed = f"an integer tensor of shape ({n},) with values in 0..{NUM_ACTIONS - 1} ({', '.join(ACTION_NAMES)})"
         action = tensordict.get("action", None)
-        if action is None:
-            raise ValueError(f"the input has no 'action' entry: set td['action'] to {allowed}")
-        if action.dtype.is_floating_point:
-            raise ValueError(f"action must be {allowed}; got dtype {action.dtype}")
-        if action.numel() == n * NUM_ACTIONS and action.shape[-1] == NUM_ACTIONS and action.numel() != n:
-            raise ValueError(f"action has shape {tuple(action.shape)}, like a one-hot encoding; this env takes "
-                             f"{allowed} (for a one-hot tensor, pass action.argmax(-1))")
-        if action.numel() != n:
-            raise ValueError(f"action must be {allowed}; got shape {tuple(action.shape)}")
+        if action is None or action.dtype.is_floating_point or action.numel() != n:
+            raise ValueError(self._action_error(action))  # the message is built only when it is needed
         return action.reshape(n).cpu().numpy()
+
+    def _action_error(self, action: torch.Tensor | None) -> str:
+        n = self.num_envs
+        allowed = f"an integer tensor of shape ({n},) with values in 0..{NUM_ACTIONS - 1} ({', '.join(ACTION_NAMES)})"
+        if action is None:
+            return f"the input has no 'action' entry: set td['action'] to {allowed}"
+        if action.dtype.is_floating_point:
+            return f"action must be {allowed}; got dtype {action.dtype}"
+        if action.numel() == n * NUM_ACTIONS and action.shape[-1] == NUM_ACTIONS:
+            return (f"action has shape {tuple(action.shape)}, like a one-hot encoding; this env takes {allowed} "
+                    "(for a one-hot tensor, pass action.argmax(-1))")
+        return f"action must be {allowed}; got shape {tuple(action.shape)}"
 
     def extra_repr(self) -> str:
         # what repr(env) shows between the parentheses (EnvBase is an nn.Module)
