@@ -655,30 +655,31 @@ class Simulator:
     def can_eat(self, world: int, slot: int, pos: np.ndarray, heading) -> np.ndarray:
         """Whether the eating sphere of a body at ``pos`` (..., 2) facing ``heading`` (radians, compass) in
         ``world`` would overlap item ``slot`` (present or not): the test :meth:`_consume` applies, for planners."""
-        pos = np.asarray(pos, dtype=np.float64)
-        heading = np.asarray(heading, dtype=np.float64)
-        centre = pos + self.eat_offset * np.stack([np.sin(heading), np.cos(heading)], axis=-1)
-        rel = centre - self.res_xy[world, slot]
-        c, s = self.res_cos[slot], self.res_sin[slot]
-        local = np.stack([rel[..., 0] * c - rel[..., 1] * s, rel[..., 0] * s + rel[..., 1] * c], axis=-1)
-        gap = np.maximum(np.abs(local) - self.res_half3[slot, :2], 0.0)
-        return (gap**2).sum(-1) + self._eat_dz2[slot] <= self.eat_radius2
+        centre = self._eat_centre(np.asarray(pos, dtype=np.float64), np.asarray(heading, dtype=np.float64))
+        return self._eat_dist2(centre, self.res_xy[world, slot], slot) <= self.eat_radius2
+
+    def _eat_centre(self, pos: np.ndarray, heading: np.ndarray) -> np.ndarray:
+        """The eating sphere's centre, ``eat_offset`` ahead of a body at ``pos`` (..., 2) facing ``heading``."""
+        return pos + self.eat_offset * np.stack([np.sin(heading), np.cos(heading)], axis=-1)
+
+    def _eat_dist2(self, centre: np.ndarray, item_xy: np.ndarray, slots) -> np.ndarray:
+        """Squared distance from the eating sphere's centre to the nearest point of the items' boxes (``slots``:
+        an index or slice of the pool), measured in each item's own frame (items are turned by a fixed heading)."""
+        rel = centre - item_xy
+        cos, sin = self.res_cos[slots], self.res_sin[slots]
+        local_x = rel[..., 0] * cos - rel[..., 1] * sin
+        local_y = rel[..., 0] * sin + rel[..., 1] * cos
+        gap_x = np.maximum(np.abs(local_x) - self.res_half3[slots, 0], 0.0)
+        gap_y = np.maximum(np.abs(local_y) - self.res_half3[slots, 1], 0.0)
+        return gap_x**2 + gap_y**2 + self._eat_dz2[slots]
 
     def _consume(self, eating: np.ndarray) -> np.ndarray | None:
         """Items consumed this decision, (N, P) bool (None if nothing was); respawns them and updates the scene."""
         if not eating.any() or self.pool.size_total == 0:
             return None
         worlds = np.flatnonzero(eating)
-        heading = self.heading_rad[worlds]
-        centre = self.pos[worlds] + self.eat_offset * np.stack([np.sin(heading), np.cos(heading)], axis=1)
-        # sphere-box overlap: distance from the sphere's centre to the nearest point of each item's box, measured
-        # in the item's own frame (items are turned by their fixed heading)
-        rel = centre[:, None, :] - self.res_xy[worlds]  # (W, P, 2)
-        local_x = rel[..., 0] * self.res_cos - rel[..., 1] * self.res_sin
-        local_y = rel[..., 0] * self.res_sin + rel[..., 1] * self.res_cos
-        gap_x = np.maximum(np.abs(local_x) - self.res_half3[:, 0], 0.0)
-        gap_y = np.maximum(np.abs(local_y) - self.res_half3[:, 1], 0.0)
-        dist2 = gap_x**2 + gap_y**2 + self._eat_dz2
+        centre = self._eat_centre(self.pos[worlds], self.heading_rad[worlds])
+        dist2 = self._eat_dist2(centre[:, None, :], self.res_xy[worlds], slice(None))  # (W, P): sphere-box overlap
         hits = (dist2 <= self.eat_radius2) & self.res_present[worlds]
         if not hits.any():
             return None
