@@ -421,9 +421,9 @@ class SequenceReplay:
 
 def transition_bytes(env, stored: Sequence) -> int:
     """Bytes one world's transition takes in the replay buffer (what :func:`train` stores, plus the world index)."""
-    fake = env.fake_tensordict().select(*stored)
+    fake = env.fake_tensordict().select(*stored, strict=False)  # ("next", "consumed") is added by train()
     per_world = sum(t.element_size() * t.numel() for t in fake.values(True, True)) // env.batch_size.numel()
-    return per_world + torch.tensor(0).element_size()
+    return per_world + torch.tensor(0).element_size() + int(("next", "consumed") in stored)  # a bool
 
 
 def available_memory(device: torch.device) -> int | None:
@@ -502,6 +502,58 @@ def save_openloop(model: DreamerModel, replay: SequenceReplay, cfg: DictConfig, 
     path.parent.mkdir(parents=True, exist_ok=True)
     matplotlib.image.imsave(path, openloop_grid(truth, predicted, cfg.openloop.context))
     return path
+
+
+# ------------------------------------------------------------------------------------------------ diagnostics
+def consumed(transition: TensorDictBase) -> torch.Tensor:
+    """Whether each world ate or drank on this step (its food or water count grew): the replay keeps it as
+    ``("next", "consumed")`` so that :func:`diagnostics` can tell the reward head's error on those rare steps."""
+    before, after = transition["info"], transition["next", "info"]
+    return (after["food_eaten"] + after["water_eaten"]) > (before["food_eaten"] + before["water_eaten"])
+
+
+def _masked_mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    return x[mask].mean() if bool(mask.any()) else x.new_tensor(float("nan"))
+
+
+@torch.no_grad()
+def diagnostics(model: DreamerModel, critic: TensorDictSequential, posterior: TensorDictBase,
+                imagined: TensorDictBase, return_scale: torch.Tensor) -> dict[str, torch.Tensor]:
+    """What tells a collapsing DreamerV3 from a learning one, from one gradient step's replayed batch
+    (``posterior``: the world model's outputs) and imagination (``imagined``):
+
+    * ``reward_error_consume`` / ``reward_error_other``: the reward head's mean absolute error on the steps that ate
+      or drank and on the others (``reward_true_consume`` / ``reward_pred_consume``: the true and predicted reward
+      on those steps; ``consume_share``: how many of the batch's steps they are);
+    * ``continue_terminal`` / ``continue_error_other``: the continue head's probability of going on where the
+      episode ended (should be 0) and of stopping where it went on (should be 0);
+    * ``critic_value``: the critic's value of the replayed states;
+    * ``policy_<action>``: the actor's mean probability of each action on the replayed states;
+    * ``advantage_<action>``: the normalised advantage (λ-return minus the critic's value, over the return scale)
+      of imagination's first step, by the action taken: what the actor's REINFORCE gradient pushes each action by.
+    """
+    nxt = posterior["next"]
+    error = (nxt["reward"] - nxt["true_reward"]).abs()
+    event = nxt["consumed"]
+    out = {"reward_error_consume": _masked_mean(error, event), "reward_error_other": _masked_mean(error, ~event),
+           "reward_true_consume": _masked_mean(nxt["true_reward"], event),
+           "reward_pred_consume": _masked_mean(nxt["reward"], event), "consume_share": event.float().mean()}
+    go_on = torch.sigmoid(nxt["continue_pred"].float())
+    ended = nxt["terminated"]
+    out["continue_terminal"] = _masked_mean(go_on, ended)
+    out["continue_error_other"] = _masked_mean(1 - go_on, ~ended)
+    latents = TensorDict({k: nxt[k].reshape(-1, nxt[k].shape[-1]).float() for k in LATENT}, [nxt.numel()])
+    out["critic_value"] = critic(latents.clone())["state_value"].mean()
+    probs = model.actor.get_dist(latents).probs.mean(0)
+    first = imagined[:, 0]
+    values = critic(first.select(*LATENT).clone())["state_value"]
+    advantage = (first["lambda_target"] - values) / return_scale
+    taken = first["action"].float()  # one-hot [N, actions]
+    per_action = (taken * advantage).sum(0) / taken.sum(0).clamp_min(1)
+    for i, name in enumerate(ACTION_NAMES):
+        out[f"policy_{name}"] = probs[i]
+        out[f"advantage_{name}"] = per_action[i] if bool(taken[:, i].any()) else per_action.new_tensor(float("nan"))
+    return out
 
 
 # ------------------------------------------------------------------------------------------------ training
@@ -586,7 +638,7 @@ def train(run: Run) -> None:
     optimizers = {"world_model": adam(model.world_model_parameters(), cfg.world_model),
                   "actor": adam(model.actor.parameters(), cfg.actor),
                   "critic": adam(model.value.parameters(), cfg.critic)}
-    stored = ["action", "is_init", *_next(*keys, "reward", "done", "terminated")]
+    stored = ["action", "is_init", *_next(*keys, "reward", "done", "terminated", "consumed")]
     row_bytes = transition_bytes(env, stored)
     replay = make_replay(run, num_envs, row_bytes)
     counters = Counters(updates=0)
@@ -641,6 +693,8 @@ def train(run: Run) -> None:
                     "imagined_continuation": actor_out["continuation_mean"],
                     "critic_loss": critic_out["loss_value"].detach(), "critic_grad_norm": critic_norm,
                     "imagined_return": imagined["lambda_target"].mean()}
+        if run.log_due:
+            metrics |= diagnostics(model, critic, posterior, imagined, actor_out["return_scale"])
         return metrics
 
     td = run.start(model, {**{f"optimizer_{k}": v for k, v in optimizers.items()}, "value_loss": value_loss,
@@ -649,6 +703,7 @@ def train(run: Run) -> None:
     first_update = counters["updates"] == 0
     while not run.done:
         transition, td = run.step(prefill_policy if cfg.prefill_random and run.steps < start else policy, td)
+        transition["next", "consumed"] = consumed(transition)
         replay.extend(transition.select(*stored))
         metrics = None
         due = _updates_due(cfg, run.steps, replay.rows, num_envs)

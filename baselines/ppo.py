@@ -19,7 +19,9 @@ from __future__ import annotations
 import time
 from collections.abc import Iterator, Mapping, Sequence
 
+import numpy as np
 import torch
+from gymnasium.wrappers.utils import RunningMeanStd
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule, TensorDictModuleBase, TensorDictSequential
@@ -95,6 +97,50 @@ def _minibatches(batch: TensorDictBase, cfg: DictConfig) -> Iterator[TensorDictB
         yield units[index]
 
 
+class ReturnScale:
+    """Rewards divided by the running standard deviation of the discounted return, as gymnasium's
+    ``NormalizeReward`` wrapper and CleanRL's PPO do (``algo.normalize_reward``).
+
+    The paper's reward (-0.01 x the squared drive per step, -100 at an episode's end) gives returns in the hundreds:
+    the critic's squared error then dwarfs the policy's loss in the shared trunk and the gradient clip
+    (``max_grad_norm``) scales the policy's share down to almost nothing.  Dividing by the return's scale keeps the
+    value targets of order one; the relative size of rewards, hence the optimal policy, is unchanged.  Each world's
+    discounted return is accumulated step by step (reset when its episode ends) and the mean and variance of all of
+    them is kept by gymnasium's ``RunningMeanStd``; each step's reward is divided by the scale known at that step.
+    """
+
+    def __init__(self, num_envs: int, gamma: float, epsilon: float = 1e-8):
+        self.gamma, self.epsilon = gamma, epsilon
+        self.returns = np.zeros(num_envs)
+        self.rms = RunningMeanStd()
+
+    @property
+    def scale(self) -> float:
+        return float(np.sqrt(self.rms.var + self.epsilon))
+
+    def __call__(self, batch: TensorDictBase) -> TensorDictBase:
+        """Rescales ``("next", "reward")`` of a ``[worlds, steps]`` batch in place; returns the batch."""
+        reward = batch["next", "reward"]
+        raw = reward.squeeze(-1).double().cpu().numpy()
+        done = batch["next", "done"].squeeze(-1).cpu().numpy()
+        scaled = np.empty_like(raw)
+        for t in range(raw.shape[1]):
+            self.returns = self.returns * self.gamma + raw[:, t]
+            self.rms.update(self.returns)
+            scaled[:, t] = raw[:, t] / self.scale
+            self.returns[done[:, t]] = 0.0
+        batch["next", "reward"] = torch.as_tensor(scaled, dtype=reward.dtype, device=reward.device).unsqueeze(-1)
+        return batch
+
+    def state_dict(self) -> dict:
+        return {"returns": torch.as_tensor(self.returns), "mean": float(self.rms.mean), "var": float(self.rms.var),
+                "count": float(self.rms.count)}
+
+    def load_state_dict(self, state: Mapping) -> None:
+        self.returns = state["returns"].double().numpy().copy()
+        self.rms.mean, self.rms.var, self.rms.count = (np.float64(state[k]) for k in ("mean", "var", "count"))
+
+
 # ------------------------------------------------------------------------------------------------ training
 def train(run: Run) -> None:
     cfg = run.cfg.algo
@@ -136,7 +182,9 @@ def train(run: Run) -> None:
     per_batch = cfg.epochs * cfg.num_minibatches
     run.planned_updates = lambda steps: -(-steps // cfg.frames_per_batch) * per_batch
 
-    td = run.start(model, {"optimizer": optimizer, "scheduler": scheduler})
+    return_scale = ReturnScale(num_envs, cfg.gamma) if cfg.normalize_reward else None
+    state = {"optimizer": optimizer, "scheduler": scheduler}
+    td = run.start(model, state | ({"return_scale": return_scale} if return_scale else {}))
     run.updates = run.planned_updates(run.steps)  # a resumed run's bar counts on from its checkpoint
     while not run.done:
         if cfg.anneal_clip:
@@ -146,6 +194,8 @@ def train(run: Run) -> None:
                 loss_fn.clip_value.fill_(clip)
         batch, td = run.collect(acting, td, rollout)
         began = time.perf_counter()
+        if return_scale is not None:
+            return_scale(batch)  # the episodes' logged returns stay the env's own
         batch = batch.to(run.device)
         with torch.no_grad(), set_recurrent_mode(recurrent), run.autocast():
             advantage(batch)
@@ -170,6 +220,6 @@ def train(run: Run) -> None:
         done_updates = -(-run.steps // cfg.frames_per_batch) * updates  # every iteration makes as many
         run.updated(updates, time.perf_counter() - began, done_updates)
         run.log({**{k: v / updates for k, v in totals.items()}, "lr": optimizer.param_groups[0]["lr"],
-                 "clip": loss_fn.clip_epsilon,
-                 "updates": done_updates})
+                 "clip": loss_fn.clip_epsilon, "updates": done_updates,
+                 **({"reward_scale": return_scale.scale} if return_scale else {})})
         run.end_iteration(td)

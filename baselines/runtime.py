@@ -423,10 +423,15 @@ class Run:
             self.recent.append(row["steps"])
 
     # -------------------------------------------------------------------------------------------- bookkeeping
+    @property
+    def log_due(self) -> bool:
+        """Whether :meth:`log` would write now: an algorithm computes costly diagnostics only then."""
+        every = self.cfg.log_every
+        return self.steps // every > self.counters["logged"] // every
+
     def log(self, metrics: Mapping[str, float]) -> None:
         """The latest update's training metrics; written every ``log_every`` env steps, with the session's steps/s."""
-        every = self.cfg.log_every
-        if self.steps // every <= self.counters["logged"] // every:
+        if not self.log_due:
             return
         self.counters["logged"] = self.steps
         timing = {"time/env_steps_per_s": self.steps_per_second()}
