@@ -13,8 +13,14 @@ The raw side is always one thread.  ``cores`` is the env's CPU seconds per wall-
 ratio divided by it: how much of one core's raw speed each CPU second the env uses keeps.
 
 Also reported: what TorchRL's step path costs on its own (the same loop over an env of the same keys that simulates
-nothing), and so the most any single env can keep of raw; the cost of a reset in steps; resident memory over a
-long run.
+nothing), and so the most any single env can keep of raw; one world through the gymnasium adapter
+(``gymnasium.make("evaaa/<level>-v0")``); the cost of a reset in steps; resident memory over a long run.
+
+The peer: MiniWorld's ``MiniWorld-CollectHealth-v0`` (a 3-D survival task with 64x64 egocentric pixels, one world
+per process, its fastest setting ``LP_NUM_THREADS=0``) stepped the same way in the same run, so that evaaa's
+single-world rates can be given as a ratio to it on any machine.  MiniWorld is installed on demand into a
+virtual environment of its own (``peer_venv``, outside this project's); where it cannot be installed the peer is
+skipped with the reason.
 
     python scripts/bench_env.py                      # level 1-1, all settings
     python scripts/bench_env.py level=1-2 steps=2000 json=bench.json
@@ -28,11 +34,15 @@ import json
 import multiprocessing as mp
 import os
 import platform
+import subprocess
 import sys
 import time
+import venv
 from dataclasses import dataclass
 from functools import partial
+from pathlib import Path
 
+import gymnasium
 import numpy as np
 
 import evaaa  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
@@ -85,6 +95,84 @@ class IdleEnv(EvaaaEnv):
         return self._to_td(self.sim.last_obs, self.sim.last_info, {
             "reward": torch.zeros((self.num_envs, 1)), "done": false, "terminated": false.clone(),
             "truncated": false.clone()})
+
+
+def time_gym(level: str, actions: np.ndarray, warmup: int = 50) -> tuple[float, float]:
+    """Steps per second of one world through the gymnasium adapter over ``actions`` (T,), and its CPU seconds per
+    wall-clock second."""
+    env = gymnasium.make(f"evaaa/{level}-v0")
+    env.reset(seed=0)
+
+    def run(acts) -> None:
+        for a in acts:
+            _, _, terminated, truncated, _ = env.step(int(a))
+            if terminated or truncated:
+                env.reset()
+
+    run(actions[:warmup])
+    start, cpu = time.perf_counter(), time.process_time()
+    run(actions[warmup:])
+    elapsed = time.perf_counter() - start
+    env.close()
+    return (len(actions) - warmup) / elapsed, (time.process_time() - cpu) / elapsed
+
+
+# the peer's loop, run by the peer's own interpreter: prints its steps/s and CPU seconds per second as JSON
+PEER_LOOP = """
+import json, sys, time
+import pyglet
+pyglet.options["headless"] = True
+import gymnasium, miniworld, numpy as np
+steps, warmup = int(sys.argv[1]), 50
+env = gymnasium.make("MiniWorld-CollectHealth-v0", obs_width=64, obs_height=64)
+env.reset(seed=0)
+actions = np.random.default_rng(0).integers(0, env.action_space.n, steps)
+def run(acts):
+    for a in acts:
+        _, _, terminated, truncated, _ = env.step(int(a))
+        if terminated or truncated:
+            env.reset()
+run(actions[:warmup])
+start, cpu = time.perf_counter(), time.process_time()
+run(actions[warmup:])
+elapsed = time.perf_counter() - start
+print(json.dumps({"steps_per_s": (steps - warmup) / elapsed, "cores": (time.process_time() - cpu) / elapsed}))
+"""
+
+
+def peer_python(venv_dir: Path) -> tuple[Path | None, str]:
+    """The interpreter of a virtual environment holding MiniWorld (made and installed on first use), or None and
+    why it could not be."""
+    python = venv_dir / "bin" / "python"
+    try:
+        if not python.exists():
+            print(f"installing MiniWorld for the peer into {venv_dir} (once) ...", flush=True)
+            venv.create(venv_dir, with_pip=True)
+        check = subprocess.run([python, "-c", "import miniworld"], capture_output=True)
+        if check.returncode != 0:
+            install = subprocess.run([python, "-m", "pip", "install", "-q", "miniworld"], capture_output=True,
+                                     text=True, timeout=900)
+            if install.returncode != 0:
+                return None, f"pip install miniworld failed: {install.stderr.strip().splitlines()[-1:]}"
+    except (OSError, subprocess.SubprocessError) as error:
+        return None, f"could not make {venv_dir}: {error}"
+    return python, ""
+
+
+def time_peer(venv_dir: Path, steps: int) -> tuple[dict | None, str]:
+    """MiniWorld-CollectHealth's steps/s at 64x64 with ``LP_NUM_THREADS=0``, or None and why not."""
+    python, why = peer_python(venv_dir)
+    if python is None:
+        return None, why
+    env = dict(os.environ, LP_NUM_THREADS="0")
+    try:
+        out = subprocess.run([python, "-c", PEER_LOOP, str(steps)], capture_output=True, text=True, env=env,
+                             timeout=1800)
+    except subprocess.SubprocessError as error:
+        return None, f"the peer's loop failed: {error}"
+    if out.returncode != 0:
+        return None, f"the peer's loop failed: {out.stderr.strip().splitlines()[-1:]}"
+    return json.loads(out.stdout.strip().splitlines()[-1]), ""
 
 
 # ------------------------------------------------------------------------------------------------- raw side
@@ -198,6 +286,23 @@ def measure(args) -> dict:
                                 "ceiling_ratio_1_env": ceiling}
     print(f"{'  TorchRL step path alone (1 env)':<40}{idle_rate:>12.0f}{'':>13}{'':>8}{'':>17}   "
           f"{1e6 / idle_rate:.0f} us/step: 1 env can keep at most {ceiling:.2f} of raw")
+    # one world through gymnasium, and the peer, as rates beside the TorchRL one
+    one = next(r for r in results["settings"] if r["setting"] == "1 env")
+    gym_rate, gym_cores = time_gym(level, random_actions(steps, 1, seed=1)[:, 0])
+    results["gymnasium"] = {"steps_per_s": gym_rate, "cores": gym_cores}
+    print(f"{'1 env through gymnasium':<40}{gym_rate:>12.0f}{'':>13}{'':>8}{gym_cores:>7.2f}")
+    if args.peer:
+        peer, why = time_peer(Path(args.peer_venv).expanduser(), steps)
+        if peer is None:
+            print(f"peer MiniWorld-CollectHealth skipped: {why}")
+            results["peer"] = {"skipped": why}
+        else:
+            torchrl_x, gym_x = one["env_steps_per_s"] / peer["steps_per_s"], gym_rate / peer["steps_per_s"]
+            results["peer"] = {"name": "MiniWorld-CollectHealth-v0, 64x64, LP_NUM_THREADS=0", **peer,
+                               "torchrl_ratio": torchrl_x, "gymnasium_ratio": gym_x}
+            print(f"{'peer: MiniWorld-CollectHealth 64x64':<40}{peer['steps_per_s']:>12.0f}{'':>13}{'':>8}"
+                  f"{peer['cores']:>7.2f}")
+            print(f"  1 env / peer: TorchRL {torchrl_x:.2f}x, gymnasium {gym_x:.2f}x   (target >= 1.5x each)")
     n = args.num_envs
     env_rows(f"num_envs={n} (1 process)", n, 2, 0.85)
 
@@ -255,6 +360,8 @@ class BenchConfig:
     memory_steps: int = option(20000, "steps of the memory run (resident memory is sampled every 1000 steps)",
                                check=(lambda v: v >= 2000, "at least 2000 (memory is sampled every 1000 steps)"))
     skip_parallel: bool = option(False, "leave out the ParallelEnv settings")
+    peer: bool = option(True, "also time MiniWorld-CollectHealth (installed on demand into peer_venv)")
+    peer_venv: str = option("~/.cache/evaaa/bench-miniworld", "virtual environment the peer is installed into")
     json: str | None = option(None, "also write the figures to this file")
 
 

@@ -17,7 +17,7 @@ def load_bench():
 def test_bench_reports_ratios_reset_cost_and_memory(tmp_path):
     out = tmp_path / "bench.json"
     code = load_bench().main(["steps=80", "num_envs=2", "resets=2", "memory_steps=2000", "skip_parallel=true",
-                              f"json={out}"])
+                              "peer=false", f"json={out}"])
     assert code == 0
     figures = json.loads(out.read_text())
     names = [row["setting"] for row in figures["settings"]]
@@ -39,6 +39,44 @@ def test_bench_reports_ratios_reset_cost_and_memory(tmp_path):
         assert row["ratio_per_core"] == pytest.approx(row["ratio"] / row["cores"])
     assert figures["reset"]["in_steps"] > 0
     assert len(figures["memory"]["samples_mb"]) == 2
+    assert figures["gymnasium"]["steps_per_s"] > 0 and "peer" not in figures
+
+
+def fake_peer_venv(root, rate: float):
+    """A stand-in for the peer's virtual environment: its python 'has' miniworld and its loop prints ``rate``."""
+    python = root / "bin" / "python"
+    python.parent.mkdir(parents=True)
+    python.write_text(f"""#!/bin/sh
+case "$*" in *"import miniworld"*) exit 0;; esac
+echo '{{"steps_per_s": {rate}, "cores": 1.0}}'
+""")
+    python.chmod(0o755)
+    return root
+
+
+def test_the_peer_is_timed_in_the_same_run_and_given_as_ratios(tmp_path, capsys):
+    out = tmp_path / "bench.json"
+    venv = fake_peer_venv(tmp_path / "peer", rate=50.0)
+    assert load_bench().main(["steps=80", "num_envs=2", "resets=2", "memory_steps=2000", "skip_parallel=true",
+                              f"peer_venv={venv}", f"json={out}"]) == 0
+    figures = json.loads(out.read_text())
+    one = next(r for r in figures["settings"] if r["setting"] == "1 env")
+    peer = figures["peer"]
+    assert peer["steps_per_s"] == 50.0
+    assert peer["torchrl_ratio"] == pytest.approx(one["env_steps_per_s"] / 50.0)
+    assert peer["gymnasium_ratio"] == pytest.approx(figures["gymnasium"]["steps_per_s"] / 50.0)
+    assert "1 env / peer: TorchRL" in capsys.readouterr().out
+
+
+def test_a_peer_that_cannot_be_installed_is_skipped_with_the_reason(tmp_path, capsys):
+    blocked = tmp_path / "file"
+    blocked.write_text("not a directory")
+    out = tmp_path / "bench.json"
+    assert load_bench().main(["steps=80", "num_envs=1", "resets=2", "memory_steps=2000", "skip_parallel=true",
+                              f"peer_venv={blocked}/venv", f"json={out}"]) == 0
+    reason = json.loads(out.read_text())["peer"]["skipped"]
+    assert str(blocked) in reason
+    assert f"peer MiniWorld-CollectHealth skipped: {reason}" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("args, message", [

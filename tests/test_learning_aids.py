@@ -1,0 +1,132 @@
+"""What helps the baselines learn the paper's reward and tells why they do not: PPO's return-scale normalisation
+(``algo.normalize_reward``) gives discounted returns of unit spread, restarts each world's return at its episode's
+end and resumes exactly from its state; DreamerV3's diagnostics (reward-head error on the steps that eat, continue
+head, critic value, policy and first-step advantage per action) compute what they say on hand-made inputs, and the
+replay marks the steps that ate."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from tensordict import TensorDict
+
+from evaaa import ACTION_NAMES
+from evaaa_baselines import dreamer
+from evaaa_baselines.config import CONF_DIR, register_levels
+from evaaa_baselines.ppo import ReturnScale
+
+register_levels()
+
+
+def batch(rewards: np.ndarray, dones: np.ndarray) -> TensorDict:
+    """A ``[worlds, steps]`` batch of rewards and done flags, shaped like a collected PPO batch."""
+    return TensorDict({"next": {"reward": torch.as_tensor(rewards, dtype=torch.float32).unsqueeze(-1),
+                                "done": torch.as_tensor(dones).unsqueeze(-1)}}, list(rewards.shape))
+
+
+# ------------------------------------------------------------------------------------------------ PPO
+def test_return_scale_gives_discounted_returns_of_unit_spread():
+    rng = np.random.default_rng(0)
+    gamma, worlds, steps = 0.99, 4, 128
+    scale = ReturnScale(worlds, gamma)
+    scaled = []
+    for _ in range(40):  # rewards like the paper's: hundreds per return, -100 at episode ends
+        raw = -rng.uniform(0, 3, (worlds, steps))
+        done = rng.random((worlds, steps)) < 0.002
+        raw[done] = -100.0
+        scaled.append(scale(batch(raw, done))["next", "reward"].squeeze(-1).numpy())
+    scaled = np.concatenate(scaled, axis=1)
+    returns, discounted = np.zeros(worlds), []
+    for t in range(scaled.shape[1]):
+        returns = returns * gamma + scaled[:, t]
+        discounted.append(returns.copy())
+    spread = np.std(np.concatenate(discounted[1000:]))
+    assert 0.5 < spread < 2.0, spread  # the raw returns' spread is about 100 times larger
+    assert scale.scale > 30
+
+
+def test_return_scale_divides_each_reward_and_restarts_a_world_at_its_episode_end():
+    scale = ReturnScale(2, gamma=0.5)
+    raw = np.array([[2.0, 2.0, 2.0], [4.0, 4.0, 4.0]])
+    done = np.array([[False, True, False], [False, False, False]])
+    out = scale(batch(raw, done))["next", "reward"].squeeze(-1).numpy()
+    # every reward is divided by one positive scale per step
+    ratio = raw / out
+    assert np.allclose(ratio[0], ratio[1]) and (ratio > 0).all()
+    # world 0 ended at step 1: its running return restarted there, world 1's kept accumulating
+    assert scale.returns[0] == pytest.approx(2.0) and scale.returns[1] == pytest.approx(4 + 0.5 * (4 + 0.5 * 4))
+
+
+def test_return_scale_resumes_exactly_from_its_state():
+    rng = np.random.default_rng(1)
+    batches = [(rng.normal(size=(3, 16)), rng.random((3, 16)) < 0.1) for _ in range(3)]
+    whole = ReturnScale(3, 0.9)
+    expected = [whole(batch(r, d))["next", "reward"] for r, d in batches]
+    first = ReturnScale(3, 0.9)
+    first(batch(*batches[0]))
+    resumed = ReturnScale(3, 0.9)
+    resumed.load_state_dict(first.state_dict())
+    for (r, d), want in zip(batches[1:], expected[1:]):
+        assert torch.equal(resumed(batch(r, d))["next", "reward"], want)
+
+
+# ------------------------------------------------------------------------------------------------ DreamerV3
+def test_consumed_marks_the_steps_whose_food_or_water_count_grew():
+    counts = {"food_eaten": torch.tensor([[0], [2], [5]]), "water_eaten": torch.tensor([[1], [0], [0]])}
+    after = {"food_eaten": torch.tensor([[0], [3], [0]]), "water_eaten": torch.tensor([[2], [0], [0]])}
+    td = TensorDict({"info": counts, "next": {"info": after}}, [3])
+    # world 0 drank, world 1 ate, world 2's counts restarted (an episode's first step), which is no eating
+    assert dreamer.consumed(td).squeeze(-1).tolist() == [True, True, False]
+
+
+@pytest.fixture(scope="module")
+def model():
+    with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
+        cfg = compose("config", overrides=["algo=dreamer", "preset=debug"])
+    torch.manual_seed(0)
+    return dreamer.make_model(cfg.algo, {"interoception": (4,)})
+
+
+def test_diagnostics_say_what_the_heads_and_the_actor_do(model):
+    batch_size, time = 2, 3
+    latents = {"state": torch.randn(batch_size, time, model.state_dim),
+               "belief": torch.randn(batch_size, time, model.belief_dim)}
+    true = torch.tensor([[0.0, 5.0, 0.0], [0.0, 0.0, 3.0]]).unsqueeze(-1)
+    pred = torch.tensor([[0.5, 1.0, 0.0], [0.1, 0.0, 3.0]]).unsqueeze(-1)
+    eaten = true > 0
+    logits = torch.tensor([[2.0, 0.0, 0.0], [0.0, -3.0, 1.0]]).unsqueeze(-1)
+    ended = torch.tensor([[False, False, False], [False, True, False]]).unsqueeze(-1)
+    posterior = TensorDict({"next": {**latents, "reward": pred, "true_reward": true, "consumed": eaten,
+                                     "continue_pred": logits, "terminated": ended}}, [batch_size, time])
+    horizon, n = 4, 6
+    actions = torch.tensor([0, 1, 1, 4, 4, 4])  # "left" and "right" never taken
+    imagined = TensorDict({"state": torch.randn(n, horizon, model.state_dim),
+                           "belief": torch.randn(n, horizon, model.belief_dim),
+                           "action": torch.nn.functional.one_hot(actions, len(ACTION_NAMES)).unsqueeze(1)
+                           .expand(n, horizon, -1),
+                           "lambda_target": torch.arange(n * horizon, dtype=torch.float32).reshape(n, horizon, 1)},
+                          [n, horizon])
+    critic = dreamer.value_model(model)
+    out = dreamer.diagnostics(model, critic, posterior, imagined, torch.tensor(2.0))
+
+    assert out["reward_error_consume"].item() == pytest.approx((4.0 + 0.0) / 2)
+    assert out["reward_error_other"].item() == pytest.approx((0.5 + 0.0 + 0.1 + 0.0) / 4)
+    assert out["reward_true_consume"].item() == pytest.approx(4.0)
+    assert out["reward_pred_consume"].item() == pytest.approx(2.0)
+    assert out["consume_share"].item() == pytest.approx(2 / 6)
+    assert out["continue_terminal"].item() == pytest.approx(torch.sigmoid(torch.tensor(-3.0)).item())
+    others = torch.tensor([2.0, 0.0, 0.0, 0.0, 1.0])
+    assert out["continue_error_other"].item() == pytest.approx((1 - torch.sigmoid(others)).mean().item())
+    assert sum(out[f"policy_{a}"].item() for a in ACTION_NAMES) == pytest.approx(1.0)
+    # the first step's advantage per action: (lambda-return - critic value) / return scale, averaged by action
+    first = imagined[:, 0]
+    values = critic(first.select("state", "belief").clone())["state_value"].squeeze(-1)
+    advantage = (first["lambda_target"].squeeze(-1) - values) / 2.0
+    assert out["advantage_none"].item() == pytest.approx(advantage[0].item(), rel=1e-5)
+    assert out["advantage_forward"].item() == pytest.approx(advantage[1:3].mean().item(), rel=1e-5)
+    assert out["advantage_eat"].item() == pytest.approx(advantage[3:].mean().item(), rel=1e-5)
+    assert math.isnan(out["advantage_left"].item()) and math.isnan(out["advantage_right"].item())
