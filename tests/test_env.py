@@ -493,7 +493,7 @@ def test_one_world_with_a_helper_gives_the_same_trajectory(level):
         generator = torch.Generator().manual_seed(0)
         td = env.rollout(150, policy=lambda td: td.set("action", torch.randint(0, 5, (1,), generator=generator)),
                          break_when_any_done=False)
-        used_helper = env.sim._helpers is not None
+        used_helper = env.sim.workers.started
         env.close()
         return td, used_helper
 
