@@ -35,7 +35,7 @@ import numpy as np
 from . import physiology as phys
 from .contact import ContactDamage
 from .daynight import DayNight
-from .entities import OBSTACLE_KINDS, PREDATOR, footprint_half
+from .obstacles import ObstacleLayout
 from .predator import PREDATOR_HALF, NavGrid, Predators
 from .render import BatchRenderer, SplitRenderer
 from .resources import Resources
@@ -46,23 +46,12 @@ from .state import StepEvents, WorldState
 from .thermal import FieldSampler, build_field, hotspot_cells
 from .triggers import Triggers
 from .workers import Workers
-from .worldgen import (
-    AGENT_HALF,
-    PARKED_Z,
-    ObstaclePool,
-    ResourcePool,
-    place_landmarks,
-    place_obstacles,
-    sample_agent_start,
-    sample_predator_starts,
-)
+from .worldgen import AGENT_HALF, ObstaclePool, ResourcePool, place_landmarks, sample_agent_start, sample_predator_starts
 
 NUM_ACTIONS = 5
 ACTION_NAMES: tuple[str, ...] = ("none", "forward", "left", "right", "eat")
 NONE, FORWARD, LEFT, RIGHT, EAT = range(NUM_ACTIONS)
 SUBSTEPS = 5
-#: "near heat" in the episode records: within this many metres of a hot obstacle's footprint
-NEAR_HEAT = 3.0
 
 
 def usable_cores() -> int:
@@ -127,7 +116,6 @@ class Simulator:
         self.model, self.index = build_model(level, self.pool, self.obstacles)
         self.predators = Predators(level, num_worlds)
         self.datas = [mujoco.MjData(self.model) for _ in range(num_worlds)]
-        self.dt = float(self.model.opt.timestep)
         self.sampler = FieldSampler(level)
         self.agent_z = AGENT_HALF
         self._renderer: BatchRenderer | SplitRenderer | None = None
@@ -142,18 +130,12 @@ class Simulator:
 
         # the parts of a decision, each with the level's fixed data it needs
         self.resources = Resources(level, self.pool, self.index.resource_mocap)
+        self.obstacle_layout = ObstacleLayout(self.obstacles, self.index.obstacle_mocap)
         self.triggers = Triggers(level, self.params)
         self.contact = ContactDamage(level, self.model, self.index.agent_geom)
         self.daynight = DayNight(level.daynight, num_worlds)
         self._turn_rad = math.radians(level.agent.turn_degrees)
         self._move_speed = level.agent.move_speed
-        self._obs_z = self.obstacles.centre_z()
-        self._heat = self.obstacles.temperature != 0
-        self._heat_half = np.zeros((self.obstacles.size_total, 2))
-        for kind in set(self.obstacles.kind):
-            m = self.obstacles.kind == kind
-            self._heat_half[m] = footprint_half(OBSTACLE_KINDS[kind], self.obstacles.extents[m],
-                                                self.obstacles.heading[m])
 
         self.state = WorldState.empty(n, self.pool.size_total, self.obstacles.size_total, len(self.triggers),
                                       level.thermal.grid, self.params.start, level.daynight.start_angle % 360.0)
@@ -247,13 +229,8 @@ class Simulator:
 
     def near_heat(self) -> np.ndarray:
         """(N,) whether each agent stands within 3 m of a hot obstacle's footprint."""
-        if not self._heat.any():
-            return self._zeros_bool
-        state = self.state
-        hot = np.flatnonzero(self._heat)
-        gap = np.abs(state.pos[:, None, :] - state.obs_xy[:, hot]) - self._heat_half[hot]  # (N, H, 2)
-        dist = np.linalg.norm(np.maximum(gap, 0.0), axis=-1)
-        return (state.obs_present[:, hot] & (dist <= NEAR_HEAT)).any(axis=1)
+        near = self.obstacle_layout.near_heat(self.state)
+        return self._zeros_bool if near is None else near
 
     # ------------------------------------------------------------------------------------------------ reset
     def reset(self, mask: np.ndarray | None = None) -> dict[str, np.ndarray]:
@@ -273,17 +250,10 @@ class Simulator:
         """A new episode in world ``w``: obstacles, floor temperature, items, body, sun, predators and triggers, in
         the order they draw from the world's generator."""
         level, state, rng, obstacles = self.level, self.state, self.rngs[w], self.obstacles
-        state.obs_xy[w], state.obs_present[w] = place_obstacles(obstacles, rng)
-        placed = state.obs_present[w]
-        hot = self._heat & placed
-        heat = np.column_stack([
-            state.obs_xy[w, hot, 0] - self._heat_half[hot, 0], state.obs_xy[w, hot, 0] + self._heat_half[hot, 0],
-            state.obs_xy[w, hot, 1] - self._heat_half[hot, 1], state.obs_xy[w, hot, 1] + self._heat_half[hot, 1],
-            obstacles.temperature[hot],
-        ])
+        heat = self.obstacle_layout.reset_world(state, w, rng)
         state.fields[w] = build_field(level, hotspot_cells(level, rng), heat)
         self.resources.reset_world(state, w, rng)
-        present = state.res_present[w]
+        placed, present = state.obs_present[w], state.res_present[w]
         blockers = np.concatenate([state.obs_xy[w, placed], state.res_xy[w, present]])
         blocker_half = np.concatenate([obstacles.half[placed], self.resources.half[present]])
         xy, heading = sample_agent_start(level, rng, blockers, blocker_half)
@@ -303,34 +273,10 @@ class Simulator:
         mujoco.mj_resetData(self.model, data)
         data.qpos[:3] = (xy[0], xy[1], math.pi / 2 - state.heading_rad[w])
         self.resources.write(state, w, data)
-        self._write_obstacles(w)
-        self._write_predators(w)
+        self.obstacle_layout.write(state, w, data)
+        self.predators.write(w, data, self.index.predator_mocap)
         mujoco.mj_forward(self.model, data)
         state.thermal_readings[w] = self._sample_thermal(np.array([w]))[0]
-
-    # ------------------------------------------------------------------------------------------------ scene
-    # the state of the things that MuJoCo moves by mocap, written into a world's MjData
-    def _write_obstacles(self, w: int) -> None:
-        moving = self.index.obstacle_mocap >= 0
-        if not moving.any():
-            return
-        ids = self.index.obstacle_mocap[moving]
-        mocap = self.datas[w].mocap_pos
-        mocap[ids, 0] = self.state.obs_xy[w, moving, 0]
-        mocap[ids, 1] = self.state.obs_xy[w, moving, 1]
-        mocap[ids, 2] = np.where(self.state.obs_present[w, moving], self._obs_z[moving], PARKED_Z)
-
-    def _write_predators(self, w: int) -> None:
-        if not self.predators.k:
-            return
-        data, ids, k = self.datas[w], self.index.predator_mocap, self.predators.k
-        pose = np.empty((k, 7))
-        pose[:, :2] = self.predators.xy[w]
-        pose[:, 2] = PREDATOR.base[2] / 2
-        half = -self.predators.heading[w] / 2  # a body at compass heading h is turned by -h about z
-        pose[:, 3], pose[:, 4:6], pose[:, 6] = np.cos(half), 0.0, np.sin(half)
-        data.mocap_pos[ids] = pose[:, :3]
-        data.mocap_quat[ids] = pose[:, 3:]
 
     # ------------------------------------------------------------------------------------------------ step
     def step(self, actions: np.ndarray):
@@ -435,9 +381,9 @@ class Simulator:
         """4. The predators decide and move; (N,) the damage of their attacks."""
         attack = self.predators.step(self.state.pos, self.is_night(), self.rngs)
         self.state.attacked = attack != 0
-        for w in range(self.n):
-            self._write_predators(w)
-            mujoco.mj_kinematics(self.model, self.datas[w])
+        for w, data in enumerate(self.datas):
+            self.predators.write(w, data, self.index.predator_mocap)
+            mujoco.mj_kinematics(self.model, data)
         return attack
 
     def _conclude(self, events: StepEvents, skip_pixels: bool = False):
