@@ -1,9 +1,10 @@
 """Reference agents for evaluations: a random agent and a privileged scripted oracle.
 
 The oracle reads the simulator's true state through the world's queries (:class:`evaaa.sensors.World`: positions
-of items, obstacles, fires, predators, the EVs, the floor's temperature, the night) and shows that a task is solvable as configured.  Each decision it picks the need to serve by the
-priority the task expects — the most urgent EV that has a source — plans a route on an occupancy grid (the
-predators' path finder, with hot ground counted as blocked), walks it, and for the last few metres searches
+of items, obstacles, fires, predators, the EVs, the floor's temperature, the night) and shows that a task is
+solvable as configured.  Each decision it picks the need to serve by the priority the task expects — the most
+urgent EV that has a source — plans a route on an occupancy grid (the predators' path finder, with hot ground
+counted as blocked), walks it, and for the last few metres searches
 the short action sequences that bring the item into its eating zone.  At night-sensitive tasks it waits for
 the predators to sleep.
 """

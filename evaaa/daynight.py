@@ -1,10 +1,11 @@
 """The day/night cycle: the sun's angle, the hour, the five phases, and what they change.
 
 The functions are pure numpy over worlds; :class:`DayNight` applies a level's cycle to a simulator's worlds (their
-``sun_angle`` and ``field_offset``) and lights each world's frame.  The sun's angle a (degrees) advances every decision; a = 0 is sunrise (06:00), 90 noon,
-180 sunset (18:00), 270 midnight.  Predators only know day (a <= 170 or a >= 350) and night.  The hour sets the
-temperature offset added to the whole floor (day offset at noon, night offset at 04:00, linear between) and the
-visibility (fog and far plane); the sun's height sets the light.
+``sun_angle`` and ``field_offset``) and lights each world's frame.  The sun's angle a (degrees) advances every
+decision; a = 0 is sunrise (06:00), 90 noon, 180 sunset (18:00), 270 midnight.  Predators only know day
+(a <= 170 or a >= 350) and night.  The hour sets the temperature offset added to the whole floor (day offset at
+noon, night offset at 04:00, linear between) and the visibility (fog and far plane); the sun's height sets the
+light.
 """
 
 from __future__ import annotations

@@ -2,12 +2,12 @@
 
 This is the engine under both the TorchRL env and the gymnasium adapter.  It owns one compiled MuJoCo model,
 one ``MjData`` per world, one shared renderer and the worlds' state (:class:`~evaaa.state.WorldState`), and runs
-a decision's phases in order over the parts that own their data: the items (:mod:`evaaa.resources`), the event
-triggers (:mod:`evaaa.triggers`), contact damage (:mod:`evaaa.contact`), the predators (:mod:`evaaa.predator`),
-the sun and the light (:mod:`evaaa.daynight`), the senses (:mod:`evaaa.sensors`) and the threads
-(:mod:`evaaa.workers`).  Work that is the same for every world runs once over the batch in numpy; only the MuJoCo
-calls (the physics substeps and the render) loop over worlds.  Sensors and scripted agents read the worlds
-through the queries of :class:`evaaa.sensors.World`.
+a decision's phases in order over the parts that own their data: the items (:mod:`evaaa.resources`), the
+obstacles (:mod:`evaaa.obstacles`), the event triggers (:mod:`evaaa.triggers`), contact damage
+(:mod:`evaaa.contact`), the predators (:mod:`evaaa.predator`), the sun and the light (:mod:`evaaa.daynight`), the
+senses (:mod:`evaaa.sensors`) and the threads (:mod:`evaaa.workers`).  Work that is the same for every world runs
+once over the batch in numpy; only the MuJoCo calls (the physics substeps and the render) loop over worlds.
+Sensors and scripted agents read the worlds through the queries of :class:`evaaa.sensors.World`.
 
 One decision:
 1. the action sets the body's velocity or heading (Eat raises the eat intent);
@@ -46,7 +46,14 @@ from .state import StepEvents, WorldState
 from .thermal import FieldSampler, build_field, hotspot_cells
 from .triggers import Triggers
 from .workers import Workers
-from .worldgen import AGENT_HALF, ObstaclePool, ResourcePool, place_landmarks, sample_agent_start, sample_predator_starts
+from .worldgen import (
+    AGENT_HALF,
+    ObstaclePool,
+    ResourcePool,
+    place_landmarks,
+    sample_agent_start,
+    sample_predator_starts,
+)
 
 NUM_ACTIONS = 5
 ACTION_NAMES: tuple[str, ...] = ("none", "forward", "left", "right", "eat")
@@ -578,6 +585,7 @@ class Simulator:
         if self.last_obs:
             self._observe(np.array([world]))
 
+    # ------------------------------------------------------------------------------------------------ closing
     def close(self) -> None:
         for r in (self._renderer, self._top_renderer):
             if r is not None:
