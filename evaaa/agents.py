@@ -1,9 +1,10 @@
 """Reference agents for evaluations: a random agent and a privileged scripted oracle.
 
-The oracle reads the simulator's true state (positions of items, obstacles, fires, predators, the EVs, the
-hour) and shows that a task is solvable as configured.  Each decision it picks the need to serve by the
-priority the task expects — the most urgent EV that has a source — plans a route on an occupancy grid (the
-predators' path finder, with hot ground counted as blocked), walks it, and for the last few metres searches
+The oracle reads the simulator's true state through the world's queries (:class:`evaaa.sensors.World`: positions
+of items, obstacles, fires, predators, the EVs, the floor's temperature, the night) and shows that a task is
+solvable as configured.  Each decision it picks the need to serve by the priority the task expects — the most
+urgent EV that has a source — plans a route on an occupancy grid (the predators' path finder, with hot ground
+counted as blocked), walks it, and for the last few metres searches
 the short action sequences that bring the item into its eating zone.  At night-sensitive tasks it waits for
 the predators to sleep.
 """
@@ -16,9 +17,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 
-from . import daynight
 from .predator import NavGrid
-from .sim import EAT, FORWARD, LEFT, NONE, NUM_ACTIONS, RIGHT, Simulator
+from .sensors import World
+from .sim import EAT, FORWARD, LEFT, NONE, NUM_ACTIONS, RIGHT
 
 #: one Forward decision in the open moves the body this far (drag and floor friction over 5 substeps)
 FORWARD_STEP = 1.9069
@@ -41,7 +42,7 @@ class RandomAgent:
     def __init__(self, seed: int | None = None):
         self.rng = np.random.default_rng(seed)
 
-    def act(self, sim: Simulator) -> np.ndarray:
+    def act(self, sim: World) -> np.ndarray:
         return self.rng.integers(0, NUM_ACTIONS, size=sim.n)
 
 
@@ -128,7 +129,7 @@ class OracleAgent:
         self._current: list[int | None] = []
 
     # ------------------------------------------------------------------------------------------ per episode
-    def _prepare(self, sim: Simulator) -> None:
+    def _prepare(self, sim: World) -> None:
         if len(self._grids) != sim.n:
             self._grids, self._planners = [None] * sim.n, [None] * sim.n
             self._current = [None] * sim.n
@@ -140,18 +141,10 @@ class OracleAgent:
                                                   math.radians(sim.level.agent.turn_degrees), heat)
 
     @staticmethod
-    def _grid(sim: Simulator, w: int) -> NavGrid:
+    def _grid(sim: World, w: int) -> NavGrid:
         """Half-metre cells: obstacles and solid items grown by the body's half-width (and a hand's breadth) are
         blocked; hot ground costs what crossing it would heat the body, and lethal ground is blocked."""
-        placed = sim.obs_present[w]
-        solid = sim.res_present[w] & sim.res_solid
-        grid = NavGrid.from_boxes(
-            sim.level.arena.size,
-            np.concatenate([sim.obs_xy[w, placed], sim.res_xy[w, solid]]),
-            np.concatenate([sim.obstacles.extents[placed, :2], sim.pool.extents[solid, :2]]) / 2,
-            np.concatenate([sim.obstacles.heading[placed], sim.pool.heading[solid]]),
-            inflate=CLEARANCE, cell=CELL,
-        )
+        grid = NavGrid.from_boxes(sim.level.arena.size, *sim.obstacle_slices(w), inflate=CLEARANCE, cell=CELL)
         felt = OracleAgent._felt(sim, w, grid.centre(np.argwhere(np.ones(grid.shape, bool))))
         # warming per decision of a body at 0 standing there; a degree of it weighs like 10 decisions, so fires
         # are skirted as widely as the room allows
@@ -159,22 +152,17 @@ class OracleAgent:
         return grid, 10.0 * heating
 
     @staticmethod
-    def _felt(sim: Simulator, w: int, xy: np.ndarray) -> np.ndarray:
+    def _felt(sim: World, w: int, xy: np.ndarray) -> np.ndarray:
         """The temperature a body at ``xy`` relaxes toward: the mean of its 8 sensors (1 m around it)."""
-        return sum(OracleAgent._field_at(sim, w, xy + d) for d in _STENCIL) / len(_STENCIL)
-
-    @staticmethod
-    def _field_at(sim: Simulator, w: int, xy: np.ndarray) -> np.ndarray:
-        ix, iy = sim.sampler.cells(xy)
-        return sim.fields[w, ix, iy] + sim.field_offset[w]
+        return sum(sim.ground_temperature(w, xy + d) for d in _STENCIL) / len(_STENCIL)
 
     # ------------------------------------------------------------------------------------------ decisions
-    def act(self, sim: Simulator) -> np.ndarray:
+    def act(self, sim: World) -> np.ndarray:
         self._prepare(sim)
         return np.array([self._act_world(sim, w) for w in range(sim.n)], dtype=np.int64)
 
-    def _act_world(self, sim: Simulator, w: int) -> int:
-        if sim.predators.k and sim.level.daynight.enabled and not daynight.is_night(sim.sun_angle[w]):
+    def _act_world(self, sim: World, w: int) -> int:
+        if sim.predators.k and sim.level.daynight.enabled and not sim.is_night()[w]:
             return NONE  # wait for the predators to sleep
         need = self._need(sim, w)
         if need is None:
@@ -207,7 +195,7 @@ class OracleAgent:
         action = planner.next_action(sim.pos[w], sim.heading_rad[w], cost)
         return NONE if action is None else action
 
-    def _need(self, sim: Simulator, w: int) -> int | None:
+    def _need(self, sim: World, w: int) -> int | None:
         """The EV to serve now: the most urgent one that has a source in this world."""
         ev = sim.ev[w]
         low = sim.params.low
@@ -243,13 +231,13 @@ class OracleAgent:
         self._current[w] = min(wanting, key=lambda e: time_left[e])
         return self._current[w]
 
-    def _items(self, sim: Simulator, w: int, need: int) -> np.ndarray:
+    def _items(self, sim: World, w: int, need: int) -> np.ndarray:
         """Present items that serve ``need``, nearest first."""
         feeds = sim.res_is_food if need == SATIATION else sim.res_is_water
         slots = np.flatnonzero(sim.res_present[w] & feeds)
         return slots[np.argsort(np.linalg.norm(sim.res_xy[w, slots] - sim.pos[w], axis=1))]
 
-    def _item_cost(self, sim: Simulator, w: int, slot: int) -> np.ndarray | None:
+    def _item_cost(self, sim: World, w: int, slot: int) -> np.ndarray | None:
         """Cost-to-go to the states that can eat item ``slot`` (cached per item position)."""
         planner = self._planners[w]
         key = ("item", int(slot), tuple(np.round(sim.res_xy[w, slot], 2)))
@@ -267,7 +255,7 @@ class OracleAgent:
             planner.cost_to_go(key, goals if len(goals) else centre_goals)
         return planner.cost_to_go(key, None)
 
-    def _warm_spot(self, sim: Simulator, w: int) -> np.ndarray | None:
+    def _warm_spot(self, sim: World, w: int) -> np.ndarray | None:
         """A free spot whose ground brings the body toward a comfortable temperature: hot ground while it is
         cold, mild ground once it is warm (the body relaxes toward the ground under it)."""
         grid = self._grids[w]

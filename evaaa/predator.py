@@ -221,6 +221,18 @@ class Predators:
         self.areas[w] = PatrolArea(landmarks)
         self.grids[w] = grid
 
+    def write(self, w: int, data, mocap: np.ndarray) -> None:
+        """Put world ``w``'s predators into its scene (``data``, an ``MjData``) at mocap indices ``mocap``."""
+        if not self.k:
+            return
+        pose = np.empty((self.k, 7))
+        pose[:, :2] = self.xy[w]
+        pose[:, 2] = PREDATOR.base[2] / 2
+        half = -self.heading[w] / 2  # a body at compass heading h is turned by -h about z
+        pose[:, 3], pose[:, 4:6], pose[:, 6] = np.cos(half), 0.0, np.sin(half)
+        data.mocap_pos[mocap] = pose[:, :3]
+        data.mocap_quat[mocap] = pose[:, 3:]
+
     # ------------------------------------------------------------------------------------------ decisions
     def sees(self, agent_xy: np.ndarray) -> np.ndarray:
         """(N, K): the agent is within each predator's view distance and cone."""

@@ -180,15 +180,10 @@ def record_states(level: str, n: int, seed: int, actions: np.ndarray) -> list[np
     """Per decision, the state (N, size) each world's physics starts from, as the env produces it."""
     sim = Simulator(load_level(level), n, modalities=["interoception"], seed=seed)
     sim.reset()
-    what = mujoco.mjtState.mjSTATE_INTEGRATION
-    size = mujoco.mj_stateSize(sim.model, what)
     states = []
     for t in range(len(actions)):
         sim.apply_actions(actions[t])
-        frame = np.empty((n, size))
-        for w, data in enumerate(sim.datas):
-            mujoco.mj_getState(sim.model, data, frame[w], what)
-        states.append(frame)
+        states.append(sim.physics_states())
         _, _, term, trunc, _ = sim.advance(actions[t])
         done = term | trunc
         if done.any():

@@ -148,6 +148,99 @@ def test_the_worlds_can_eat_query_is_the_test_eating_applies():
     assert any(answers) and not all(answers)
 
 
+class WorldOnly:
+    """A simulator seen only through what :class:`evaaa.sensors.World` lists: anything else is refused."""
+
+    def __init__(self, sim: Simulator):
+        from evaaa.sensors import World
+
+        self._sim = sim
+        self._members = {m for m in vars(World) if not m.startswith("_")}
+
+    def __getattr__(self, name):
+        if name not in self._members:
+            raise AttributeError(f"{name!r} is not part of the World protocol")
+        return getattr(self._sim, name)
+
+
+def test_the_sensors_read_the_world_only_through_the_protocol():
+    from evaaa.sensors import SENSORS
+
+    sim = Simulator(evaaa.load_level("4-2"), 2, seed=4, threads=1)  # obstacles, items, predators, day and night
+    sim.reset()
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        obs, *_ = sim.step(rng.integers(0, 5, size=2))
+    seen = WorldOnly(sim)
+    for key, reading in obs.items():
+        assert np.array_equal(SENSORS[key](seen).read(np.arange(2)), reading), key
+    with pytest.raises(AttributeError, match="not part of the World protocol"):
+        seen.datas
+    sim.close()
+
+
+@pytest.mark.parametrize("name", ["two-resource-food", "predator-day-night"])
+def test_the_oracle_reads_the_world_only_through_the_protocol(name):
+    from evaaa.agents import OracleAgent
+
+    sims = [Simulator(evaaa.load_level(name), 2, ["interoception"], seed=11, threads=1) for _ in range(2)]
+    for sim in sims:
+        sim.reset()
+    direct, seen, eaten = OracleAgent(), OracleAgent(), 0
+    for _ in range(100):
+        actions = direct.act(sims[0])
+        assert np.array_equal(seen.act(WorldOnly(sims[1])), actions)
+        for sim in sims:
+            _, _, terminated, truncated, info = sim.step(actions)
+            if (terminated | truncated).any():
+                sim.reset(terminated | truncated)
+        eaten += int(info["food_eaten"].sum())
+    assert eaten > 0  # the oracle got to its food (and so planned, and asked can_eat)
+    for sim in sims:
+        sim.close()
+
+
+def test_the_worlds_queries_agree_with_its_state():
+    sim = Simulator(evaaa.load_level("4-2", {"daynight.random_start": False, "daynight.start_angle": 200.0}), 2,
+                    ["interoception"], seed=3, threads=1)
+    sim.reset()
+    for w in range(2):
+        # the floor under the thermal sensors is what they read
+        points = sim.sampler.sensor_points(sim.pos[w: w + 1], sim.heading_rad[w: w + 1])[0]
+        assert np.array_equal(sim.ground_temperature(w, points), sim.thermal_readings[w])
+        # what blocks the body: the placed obstacles and the present solid items, as floor rectangles
+        centres, half, heading = sim.obstacle_slices(w)
+        blocking = sim.obs_present[w].sum() + (sim.res_present[w] & sim.res_solid).sum()
+        assert centres.shape == half.shape == (blocking, 2) and heading.shape == (blocking,)
+        assert (half > 0).all()
+    assert sim.is_night().all()  # 200 degrees: after sunset
+    sim.close()
+    sim = Simulator(evaaa.load_level("1-1"), 2, ["interoception"], seed=3, threads=1)
+    sim.reset()
+    assert not sim.is_night().any()  # no day/night cycle: never night
+    sim.close()
+
+
+def test_a_snapshot_holds_exactly_the_world_state_and_refuses_arrays_it_does_not_know():
+    from dataclasses import fields
+
+    from evaaa.state import WorldState
+
+    sim = Simulator(evaaa.load_level("1-1"), 2, ["interoception"], seed=3, threads=1)
+    sim.reset()
+    sim.step(np.array([FORWARD, EAT]))
+    snap = sim.snapshot()
+    assert list(snap["arrays"]) == [f.name for f in fields(WorldState)]
+    older = {**snap, "arrays": {k: v for k, v in snap["arrays"].items() if k != "triggered"}}
+    sim.step(np.array([FORWARD, FORWARD]))
+    sim.restore(older)  # a snapshot from before a field existed restores the rest
+    assert np.array_equal(sim.pos, snap["arrays"]["pos"])
+    foreign = {**snap, "arrays": {**snap["arrays"], "mystery": np.zeros(2)}}
+    with pytest.raises(ValueError, match=r"\['mystery'\] are not part of a world's state"):
+        sim.restore(foreign)
+    sim.close()
+
+
 @pytest.mark.parametrize(
     "column,value,end",
     [(0, -14.999, "FoodOutOfRange"), (0, 14.5, "FoodOutOfRange"), (1, -14.995, "WaterOutOfRange"),
@@ -493,7 +586,7 @@ def test_one_world_with_a_helper_gives_the_same_trajectory(level):
         generator = torch.Generator().manual_seed(0)
         td = env.rollout(150, policy=lambda td: td.set("action", torch.randint(0, 5, (1,), generator=generator)),
                          break_when_any_done=False)
-        used_helper = env.sim._helpers is not None
+        used_helper = env.sim.workers.started
         env.close()
         return td, used_helper
 

@@ -322,8 +322,8 @@ def test_night_fog_follows_evaaas_schedule_or_the_originals_table():
                                          "daynight.start_angle": 255.0})  # 23:00
         sim = Simulator(level, 1, ["interoception"], seed=0, threads=1)
         sim.reset()
-        sim._plan_light(np.array([0]))
-        ends[schedule] = sim._light_plan[0][3]
+        sim.daynight.plan(sim.sun_angle[:1])
+        ends[schedule] = sim.daynight.light_plan[0][3]
         sim.close()
     assert ends["original"] == pytest.approx(ends["smooth"] / original[23], rel=1e-6)
 

@@ -7,7 +7,10 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 import numpy as np
 
 if TYPE_CHECKING:  # types only: the simulator imports the sensors, never the other way round
+    from ..physiology import PhysiologyParams
+    from ..predator import Predators
     from ..spec import Level
+    from ..worldgen import ObstaclePool, ResourcePool
 
 
 @runtime_checkable
@@ -18,41 +21,55 @@ class World(Protocol):
     :class:`evaaa.sim.Simulator` is the one implementation.
     """
 
+    # the level and its fixed data
     @property
     def level(self) -> Level: ...
     @property
     def n(self) -> int: ...
+    #: the level's physiology (EV bounds, decay, thermal coupling, ...)
+    @property
+    def params(self) -> PhysiologyParams: ...
     #: height of the body's centre (the rays' and the nose's height)
     @property
     def agent_z(self) -> float: ...
-    # pose: (N, 2) positions and (N,) compass headings in radians
+    #: the item slots' fixed data (kind, extents, heading, odour, ...), P slots
+    @property
+    def pool(self) -> ResourcePool: ...
+    #: (P,) which item slots are food, and which water
+    @property
+    def res_is_food(self) -> np.ndarray: ...
+    @property
+    def res_is_water(self) -> np.ndarray: ...
+    #: the obstacle slots' fixed data (kind, extents, heading, lift, temperature, ...), O slots
+    @property
+    def obstacles(self) -> ObstaclePool: ...
+
+    # the body: (N, 2) positions, (N,) compass headings in radians, (N,) decisions taken this episode
     @property
     def pos(self) -> np.ndarray: ...
     @property
     def heading_rad(self) -> np.ndarray: ...
+    @property
+    def steps(self) -> np.ndarray: ...
     #: (N, 4) essential variables, ordered as evaaa.physiology.EV_NAMES
     @property
     def ev(self) -> np.ndarray: ...
     #: (N, 8) temperatures at the body's thermal sensors
     @property
     def thermal_readings(self) -> np.ndarray: ...
-    # items: the pool's fixed per-slot data, and per world their (N, P, 2) positions and (N, P) presence
-    @property
-    def pool(self) -> Any: ...
+    # items per world: (N, P, 2) positions and (N, P) presence
     @property
     def res_xy(self) -> np.ndarray: ...
     @property
     def res_present(self) -> np.ndarray: ...
-    # obstacles: fixed per-slot data, per world (N, O, 2) positions and (N, O) presence
-    @property
-    def obstacles(self) -> Any: ...
+    # obstacles per world: (N, O, 2) positions and (N, O) presence
     @property
     def obs_xy(self) -> np.ndarray: ...
     @property
     def obs_present(self) -> np.ndarray: ...
     #: predators: ``k`` per world, their (N, k, 2) ``xy`` and (N, k) ``heading``
     @property
-    def predators(self) -> Any: ...
+    def predators(self) -> Predators: ...
 
     def item_distances2(self) -> np.ndarray:
         """(N, P) squared floor distances from each body's centre to each item's."""
@@ -60,6 +77,18 @@ class World(Protocol):
 
     def can_eat(self, world: int, slot: int, pos: np.ndarray, heading: Any) -> np.ndarray:
         """Whether a body at ``pos`` facing ``heading`` would reach item ``slot`` of ``world`` with its mouth."""
+        ...
+
+    def obstacle_slices(self, world: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Floor rectangles of what blocks a body in ``world``: centres (K, 2), half-sides (K, 2), headings (K,)."""
+        ...
+
+    def ground_temperature(self, world: int, xy: np.ndarray) -> np.ndarray:
+        """The floor's temperature in ``world`` under points ``xy`` (..., 2)."""
+        ...
+
+    def is_night(self) -> np.ndarray:
+        """(N,) whether it is night as predators see it."""
         ...
 
     def render_eye(self, worlds: np.ndarray) -> np.ndarray:
