@@ -29,9 +29,9 @@ from tqdm import tqdm
 import evaaa
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
-from evaaa_baselines.report import SUMMARY_NOTE, markdown_table, summarize
+from evaaa_baselines.reports import (SUMMARY_NOTE, markdown_table, plot_outcomes, plot_summary, read_episodes,
+                                     summarize)
 from evaaa.agents import OracleAgent, RandomAgent
-from evaaa.analysis import plot_bars, plot_outcomes, read_episodes
 from evaaa.records import EpisodeTracker, StepLog, append_rows, new_log_path
 
 GROUPS = {"testbeds": evaaa.TESTBEDS, "training": evaaa.LEVELS, "all": evaaa.LEVELS + evaaa.TESTBEDS}
@@ -206,15 +206,12 @@ def main(argv: list[str] | None = None) -> int:
     written = [out / "episodes.csv", out / "summary.md"]
     tests = summary[summary["level"].isin(evaaa.TESTBEDS)]
     if len(tests):
-        written.append(plot_bars(tests, "success_rate", "success_low", "success_high", out / "success.png",
-                                 scale=100, ylabel="success rate (%)",
-                                 title=f"Success per testbed ({episodes(tests)}; whiskers: 95 % Wilson interval)"))
+        written.append(plot_summary(tests, out / "success.png", success=True,
+                                    title=f"Success per testbed ({episodes(tests)})"))
     training = summary[summary["level"].isin(evaaa.LEVELS)]
     if len(training):
-        written.append(plot_bars(training, "survival_iqm", "survival_low", "survival_high", out / "survival.png",
-                                 ylabel="survival (decisions)",
-                                 title=f"Survival per training level: interquartile mean ({episodes(training)}; "
-                                       "whiskers: 95 % bootstrap interval)"))
+        written.append(plot_summary(training, out / "survival.png", success=False,
+                                    title=f"Survival per training level ({episodes(training)})"))
     written.append(plot_outcomes(rows, out / "outcomes.png"))
     print(table)
     print("\nwrote " + ", ".join(str(p) for p in written))

@@ -1,11 +1,11 @@
-"""Interval estimates used by the reports (baselines/stats.py)."""
+"""Interval estimates used by the reports (baselines/reports/stats.py)."""
 
 import math
 
 import numpy as np
 import pytest
 
-from evaaa_baselines.stats import binomial_interval, interval, iqm
+from evaaa_baselines.reports.stats import binomial_interval, interval, iqm
 
 
 def test_iqm_is_the_mean_of_the_middle_half():

@@ -28,6 +28,7 @@ from evaaa_baselines import checkpoint, evaluate, load_policy, runtime
 from evaaa_baselines.runtime import DeviceError, Progress, resolve_device
 from evaaa_baselines.config import CONF_DIR, env_overrides, observation_keys, register_levels, stages
 from evaaa_baselines.runner import make_logger, train
+from evaaa.records import TRAINING_EPISODE_FIELDS
 
 register_levels()
 
@@ -154,7 +155,7 @@ def test_smoke_run_writes_checkpoint_csvs_and_final_model(runs, algo):
     assert not list(run_dir.glob(".*.tmp"))  # atomic writes leave no temp file behind
 
     episodes = read_csv(run_dir / "episodes.csv")
-    assert list(episodes[0]) == [c for c in runtime.EPISODE_COLUMNS if c != "wall_time"]
+    assert list(episodes[0]) == [c for c in TRAINING_EPISODE_FIELDS if c != "wall_time"]  # evaaa.records' format
     assert len(episodes) >= 2  # the debug preset's 48-step episodes end several times in 128 steps per world
     for row in episodes:
         assert row["end_type"] in evaaa.END_TYPES[1:]
