@@ -26,6 +26,7 @@ import evaaa
 from evaaa import END_TYPES
 from evaaa.sensors import resolve_modalities
 
+from .algos import algorithm
 from .checkpoint import CHECKPOINT_FORMAT, load_checkpoint
 
 
@@ -105,9 +106,7 @@ class LoadedPolicy:
 
     def transforms(self) -> list[Transform]:
         """Fresh instances of the env transforms the policy expects (one set per env)."""
-        from . import ALGOS  # the algorithm modules import this one
-
-        return ALGOS[self.algo].make_transforms(OmegaConf.create(self.config["algo"]), self.obs_keys, self.model)
+        return algorithm(self.algo).make_transforms(OmegaConf.create(self.config["algo"]), self.obs_keys, self.model)
 
     def wrap(self, env: EnvBase) -> TransformedEnv:
         """``env`` (an evaaa env emitting exactly this policy's observation keys) with the policy's transforms."""
@@ -144,8 +143,7 @@ def load_policy(path: str | Path, *, modalities: Iterable[str] | str | None = No
     A file that is damaged, cut short or holds anything but tensors and plain data (so could run code) is refused
     with a :class:`~baselines.checkpoint.CheckpointError` (a ``ValueError``) naming it.
     """
-    from . import ALGOS  # the algorithm modules import this one
-    from .runtime import OnDevice, resolve_device
+    from .runtime import OnDevice, resolve_device  # runtime imports this module
 
     device = resolve_device(device)
 
@@ -160,9 +158,10 @@ def load_policy(path: str | Path, *, modalities: Iterable[str] | str | None = No
             missing, extra = sorted(set(obs_keys) - set(wanted)), sorted(set(wanted) - set(obs_keys))
             raise ValueError(f"{path} was trained on observation keys {list(obs_keys)}, not {list(wanted)}: "
                              f"missing {missing}, unexpected {extra}")
-    if state["algo"] not in ALGOS:
-        raise ValueError(f"{path}: unknown algorithm {state['algo']!r}; known: {', '.join(ALGOS)}")
-    algo = ALGOS[state["algo"]]
+    try:
+        algo = algorithm(state["algo"])
+    except ValueError as err:
+        raise ValueError(f"{path}: {err}") from None
     algo_cfg: DictConfig = OmegaConf.create(state["config"]["algo"])
     model = algo.make_model(algo_cfg, {k: tuple(s) for k, s in state["obs_shapes"].items()})
     model.load_state_dict(state["model"])
