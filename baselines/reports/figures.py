@@ -126,16 +126,16 @@ def interval_note(stats: pd.DataFrame, drawn: str = "whiskers") -> str:
 
 def plot_bars(stats: pd.DataFrame, path: Path, *, ylabel: str, title: str, panel: str | None = None,
               scale: float = 1.0, levels: Sequence[str] | None = None, top: float | None = None,
-              note: str = "") -> Path:
+              note: str = "", panel_height: float = 3.4) -> Path:
     """Grouped bars — one group per ``level``, one bar per ``label`` (``value``, its interval as whiskers) — in one
     panel per ``panel`` value (or a single panel); the y axis starts at 0 and ends at ``top`` if given.  ``stats``
     has the columns of :data:`.aggregate.STAT_COLUMNS` (``statistic`` says what the whiskers are, for the title);
-    ``note``: a last line of the title (e.g. what shortened labels stand for)."""
+    ``note``: a last line of the title (e.g. what shortened labels stand for); ``panel_height`` in inches."""
     plt = _plt()
     panels = list(dict.fromkeys(stats[panel])) if panel else [None]
     n_levels = stats["level"].nunique()
     fig, axes = plt.subplots(len(panels), 1, figsize=(max(4.5, 0.55 * len(stats) / len(panels) + 2.5, 1.2 * n_levels),
-                                                      3.4 * len(panels)), squeeze=False)
+                                                      panel_height * len(panels)), squeeze=False)
     for ax, name in zip(axes[:, 0], panels):
         part = stats if name is None else stats[stats[panel] == name]
         order = [lv for lv in (levels or level_sorted(part["level"])) if lv in set(part["level"])]
@@ -215,7 +215,7 @@ def plot_summary(summary: pd.DataFrame, path: str | Path, *, success: bool, titl
                           "statistic": "rate" if success else "iqm"})
     return plot_bars(stats, Path(path), levels=list(dict.fromkeys(summary["level"])), scale=100 if success else 1.0,
                      top=105 if success else None, ylabel="success rate (%)" if success else "survival (decisions)",
-                     title=title, note=note)
+                     title=title, note=note, panel_height=4.2)
 
 
 def plot_outcomes(rows: pd.DataFrame, path: str | Path, *, title: str = "What happened in each episode") -> Path:
