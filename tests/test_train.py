@@ -25,6 +25,7 @@ from hydra import compose, initialize_config_dir
 
 import evaaa
 from evaaa_baselines import checkpoint, evaluate, load_policy, runtime
+from evaaa_baselines.evaluation import EvaluatedPolicy, EvaluationError
 from evaaa_baselines.runtime import DeviceError, Progress, resolve_device
 from evaaa_baselines.config import CONF_DIR, env_overrides, observation_keys, register_levels, stages
 from evaaa_baselines.runner import make_logger, train
@@ -212,7 +213,7 @@ def test_existing_run_needs_resume_and_the_same_experiment(runs, tmp_path):
         train(debug_cfg("dqn", "resume=true"), run_dir)
 
 
-def test_evaluate_script_acts_epsilon_greedily_on_request(runs):
+def test_evaluation_acts_epsilon_greedily_on_request(runs):
     from helpers import load_script
 
     script = load_script("evaluate")
@@ -222,7 +223,7 @@ def test_evaluate_script_acts_epsilon_greedily_on_request(runs):
     assert exit_.value.code == 2
     changed = {}
     for eps in (0.0, 0.5, 1.0):
-        policy = script.Policy(path, seed=0, epsilon=eps)
+        policy = EvaluatedPolicy(path, seed=0, epsilon=eps)
         env = policy.make_env("1-1", num_envs=2, seed=0)
         try:
             td = env.reset()
@@ -237,14 +238,11 @@ def test_evaluate_script_acts_epsilon_greedily_on_request(runs):
     assert changed[0.5] == pytest.approx(0.4, abs=0.06) and changed[1.0] == pytest.approx(0.8, abs=0.06)
 
 
-def test_evaluate_script_samples_from_the_policy_on_request(runs):
-    from helpers import load_script
-
-    script = load_script("evaluate")
+def test_evaluation_samples_from_the_policy_on_request(runs):
     path = str(runs("ppo")["whole"] / "model-0-1-1.pt")
     distinct = {}
     for sample in (False, True):
-        policy = script.Policy(path, seed=0, sample=sample)
+        policy = EvaluatedPolicy(path, seed=0, sample=sample)
         env = policy.make_env("1-1", num_envs=2, seed=0)
         try:
             td = env.reset()
@@ -456,9 +454,8 @@ def test_loaded_policy_moves_to_the_device_asked_for(runs, capsys):
 
     script = load_script("evaluate")
     assert script.parse([f"policy={runs('dqn')['whole'] / 'model-0-1-1.pt'}"]).device == "auto"
-    with pytest.raises(SystemExit) as refused:
-        script.Policy(str(runs("dqn")["whole"] / "model-0-1-1.pt"), seed=0, device="tpu")
-    assert refused.value.code == 2 and "device=tpu: not a device; allowed: auto, cpu, cuda" in capsys.readouterr().err
+    with pytest.raises(EvaluationError, match="device=tpu: not a device; allowed: auto, cpu, cuda"):
+        EvaluatedPolicy(str(runs("dqn")["whole"] / "model-0-1-1.pt"), seed=0, device="tpu")
     with pytest.raises(SystemExit) as refused:  # and on the command line, before anything runs
         script.parse([f"policy={runs('dqn')['whole'] / 'model-0-1-1.pt'}", "device=tpu"])
     assert refused.value.code == 2 and "device=tpu: expected auto, cpu, cuda or cuda:N" in capsys.readouterr().err
