@@ -520,6 +520,22 @@ def test_a_level_from_the_users_own_file_trains(tmp_path):
     assert (run_dir / "model-0-few-cubes.pt").exists()  # the stage carries the registered name
 
 
+def test_every_algorithm_config_has_its_module():
+    """conf/algo/<name>.yaml and the module the registry finds for it are the whole of an algorithm."""
+    from evaaa_baselines import algos
+
+    assert algos.names() == options("algo")
+    for name in algos.names():
+        module = algos.algorithm(name)
+        assert all(callable(getattr(module, f)) for f in algos.FUNCTIONS), name
+        assert make_cfg(f"algo={name}").algo.name == name
+    assert algos.algorithm("ppo_lstm").train is algos.algorithm("ppo").train  # a variant shares its code
+    with pytest.raises(ValueError, match="is not an algorithm: it lacks make_model"):
+        algos.algorithm("runner")  # a module of the package, but not an algorithm
+    with pytest.raises(ValueError, match="unknown algo '../dqn'"):
+        algos.algorithm("../dqn")
+
+
 COIN_FLIP = '''"""Uniform random actions: the smallest algorithm the training loop takes (written by a test)."""
 import torch
 from tensordict.nn import TensorDictModuleBase
