@@ -79,7 +79,8 @@ class Inputs:
         return final_survival(self.usable, self.survival, self.window)
 
     @cached_property
-    def curves(self) -> pd.DataFrame:
+    def run_curves(self) -> pd.DataFrame:
+        """Each run's binned training curve (:func:`.aggregate.curves`)."""
         return curves(self.usable, self.bins)
 
     @cached_property
@@ -317,7 +318,7 @@ def evaluation_survival(doc: Document, inp: Inputs) -> None:
 def training_curves(doc: Document, inp: Inputs) -> None:
     """Training survival against env steps: one panel per training set-up, one line per algorithm and settings,
     reference agents' evaluations on the level as dashed lines."""
-    all_curves, by_dir, ref_train = inp.curves, inp.by_dir, inp.reference_training
+    all_curves, by_dir, ref_train = inp.run_curves, inp.by_dir, inp.reference_training
     table = figure = None
     if len(all_curves):
         lab = labels(inp.usable, ("algo", "modality", "reward", "extras"))
@@ -346,7 +347,7 @@ def training_curves(doc: Document, inp: Inputs) -> None:
 def ablation_curves(doc: Document, inp: Inputs) -> None:
     """Fig. 25: training curves per modality set, one panel per algorithm (and training set-up), and each
     modality's survival at the end of the run."""
-    curve_rows, by_dir = inp.curves, inp.by_dir
+    curve_rows, by_dir = inp.run_curves, inp.by_dir
     ab_lab = labels(inp.usable, ("algo", "reward", "extras", "training"))
     table = figure = None
     if len(curve_rows):
@@ -420,9 +421,9 @@ def build_report(run_paths: Sequence[str | Path], eval_paths: Sequence[str | Pat
         section(doc, inp)
     for name, frame in doc.tables.items():
         frame.to_csv(doc.out / "data" / f"{name}.csv", index=False)
-    if len(inp.curves):
-        inp.curves.assign(run=inp.curves["run"].map(inp.rel)).to_csv(doc.out / "data" / "curves_per_run.csv",
-                                                                      index=False)
+    if len(inp.run_curves):
+        rows = inp.run_curves.assign(run=inp.run_curves["run"].map(inp.rel))
+        rows.to_csv(doc.out / "data" / "curves_per_run.csv", index=False)
     path = doc.out / "report.md"
     path.write_text("\n".join(doc.md).rstrip() + "\n")
     return Report(path, doc.figures, doc.tables, problems)
