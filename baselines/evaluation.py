@@ -4,11 +4,13 @@
 algorithm trained from the checkpoint's own record (algorithm, config, observation keys and shapes), refuses a
 checkpoint made for another observation set, and gives the env transforms (frame stacks, LSTM state) the policy
 expects, so that ``loaded.make_env("two-resource-food")`` or ``loaded.wrap(env)`` yields tensordicts it can act on.
+:class:`EvaluatedPolicy` and :func:`episode_records` are ``scripts/evaluate.py``'s engine: the reference agents
+(oracle, random) and checkpoints run on a level as episode records (:mod:`evaaa.records`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,8 +26,11 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 import evaaa
 from evaaa import END_TYPES
+from evaaa.agents import OracleAgent, RandomAgent
+from evaaa.records import EpisodeTracker, StepLog
 from evaaa.sensors import resolve_modalities
 
+from .algos import algorithm
 from .checkpoint import CHECKPOINT_FORMAT, load_checkpoint
 
 
@@ -105,9 +110,7 @@ class LoadedPolicy:
 
     def transforms(self) -> list[Transform]:
         """Fresh instances of the env transforms the policy expects (one set per env)."""
-        from . import ALGOS  # the algorithm modules import this one
-
-        return ALGOS[self.algo].make_transforms(OmegaConf.create(self.config["algo"]), self.obs_keys, self.model)
+        return algorithm(self.algo).make_transforms(OmegaConf.create(self.config["algo"]), self.obs_keys, self.model)
 
     def wrap(self, env: EnvBase) -> TransformedEnv:
         """``env`` (an evaaa env emitting exactly this policy's observation keys) with the policy's transforms."""
@@ -144,8 +147,7 @@ def load_policy(path: str | Path, *, modalities: Iterable[str] | str | None = No
     A file that is damaged, cut short or holds anything but tensors and plain data (so could run code) is refused
     with a :class:`~baselines.checkpoint.CheckpointError` (a ``ValueError``) naming it.
     """
-    from . import ALGOS  # the algorithm modules import this one
-    from .runtime import OnDevice, resolve_device
+    from .runtime import OnDevice, resolve_device  # runtime imports this module
 
     device = resolve_device(device)
 
@@ -160,9 +162,10 @@ def load_policy(path: str | Path, *, modalities: Iterable[str] | str | None = No
             missing, extra = sorted(set(obs_keys) - set(wanted)), sorted(set(wanted) - set(obs_keys))
             raise ValueError(f"{path} was trained on observation keys {list(obs_keys)}, not {list(wanted)}: "
                              f"missing {missing}, unexpected {extra}")
-    if state["algo"] not in ALGOS:
-        raise ValueError(f"{path}: unknown algorithm {state['algo']!r}; known: {', '.join(ALGOS)}")
-    algo = ALGOS[state["algo"]]
+    try:
+        algo = algorithm(state["algo"])
+    except ValueError as err:
+        raise ValueError(f"{path}: {err}") from None
     algo_cfg: DictConfig = OmegaConf.create(state["config"]["algo"])
     model = algo.make_model(algo_cfg, {k: tuple(s) for k, s in state["obs_shapes"].items()})
     model.load_state_dict(state["model"])
@@ -172,3 +175,101 @@ def load_policy(path: str | Path, *, modalities: Iterable[str] | str | None = No
                         env_overrides=state["env_overrides"], model=model,
                         policy=OnDevice(algo.make_policy(model), device))
 
+
+# ------------------------------------------------------------------------------------------------ evaluate.py
+#: the policies of an evaluation that are not checkpoints
+REFERENCE_AGENTS = ("oracle", "random")
+
+
+class EvaluationError(ValueError):
+    """A policy cannot be evaluated as asked (its checkpoint, its device, the level); the message says why."""
+
+
+class EvaluatedPolicy:
+    """One policy of an evaluation — ``oracle``, ``random`` or a checkpoint file — that builds the env of a level
+    and picks actions for a batch of worlds.
+
+    ``sample``: a checkpoint draws its actions from its distribution instead of taking the most likely one;
+    ``epsilon``: the chance of a uniformly random action instead, at each step (drawn from a generator seeded with
+    ``seed``, so runs repeat).  :attr:`name` and :attr:`acting` go into every episode row.
+    """
+
+    def __init__(self, spec: str, seed: int, modalities: list[str] | None = None, epsilon: float = 0.0,
+                 sample: bool = False, device: str = "cpu"):
+        self.spec = spec
+        self.seed = seed
+        self.epsilon = epsilon
+        self.sample = sample
+        self.rng = torch.Generator().manual_seed(seed)  # epsilon's draws: the same for every run of the command
+        self.loaded: LoadedPolicy | None = None
+        if spec not in REFERENCE_AGENTS:
+            path = Path(spec)
+            if not path.is_file():
+                raise EvaluationError(f"policy {spec!r} is neither oracle, random nor a checkpoint file")
+            try:
+                self.loaded = load_policy(path, modalities=modalities, device=device)
+            except ValueError as err:  # e.g. modalities= names keys the checkpoint was not trained on
+                raise EvaluationError(f"policy={spec}: {err}") from None
+        # a checkpoint is named by its path: reports look the run's configuration up from it
+        self.name = spec if self.loaded is None else str(path)
+        # how it acts, recorded with every episode so that evaluations made in different ways stay apart
+        self.acting = "" if self.loaded is None else (
+            "sample" if sample else "mode") + (f"+epsilon={epsilon:g}" if epsilon else "")
+
+    def make_env(self, level: str, num_envs: int, seed: int) -> EnvBase:
+        """The worlds of ``level`` this policy acts in (a reference agent reads the simulator; the env gives it the
+        EVs only)."""
+        if self.loaded is not None:
+            try:
+                return self.loaded.make_env(level, num_envs=num_envs, seed=seed, overrides={})
+            except ValueError as err:
+                raise EvaluationError(str(err)) from None
+        self.agent = OracleAgent() if self.spec == "oracle" else RandomAgent(seed)
+        return evaaa.make_env(level, num_envs=num_envs, seed=seed, modalities=["interoception"])
+
+    def act(self, env: EnvBase, td: TensorDictBase) -> torch.Tensor:
+        if self.loaded is not None:
+            action = self.loaded(td, deterministic=not self.sample)["action"]
+            if self.epsilon > 0:  # epsilon-greedy evaluation: a uniformly random action instead, now and then
+                explore = torch.rand(action.shape, generator=self.rng) < self.epsilon
+                other = torch.randint(0, len(evaaa.ACTION_NAMES), action.shape, generator=self.rng)
+                action = torch.where(explore, other, action)
+            return action
+        sim = env.sim if hasattr(env, "sim") else env.base_env.sim
+        return torch.from_numpy(self.agent.act(sim))
+
+
+def episode_records(policy: EvaluatedPolicy, level: str, *, episodes: int, num_envs: int, seed: int,
+                    step_log: StepLog | None = None, on_episode: Callable[[], None] | None = None) -> list[dict]:
+    """``episodes`` episodes of ``policy`` on ``level`` in ``num_envs`` worlds seeded with ``seed``, as episode rows
+    (:class:`evaaa.records.EpisodeTracker`; ``episode`` numbered from 0 in the order they ended).  Each world runs
+    its share of the episodes; ``step_log`` gets every decision; ``on_episode`` is called per counted episode."""
+    env = policy.make_env(level, num_envs, seed)
+    torch.manual_seed(seed)  # sampled actions (sample=true) repeat from run to run
+    n = num_envs
+    quota = np.full(n, episodes // n) + (np.arange(n) < episodes % n)  # episodes each world runs
+    tracker = EpisodeTracker(n, level, policy.name, seed=seed, acting=policy.acting)
+    rows: list[dict] = []
+    td = env.reset()
+    if step_log is not None:
+        step_log.start(level, td["info"], seed=seed, policy=policy.name, acting=policy.acting)
+    done_count = np.zeros(n, dtype=int)
+    while (done_count < quota).any():
+        td["action"] = policy.act(env, td).reshape(env.action_spec.shape)
+        step, td = env.step_and_maybe_reset(td)
+        nxt = step["next"]
+        info = {k: v.reshape(n, -1) for k, v in nxt["info"].items()}
+        done = nxt["done"].reshape(n).numpy()
+        finished = tracker.update(nxt["reward"].reshape(n).numpy(), info, done, actions=step["action"])
+        if step_log is not None:
+            step_log.update(step["action"], nxt["reward"], info, done, td["info"])
+        for w, row in zip(np.flatnonzero(done), finished):  # rows come in the order of the finished worlds
+            if done_count[w] < quota[w]:  # a world's episodes beyond its quota are not counted
+                rows.append(row)
+                if on_episode is not None:
+                    on_episode()
+            done_count[w] += 1
+    env.close()
+    for i, row in enumerate(rows):
+        row["episode"] = i
+    return rows

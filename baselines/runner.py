@@ -34,6 +34,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from torchrl.record.loggers import Logger, get_logger
 
+from .algos import algorithm
 from .checkpoint import CHECKPOINT, PREVIOUS, CheckpointError, load_latest, remove_stale_temporaries, seed_everything
 from .config import observation_keys, stages
 from .runtime import Interrupted, Run, resolve_device
@@ -255,12 +256,8 @@ def train(cfg: DictConfig, run_dir: str | Path, *, records: Mapping[str, Any] | 
 
 
 def _train(cfg: DictConfig, run_dir: Path, records: Mapping[str, Any] | None, stop: threading.Event) -> Path:
-    from . import ALGOS
-
     resolve_device(cfg.get("device", "auto"))  # a device this machine lacks fails here, before anything is written
-    if cfg.algo.name not in ALGOS:
-        raise ValueError(f"unknown algo {cfg.algo.name!r}; known: {', '.join(ALGOS)}")
-    algo = ALGOS[cfg.algo.name]
+    algo = algorithm(cfg.algo.name)
     plan = stages(cfg)
     state, notes, aside = _decide(cfg, run_dir, plan)
 

@@ -57,8 +57,6 @@ from .evaluation import evaluate, wrap_env
 
 log = logging.getLogger(__name__)
 
-#: training's episodes.csv: the episode format of evaluations (evaaa.records), as far as training knows it
-EPISODE_COLUMNS = TRAINING_EPISODE_FIELDS
 EVAL_COLUMNS = ("env_steps", "stage", "level", "episodes", "survival_mean", "survival_min", "survival_max",
                 "return_mean", "end_types", "wall_time")
 
@@ -283,7 +281,7 @@ class Run:
         self.last_eval: float | None = None
         self.best_eval: float | None = None
         offsets = resume["logs"] if resume else {}
-        self.episodes_csv = CsvLog(self.dir / "episodes.csv", EPISODE_COLUMNS,
+        self.episodes_csv = CsvLog(self.dir / "episodes.csv", TRAINING_EPISODE_FIELDS,
                                    0 if fresh_logs else offsets.get("episodes_csv"))
         self.eval_csv = CsvLog(self.dir / "eval.csv", EVAL_COLUMNS, 0 if fresh_logs else offsets.get("eval_csv"))
         self.env: TransformedEnv | None = None

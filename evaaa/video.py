@@ -12,6 +12,8 @@ that writes them with OpenCV instead:
 >>> env.transform.dump()                    # writes videos/eye_0.mp4
 
 For the gymnasium adapter, :func:`write_mp4` writes the frames of ``env.render()`` (``render_mode="rgb_array"``).
+:class:`VideoSink` writes frames as they are drawn (``scripts/demo.py``), with fallbacks where mp4 cannot be
+written.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ import numpy as np
 import torch
 from torchrl.record.loggers import Logger
 
-__all__ = ["VideoLogger", "write_mp4"]
+__all__ = ["VideoLogger", "VideoSink", "write_mp4"]
 
 
 def write_mp4(path: str | os.PathLike, frames: Iterable[np.ndarray], fps: float = 10.0) -> Path:
@@ -92,3 +94,47 @@ class VideoLogger(Logger):
 
     def __repr__(self) -> str:
         return f"VideoLogger(log_dir={str(self.log_dir)!r}, fps={self.fps})"
+
+
+class VideoSink:
+    """Writes BGR frames one at a time to ``<out>/rollout.mp4`` (mp4v); falls back to an animated GIF (imageio) or,
+    last, PNG frames.  ``kind`` says which, ``note`` why (empty for mp4)."""
+
+    def __init__(self, out: Path, size_wh: tuple[int, int], fps: float = 10.0):
+        self.out = out
+        self.kind = "mp4"
+        self.path = out / "rollout.mp4"
+        self._writer = cv2.VideoWriter(str(self.path), cv2.VideoWriter_fourcc(*"mp4v"), fps, size_wh)
+        self._gif = None
+        self.note = ""
+        self.frames = 0
+        if not self._writer.isOpened():
+            self._writer.release()
+            self.path.unlink(missing_ok=True)
+            try:
+                import imageio.v2 as imageio
+
+                self.path = out / "rollout.gif"
+                self._gif = imageio.get_writer(self.path, mode="I", duration=1 / fps, loop=0)
+                self.kind = "gif"
+                self.note = "OpenCV could not open an mp4v writer; wrote an animated GIF instead"
+            except Exception as exc:  # noqa: BLE001 - any failure means: fall back to PNG frames
+                self.path = out / "rollout_frames"
+                self.path.mkdir(parents=True, exist_ok=True)
+                self.kind = "png"
+                self.note = f"neither mp4 (OpenCV) nor GIF (imageio: {exc}) could be written; wrote PNG frames"
+
+    def write(self, frame_bgr: np.ndarray) -> None:
+        if self.kind == "mp4":
+            self._writer.write(frame_bgr)
+        elif self.kind == "gif":
+            self._gif.append_data(cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2RGB))
+        else:
+            cv2.imwrite(str(self.path / f"frame_{self.frames:05d}.png"), frame_bgr)
+        self.frames += 1
+
+    def close(self) -> None:
+        if self.kind == "mp4":
+            self._writer.release()
+        elif self.kind == "gif":
+            self._gif.close()

@@ -50,10 +50,10 @@ from omegaconf import OmegaConf
 
 import evaaa  # noqa: E402
 from evaaa_baselines import cli  # noqa: E402
+from evaaa_baselines.algos import names as algo_names  # noqa: E402
 from evaaa_baselines.cli import option  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-ALGOS = ("dqn", "ppo", "ppo_lstm", "dreamer", "dreamer_xs")
 DEFAULT_ALGOS = ("ppo", "ppo_lstm", "dqn", "dreamer_xs")
 
 
@@ -212,7 +212,7 @@ def table(rows: list[Throughput]) -> str:
 
 @dataclass
 class BenchConfig:
-    algos: list[str] = option(list(DEFAULT_ALGOS), "algorithms to train, one after another", choices=ALGOS)
+    algos: list[str] = option(list(DEFAULT_ALGOS), "algorithms to train, one after another", choices=algo_names)
     level: str = option("1-1", "level or testbed trained on",
                         choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS, "curriculum"])
     minutes: float = option(3.0, "wall-clock training time per algorithm", check=(lambda v: v > 0, "a positive number"))
@@ -236,7 +236,7 @@ def main(argv: list[str] | None = None) -> int:
                      examples=["algos=[ppo,dqn] minutes=2 threads=1", '"runs=[runs/acceptance/*/seed0]"'])
     algos = args.algos
     if not algos and args.runs is None:
-        cli.fail("bench_train.py", f"algos=[]: name at least one of {', '.join(ALGOS)}")
+        cli.fail("bench_train.py", f"algos=[]: name at least one of {', '.join(algo_names())}")
     if args.runs is not None:  # patterns are expanded here, so that they may be quoted on the command line
         args.runs = [d for pattern in args.runs for d in (sorted(glob.glob(pattern)) or [pattern])]
     for d in args.runs or ():

@@ -11,7 +11,8 @@ complete result of its own): ``episodes.csv`` (one row per episode, put in place
 ``summary.md`` (per testbed the success rate with its 95 % Wilson interval, per training level the interquartile
 mean survival with its 95 % bootstrap interval beside mean ± standard error, one column per policy), ``success.png``,
 ``survival.png`` and ``outcomes.png`` (what the agent did: consumed the right or wrong resource, died of which
-EV, ran out of time; mean collisions).
+EV, ran out of time; mean collisions).  The episodes are run by :mod:`evaaa_baselines.evaluation`
+(:class:`~evaaa_baselines.evaluation.EvaluatedPolicy`), the summary and figures made by :mod:`evaaa_baselines.reports`.
 """
 
 from __future__ import annotations
@@ -22,17 +23,15 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-import torch
 from tqdm import tqdm
 
 import evaaa
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
-from evaaa_baselines.report import SUMMARY_NOTE, markdown_table, summarize
-from evaaa.agents import OracleAgent, RandomAgent
-from evaaa.analysis import plot_bars, plot_outcomes, read_episodes
-from evaaa.records import EpisodeTracker, StepLog, append_rows, new_log_path
+from evaaa_baselines.evaluation import REFERENCE_AGENTS, EvaluatedPolicy, EvaluationError, episode_records
+from evaaa_baselines.reports import (SUMMARY_NOTE, markdown_table, plot_outcomes, plot_summary, read_episodes,
+                                     summarize)
+from evaaa.records import StepLog, append_rows, new_log_path
 
 GROUPS = {"testbeds": evaaa.TESTBEDS, "training": evaaa.LEVELS, "all": evaaa.LEVELS + evaaa.TESTBEDS}
 #: what an evaluation writes to ``out``: any of them there means ``out`` already holds one
@@ -40,7 +39,7 @@ OUTPUTS = ("episodes.csv", "summary.md", "success.png", "survival.png", "outcome
 
 
 def _policy_ok(spec: str) -> bool:
-    return spec in ("oracle", "random") or Path(spec).is_file()
+    return spec in REFERENCE_AGENTS or Path(spec).is_file()
 
 
 @dataclass
@@ -84,85 +83,6 @@ def parse(argv: list[str] | None = None) -> EvalConfig:
     return cfg
 
 
-class Policy:
-    """One policy to evaluate: builds the env for a level and picks actions for a batch of worlds."""
-
-    def __init__(self, spec: str, seed: int, modalities: list[str] | None = None, epsilon: float = 0.0,
-                 sample: bool = False, device: str = "cpu"):
-        self.spec = spec
-        self.seed = seed
-        self.epsilon = epsilon
-        self.sample = sample
-        self.rng = torch.Generator().manual_seed(seed)  # epsilon's draws: the same for every run of the command
-        self.loaded = None
-        if spec not in ("oracle", "random"):
-            path = Path(spec)
-            if not path.is_file():
-                raise SystemExit(f"evaluate.py: policy {spec!r} is neither oracle, random nor a checkpoint file")
-            from evaaa_baselines.evaluation import load_policy
-
-            try:
-                self.loaded = load_policy(path, modalities=modalities, device=device)
-            except ValueError as err:  # e.g. modalities= names keys the checkpoint was not trained on
-                cli.fail("evaluate.py", f"policy={spec}: {err}")
-        # a checkpoint is named by its path: reports look the run's configuration up from it
-        self.name = spec if self.loaded is None else str(path)
-        # how it acts, recorded with every episode so that evaluations made in different ways stay apart
-        self.acting = "" if self.loaded is None else (
-            "sample" if sample else "mode") + (f"+epsilon={epsilon:g}" if epsilon else "")
-
-    def make_env(self, level: str, num_envs: int, seed: int):
-        if self.loaded is not None:
-            try:
-                return self.loaded.make_env(level, num_envs=num_envs, seed=seed, overrides={})
-            except ValueError as err:
-                raise SystemExit(f"evaluate.py: {err}") from None
-        self.agent = OracleAgent() if self.spec == "oracle" else RandomAgent(seed)
-        return evaaa.make_env(level, num_envs=num_envs, seed=seed, modalities=["interoception"])
-
-    def act(self, env, td):
-        if self.loaded is not None:
-            action = self.loaded(td, deterministic=not self.sample)["action"]
-            if self.epsilon > 0:  # epsilon-greedy evaluation: a uniformly random action instead, now and then
-                explore = torch.rand(action.shape, generator=self.rng) < self.epsilon
-                other = torch.randint(0, len(evaaa.ACTION_NAMES), action.shape, generator=self.rng)
-                action = torch.where(explore, other, action)
-            return action
-        sim = env.sim if hasattr(env, "sim") else env.base_env.sim
-        return torch.from_numpy(self.agent.act(sim))
-
-
-def run_level(policy: Policy, level: str, cfg: EvalConfig, bar: tqdm, step_log: StepLog | None = None) -> list[dict]:
-    env = policy.make_env(level, cfg.num_envs, cfg.seed)
-    torch.manual_seed(cfg.seed)  # sampled actions (sample=true) repeat from run to run
-    n = cfg.num_envs
-    quota = np.full(n, cfg.episodes // n) + (np.arange(n) < cfg.episodes % n)  # episodes each world runs
-    tracker = EpisodeTracker(n, level, policy.name, seed=cfg.seed, acting=policy.acting)
-    rows: list[dict] = []
-    td = env.reset()
-    if step_log is not None:
-        step_log.start(level, td["info"], seed=cfg.seed, policy=policy.name, acting=policy.acting)
-    done_count = np.zeros(n, dtype=int)
-    while (done_count < quota).any():
-        td["action"] = policy.act(env, td).reshape(env.action_spec.shape)
-        step, td = env.step_and_maybe_reset(td)
-        nxt = step["next"]
-        info = {k: v.reshape(n, -1) for k, v in nxt["info"].items()}
-        done = nxt["done"].reshape(n).numpy()
-        finished = tracker.update(nxt["reward"].reshape(n).numpy(), info, done, actions=step["action"])
-        if step_log is not None:
-            step_log.update(step["action"], nxt["reward"], info, done, td["info"])
-        for w, row in zip(np.flatnonzero(done), finished):  # rows come in the order of the finished worlds
-            if done_count[w] < quota[w]:  # a world's episodes beyond its quota are not counted
-                rows.append(row)
-                bar.update(1)
-            done_count[w] += 1
-    env.close()
-    for i, row in enumerate(rows):
-        row["episode"] = i
-    return rows
-
-
 def episodes(summary) -> str:
     """How many episodes each bar of a figure stands for, for its title."""
     counts = sorted(set(summary["episodes"]))
@@ -178,7 +98,11 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"evaluate.py: {out} already holds an evaluation ({', '.join(earlier)}); nothing was "
                          "changed: choose another out=, or move those files away first")
     out.mkdir(parents=True, exist_ok=True)
-    policies = [Policy(spec, cfg.seed, cfg.modalities, cfg.epsilon, cfg.sample, cfg.device) for spec in cfg.policy]
+    try:
+        policies = [EvaluatedPolicy(spec, cfg.seed, cfg.modalities, cfg.epsilon, cfg.sample, cfg.device)
+                    for spec in cfg.policy]
+    except EvaluationError as err:
+        cli.fail("evaluate.py", str(err))
     total = len(policies) * len(cfg.levels) * cfg.episodes
     # episodes go to a hidden file until the last one is done: an interrupted evaluation leaves no episodes.csv
     partial = out / ".episodes.csv.partial"
@@ -188,7 +112,12 @@ def main(argv: list[str] | None = None) -> int:
         for policy in policies:
             for level in cfg.levels:
                 bar.set_postfix_str(f"{policy.name} on {level}")
-                append_rows(partial, run_level(policy, level, cfg, bar, step_log))
+                try:
+                    rows = episode_records(policy, level, episodes=cfg.episodes, num_envs=cfg.num_envs,
+                                           seed=cfg.seed, step_log=step_log, on_episode=lambda: bar.update(1))
+                except EvaluationError as err:
+                    raise SystemExit(f"evaluate.py: {err}") from None
+                append_rows(partial, rows)
     os.replace(partial, out / "episodes.csv")
     if step_log is not None:
         step_log.close()
@@ -206,15 +135,12 @@ def main(argv: list[str] | None = None) -> int:
     written = [out / "episodes.csv", out / "summary.md"]
     tests = summary[summary["level"].isin(evaaa.TESTBEDS)]
     if len(tests):
-        written.append(plot_bars(tests, "success_rate", "success_low", "success_high", out / "success.png",
-                                 scale=100, ylabel="success rate (%)",
-                                 title=f"Success per testbed ({episodes(tests)}; whiskers: 95 % Wilson interval)"))
+        written.append(plot_summary(tests, out / "success.png", success=True,
+                                    title=f"Success per testbed ({episodes(tests)})"))
     training = summary[summary["level"].isin(evaaa.LEVELS)]
     if len(training):
-        written.append(plot_bars(training, "survival_iqm", "survival_low", "survival_high", out / "survival.png",
-                                 ylabel="survival (decisions)",
-                                 title=f"Survival per training level: interquartile mean ({episodes(training)}; "
-                                       "whiskers: 95 % bootstrap interval)"))
+        written.append(plot_summary(training, out / "survival.png", success=False,
+                                    title=f"Survival per training level ({episodes(training)})"))
     written.append(plot_outcomes(rows, out / "outcomes.png"))
     print(table)
     print("\nwrote " + ", ".join(str(p) for p in written))

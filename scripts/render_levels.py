@@ -10,161 +10,20 @@ For every chosen level, after ``reset()`` with ``seed``, four PNGs are written t
     python scripts/render_levels.py                          # every level in evaaa.LEVELS -> docs/images/
     python scripts/render_levels.py levels=[1-2] seed=3 out=/tmp/pics
 
-Arguments are ``key=value`` (lists as ``[a,b]``), the keys of :class:`RenderConfig`; ``--help`` lists them.
+Arguments are ``key=value`` (lists as ``[a,b]``), the keys of :class:`RenderConfig`; ``--help`` lists them.  The
+pictures are drawn by :mod:`evaaa.pictures`.
 """
 
 from __future__ import annotations
 
-import math
 import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-import evaaa  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
-import cv2
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from evaaa.sim import Simulator  # noqa: E402
-from evaaa.spec import Level  # noqa: E402
-from evaaa.worldgen import AGENT_HALF, FOOD, WATER  # noqa: E402
-from evaaa_baselines import cli  # noqa: E402
-from evaaa_baselines.cli import option  # noqa: E402
-
-EYE_SCALE = 4
-TOP_SIZE = 512
-#: marker colours (RGB, 0..1) shared by the pictures
-AGENT_COLOUR = (0.1, 0.95, 0.2)
-
-
-# ------------------------------------------------------------------------------------------------- pieces
-def eye_image(sim: Simulator, world: int = 0, scale: int = EYE_SCALE) -> np.ndarray:
-    """The egocentric frame of ``world`` upscaled ``scale`` times with nearest neighbour, RGB uint8."""
-    frame = sim.render_eye(np.array([world]))[0]
-    return cv2.resize(frame, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
-
-
-def top_projection(sim: Simulator, size: int, z: float = 2 * AGENT_HALF):
-    """A function mapping world (x, y) at height ``z`` to pixel (u, v) of the top camera's ``size``-pixel picture.
-
-    The top camera looks straight down from (0, 0, h) with image right = +x and image up = +y (fovy from the model).
-    """
-    cam = sim.index.top_camera
-    height = float(sim.model.cam_pos[cam][2])
-    half = (height - z) * math.tan(math.radians(float(sim.model.cam_fovy[cam])) / 2)
-
-    def project(x: float, y: float) -> tuple[float, float]:
-        return (x / half + 1) / 2 * size, (1 - y / half) / 2 * size
-
-    return project
-
-
-def top_image(sim: Simulator, world: int = 0, size: int = TOP_SIZE) -> np.ndarray:
-    """The top-down render of ``world`` with the agent circled and an arrow along its heading, RGB uint8."""
-    img = np.ascontiguousarray(sim.render_top(world, size))
-    project = top_projection(sim, size)
-    x, y = sim.pos[world]
-    h = float(sim.heading_rad[world])
-    arrow_m = 0.07 * sim.level.arena.size[0]  # arrow length in metres, relative to the arena
-    u0, v0 = project(x, y)
-    u1, v1 = project(x + arrow_m * math.sin(h), y + arrow_m * math.cos(h))
-    colour = tuple(int(255 * c) for c in AGENT_COLOUR)
-    r = max(4, size // 64)
-    cv2.circle(img, (round(u0), round(v0)), r + 2, (0, 0, 0), 3, cv2.LINE_AA)
-    cv2.circle(img, (round(u0), round(v0)), r, colour, 2, cv2.LINE_AA)
-    cv2.arrowedLine(img, (round(u0), round(v0)), (round(u1), round(v1)), (0, 0, 0), 4, cv2.LINE_AA, tipLength=0.3)
-    cv2.arrowedLine(img, (round(u0), round(v0)), (round(u1), round(v1)), colour, 2, cv2.LINE_AA, tipLength=0.3)
-    return img
-
-
-def plot_thermal(ax, sim: Simulator, world: int = 0, *, colorbar: bool = True, fig=None):
-    """Draw ``world``'s temperature field with items and the agent into ``ax`` (axes in metres)."""
-    level = sim.level
-    sx, sy = level.arena.size
-    extent = (-sx / 2, sx / 2, -sy / 2, sy / 2)
-    field = sim.fields[world]  # indexed [ix, iy]
-    im = ax.imshow(field.T, origin="lower", extent=extent, cmap="inferno", interpolation="nearest")
-    if colorbar:
-        cb = (fig or ax.figure).colorbar(im, ax=ax, fraction=0.046, pad=0.04)
-        cb.set_label("floor temperature (°C)")
-    present = sim.res_present[world]
-    for kind, colour, marker, name in ((FOOD, "red", "s", "food"), (WATER, "dodgerblue", "s", "water")):
-        sel = present & (sim.pool.feeds == kind)  # apples count as food, the pond as water
-        if sel.any():
-            xy = sim.res_xy[world, sel]
-            ax.scatter(xy[:, 0], xy[:, 1], s=18, c=colour, marker=marker, edgecolors="white", linewidths=0.6,
-                       label=f"{name} ({int(sel.sum())})", zorder=3)
-    x, y = sim.pos[world]
-    h = float(sim.heading_rad[world])
-    arrow = 0.08 * sx
-    ax.annotate("", xy=(x + arrow * math.sin(h), y + arrow * math.cos(h)), xytext=(x, y), zorder=5,
-                annotation_clip=False,  # an agent facing a wall points off the floor
-                arrowprops=dict(arrowstyle="-|>", color=AGENT_COLOUR, lw=2.0, mutation_scale=14))
-    ax.scatter([x], [y], s=90, c=[AGENT_COLOUR], marker="o", edgecolors="black", linewidths=1.2,
-               label=f"agent (heading {math.degrees(h):.0f}°)", zorder=6)
-    ax.set_xlim(extent[0], extent[1])
-    ax.set_ylim(extent[2], extent[3])
-    ax.set_xlabel("x (m, east)")
-    ax.set_ylabel("y (m, north)")
-    ax.set_aspect("equal")
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.11), ncol=3, fontsize=8, frameon=False)
-    return im
-
-
-def title_of(level: Level) -> str:
-    return f"Level {level.name}: {level.description}" if level.description else f"Level {level.name}"
-
-
-# ------------------------------------------------------------------------------------------------- one level
-def render_level(level: Level, out: Path, seed: int) -> list[Path]:
-    """Reset one world of ``level`` with ``seed`` and write its four pictures; returns the paths."""
-    sim = Simulator(level, 1, modalities=["interoception"], seed=seed)
-    try:
-        sim.reset()
-        eye = eye_image(sim)
-        top = top_image(sim)
-        paths = []
-
-        p = out / f"{level.name}_eye.png"
-        cv2.imwrite(str(p), cv2.cvtColor(eye, cv2.COLOR_RGB2BGR))
-        paths.append(p)
-
-        p = out / f"{level.name}_top.png"
-        cv2.imwrite(str(p), cv2.cvtColor(top, cv2.COLOR_RGB2BGR))
-        paths.append(p)
-
-        fig, ax = plt.subplots(figsize=(7.2, 6.6), dpi=110)
-        plot_thermal(ax, sim)
-        ax.set_title(title_of(level), fontsize=10, wrap=True)
-        fig.tight_layout()
-        p = out / f"{level.name}_thermal.png"
-        fig.savefig(p)
-        plt.close(fig)
-        paths.append(p)
-
-        fig, axes = plt.subplots(1, 3, figsize=(17, 6.2), dpi=100,
-                                 gridspec_kw={"width_ratios": [1, 1, 1.2]})
-        axes[0].imshow(eye, interpolation="nearest")
-        axes[0].set_title(f"agent's eye ({sim.level.sensors.vision.width}×{sim.level.sensors.vision.height})")
-        axes[1].imshow(top)
-        axes[1].set_title("top-down view (agent circled, arrow = heading)")
-        for a in axes[:2]:
-            a.set_xticks([])
-            a.set_yticks([])
-        plot_thermal(axes[2], sim, fig=fig)
-        axes[2].set_title("floor temperature, food, water, agent")
-        fig.suptitle(title_of(level), fontsize=13)
-        fig.tight_layout()
-        p = out / f"{level.name}_overview.png"
-        fig.savefig(p)
-        plt.close(fig)
-        paths.append(p)
-        return paths
-    finally:
-        sim.close()
+import evaaa
+from evaaa.pictures import render_level
+from evaaa_baselines import cli
+from evaaa_baselines.cli import option
 
 
 # ------------------------------------------------------------------------------------------------- main

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 from evaaa_baselines import cli  # noqa: E402
 from evaaa_baselines.cli import option  # noqa: E402
-from evaaa_baselines.report import ReportError, build_report  # noqa: E402
+from evaaa_baselines.reports import ReportError, build_report  # noqa: E402
 
 
 @dataclass

@@ -21,6 +21,7 @@ import pytest
 from helpers import load_script, play_server
 from playwright.sync_api import Browser, Page, sync_playwright
 
+from evaaa.play import PlaySettings
 from evaaa.records import read_rows
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -240,7 +241,7 @@ def test_the_command_line_reads_key_value_arguments():
         ("1-2", "07", 3, 5.0, 0, "::1")  # participant 07 stays a string, as typed
     assert options.out == Path("somewhere")
     assert options.overrides == {"episode.max_steps": 5, "agent.move_speed": 10}
-    assert play.parse_args([]) == play.Options()
+    assert play.parse_args([]) == PlaySettings()
 
 
 @pytest.mark.parametrize("args, expected", [
@@ -251,6 +252,7 @@ def test_the_command_line_reads_key_value_arguments():
     (["port=70000"], ["port=70000: expected a port in [0, 65535]"]),
     (["rate=-1"], ["rate=-1: expected a number in [0, 30]"]),
     (["participant=a b"], ["participant=a b: expected letters"]),
+    (["step_log=maybe"], ["step_log=maybe: expected true or false"]),
     (["overrides.episode.max_steps=0"], ["overrides:", "episode.max_steps", "greater than or equal to 1"]),
     (["overrides.episode.nothing=1"], ["overrides:", "episode.nothing: unknown field"]),
     (["episode.max_steps=5"], ["unknown key 'episode.max_steps'"]),

@@ -1,5 +1,6 @@
-"""The play server's defences and records (scripts/play.py): only this machine's own page may drive it, odd requests
-get 4xx answers, and every human record says which run of the server it came from and when it ended."""
+"""The play server's defences and records (evaaa/play.py, run by scripts/play.py): only this machine's own page may
+drive it, odd requests get 4xx answers, and every human record says which run of the server it came from and when it
+ended."""
 
 from __future__ import annotations
 
@@ -12,8 +13,9 @@ from contextlib import contextmanager
 from pathlib import Path
 from urllib.parse import urlsplit
 
-from helpers import load_script, play_server
+from helpers import play_server
 
+from evaaa.play import PlayHandler, PlayServer, PlaySettings, is_loopback, serve
 from evaaa.records import read_rows
 
 
@@ -131,43 +133,39 @@ def test_records_name_their_session_and_time(tmp_path):
 
 # ------------------------------------------------------------------------------------------------- start-up
 def test_unwritable_records_fail_at_start_up(tmp_path, capsys):
-    play = load_script("play")
     blocker = tmp_path / "a-file"
     blocker.write_text("not a directory")
-    assert play.main(["port=0", f"out={blocker / 'records'}"]) == 1
+    assert serve(PlaySettings(port=0, out=blocker / "records")) == 1
     assert f"cannot write records in {blocker / 'records'}" in capsys.readouterr().err
     # a records file from something else is not appended to
     foreign = tmp_path / "foreign"
     foreign.mkdir()
     (foreign / "episodes.csv").write_text("policy,level,steps\nrandom,1-1,5\n")
-    assert play.main(["port=0", f"out={foreign}"]) == 1
+    assert serve(PlaySettings(port=0, out=foreign)) == 1
     assert "holds other columns" in capsys.readouterr().err
     assert (foreign / "episodes.csv").read_text() == "policy,level,steps\nrandom,1-1,5\n"
 
 
 def test_listening_beyond_this_machine_is_warned_about(tmp_path, capsys):
-    play = load_script("play")
-    assert play.is_loopback("127.0.0.1") and play.is_loopback("::1") and play.is_loopback("localhost")
-    assert not play.is_loopback("0.0.0.0") and not play.is_loopback("192.168.1.5")
+    assert is_loopback("127.0.0.1") and is_loopback("::1") and is_loopback("localhost")
+    assert not is_loopback("0.0.0.0") and not is_loopback("192.168.1.5")
     blocker = tmp_path / "a-file"
     blocker.write_text("")
-    assert play.main(["host=0.0.0.0", "port=0", f"out={blocker / 'x'}"]) == 1  # warned, then stopped
+    assert serve(PlaySettings(host="0.0.0.0", port=0, out=blocker / "x")) == 1  # warned, then stopped
     assert "WARNING: listening on 0.0.0.0, not on this machine only" in capsys.readouterr().err
 
 
 def test_a_vanished_browser_leaves_no_traceback(capsys):
-    play = load_script("play")
-
     class Gone(io.RawIOBase):
         def write(self, data):
             raise BrokenPipeError(32, "Broken pipe")
 
-    handler = play.PlayHandler.__new__(play.PlayHandler)
+    handler = PlayHandler.__new__(PlayHandler)
     handler.request_version, handler.command, handler.requestline = "HTTP/1.1", "GET", "GET / HTTP/1.1"
     handler.client_address, handler.close_connection, handler.wfile = ("127.0.0.1", 1), False, Gone()
     handler.send_body(200, "text/plain", b"x" * 100)
     assert handler.close_connection is True
-    server = play.PlayServer.__new__(play.PlayServer)
+    server = PlayServer.__new__(PlayServer)
     try:
         raise ConnectionResetError(104, "Connection reset by peer")
     except ConnectionResetError:

@@ -8,9 +8,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from evaaa.analysis import outcome, plot_bars, plot_outcomes, read_episodes, short_labels
-from evaaa_baselines.report import markdown_table, summarize
-from evaaa_baselines.stats import interval
+from evaaa_baselines.reports import (markdown_table, outcome, plot_outcomes, plot_summary, read_episodes, short_labels,
+                                     summarize)
+from evaaa_baselines.reports.stats import interval
 from evaaa.physiology import END_TYPES
 from evaaa.records import EPISODE_FIELDS, EpisodeTracker, append_rows, read_rows
 
@@ -172,8 +172,7 @@ def test_figures_label_checkpoints_by_what_differs_in_their_paths(tmp_path, monk
     rows = pd.DataFrame({"level": ["two-resource-food"] * 3, "policy": [a, b, "random"], "success": [True, False, True],
                          "steps": [10, 20, 30], "collisions": [0, 1, 2], "end_type": ["ResourceConsumed"] * 3,
                          "food_eaten": [1, 0, 1], "water_eaten": [0, 1, 0]})
-    plot_bars(summarize(rows), "success_rate", "success_low", "success_high", tmp_path / "s.png", ylabel="%",
-              title="t")
+    plot_summary(summarize(rows), tmp_path / "s.png", success=True, title="t")
     plot_outcomes(rows, tmp_path / "o.png")
     assert {"ppo", "dqn", "random"} <= set(shown)
     assert not any(a in t or b in t for t in shown if not t.startswith("checkpoints: ") and "\n" not in t)

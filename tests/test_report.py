@@ -1,7 +1,7 @@
 """Reports: every figure is built from small run directories and evaluation files written here by hand, and the
 numbers in the report's tables are computed here from those inputs (interquartile means, Wilson intervals, means and
-standard errors across seeds; the bootstrap interval from evaaa_baselines.stats, tested on its own, over the strata
-assembled here); missing, partial
+standard errors across seeds; the bootstrap interval from evaaa_baselines.reports.stats, tested on its own, over
+the strata assembled here); missing, partial
 and orphaned inputs are listed; bad input gives clear errors; the launcher presets compose; a modality ablation
 removes a key and nothing else."""
 
@@ -25,10 +25,10 @@ from omegaconf import OmegaConf
 
 import evaaa
 from evaaa_baselines.config import CONF_DIR, observation_keys, register_levels
-from evaaa_baselines.report import ReportError, build_report
-from evaaa_baselines.runtime import EPISODE_COLUMNS, EVAL_COLUMNS
-from evaaa_baselines.stats import interval
-from evaaa.records import append_rows
+from evaaa_baselines.reports import ReportError, build_report
+from evaaa_baselines.runtime import EVAL_COLUMNS
+from evaaa_baselines.reports.stats import interval
+from evaaa.records import TRAINING_EPISODE_FIELDS, append_rows
 
 register_levels()
 
@@ -102,7 +102,7 @@ class Sim:
                     info["final"][name] = value
             if index < finish:
                 (run_dir / f"model-{index}-{name}.pt").touch()
-        write_csv(run_dir / "episodes.csv", EPISODE_COLUMNS, episodes)
+        write_csv(run_dir / "episodes.csv", TRAINING_EPISODE_FIELDS, episodes)
         write_csv(run_dir / "eval.csv", EVAL_COLUMNS, evals)
         (run_dir / "checkpoint.pt").touch()
         return run_dir
@@ -453,7 +453,7 @@ def test_a_checkpoint_evaluated_in_two_ways_is_reported_one_way_at_a_time(world,
 
 
 def test_a_stage_best_model_is_tied_to_its_stage_and_the_final_model_is_preferred(world):
-    from evaaa_baselines.report import attach, final_checkpoints, load_run
+    from evaaa_baselines.reports import attach, final_checkpoints, load_run
 
     sim = world["sim"]
     run = next(d for d, info in sim.runs.items() if info["level"] == "curriculum")
@@ -514,7 +514,7 @@ def test_command_line_rejects_bad_input(world, tmp_path, args, message, capsys):
 
 
 def test_how_a_run_was_started_does_not_split_its_group(tmp_path):
-    from evaaa_baselines.report import describe_extras, load_run
+    from evaaa_baselines.reports import describe_extras, load_run
 
     sim = Sim(tmp_path / "runs")
     dirs = [sim.run("ppo", 0, level="1-1", finish=1), sim.run("ppo", 1, level="1-1", finish=1)]
@@ -528,7 +528,7 @@ def test_how_a_run_was_started_does_not_split_its_group(tmp_path):
 
 
 def test_a_row_cut_short_at_the_end_of_a_csv_is_skipped_and_said(world, tmp_path):
-    from evaaa_baselines.report import load_evaluations, load_run
+    from evaaa_baselines.reports import load_evaluations, load_run
 
     source = next(d for d in world["sim"].runs if d != world["missing"])
     run_dir = tmp_path / "run"
@@ -655,9 +655,8 @@ def test_known_scores_give_their_iqm_and_old_training_files_still_read(tmp_path)
 def test_training_writes_the_episode_fields_of_evaluations():
     """One episode format: training's episodes.csv columns are evaluation's episode fields (same names, same
     meanings) plus where in the run the episode ended; the columns of older files map onto them."""
-    from evaaa.records import EPISODE_FIELDS, TRAINING_EPISODE_FIELDS, TRAINING_OLD_NAMES, TRAINING_ONLY_FIELDS
+    from evaaa.records import EPISODE_FIELDS, TRAINING_OLD_NAMES, TRAINING_ONLY_FIELDS
 
-    assert EPISODE_COLUMNS == TRAINING_EPISODE_FIELDS
     shared = [f for f in TRAINING_EPISODE_FIELDS if f not in TRAINING_ONLY_FIELDS]
     assert shared and set(shared) <= set(EPISODE_FIELDS)
     assert shared == [f for f in EPISODE_FIELDS if f in shared]  # in evaluation's order

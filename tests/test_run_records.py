@@ -26,6 +26,7 @@ from tensordict import TensorDict
 
 from evaaa_baselines import checkpoint, load_policy
 from evaaa_baselines.checkpoint import CheckpointError, load_checkpoint, load_latest, save_checkpoint
+from evaaa_baselines.evaluation import EvaluatedPolicy, EvaluationError
 from evaaa_baselines.config import CONF_DIR, register_levels
 from evaaa_baselines.runner import RunExists, train
 
@@ -123,9 +124,10 @@ def test_a_crafted_checkpoint_cannot_run_code(tmp_path, capsys):
         load_checkpoint(path)
     with pytest.raises(ValueError, match="is refused"):
         load_policy(path)
-    script = load_script("evaluate")
-    with pytest.raises(SystemExit) as refused:
-        script.Policy(str(path), seed=0)
+    with pytest.raises(EvaluationError, match="is refused"):
+        EvaluatedPolicy(str(path), seed=0)
+    with pytest.raises(SystemExit) as refused:  # evaluate.py says so in one line
+        load_script("evaluate").main([f"policy={path}", f"out={tmp_path / 'eval'}"])
     assert refused.value.code == 2 and "is refused" in capsys.readouterr().err
     assert not marker.exists()
     torch.load(path, weights_only=False)  # the file is a real attack: a trusting loader runs it

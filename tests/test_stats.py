@@ -1,11 +1,11 @@
-"""Interval estimates used by the reports (baselines/stats.py)."""
+"""Interval estimates used by the reports (baselines/reports/stats.py)."""
 
 import math
 
 import numpy as np
 import pytest
 
-from evaaa_baselines.stats import binomial_interval, interval, iqm
+from evaaa_baselines.reports.stats import binomial_interval, interval, iqm
 
 
 def test_iqm_is_the_mean_of_the_middle_half():
@@ -54,3 +54,13 @@ def test_binomial_interval_is_wilson_and_not_degenerate_at_the_ends():
     assert full.high == 1 and 0.8 < full.low < 0.9
     with pytest.raises(ValueError, match="successes"):
         binomial_interval(5, 3)
+
+
+def test_a_seed_with_one_episode_stays_fixed_in_every_replicate():
+    # a seed's single episode cannot be redrawn: the replicates pool 10 with two draws from {20, 40}, so their mean
+    # (the IQM of three values cuts nothing) is 50/3, 70/3 or 30 and the interval lies within those
+    est = interval([[10.0], [20.0, 40.0]], "iqm")
+    assert est.value == pytest.approx(70 / 3) and est.n == 3
+    assert 50 / 3 - 1e-9 <= est.low < est.high <= 30 + 1e-9
+    only_singletons = interval([[10.0], [20.0]], "mean")  # nothing to redraw in any seed
+    assert (only_singletons.value, only_singletons.low, only_singletons.high) == (15.0, 15.0, 15.0)

@@ -25,9 +25,11 @@ from hydra import compose, initialize_config_dir
 
 import evaaa
 from evaaa_baselines import checkpoint, evaluate, load_policy, runtime
+from evaaa_baselines.evaluation import EvaluatedPolicy, EvaluationError
 from evaaa_baselines.runtime import DeviceError, Progress, resolve_device
 from evaaa_baselines.config import CONF_DIR, env_overrides, observation_keys, register_levels, stages
 from evaaa_baselines.runner import make_logger, train
+from evaaa.records import TRAINING_EPISODE_FIELDS
 
 register_levels()
 
@@ -154,7 +156,7 @@ def test_smoke_run_writes_checkpoint_csvs_and_final_model(runs, algo):
     assert not list(run_dir.glob(".*.tmp"))  # atomic writes leave no temp file behind
 
     episodes = read_csv(run_dir / "episodes.csv")
-    assert list(episodes[0]) == [c for c in runtime.EPISODE_COLUMNS if c != "wall_time"]
+    assert list(episodes[0]) == [c for c in TRAINING_EPISODE_FIELDS if c != "wall_time"]  # evaaa.records' format
     assert len(episodes) >= 2  # the debug preset's 48-step episodes end several times in 128 steps per world
     for row in episodes:
         assert row["end_type"] in evaaa.END_TYPES[1:]
@@ -211,7 +213,7 @@ def test_existing_run_needs_resume_and_the_same_experiment(runs, tmp_path):
         train(debug_cfg("dqn", "resume=true"), run_dir)
 
 
-def test_evaluate_script_acts_epsilon_greedily_on_request(runs):
+def test_evaluation_acts_epsilon_greedily_on_request(runs):
     from helpers import load_script
 
     script = load_script("evaluate")
@@ -221,7 +223,7 @@ def test_evaluate_script_acts_epsilon_greedily_on_request(runs):
     assert exit_.value.code == 2
     changed = {}
     for eps in (0.0, 0.5, 1.0):
-        policy = script.Policy(path, seed=0, epsilon=eps)
+        policy = EvaluatedPolicy(path, seed=0, epsilon=eps)
         env = policy.make_env("1-1", num_envs=2, seed=0)
         try:
             td = env.reset()
@@ -236,14 +238,11 @@ def test_evaluate_script_acts_epsilon_greedily_on_request(runs):
     assert changed[0.5] == pytest.approx(0.4, abs=0.06) and changed[1.0] == pytest.approx(0.8, abs=0.06)
 
 
-def test_evaluate_script_samples_from_the_policy_on_request(runs):
-    from helpers import load_script
-
-    script = load_script("evaluate")
+def test_evaluation_samples_from_the_policy_on_request(runs):
     path = str(runs("ppo")["whole"] / "model-0-1-1.pt")
     distinct = {}
     for sample in (False, True):
-        policy = script.Policy(path, seed=0, sample=sample)
+        policy = EvaluatedPolicy(path, seed=0, sample=sample)
         env = policy.make_env("1-1", num_envs=2, seed=0)
         try:
             td = env.reset()
@@ -455,9 +454,8 @@ def test_loaded_policy_moves_to_the_device_asked_for(runs, capsys):
 
     script = load_script("evaluate")
     assert script.parse([f"policy={runs('dqn')['whole'] / 'model-0-1-1.pt'}"]).device == "auto"
-    with pytest.raises(SystemExit) as refused:
-        script.Policy(str(runs("dqn")["whole"] / "model-0-1-1.pt"), seed=0, device="tpu")
-    assert refused.value.code == 2 and "device=tpu: not a device; allowed: auto, cpu, cuda" in capsys.readouterr().err
+    with pytest.raises(EvaluationError, match="device=tpu: not a device; allowed: auto, cpu, cuda"):
+        EvaluatedPolicy(str(runs("dqn")["whole"] / "model-0-1-1.pt"), seed=0, device="tpu")
     with pytest.raises(SystemExit) as refused:  # and on the command line, before anything runs
         script.parse([f"policy={runs('dqn')['whole'] / 'model-0-1-1.pt'}", "device=tpu"])
     assert refused.value.code == 2 and "device=tpu: expected auto, cpu, cuda or cuda:N" in capsys.readouterr().err
@@ -520,3 +518,102 @@ def test_a_level_from_the_users_own_file_trains(tmp_path):
     saved = checkpoint.load_checkpoint(run_dir / checkpoint.CHECKPOINT)
     assert saved["config"]["level"]["file"] == str(level_file)
     assert (run_dir / "model-0-few-cubes.pt").exists()  # the stage carries the registered name
+
+
+def test_every_algorithm_config_has_its_module():
+    """conf/algo/<name>.yaml and the module the registry finds for it are the whole of an algorithm."""
+    from evaaa_baselines import algos
+
+    assert algos.names() == options("algo")
+    for name in algos.names():
+        module = algos.algorithm(name)
+        assert all(callable(getattr(module, f)) for f in algos.FUNCTIONS), name
+        assert make_cfg(f"algo={name}").algo.name == name
+    assert algos.algorithm("ppo_lstm").train is algos.algorithm("ppo").train  # a variant shares its code
+    with pytest.raises(ValueError, match="is not an algorithm: it lacks make_model"):
+        algos.algorithm("runner")  # a module of the package, but not an algorithm
+    with pytest.raises(ValueError, match="unknown algo '../dqn'"):
+        algos.algorithm("../dqn")
+
+
+COIN_FLIP = '''"""Uniform random actions: the smallest algorithm the training loop takes (written by a test)."""
+import torch
+from tensordict.nn import TensorDictModuleBase
+from torch import nn
+
+from evaaa import ACTION_NAMES
+
+
+class Logits(nn.Module):
+    def __init__(self):
+        super().__init__()
+        self.logits = nn.Parameter(torch.zeros(len(ACTION_NAMES)))
+
+
+class Flip(TensorDictModuleBase):
+    in_keys, out_keys = ["interoception"], ["action"]
+
+    def __init__(self, model):
+        super().__init__()
+        self.model = model
+
+    def forward(self, td):
+        logits = self.model.logits.expand(*td.batch_size, -1)
+        td["action"] = torch.distributions.Categorical(logits=logits).sample()
+        return td
+
+
+def make_model(cfg, obs_shapes):
+    return Logits()
+
+
+def make_transforms(cfg, obs_keys, model):
+    return []
+
+
+def make_policy(model):
+    return Flip(model)
+
+
+def train(run):
+    model = make_model(run.cfg.algo, run.obs_shapes).to(run.device)
+    run.train_env(make_transforms(run.cfg.algo, run.obs_keys, model))
+    policy = run.acting(make_policy(model))
+    td = run.start(model, {})
+    while not run.done:
+        _, td = run.step(policy, td)
+        run.end_iteration(td)
+'''
+
+
+def test_a_new_algorithm_is_one_module_and_its_config(tmp_path, monkeypatch):
+    """A new algorithm is one module plus its config, in a folder of the user's: registered, it trains with the
+    debug preset, and its checkpoint loads back through the same registry.  No file of the project is edited."""
+    from evaaa_baselines import algos
+
+    (tmp_path / "coin_flip.py").write_text(COIN_FLIP)
+    (tmp_path / "conf" / "algo").mkdir(parents=True)
+    (tmp_path / "conf" / "algo" / "coin_flip.yaml").write_text("name: coin_flip\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(algos, "_registered", {})
+    with pytest.raises(ValueError, match="unknown algo 'coin_flip'; known: dqn, dreamer"):
+        algos.algorithm("coin_flip")
+    import coin_flip
+
+    algos.register("coin_flip", coin_flip)
+    assert algos.algorithm("coin_flip") is coin_flip and "coin_flip" in algos.names()
+    with pytest.raises(ValueError, match="lacks make_model"):
+        algos.register("broken", object())
+
+    cfg = make_cfg("algo=coin_flip", "preset=debug", "logger=csv", "progress=false", f"total_steps={TOTAL}",
+                   f"hydra.searchpath=[file://{tmp_path / 'conf'}]")
+    assert cfg.algo.name == "coin_flip"
+    run_dir = train(cfg, tmp_path / "run")
+    episodes = read_csv(run_dir / "episodes.csv")
+    assert episodes and list(episodes[0]) == [c for c in TRAINING_EPISODE_FIELDS if c != "wall_time"]
+    policy = load_policy(run_dir / "model-0-1-1.pt")
+    assert policy.algo == "coin_flip"
+    env = policy.make_env(num_envs=2, seed=0)
+    actions = policy(env.reset())["action"]
+    assert actions.shape == (2,) and ((actions >= 0) & (actions < len(evaaa.ACTION_NAMES))).all()
+    env.close()

@@ -75,10 +75,19 @@ def interval(samples: Sequence[Sequence[float]], statistic: str = "iqm", *, conf
         return Estimate(value, value if pooled.size > 1 else math.nan, value if pooled.size > 1 else math.nan,
                         int(pooled.size))
 
+    # a seed with one episode has nothing to redraw: its score is in every replicate as it is (scipy's bootstrap
+    # refuses samples of one value)
+    varied = [s for s in strata if s.size > 1]
+    fixed = np.concatenate([s for s in strata if s.size == 1] or [np.empty(0)])
+    if all(np.ptp(s) == 0 for s in varied):  # every replicate is the point itself
+        return Estimate(value, value, value, int(pooled.size))
+
     def pooled_statistic(*parts: np.ndarray, axis: int = -1) -> np.ndarray:
+        if fixed.size:
+            parts = (*parts, np.broadcast_to(fixed, (*parts[0].shape[:-1], fixed.size)))
         return fn(np.concatenate(parts, axis=axis), axis=axis)
 
-    result = sps.bootstrap(tuple(strata), pooled_statistic, n_resamples=resamples, confidence_level=confidence,
+    result = sps.bootstrap(tuple(varied), pooled_statistic, n_resamples=resamples, confidence_level=confidence,
                            method="percentile", paired=False, vectorized=True, rng=np.random.default_rng(seed))
     ci = result.confidence_interval
     return Estimate(value, float(ci.low), float(ci.high), int(pooled.size))

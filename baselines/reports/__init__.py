@@ -1,0 +1,32 @@
+"""Reports from finished (or running) training runs and evaluations: the paper's figures and their tables, and
+``scripts/evaluate.py``'s summary of an evaluation.
+
+The package reads top to bottom:
+
+* :mod:`.load` — the inputs: run directories of ``scripts/train.py`` and episode files of ``scripts/evaluate.py``
+  and ``scripts/play.py``, an evaluated checkpoint tied to its run through the directory it lies in;
+* :mod:`.stats` — the estimators (interquartile mean with a stratified bootstrap interval, Wilson intervals);
+* :mod:`.aggregate` — a report's numbers: survival per stage, training curves, a table cell's statistics over seeds;
+* :mod:`.tables` and :mod:`.figures` — Markdown tables and PNG figures of those numbers;
+* :mod:`.sections` — one function per section of the report, and :func:`build_report`, which writes it.
+
+Runs that differ only in their seed (and in bookkeeping: logger, evaluation and checkpoint cadence, threads, run
+directory) are pooled; anything else that differs (modality, reward, a hyperparameter, steps per stage, curriculum
+or not) makes a separate group, and labels name what differs.  Nothing is dropped silently: runs without episodes,
+unfinished runs and evaluations whose run directory is gone are listed in the report.  See docs/reports.md.
+"""
+
+from .aggregate import STAT_COLUMNS, across_seeds, curves, estimate, final_survival, mean_se, per_run, reference_stats
+from .figures import OUTCOMES, outcome, plot_bars, plot_lines, plot_outcomes, plot_summary, short_labels
+from .load import (REFERENCES, Evaluations, ReportError, RunRecord, attach, describe_extras, display_names,
+                   final_checkpoints, find_run_dirs, labels, load_evaluations, load_run, read_episodes, select_acting)
+from .sections import SECTIONS, Report, build_report
+from .tables import SUMMARY_NOTE, cell, markdown_table, pivot_table, sample_size, summarize
+
+__all__ = [
+    "OUTCOMES", "REFERENCES", "SECTIONS", "STAT_COLUMNS", "SUMMARY_NOTE", "Evaluations", "Report", "ReportError",
+    "RunRecord", "across_seeds", "attach", "build_report", "cell", "curves", "describe_extras", "display_names",
+    "estimate", "final_checkpoints", "final_survival", "find_run_dirs", "labels", "load_evaluations", "load_run",
+    "markdown_table", "mean_se", "outcome", "per_run", "pivot_table", "plot_bars", "plot_lines", "plot_outcomes",
+    "plot_summary", "read_episodes", "reference_stats", "sample_size", "select_acting", "short_labels", "summarize",
+]

@@ -1,0 +1,262 @@
+"""A report's figures: grouped bars and lines of statistics with their intervals, and what happened in each episode
+(outcomes), saved as PNG.  Labels name what differs among the runs shown; titles say which statistic and interval
+are drawn.  ``scripts/evaluate.py`` draws its figures with the same functions.
+"""
+
+from __future__ import annotations
+
+import textwrap
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .load import display_names, level_sorted
+
+#: Outcome of an episode, in the order they are stacked in the outcome plots.
+OUTCOMES: tuple[str, ...] = (
+    "success",
+    "ate food (wrong)",
+    "drank water (wrong)",
+    "starved",
+    "dehydrated",
+    "too hot or cold",
+    "too damaged",
+    "reached max steps",
+)
+OUTCOME_COLOURS = ("#2ca02c", "#d62728", "#1f77b4", "#8c564b", "#17becf", "#ff7f0e", "#7f7f7f", "#bcbd22")
+
+
+def outcome(row) -> str:
+    """The outcome category of one episode row."""
+    if row["success"] is True or row["success"] == 1.0:
+        return "success"
+    end = row["end_type"]
+    if end == "ResourceConsumed":
+        return "ate food (wrong)" if row["food_eaten"] > 0 else "drank water (wrong)"
+    return {
+        "FoodOutOfRange": "starved",
+        "WaterOutOfRange": "dehydrated",
+        "TemperatureOutOfRange": "too hot or cold",
+        "DamageTooHigh": "too damaged",
+    }.get(end, "reached max steps")
+
+
+def short_labels(names: Sequence[str]) -> tuple[dict[str, str], str]:
+    """Figure labels for policy names: a checkpoint path shortened to the path components in which the checkpoints
+    shown differ (``runs/1-1/ppo/all-squared/seed0/model-0-1-1.pt`` and ``runs/1-1/dqn/...`` become ``ppo`` and
+    ``dqn``), how it acted (`` [sample]``) kept; other names (oracle, random, human) unchanged.  Also returns a note
+    that says what the labels stand for (``checkpoints: runs/1-1/<label>/all-squared/seed0/model-0-1-1.pt``), or
+    ``""`` when nothing was shortened.  Full paths made legends wider than the plot and pushed labels off the image."""
+    def split(name: str) -> tuple[str, str]:
+        base, bracket, rest = name.partition(" [")
+        return base, bracket + rest
+
+    paths = list(dict.fromkeys(b for b, _ in map(split, names) if "/" in b or b.endswith(".pt")))
+    short: dict[str, str] = {}
+    note = ""
+    if len(paths) == 1:
+        parts = Path(paths[0]).parts
+        if len(parts) > 2:
+            short[paths[0]] = "/".join(parts[-2:])
+            note = f"{short[paths[0]]}: {paths[0]}"
+    elif paths:
+        parts = [Path(p).parts for p in paths]
+        shortest = min(map(len, parts))
+        head = 0
+        while head < shortest - 1 and len({p[head] for p in parts}) == 1:
+            head += 1
+        tail = 0
+        while tail < shortest - head - 1 and len({p[len(p) - 1 - tail] for p in parts}) == 1:
+            tail += 1
+        labels = {p: "/".join(q[head:len(q) - tail]) for p, q in zip(paths, parts)}
+        if len(set(labels.values())) == len(labels) and all(labels.values()):
+            short = labels
+            note = "checkpoints: " + "/".join([*parts[0][:head], "<label>", *parts[0][len(parts[0]) - tail:]])
+    out = {}
+    for name in names:
+        base, acting = split(name)
+        out[name] = short.get(base, base) + acting
+    return out, note
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _finish(fig, axes, path: Path, title: str) -> Path:
+    """Legends to the right of each panel (labels name algorithm, modality and more, so they are long), title,
+    and the file, cropped to what was drawn."""
+    for ax in axes:
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(frameon=False, fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+        ax.spines[["top", "right"]].set_visible(False)
+    fig.suptitle(title, fontsize=11)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120, bbox_inches="tight")
+    _plt().close(fig)
+    return Path(path)
+
+
+def whiskers(stats: pd.DataFrame, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Bar heights (``value``) and their whiskers as matplotlib's (2, N) ``yerr``: the distance down to ``low`` and
+    up to ``high`` (none where there is no interval)."""
+    value = scale * stats["value"].to_numpy(dtype=float)
+    low = np.nan_to_num(value - scale * stats["low"].to_numpy(dtype=float))
+    high = np.nan_to_num(scale * stats["high"].to_numpy(dtype=float) - value)
+    return value, np.clip(np.vstack([low, high]), 0, None)
+
+
+def interval_note(stats: pd.DataFrame, drawn: str = "whiskers") -> str:
+    """What the figure's bars or lines and their ``drawn`` (whiskers, band) show, for its caption."""
+    kinds = set(stats["statistic"])
+    parts = []
+    if "iqm" in kinds:
+        parts.append(f"interquartile mean, {drawn} 95 % bootstrap interval")
+    if "rate" in kinds:
+        parts.append(f"share of episodes, {drawn} 95 % Wilson interval")
+    return "; ".join(parts)
+
+
+def plot_bars(stats: pd.DataFrame, path: Path, *, ylabel: str, title: str, panel: str | None = None,
+              scale: float = 1.0, levels: Sequence[str] | None = None, top: float | None = None,
+              note: str = "", panel_height: float = 3.4) -> Path:
+    """Grouped bars — one group per ``level``, one bar per ``label`` (``value``, its interval as whiskers) — in one
+    panel per ``panel`` value (or a single panel); the y axis starts at 0 and ends at ``top`` if given.  ``stats``
+    has the columns of :data:`.aggregate.STAT_COLUMNS` (``statistic`` says what the whiskers are, for the title);
+    ``note``: a last line of the title (e.g. what shortened labels stand for); ``panel_height`` in inches."""
+    plt = _plt()
+    panels = list(dict.fromkeys(stats[panel])) if panel else [None]
+    n_levels = stats["level"].nunique()
+    fig, axes = plt.subplots(len(panels), 1, figsize=(max(4.5, 0.55 * len(stats) / len(panels) + 2.5, 1.2 * n_levels),
+                                                      panel_height * len(panels)), squeeze=False)
+    for ax, name in zip(axes[:, 0], panels):
+        part = stats if name is None else stats[stats[panel] == name]
+        order = [lv for lv in (levels or level_sorted(part["level"])) if lv in set(part["level"])]
+        names = list(dict.fromkeys(part["label"]))
+        width = 0.8 / max(len(names), 1)
+        for i, label in enumerate(names):
+            one = part[part["label"] == label].set_index("level").reindex(order)
+            heights, yerr = whiskers(one, scale)
+            ax.bar(np.arange(len(order)) + (i - (len(names) - 1) / 2) * width, heights, width, yerr=yerr, capsize=3,
+                   label=label)
+        ax.set_xticks(range(len(order)), order, rotation=30 if len(order) > 2 else 0,
+                      ha="right" if len(order) > 2 else "center")
+        ax.set_ylabel(ylabel)
+        ax.set_ylim(0, top)
+        if name is not None:
+            ax.set_title(str(name), fontsize=9)
+    return _finish(fig, axes[:, 0], path, f"{title}\n({interval_note(stats)})" + (f"\n{note}" if note else ""))
+
+
+def plot_lines(stats: pd.DataFrame, path: Path, *, x: str, panel: str | None, ylabel: str, xlabel: str,
+               title: str, band: bool, scale: float = 1.0, order: Sequence[str] | None = None,
+               hlines: pd.DataFrame | None = None, top: float | None = None) -> Path:
+    """Lines of ``value`` per ``label`` (one panel per ``panel`` value), with its interval as a band or whiskers;
+    ``order``: categorical x values in this order (labels drawn side by side, slightly apart, so that equal values
+    stay visible); ``hlines``: (label, value) rows drawn as dashed lines; the y axis starts at 0, ends at ``top``."""
+    plt = _plt()
+    panels = list(dict.fromkeys(stats[panel])) if panel else [None]
+    cols = min(len(panels), 2)
+    nrows = -(-len(panels) // cols)
+    fig, axes = plt.subplots(nrows, cols, figsize=(6.5 * cols, 3.6 * nrows), squeeze=False)
+    for ax in axes.flat[len(panels):]:
+        ax.set_visible(False)
+    for ax, name in zip(axes.flat, panels):
+        part = stats if name is None else stats[stats[panel] == name]
+        n_labels = part["label"].nunique()
+        for k, (label, line) in enumerate(part.groupby("label", sort=False)):
+            if order is not None:
+                line = line.assign(_x=line[x].map({v: i for i, v in enumerate(order)})).sort_values("_x")
+                xs = line["_x"].to_numpy(dtype=float) + 0.04 * (k - (n_labels - 1) / 2)
+            else:
+                line = line.sort_values(x)
+                xs = line[x].to_numpy(dtype=float)
+            m, yerr = whiskers(line, scale)
+            if band:
+                (drawn,) = ax.plot(xs, m, marker="." if len(xs) < 30 else None, label=label)
+                ax.fill_between(xs, m - yerr[0], m + yerr[1], alpha=0.25, color=drawn.get_color(), linewidth=0)
+            else:
+                ax.errorbar(xs, m, yerr=yerr, marker="o", capsize=3, label=label)
+        for style, (_, ref) in zip(("--", ":", "-.", (0, (5, 1))), (hlines if hlines is not None else
+                                                                    pd.DataFrame()).iterrows()):
+            ax.axhline(scale * ref["value"], linestyle=style, linewidth=1, color="0.35", label=ref["label"])
+        if order is not None:
+            ax.set_xticks(range(len(order)), order)
+            ax.set_xlim(-0.3, len(order) - 0.7)
+        else:  # env steps: 250k, 1.5M rather than six-digit labels that run into each other
+            from matplotlib.ticker import EngFormatter
+
+            ax.xaxis.set_major_formatter(EngFormatter(sep=""))
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
+        ax.set_ylim(0, top)
+        if name is not None:
+            ax.set_title(str(name), fontsize=9)
+    note = interval_note(stats, "band" if band else "whiskers")
+    return _finish(fig, list(axes.flat[:len(panels)]), path, f"{title}\n({note})")
+
+
+def plot_summary(summary: pd.DataFrame, path: str | Path, *, success: bool, title: str) -> Path:
+    """``scripts/evaluate.py``'s figure of its summary (:func:`.tables.summarize`): per level one bar per policy,
+    the success rate with its Wilson interval (``success``) or the IQM survival with its bootstrap interval;
+    checkpoint paths shortened to the parts in which they differ (the title's last line says how)."""
+    names, note = short_labels(list(dict.fromkeys(summary["policy"])))
+    kind = "success" if success else "survival"
+    stats = pd.DataFrame({"label": summary["policy"].map(names), "level": summary["level"],
+                          "value": summary["success_rate" if success else "survival_iqm"],
+                          "low": summary[f"{kind}_low"], "high": summary[f"{kind}_high"],
+                          "statistic": "rate" if success else "iqm"})
+    return plot_bars(stats, Path(path), levels=list(dict.fromkeys(summary["level"])), scale=100 if success else 1.0,
+                     top=105 if success else None, ylabel="success rate (%)" if success else "survival (decisions)",
+                     title=title, note=note, panel_height=4.2)
+
+
+def plot_outcomes(rows: pd.DataFrame, path: str | Path, *, title: str = "What happened in each episode") -> Path:
+    """Per level and policy, the share of episodes by outcome (success, wrong resource, cause of death,
+    timeout), with the mean number of collisions written above each bar."""
+    rows = rows.assign(policy=display_names(rows))
+    names, note = short_labels(list(dict.fromkeys(rows["policy"])))
+    rows = rows.assign(policy=rows["policy"].map(names))
+    plt = _plt()
+    rows = rows.assign(outcome=rows.apply(outcome, axis=1))
+    levels = list(dict.fromkeys(rows["level"]))
+    policies = list(dict.fromkeys(rows["policy"]))
+    cols = min(len(levels), 5)
+    nrows = -(-len(levels) // cols)
+    fig, axes = plt.subplots(nrows, cols, figsize=(1.0 + cols * max(1.6, 0.65 * len(policies)), 3.2 * nrows + 0.9),
+                             sharey=True, squeeze=False)
+    for ax in axes.flat[len(levels):]:
+        ax.set_visible(False)
+    for ax, level in zip(axes.flat, levels):
+        part = rows[rows["level"] == level]
+        bottom = np.zeros(len(policies))
+        for name, colour in zip(OUTCOMES, OUTCOME_COLOURS):
+            share = np.array([(part[part["policy"] == p]["outcome"] == name).mean() if (part["policy"] == p).any()
+                              else 0.0 for p in policies])
+            ax.bar(range(len(policies)), share, bottom=bottom, color=colour, label=name)
+            bottom += share
+        for i, p in enumerate(policies):
+            hits = part[part["policy"] == p]["collisions"]
+            if len(hits):
+                ax.text(i, 1.02, f"{hits.mean():.1f}", ha="center", fontsize=7)
+        ax.set_xticks(range(len(policies)), policies, rotation=45, ha="right", fontsize=8)
+        ax.set_title("\n".join(textwrap.wrap(level, 18)), fontsize=8)
+        ax.set_ylim(0, 1.12)
+        ax.spines[["top", "right"]].set_visible(False)
+    for ax in axes[:, 0]:
+        ax.set_ylabel("share of episodes", fontsize=8)
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncols=4, frameon=False, fontsize=8)
+    fig.suptitle(f"{title} (numbers: mean collisions per episode)" + (f"\n{note}" if note else ""), fontsize=10)
+    fig.tight_layout(rect=(0, 0.9 / (3.2 * nrows + 0.9), 1, 0.93 if note else 0.96))
+    path = Path(path)
+    fig.savefig(path, dpi=120, bbox_inches="tight")  # rotated labels and the legend stay inside the image
+    plt.close(fig)
+    return path

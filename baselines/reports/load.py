@@ -1,0 +1,375 @@
+"""A report's inputs: training run directories and evaluation episode files, read and tied together.
+
+Inputs are what the other tools write: run directories of ``scripts/train.py`` (``.hydra/config.yaml``,
+``episodes.csv``, ``eval.csv``, ``model-<stage>-<level>.pt``, ``checkpoint.pt``) and episode files of
+``scripts/evaluate.py`` and ``scripts/play.py`` (one row per episode in the format of :mod:`evaaa.records`;
+``policy`` is a checkpoint path, ``oracle``, ``random`` or ``human``).  An evaluated checkpoint is tied to its run
+through the run directory it lies in, whose ``.hydra/config.yaml`` says what was trained (algorithm, modality,
+reward, level or curriculum, seed, ...).  Nothing is dropped silently: what cannot be used says why.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import re
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from omegaconf import OmegaConf
+
+import evaaa
+from evaaa.records import TRAINING_OLD_NAMES
+
+from ..config import stages as config_stages
+
+REFERENCES = ("oracle", "random", "human")
+MODEL_FILE = re.compile(r"^model-(\d+)-(.+)\.pt$")
+#: the network of a stage's best evaluation (runtime.Run.best_model_path)
+BEST_MODEL_FILE = re.compile(r"^model-best-(\d+)-(.+)\.pt$")
+#: Settings that do not change what is trained: runs differing only in these (and the seed) are pooled.
+BOOKKEEPING = ("seed", "resume", "start_over", "threads", "progress", "progress_window", "log_every", "total_steps",
+               "stages", "run.", "logger.", "checkpoint.", "eval.", "level.", "hydra.")
+RUN_COLUMNS = ("env_steps", "stage", "level", "steps")
+EVAL_RUN_COLUMNS = ("env_steps", "stage", "level", "survival_mean")
+EVAL_FILE_COLUMNS = ("policy", "level", "steps", "success", "episode")
+LEVEL_ORDER = {name: i for i, name in enumerate((*evaaa.LEVELS, *evaaa.TESTBEDS))}
+
+
+def level_sorted(names: Iterable[str]) -> list[str]:
+    """``names`` without repeats, levels in curriculum order, then testbeds in theirs, then any others by name."""
+    return sorted(dict.fromkeys(names), key=lambda n: (LEVEL_ORDER.get(n, len(LEVEL_ORDER)), n))
+
+
+class ReportError(ValueError):
+    """Bad input: a path that does not exist, a file of the wrong kind, nothing to report on."""
+
+
+# ------------------------------------------------------------------------------------------------ runs
+@dataclass
+class RunRecord:
+    """One training run directory as a report reads it: what it was configured to do and how far it got
+    (the training loop's own view of a stage is :class:`evaaa_baselines.runtime.Run`)."""
+
+    dir: Path
+    config: dict = field(default_factory=dict)
+    algo: str = "?"
+    modality: str = "?"
+    reward: str = "?"
+    seed: int | None = None
+    curriculum: bool = False
+    stages: list[tuple[int, str, int]] = field(default_factory=list)  # (index, level, budget)
+    episodes: pd.DataFrame | None = None
+    evals: pd.DataFrame | None = None
+    complete: set[int] = field(default_factory=set)  # indices of finished stages
+    steps: int = 0  # env steps reached, summed over stages
+    problem: str | None = None  # why the run is missing or partial (None: finished)
+    usable: bool = True  # False: nothing of it can be reported (no config or no episodes file)
+    extras: tuple = ()  # other settings that tell this run's group apart (filled by describe_extras)
+    notes: list[str] = field(default_factory=list)  # what was skipped while reading its files
+
+    @property
+    def total(self) -> int:
+        return sum(b for _, _, b in self.stages)
+
+    @property
+    def training(self) -> str:
+        return "curriculum" if self.curriculum else (self.stages[0][1] if self.stages else "?")
+
+    def offset(self, stage: int) -> int:
+        """Env steps of the stages before ``stage``."""
+        return sum(b for i, _, b in self.stages if i < stage)
+
+    @property
+    def latest_stage(self) -> int:
+        """The stage the run is in (or ended in)."""
+        seen = [int(s) for df in (self.episodes, self.evals) if df is not None and len(df) for s in df["stage"]]
+        return max([*seen, *self.complete, 0])
+
+
+def find_run_dirs(paths: Iterable[str | Path]) -> list[Path]:
+    """Run directories at or under ``paths``: directories with ``.hydra/config.yaml`` or a training
+    ``episodes.csv`` / ``eval.csv`` / checkpoint (hidden folders such as submitit's logs are skipped)."""
+    found: list[Path] = []
+    for root in paths:
+        root = Path(root)
+        if not root.is_dir():
+            raise ReportError(f"runs: {root} is not a directory")
+        before = len(found)
+        for here, dirs, files in os.walk(root):
+            dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+            here = Path(here)
+            if (here / ".hydra" / "config.yaml").is_file() or _looks_like_run(here, files):
+                found.append(here)
+                dirs[:] = []  # a run directory holds no other run
+        if len(found) == before:
+            raise ReportError(f"runs: no run directory (.hydra/config.yaml, episodes.csv, eval.csv) under {root}")
+    return list(dict.fromkeys(p.resolve() for p in found))
+
+
+def _looks_like_run(here: Path, files: Sequence[str]) -> bool:
+    if "checkpoint.pt" in files or any(MODEL_FILE.match(f) for f in files):
+        return True
+    for name in ("episodes.csv", "eval.csv"):
+        if name in files:
+            with open(here / name, newline="") as f:
+                header = f.readline().strip().split(",")
+            if {"env_steps", "stage"} <= set(header):  # training files, not evaluate.py's episodes.csv
+                return True
+    return False
+
+
+def load_run(run_dir: str | Path) -> RunRecord:
+    """A run directory as a :class:`RunRecord`; a run that cannot be used says why in ``problem``."""
+    run = RunRecord(Path(run_dir).resolve())
+    cfg_path = run.dir / ".hydra" / "config.yaml"
+    if not cfg_path.is_file():
+        run.problem, run.usable = "no .hydra/config.yaml: its settings are unknown, so it is left out", False
+        return run
+    try:
+        cfg = OmegaConf.load(cfg_path)
+        run.config = OmegaConf.to_container(cfg, resolve=True)
+        run.algo, run.modality, run.reward = cfg.algo.name, cfg.modality.name, cfg.reward.name
+        run.seed = int(cfg.seed)
+        run.curriculum = "stages" in cfg.level
+        run.stages = [(s.index, s.level, s.budget) for s in config_stages(cfg)]
+    except Exception as err:  # noqa: BLE001 - any malformed config is reported, not fatal
+        run.problem, run.usable = f"unreadable .hydra/config.yaml ({err}); left out", False
+        return run
+    run.episodes = _read_run_csv(run.dir / "episodes.csv", RUN_COLUMNS, run.notes)
+    run.evals = _read_run_csv(run.dir / "eval.csv", EVAL_RUN_COLUMNS, run.notes)
+    for index, level, budget in run.stages:
+        later = any(df is not None and (df["stage"] > index).any() for df in (run.episodes, run.evals))
+        evaluated_at_end = run.evals is not None and ((run.evals["stage"] == index)
+                                                      & (run.evals["env_steps"] >= budget)).any()
+        if (run.dir / f"model-{index}-{level}.pt").is_file() or later or evaluated_at_end:
+            run.complete.add(index)
+    # env steps reached: the furthest logged step (a stage ended by `max_minutes` is complete short of its budget);
+    # a complete stage that logged nothing counts its whole budget
+    reached, logged = [], set()
+    for df in (run.episodes, run.evals):
+        if df is not None and len(df):
+            reached += [run.offset(int(s)) + int(e) for s, e in zip(df["stage"], df["env_steps"])]
+            logged |= {int(s) for s in df["stage"]}
+    reached += [run.offset(i) + run.stages[i][2] for i in run.complete if i not in logged]
+    run.steps = min(max(reached, default=0), run.total)
+    if run.episodes is None:
+        run.problem, run.usable = "missing: no episodes.csv (the run never started, or its files are gone)", False
+    elif len(run.complete) < len(run.stages):
+        unfinished = [level for i, level, _ in run.stages if i not in run.complete]
+        run.problem = (f"partial: {run.steps:,} of {run.total:,} env steps (unfinished: {', '.join(unfinished)}); "
+                       "its curves are drawn, its unfinished stages are left out of the final-survival tables")
+    if run.episodes is not None and not len(run.episodes) and run.problem is None:
+        run.problem = "no finished training episode (the budget is shorter than an episode)"
+    return run
+
+
+def csv_text(path: Path, notes: list[str]) -> io.StringIO:
+    """A CSV file's text, less a last row cut short (every writer here ends its rows with a newline: a file that
+    does not end with one was being written when its process stopped); ``notes`` gets a line saying so.
+
+    Raises :class:`ReportError` for an empty file (it has not even a header)."""
+    data = path.read_bytes()
+    if not data.strip():
+        raise ReportError(f"{path} is empty ({len(data)} bytes, not even a header line): remove it or write it again")
+    text = data.decode("utf-8", errors="replace")
+    if not text.endswith("\n") and "\n" in text.rstrip("\r"):
+        text = text[: text.rindex("\n") + 1]
+        notes.append(f"{path}: its last row was cut short (the file was being written when its process stopped); "
+                     "that row is skipped")
+    return io.StringIO(text)
+
+
+def _read_run_csv(path: Path, needed: Sequence[str], notes: list[str]) -> pd.DataFrame | None:
+    if not path.is_file():
+        return None
+    df = pd.read_csv(csv_text(path, notes))
+    df = df.rename(columns={k: v for k, v in TRAINING_OLD_NAMES.items() if v not in df.columns})  # older runs
+    missing = [c for c in needed if c not in df.columns]
+    if missing:
+        raise ReportError(f"{path} is not a training {path.name} (no column {', '.join(missing)})")
+    return df
+
+
+def describe_extras(runs: Sequence[RunRecord]) -> None:
+    """Set each run's ``extras``: the settings (beyond algorithm, modality, reward and training levels) in which
+    runs of the same algorithm differ, as ``key=value`` pairs, so that they land in separate groups."""
+    flat = {id(r): _flatten(r.config) | {"steps_per_stage": r.stages[0][2] if r.stages else None} for r in runs}
+    by_algo: dict[str, list[RunRecord]] = {}
+    for r in runs:
+        by_algo.setdefault(r.algo, []).append(r)
+    for same in by_algo.values():
+        keys = sorted({k for r in same for k in flat[id(r)]})
+        varying = [k for k in keys if not k.startswith(BOOKKEEPING) and k not in ("algo.name", "modality.name",
+                                                                                  "reward.name")
+                   and not k.startswith("modality.enabled")
+                   and len({repr(flat[id(r)].get(k)) for r in same}) > 1]
+        for r in same:
+            r.extras = tuple(f"{k}={flat[id(r)].get(k)}" for k in varying)
+
+
+def _flatten(node: Any, prefix: str = "") -> dict[str, Any]:
+    if isinstance(node, dict):
+        out: dict[str, Any] = {}
+        for k, v in node.items():
+            out |= _flatten(v, f"{prefix}{k}.")
+        return out
+    return {prefix[:-1]: node}
+
+
+def labels(runs: Sequence[RunRecord], parts: Sequence[str] = ("algo", "modality", "reward", "extras", "condition")
+           ) -> dict[Path, str]:
+    """A label per run naming the algorithm and whichever of ``parts`` differ among ``runs`` (so runs that differ
+    only in their seed share a label).  ``condition``: curriculum or direct; ``training``: curriculum or the level."""
+    def part(r: RunRecord, name: str) -> str:
+        if name == "condition":
+            return "curriculum" if r.curriculum else "direct"
+        if name == "training":
+            return "curriculum" if r.curriculum else f"trained on {r.training}"
+        if name == "extras":
+            return ", ".join(r.extras)
+        return str(getattr(r, name))
+
+    shown = [p for p in parts if p == "algo" or len({part(r, p) for r in runs}) > 1]
+    return {r.dir: " · ".join(x for x in (part(r, p) for p in shown) if x) for r in runs}
+
+
+
+# ------------------------------------------------------------------------------------------------ episode files
+def read_episodes(paths: Sequence[str | Path | io.StringIO]) -> pd.DataFrame:
+    """Episode rows of several CSV files in one frame (``success`` as booleans, NaN where a level has none)."""
+    frames = [pd.read_csv(p, dtype={"participant": str, "seed": str}, keep_default_na=False) for p in paths]
+    if not frames:
+        raise ValueError("no episode files given")
+    rows = pd.concat(frames, ignore_index=True)
+    # files written before the acting column existed: how their checkpoints acted is not known
+    rows["acting"] = rows["acting"].fillna("") if "acting" in rows else ""
+    rows["success"] = rows["success"].map({"True": True, "False": False, True: True, False: False, "": np.nan})
+    return rows
+
+
+def display_names(rows: pd.DataFrame) -> pd.Series:
+    """The policy column as tables and figures show it: a checkpoint's path with how it acted, e.g.
+    ``run/model-0-1-1.pt [sample]``, so that one checkpoint evaluated in two ways gives two entries."""
+    if "acting" not in rows:
+        return rows["policy"]
+    acting = rows["acting"].fillna("").astype(str)
+    return rows["policy"].where(acting == "", rows["policy"] + " [" + acting + "]")
+
+
+# ------------------------------------------------------------------------------------------------ evaluations
+def load_evaluations(paths: Iterable[str | Path], notes: list[str] | None = None) -> pd.DataFrame:
+    """Episode rows of evaluation outputs (an ``out`` directory of evaluate.py or an episode CSV, e.g. human
+    play records), in one frame with a ``file`` column.  ``notes`` gets a line per skipped (cut short) row."""
+    notes = [] if notes is None else notes
+    frames = []
+    for p in paths:
+        p = Path(p)
+        file = p / "episodes.csv" if p.is_dir() else p
+        if not file.is_file():
+            raise ReportError(f"evals: {p} is neither an episode CSV nor a directory holding episodes.csv")
+        text = csv_text(file, notes)
+        columns = set(pd.read_csv(text, nrows=0).columns)
+        missing = [c for c in EVAL_FILE_COLUMNS if c not in columns]
+        if missing:
+            raise ReportError(f"evals: {file} is not an episode file of scripts/evaluate.py or scripts/play.py "
+                              f"(no column {', '.join(missing)})")
+        text.seek(0)
+        rows = read_episodes([text])
+        frames.append(rows.assign(file=str(file)))
+    if not frames:
+        return pd.DataFrame(columns=[*EVAL_FILE_COLUMNS, "participant", "file"])
+    return pd.concat(frames, ignore_index=True)
+
+
+def select_acting(evals: pd.DataFrame, acting: str | None) -> pd.DataFrame:
+    """Keep the checkpoints' episodes made acting ``acting`` (evaluate.py's ``acting`` column: ``mode``,
+    ``sample``, ``mode+epsilon=0.05`` ...); reference agents' are always kept.  Without ``acting``, a checkpoint
+    evaluated in more than one way is an error: pooling its greedy and sampled episodes would describe neither."""
+    if not len(evals):
+        return evals
+    if acting == "unknown":  # episodes written before evaluate.py recorded how checkpoints acted
+        acting = ""
+    is_ckpt = ~evals["policy"].isin(REFERENCES) & evals["policy"].map(_is_checkpoint_path)
+    modes = evals.loc[is_ckpt, "acting"].astype(str)
+    if acting is not None:
+        if not (modes == acting).any() and is_ckpt.any():
+            raise ReportError(f"acting: no checkpoint was evaluated acting {acting!r}; the evaluations hold "
+                              f"{', '.join(repr(m) for m in dict.fromkeys(modes))}")
+        return evals[~is_ckpt | (evals["acting"].astype(str) == acting)]
+    for policy, part in evals[is_ckpt].groupby("policy", sort=False):
+        ways = list(dict.fromkeys(part["acting"].astype(str)))
+        if len(ways) > 1:
+            raise ReportError(f"evals: {policy} was evaluated in {len(ways)} ways ({', '.join(map(repr, ways))}); "
+                              f"choose one with acting=<{'|'.join(w or 'unknown' for w in ways)}>")
+    return evals
+
+
+@dataclass
+class Evaluations:
+    """Evaluation episodes split into those of checkpoints tied to runs and those of reference agents."""
+
+    checkpoints: pd.DataFrame  # + columns run (Path), ckpt_stage, ckpt_level, checkpoint
+    references: pd.DataFrame
+    orphans: list[str]  # problems: checkpoints whose run is gone or unreadable
+
+
+def attach(evals: pd.DataFrame, runs: dict[Path, RunRecord]) -> Evaluations:
+    """Tie every checkpoint's episodes to its run (the directory the checkpoint lies in; relative paths are taken
+    from the current directory).  Runs found this way that were not among ``runs`` are loaded and added."""
+    is_ref = evals["policy"].isin(REFERENCES) | ~evals["policy"].map(_is_checkpoint_path)
+    refs, ckpts = evals[is_ref].copy(), evals[~is_ref].copy()
+    orphans: list[str] = []
+    info: dict[str, tuple[Path | None, int, str]] = {}
+    for policy, part in ckpts.groupby("policy", sort=False):
+        where = (f"{len(part)} episodes on {', '.join(dict.fromkeys(part['level']))} "
+                 f"in {', '.join(dict.fromkeys(part['file']))}")
+        path = Path(policy)
+        run_dir = path.parent.resolve()
+        if run_dir not in runs:
+            if (run_dir / ".hydra" / "config.yaml").is_file():
+                runs[run_dir] = load_run(run_dir)
+            else:
+                gone = "is gone" if not run_dir.is_dir() else "has no .hydra/config.yaml"
+                orphans.append(f"evaluation of {policy}: its run directory {gone}; left out ({where})")
+                info[policy] = (None, -1, "")
+                continue
+        run = runs[run_dir]
+        if not run.config:
+            orphans.append(f"evaluation of {policy}: its run's settings are unknown ({run.problem}); left out "
+                           f"({where})")
+            info[policy] = (None, -1, "")
+            continue
+        match = MODEL_FILE.match(path.name) or BEST_MODEL_FILE.match(path.name)
+        if match:
+            stage, level = int(match.group(1)), match.group(2)
+        else:  # checkpoint.pt (or a renamed file): the latest state, in the stage the run is in
+            stage = run.latest_stage
+            level = next((lv for i, lv, _ in run.stages if i == stage), run.training)
+        if not path.is_file():
+            orphans.append(f"evaluation of {policy}: the checkpoint file is gone but its run is there; its episodes "
+                           f"are used ({where})")
+        info[policy] = (run_dir, stage, level)
+    ckpts["run"] = ckpts["policy"].map(lambda p: info[p][0])
+    ckpts["ckpt_stage"] = ckpts["policy"].map(lambda p: info[p][1])
+    ckpts["ckpt_level"] = ckpts["policy"].map(lambda p: info[p][2])
+    ckpts = ckpts[ckpts["run"].notna()]
+    return Evaluations(ckpts, refs, orphans)
+
+
+def _is_checkpoint_path(policy: str) -> bool:
+    return policy.endswith(".pt") or "/" in policy or os.sep in policy
+
+
+def final_checkpoints(ckpts: pd.DataFrame) -> pd.DataFrame:
+    """Per run, the episodes of its furthest-trained evaluated checkpoint (a final ``model-*.pt`` before a
+    ``model-best-*.pt`` or ``checkpoint.pt`` of the same stage)."""
+    if not len(ckpts):
+        return ckpts
+    ckpts = ckpts.assign(_model=ckpts["policy"].map(lambda p: bool(MODEL_FILE.match(Path(p).name))))
+    best = (ckpts.sort_values(["ckpt_stage", "_model"], kind="stable").groupby("run", sort=False)["policy"].last())
+    return ckpts[ckpts["policy"].isin(set(best))].drop(columns="_model")
