@@ -49,6 +49,18 @@ class NavGrid:
         self.graph = self._graph(blocked, self.cost)
         self._trees: dict[int, np.ndarray] = {}
 
+    def to_data(self) -> dict[str, np.ndarray]:
+        """The grid as plain arrays (what a snapshot or checkpoint holds); :meth:`from_data` rebuilds it."""
+        return {"size": self.size.copy(), "blocked": self.blocked.copy(), "cost": self.cost.copy()}
+
+    @classmethod
+    def from_data(cls, data) -> "NavGrid":
+        """A grid from :meth:`to_data`'s arrays (an old in-memory snapshot's grid object is taken as it is)."""
+        if isinstance(data, NavGrid):
+            return data
+        return cls(tuple(np.asarray(data["size"], dtype=np.float64)), np.asarray(data["blocked"], dtype=bool),
+                   np.asarray(data["cost"], dtype=np.float64))
+
     @classmethod
     def from_boxes(cls, arena_size, xy: np.ndarray, half: np.ndarray, heading: np.ndarray | None = None,
                    inflate: float = 0.0, cell: float = 1.0) -> "NavGrid":

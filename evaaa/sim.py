@@ -49,6 +49,7 @@ from .workers import Workers
 from .worldgen import (
     AGENT_HALF,
     ObstaclePool,
+    PatrolArea,
     ResourcePool,
     place_landmarks,
     sample_agent_start,
@@ -525,7 +526,9 @@ class Simulator:
             "rngs": [rng.bit_generator.state for rng in self.rngs],
             "predators": {name: getattr(self.predators, name).copy() for name in self._PREDATOR_ARRAYS}
             | {"routes": [[None if r is None else r.copy() for r in world] for world in self.predators.routes],
-               "grids": list(self.predators.grids), "areas": list(self.predators.areas),
+               # plain arrays, so that a checkpoint can hold them: the grids' cells, the patrol areas' landmarks
+               "grids": [None if g is None else g.to_data() for g in self.predators.grids],
+               "areas": [None if a is None else a.points.copy() for a in self.predators.areas],
                "landmarks": [p.copy() for p in self.predators.landmarks]},
             "last_obs": {k: v.copy() for k, v in self.last_obs.items()},
             "last_info": {k: v.copy() for k, v in self.last_info.items()},
@@ -551,8 +554,9 @@ class Simulator:
         for name in self._PREDATOR_ARRAYS:
             setattr(self.predators, name, predators[name].copy())
         self.predators.routes = [[None if r is None else r.copy() for r in world] for world in predators["routes"]]
-        self.predators.grids = list(predators["grids"])
-        self.predators.areas = list(predators["areas"])
+        self.predators.grids = [None if g is None else NavGrid.from_data(g) for g in predators["grids"]]
+        self.predators.areas = [a if a is None or isinstance(a, PatrolArea) else PatrolArea(np.asarray(a))
+                                for a in predators["areas"]]
         self.predators.landmarks = [p.copy() for p in predators["landmarks"]]
         self.last_obs = {k: v.copy() for k, v in snapshot["last_obs"].items()}
         self.last_info = {k: v.copy() for k, v in snapshot["last_info"].items()}

@@ -547,6 +547,39 @@ def test_snapshot_restore_continues_exactly():
     other.close()
 
 
+def test_a_snapshot_with_predators_is_plain_data_and_continues_exactly_in_another_env():
+    from evaaa_baselines.checkpoint import from_plain, to_plain
+
+    def make():
+        return evaaa.make_env("4-2", num_envs=2, seed=3, modalities=["interoception", "collision"])
+
+    actions = torch.randint(0, 5, (160, 2), generator=torch.Generator().manual_seed(1))
+
+    def run(env, td, steps):
+        out = []
+        for t in steps:
+            td["action"] = actions[t]
+            step, td = env.step_and_maybe_reset(td)
+            out.append(step["next"].clone())
+        return torch.stack(out), td
+
+    env = make()
+    _, td = run(env, env.reset(), range(80))
+    start = env.sim.predators.xy.copy()
+    # what a checkpoint holds: plain data only (the predators' navigation grids and patrol areas as arrays)
+    stored = from_plain(to_plain(env.snapshot()))
+    saved_td = td.clone()
+    first, _ = run(env, td, range(80, 160))
+    assert not np.allclose(env.sim.predators.xy, start)  # the predators moved on their routes
+    other = make()
+    other.reset()
+    other.restore(stored)
+    second, _ = run(other, saved_td, range(80, 160))
+    assert (first == second).all()
+    env.close()
+    other.close()
+
+
 def test_closing_one_env_leaves_the_others_pictures_intact():
     keep = evaaa.make_env("1-1", seed=0, modalities=["pixels"])
     before = keep.reset()["pixels"].clone()
