@@ -557,6 +557,21 @@ def diagnostics(model: DreamerModel, critic: TensorDictSequential, posterior: Te
 
 
 # ------------------------------------------------------------------------------------------------ training
+def replay_value_loss(value_loss: DreamerV3ValueLoss, posterior: TensorDictBase, imagined: TensorDictBase,
+                      cfg: DictConfig) -> torch.Tensor:
+    """The critic's loss on the replayed sequences themselves (DreamerV3's ``repval``, ``algo.critic.replay_scale``):
+    each posterior state's λ-return from the real rewards and episode ends that follow it in the sequence,
+    bootstrapped from its first imagined return, so that the critic also learns what really followed — a death
+    whose penalty the reward and continue heads still miss — and not only what imagination predicts.  The states
+    carry no gradient into the world model (its optimiser is separate)."""
+    nxt = posterior["next"]
+    replay = TensorDict({k: nxt[k].detach().float() for k in LATENT}, posterior.shape)
+    replay["bootstrap"] = imagined["lambda_target"][:, 0].detach().reshape(posterior.shape)
+    replay["next", "reward"] = nxt["true_reward"].float()
+    replay["next", "done"], replay["next", "terminated"] = nxt["done"], nxt["terminated"]
+    return value_loss.replay_value_loss(replay, horizon=1 / (1 - cfg.gamma), lmbda=cfg.lmbda)["loss_replay_value"]
+
+
 def _updates_due(cfg: DictConfig, steps: int, rows: int, num_envs: int) -> int:
     """Gradient steps owed after ``steps`` env steps: ``replay_ratio`` per env step once ``learning_starts`` env
     steps are stored and every world holds a sequence."""
@@ -631,6 +646,7 @@ def train(run: Run) -> None:
                                     actor_loss=actor_loss, slow_critic_regularization=cfg.critic.slow_regularizer)
     model_loss.to(device), actor_loss.to(device), value_loss.to(device)
     slow_critic = SoftUpdate(value_loss, tau=cfg.critic.tau)
+    replay_scale = float(cfg.critic.get("replay_scale", 0.0))
 
     def adam(params, section: DictConfig) -> torch.optim.Adam:
         return torch.optim.Adam(params, lr=section.lr, eps=section.eps, fused=True)  # fused: ~5x faster on CPU
@@ -682,7 +698,11 @@ def train(run: Run) -> None:
         actor_norm = step("actor", actor_out["loss_actor"], list(model.actor.parameters()), cfg.actor.grad_clip)
         with run.autocast():
             critic_out, _ = value_loss(imagined.detach())
-        critic_norm = step("critic", critic_out["loss_value"], list(model.value.parameters()), cfg.critic.grad_clip)
+            critic_loss = critic_out["loss_value"]
+            if replay_scale:
+                replay_loss = replay_value_loss(value_loss, posterior, imagined, cfg)
+                critic_loss = critic_loss + replay_scale * replay_loss
+        critic_norm = step("critic", critic_loss, list(model.value.parameters()), cfg.critic.grad_clip)
         slow_critic.step()
         # tensors, not floats: run.log reads them (a host sync on a GPU) only when a log is due
         metrics = {f"model_{k.removeprefix('loss_model_')}": v.detach() for k, v in losses.items()}
@@ -691,8 +711,10 @@ def train(run: Run) -> None:
                     "return_scale": actor_out["return_scale"], "actor_grad_norm": actor_norm,
                     "imagined_reward": imagined["next", "reward"].mean(),
                     "imagined_continuation": actor_out["continuation_mean"],
-                    "critic_loss": critic_out["loss_value"].detach(), "critic_grad_norm": critic_norm,
+                    "critic_loss": critic_loss.detach(), "critic_grad_norm": critic_norm,
                     "imagined_return": imagined["lambda_target"].mean()}
+        if replay_scale:
+            metrics["critic_replay_loss"] = replay_loss.detach()
         if run.log_due:
             metrics |= diagnostics(model, critic, posterior, imagined, actor_out["return_scale"])
         return metrics

@@ -130,3 +130,31 @@ def test_diagnostics_say_what_the_heads_and_the_actor_do(model):
     assert out["advantage_forward"].item() == pytest.approx(advantage[1:3].mean().item(), rel=1e-5)
     assert out["advantage_eat"].item() == pytest.approx(advantage[3:].mean().item(), rel=1e-5)
     assert math.isnan(out["advantage_left"].item()) and math.isnan(out["advantage_right"].item())
+
+
+def test_the_replay_value_loss_targets_the_real_rewards_after_each_state(model):
+    from torchrl.objectives import DreamerV3ValueLoss
+    from torchrl.objectives.dreamer_v3 import two_hot_cross_entropy
+
+    with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
+        cfg = compose("config", overrides=["algo=dreamer", "preset=debug"]).algo
+    critic = dreamer.value_model(model)
+    loss = DreamerV3ValueLoss(critic, value_loss="two_hot", num_value_bins=cfg.model.bins,
+                              slow_critic_regularization=0.0)
+    torch.manual_seed(1)
+    time = 3
+    latents = {"state": torch.randn(1, time, model.state_dim), "belief": torch.randn(1, time, model.belief_dim)}
+    reward = torch.tensor([[0.5, -2.0, 4.0]]).unsqueeze(-1)
+    no = torch.zeros(1, time, 1, dtype=torch.bool)
+    posterior = TensorDict({"next": {**latents, "true_reward": reward, "done": no, "terminated": no}}, [1, time])
+    bootstrap = torch.tensor([10.0, 20.0, 30.0])  # each state's first imagined return, in the batch's order
+    imagined = TensorDict({"lambda_target": torch.stack([bootstrap, bootstrap - 1], 1).unsqueeze(-1)}, [time, 2])
+    got = dreamer.replay_value_loss(loss, posterior, imagined, cfg)
+
+    gamma, lmbda = cfg.gamma, cfg.lmbda
+    # state k's return: the reward of the step after it, then its successor's bootstrap and return
+    second = 4.0 + gamma * 30.0
+    first = -2.0 + gamma * ((1 - lmbda) * 20.0 + lmbda * second)
+    logits = critic(TensorDict({k: v[0, :2] for k, v in latents.items()}, [2]))["state_value_logits"]
+    want = two_hot_cross_entropy(logits, torch.tensor([first, second]), loss.value_bins).mean()
+    assert got.item() == pytest.approx(want.item(), rel=1e-5)
