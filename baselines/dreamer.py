@@ -647,6 +647,7 @@ def train(run: Run) -> None:
     model_loss.to(device), actor_loss.to(device), value_loss.to(device)
     slow_critic = SoftUpdate(value_loss, tau=cfg.critic.tau)
     replay_scale = float(cfg.critic.get("replay_scale", 0.0))
+    reward_scale = float(cfg.get("reward_scale", 1.0))
 
     def adam(params, section: DictConfig) -> torch.optim.Adam:
         return torch.optim.Adam(params, lr=section.lr, eps=section.eps, fused=True)  # fused: ~5x faster on CPU
@@ -726,7 +727,10 @@ def train(run: Run) -> None:
     while not run.done:
         transition, td = run.step(prefill_policy if cfg.prefill_random and run.steps < start else policy, td)
         transition["next", "consumed"] = consumed(transition)
-        replay.extend(transition.select(*stored))
+        stored_td = transition.select(*stored)
+        if reward_scale != 1.0:  # the world model learns the scaled reward; the logged episode returns stay the env's
+            stored_td["next", "reward"] = stored_td["next", "reward"] * reward_scale
+        replay.extend(stored_td)
         metrics = None
         due = _updates_due(cfg, run.steps, replay.rows, num_envs)
         run.set_phase("prefill" if due == 0 else None)

@@ -158,3 +158,25 @@ def test_the_replay_value_loss_targets_the_real_rewards_after_each_state(model):
     logits = critic(TensorDict({k: v[0, :2] for k, v in latents.items()}, [2]))["state_value_logits"]
     want = two_hot_cross_entropy(logits, torch.tensor([first, second]), loss.value_bins).mean()
     assert got.item() == pytest.approx(want.item(), rel=1e-5)
+
+
+def test_the_replay_stores_the_scaled_reward_and_the_episodes_keep_the_envs(tmp_path):
+    from evaaa_baselines.runner import train
+
+    def run(scale: float):
+        with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
+            cfg = compose("config", overrides=["algo=dreamer", "preset=debug", "logger=csv", "progress=false",
+                                               "threads=1", "total_steps=96", "algo.learning_starts=1000",
+                                               f"algo.reward_scale={scale}"])
+        train(cfg, tmp_path / str(scale))
+        rows = TensorDict.load_memmap(tmp_path / str(scale) / "replay" / "0-1-1")
+        episodes = [line.split(",")[:-1] for line in (tmp_path / str(scale) / "episodes.csv").read_text().splitlines()]
+        return rows["next", "reward"][:48], episodes  # every row but its wall time
+
+    plain, plain_episodes = run(1.0)
+    scaled, scaled_episodes = run(10.0)
+    # no gradient step in either run (learning starts later): the same actions, the stored reward times 10
+    assert plain.abs().sum() > 0
+    assert torch.allclose(scaled, 10 * plain)
+    # the episodes' logged returns are the env's, unscaled
+    assert len(plain_episodes) >= 3 and scaled_episodes == plain_episodes
