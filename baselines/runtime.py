@@ -563,6 +563,11 @@ class Run:
 
     def _restore(self, state: dict) -> TensorDictBase:
         self.model.load_state_dict(state["model"])
+        missing = sorted(set(self.components) - set(state["components"]))
+        if missing:  # e.g. a PPO run made before algo.normalize_reward was on by default
+            raise ValueError(f"the checkpoint in {self.dir} holds no state for {', '.join(missing)}: it was made with "
+                             "settings that did not use it; resume with the run's own settings (for PPO's "
+                             "return_scale: algo.normalize_reward=false)")
         for name, component in self.components.items():
             component.load_state_dict(state["components"][name])
         self.env.reset()  # materialises the frame-stack buffers (lazy until the first reset) so they can be loaded

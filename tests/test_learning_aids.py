@@ -180,3 +180,18 @@ def test_the_replay_stores_the_scaled_reward_and_the_episodes_keep_the_envs(tmp_
     assert torch.allclose(scaled, 10 * plain)
     # the episodes' logged returns are the env's, unscaled
     assert len(plain_episodes) >= 3 and scaled_episodes == plain_episodes
+
+
+def test_a_ppo_run_made_without_reward_scaling_resumes_only_with_it_off(tmp_path):
+    from evaaa_baselines.runner import train
+
+    def cfg(*extra):
+        with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
+            return compose("config", overrides=["algo=ppo", "preset=debug", "logger=csv", "progress=false",
+                                                "threads=1", *extra])
+
+    train(cfg("total_steps=64", "algo.normalize_reward=false"), tmp_path / "run")
+    with pytest.raises(ValueError, match="no state for return_scale.*algo.normalize_reward=false"):
+        train(cfg("total_steps=128", "resume=true"), tmp_path / "run")
+    train(cfg("total_steps=128", "resume=true", "algo.normalize_reward=false"), tmp_path / "run")
+    assert (tmp_path / "run" / "model-0-1-1.pt").exists()
