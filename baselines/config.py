@@ -23,6 +23,7 @@ from hydra.core.override_parser.types import Override
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 import evaaa
+from evaaa.sensors import SENSORS, resolve_modalities
 
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
 
@@ -61,10 +62,11 @@ def stages(cfg: DictConfig) -> list[Stage]:
 
 def observation_keys(cfg: DictConfig) -> tuple[str, ...]:
     """The enabled observation keys, in evaaa's canonical order."""
-    unknown = set(cfg.modality.enabled) - set(evaaa.MODALITIES)
+    known = resolve_modalities(list(SENSORS))  # this package's sensors and any the user's code has defined
+    unknown = set(cfg.modality.enabled) - set(known)
     if unknown:
-        raise ValueError(f"modality.enabled names unknown keys {sorted(unknown)}; known: {', '.join(evaaa.MODALITIES)}")
-    keys = tuple(k for k in evaaa.MODALITIES if cfg.modality.enabled.get(k, False))
+        raise ValueError(f"modality.enabled names unknown keys {sorted(unknown)}; known: {', '.join(known)}")
+    keys = tuple(k for k in known if cfg.modality.enabled.get(k, False))
     if not keys:
         raise ValueError(f"modality '{cfg.modality.name}' enables no observation key")
     return keys

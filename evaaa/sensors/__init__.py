@@ -4,22 +4,26 @@ flag (the key disappears; nothing is zeroed)."""
 
 from __future__ import annotations
 
-from .base import Sensor, World
-from .collision import CollisionRays
-from .interoception import Interoception
-from .olfaction import Olfaction
-from .thermoception import Thermoception
-from .vision import Vision
+import importlib
+import pkgutil
 
-#: Observation keys in their canonical order, and the sensor class behind each.
-SENSORS: dict[str, type[Sensor]] = {
-    "pixels": Vision,
-    "interoception": Interoception,
-    "olfaction": Olfaction,
-    "thermoception": Thermoception,
-    "collision": CollisionRays,
-}
-MODALITIES: tuple[str, ...] = tuple(SENSORS)
+from .base import REGISTRY, Sensor, World
+
+# every module of this package that defines a Sensor subclass registers it by being imported: a new modality is
+# one module here (plus its level spec field if it has settings)
+for _module in pkgutil.iter_modules(__path__):
+    if _module.name != "base":
+        importlib.import_module(f"{__name__}.{_module.name}")
+
+
+def _canonical(keys) -> tuple[str, ...]:
+    return tuple(sorted(keys, key=lambda k: (REGISTRY[k].order, k)))
+
+
+#: The observation key -> sensor class of every sensor defined (this package's, and any a user's code defines).
+SENSORS: dict[str, type[Sensor]] = REGISTRY
+#: This package's observation keys in their canonical order: what an env emits by default.
+MODALITIES: tuple[str, ...] = _canonical(REGISTRY)
 #: Other names accepted for a modality in ``modalities=``.
 ALIASES = {"vision": "pixels", "rgb": "pixels", "ev": "interoception"}
 
@@ -27,7 +31,8 @@ __all__ = ["Sensor", "World", "SENSORS", "MODALITIES", "ALIASES", "resolve_modal
 
 
 def resolve_modalities(modalities) -> tuple[str, ...]:
-    """Validate a user's ``modalities`` (None: all) and return the keys in canonical order."""
+    """Validate a user's ``modalities`` (None: this package's, :data:`MODALITIES`) and return the keys in canonical
+    order."""
     if modalities is None:
         return MODALITIES
     if isinstance(modalities, str):
@@ -37,9 +42,9 @@ def resolve_modalities(modalities) -> tuple[str, ...]:
         key = ALIASES.get(name, name)
         if key not in SENSORS:
             raise ValueError(
-                f"unknown modality {name!r}; allowed: {', '.join(MODALITIES)} (aliases: {', '.join(ALIASES)})"
+                f"unknown modality {name!r}; allowed: {', '.join(_canonical(SENSORS))} (aliases: {', '.join(ALIASES)})"
             )
         chosen.add(key)
     if not chosen:
         raise ValueError(f"modalities must name at least one of: {', '.join(MODALITIES)}")
-    return tuple(k for k in MODALITIES if k in chosen)
+    return _canonical(chosen)

@@ -96,6 +96,10 @@ class World(Protocol):
         ...
 
 
+#: Every defined sensor class by its observation key (filled as sensor classes are defined).
+REGISTRY: dict[str, type["Sensor"]] = {}
+
+
 class Sensor:
     """A modality: an observation key, its per-world shape and dtype, and how to read it.
 
@@ -104,9 +108,23 @@ class Sensor:
     """
 
     key: str = ""
+    #: where the key comes in the canonical order of the observation keys (ties: by key)
+    order: int = 100
     dtype = np.float32
     #: (low, high) every reading lies in, declared in the observation specs; None: unbounded
     bounds: tuple[float, float] | None = None
+
+    def __init_subclass__(cls, **kwargs):
+        # defining a sensor registers it: a new modality is one module (evaaa.sensors imports every module of its
+        # package), or one class anywhere for a sensor of the user's own, asked for by name in ``modalities=``
+        super().__init_subclass__(**kwargs)
+        if not cls.key:
+            return
+        known = REGISTRY.get(cls.key)
+        if known is not None and (known.__module__, known.__qualname__) != (cls.__module__, cls.__qualname__):
+            raise ValueError(f"sensor key {cls.key!r} is already taken by {known.__module__}.{known.__qualname__}; "
+                             f"give {cls.__module__}.{cls.__qualname__} another key")
+        REGISTRY[cls.key] = cls
 
     def __init__(self, sim: World):
         self.sim = sim

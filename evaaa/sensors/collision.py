@@ -21,6 +21,7 @@ from .base import Sensor, World
 
 class CollisionRays(Sensor):
     key = "collision"
+    order = 4
     bounds = (0.0, 1.0)  # one 0/1 flag per sector
 
     def __init__(self, sim: World):

@@ -9,6 +9,7 @@ from .base import Sensor
 
 class Interoception(Sensor):
     key = "interoception"
+    order = 1
 
     @property
     def shape(self) -> tuple[int, ...]:

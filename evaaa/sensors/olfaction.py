@@ -14,6 +14,7 @@ from .base import Sensor, World
 
 class Olfaction(Sensor):
     key = "olfaction"
+    order = 2
 
     def __init__(self, sim: World):
         super().__init__(sim)

@@ -13,6 +13,7 @@ from .base import Sensor
 
 class Thermoception(Sensor):
     key = "thermoception"
+    order = 3
 
     @property
     def shape(self) -> tuple[int, ...]:

@@ -13,6 +13,7 @@ from .base import Sensor
 
 class Vision(Sensor):
     key = "pixels"
+    order = 0
     dtype = np.uint8
 
     @property
