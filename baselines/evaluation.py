@@ -39,6 +39,10 @@ def wrap_env(env: EnvBase, transforms: Sequence[Transform]) -> TransformedEnv:
     return TransformedEnv(env, Compose(*transforms, RewardSum()))
 
 
+#: the diagnostics :func:`evaluate` reads: the env it steps must emit them (``evaaa.make_env(info=...)``)
+EVALUATION_INFO = ("step_count", "end_type")
+
+
 @dataclass(frozen=True)
 class EvalResult:
     """The first episode of every world: survival steps, return and how it ended."""
@@ -62,9 +66,15 @@ def evaluate(env: EnvBase, policy: TensorDictModuleBase, *, sample: bool = False
     The policy acts deterministically (greedy Q-values, the mode of its action distribution), or with
     ``sample=True`` samples its actions from that distribution.
 
-    ``env`` must emit the keys the policy reads (see :meth:`LoadedPolicy.wrap`); episodes end by death or by the
+    ``env`` must emit the keys the policy reads (see :meth:`LoadedPolicy.wrap`) and the ``"info"`` fields of
+    :data:`EVALUATION_INFO`; episodes end by death or by the
     level's ``episode.max_steps``.  Worlds that finish early keep stepping, unrecorded, until the last one ends.
     """
+    emitted = env.observation_spec.keys(include_nested=True)
+    missing = [field for field in EVALUATION_INFO if ("info", field) not in emitted]
+    if missing:
+        raise ValueError(f"evaluate reads info fields {list(EVALUATION_INFO)} the env does not emit ({missing}): "
+                         f"make it with evaaa.make_env(..., info={list(EVALUATION_INFO)}) or info=True")
     n = env.batch_size.numel()
     survival = torch.full((n,), -1, dtype=torch.int64)
     returns = torch.zeros(n)
@@ -129,7 +139,7 @@ class LoadedPolicy:
         """
         overrides = self.env_overrides if overrides is None else overrides
         env = evaaa.make_env(level or self.level, num_envs=num_envs, seed=seed, modalities=self.obs_keys,
-                             **overrides)
+                             info=True, **overrides)
         return self.wrap(env)
 
 
@@ -225,7 +235,7 @@ class EvaluatedPolicy:
             except ValueError as err:
                 raise EvaluationError(str(err)) from None
         self.agent = OracleAgent() if self.spec == "oracle" else RandomAgent(seed)
-        return evaaa.make_env(level, num_envs=num_envs, seed=seed, modalities=["interoception"])
+        return evaaa.make_env(level, num_envs=num_envs, seed=seed, modalities=["interoception"], info=True)
 
     def act(self, env: EnvBase, td: TensorDictBase) -> torch.Tensor:
         if self.loaded is not None:

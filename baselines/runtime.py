@@ -53,10 +53,13 @@ from evaaa.records import TRAINING_EPISODE_FIELDS
 
 from .checkpoint import CHECKPOINT, CHECKPOINT_FORMAT, rng_state, save_checkpoint, set_rng_state
 from .config import Stage, env_overrides, observation_keys
-from .evaluation import evaluate, wrap_env
+from .evaluation import EVALUATION_INFO, evaluate, wrap_env
 
 log = logging.getLogger(__name__)
 
+#: the diagnostics the training env emits (``make_env(info=...)``): episode logging reads the first six, the
+#: DreamerV3 replay's consumed flag the last two; the rest would cost every step and be read by no one
+TRAINING_INFO = ("step_count", "end_type", *EV_NAMES, "food_eaten", "water_eaten")
 EVAL_COLUMNS = ("env_steps", "stage", "level", "episodes", "survival_mean", "survival_min", "survival_max",
                 "return_mean", "end_types", "wall_time")
 
@@ -273,7 +276,7 @@ class Run:
         self.obs_keys = observation_keys(cfg)
         self.overrides = env_overrides(cfg)
         self.base_env = evaaa.make_env(stage.level, num_envs=cfg.env.num_envs, seed=cfg.seed + stage.index,
-                                       modalities=self.obs_keys, **self.overrides)
+                                       modalities=self.obs_keys, info=TRAINING_INFO, **self.overrides)
         #: per-world shapes of the enabled observation keys, before any frame stacking
         self.obs_shapes = {k: tuple(self.base_env.observation_spec[k].shape[1:]) for k in self.obs_keys}
         self.counters = Counters(steps=0, episodes=0, logged=0, last_end=0)
@@ -477,7 +480,7 @@ class Run:
         one row of ``eval.csv``, and ``model-best-*.pt`` when it is the best so far."""
         if self._eval_env is None:
             base = evaaa.make_env(self.stage.level, num_envs=self.cfg.eval.episodes, modalities=self.obs_keys,
-                                  **self.overrides)
+                                  info=EVALUATION_INFO, **self.overrides)
             self._eval_env = wrap_env(base, self.algo.make_transforms(self.cfg.algo, self.obs_keys, self.model))
         seed = self.cfg.seed + self.cfg.eval.seed_offset
         self._eval_env.set_seed(seed, static_seed=True)

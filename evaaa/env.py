@@ -54,6 +54,9 @@ class EvaaaEnv(EnvBase):
             ``thermoception``, ``collision``.  A dropped modality's key is absent, not zeroed.
         device: where the returned tensors live.
         overrides: dotted-path changes to the level (``{"agent.move_speed": 10}``).
+        info: the diagnostics to emit under the nested ``"info"`` key: ``True`` for every field of
+            :data:`INFO_FIELDS`, a list of some of them, or ``False`` (the default: no ``"info"`` entry, and none of
+            its cost on every step).
         threads: how many threads work at once (1: everything in the calling thread; None: 2 when the process may
             use two cores, or as the environment variable ``EVAAA_THREADS`` says).  A batch is split into that many
             shares, stepped and drawn at once; a single world's frame is drawn while a helper advances its EVs and
@@ -74,7 +77,9 @@ class EvaaaEnv(EnvBase):
         device: str | torch.device = "cpu",
         overrides: Mapping[str, Any] | None = None,
         threads: int | None = None,
+        info: bool | Iterable[str] = False,
     ):
+        self._info_keys = _info_keys(info)
         spec = level if isinstance(level, Level) else load_level(level, overrides)
         if isinstance(level, Level) and overrides:
             spec = load_level(level.name, overrides)
@@ -100,12 +105,14 @@ class EvaaaEnv(EnvBase):
             else:
                 obs[key] = Unbounded(shape=(n, *shape), dtype=_TORCH_DTYPE[np.dtype(dtype)], device=self.device)
         info = {}
-        for key, (shape, dtype) in INFO_FIELDS.items():
+        for key in self._info_keys:
+            shape, dtype = INFO_FIELDS[key]
             if dtype is torch.bool:
                 info[key] = Categorical(2, shape=(n, *shape), dtype=torch.bool, device=self.device)
             else:
                 info[key] = Unbounded(shape=(n, *shape), dtype=dtype, device=self.device)
-        obs["info"] = Composite(info, shape=(n,), device=self.device)
+        if info:
+            obs["info"] = Composite(info, shape=(n,), device=self.device)
         self.observation_spec = Composite(obs, shape=(n,), device=self.device)
         self.action_spec = Categorical(NUM_ACTIONS, shape=(n,), dtype=torch.int64, device=self.device)
         self.reward_spec = Unbounded(shape=(n, 1), dtype=torch.float32, device=self.device)
@@ -118,13 +125,15 @@ class EvaaaEnv(EnvBase):
         device = self.device
         on_cpu = device.type == "cpu"
         source: dict[str, Any] = {k: torch.from_numpy(v) for k, v in obs.items()}
-        info_td = {k: torch.from_numpy(v) for k, v in info.items()}
         source.update(extra)
         if not on_cpu:
             source = {k: v.to(device, non_blocking=True) for k, v in source.items()}
-            info_td = {k: v.to(device, non_blocking=True) for k, v in info_td.items()}
-        # the tensors are fresh, well-shaped and on the env's device: skip tensordict's per-entry validation
-        source["info"] = TensorDict._new_unsafe(info_td, batch_size=self.batch_size, device=device)
+        if self._info_keys:
+            info_td = {k: torch.from_numpy(info[k]) for k in self._info_keys}
+            if not on_cpu:
+                info_td = {k: v.to(device, non_blocking=True) for k, v in info_td.items()}
+            # the tensors are fresh, well-shaped and on the env's device: skip tensordict's per-entry validation
+            source["info"] = TensorDict._new_unsafe(info_td, batch_size=self.batch_size, device=device)
         return TensorDict._new_unsafe(source, batch_size=self.batch_size, device=device)
 
     def _check_open(self) -> None:
@@ -155,8 +164,9 @@ class EvaaaEnv(EnvBase):
 
     def extra_repr(self) -> str:
         # what repr(env) shows between the parentheses (EnvBase is an nn.Module)
+        info = "all" if len(self._info_keys) == len(INFO_FIELDS) else list(self._info_keys) or False
         return (f"level={self.level.name!r}, num_envs={self.num_envs}, modalities={list(self.sim.modalities)}, "
-                f"device={self.device}, seed={self._seed_value}, threads={self.sim.threads}")
+                f"info={info}, device={self.device}, seed={self._seed_value}, threads={self.sim.threads}")
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         self._check_open()
@@ -209,13 +219,33 @@ def make_env(
     modalities: Iterable[str] | str | None = None,
     device: str | torch.device = "cpu",
     threads: int | None = None,
+    info: bool | Iterable[str] = False,
     **overrides: Any,
 ) -> EvaaaEnv:
     """Build the TorchRL env of a level or testbed.
 
     Overrides reach any level field by dotted path, e.g.
     ``make_env("1-1", **{"agent.move_speed": 10, "episode.max_steps": 1000})``, or as nested dicts,
-    ``make_env("1-1", episode={"max_steps": 1000})``.  ``threads``: see :class:`EvaaaEnv`.
+    ``make_env("1-1", episode={"max_steps": 1000})``.  ``threads``, ``info``: see :class:`EvaaaEnv`.
     """
     return EvaaaEnv(name, num_envs=num_envs, seed=seed, modalities=modalities, device=device, overrides=overrides,
-                    threads=threads)
+                    threads=threads, info=info)
+
+
+def _info_keys(info: bool | Iterable[str]) -> tuple[str, ...]:
+    """``info=`` as the fields to emit, in :data:`INFO_FIELDS` order, or a clear error."""
+    if info is True:
+        return tuple(INFO_FIELDS)
+    if info is False or info is None:
+        return ()
+    if isinstance(info, str):
+        info = [info]
+    try:
+        asked = set(info)
+    except TypeError:
+        raise ValueError(f"info must be True, False or a list of fields of {', '.join(INFO_FIELDS)}; "
+                         f"got {info!r}") from None
+    unknown = sorted(str(k) for k in asked - set(INFO_FIELDS))
+    if unknown:
+        raise ValueError(f"info names unknown fields {unknown}; allowed: {', '.join(INFO_FIELDS)}")
+    return tuple(k for k in INFO_FIELDS if k in asked)

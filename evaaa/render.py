@@ -19,6 +19,7 @@ uses: :func:`evaaa.sim.default_threads`.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import queue
 import sys
@@ -60,6 +61,18 @@ def _gl_context_class():
 
 # the GL context made current last in each thread (making one current costs ~20 us)
 _current = threading.local()
+# held around every draw and read-back when drawing is serial (see draw_lock)
+_DRAW_LOCK = threading.Lock()
+
+
+def draw_lock():
+    """What a frame's draw and read-back are done under: one lock for the whole process, unless
+    ``EVAAA_PARALLEL_DRAW=1``.  Two training runs died in ``mjr_render`` (Mesa 22.3 llvmpipe through EGL) while two
+    render threads of one process drew at once, each in its own GL context; with the draws taken in turn only the
+    scene updates, the physics and the rest overlap.  Read when a renderer is made."""
+    if os.environ.get("EVAAA_PARALLEL_DRAW", "0") == "1":
+        return contextlib.nullcontext()
+    return _DRAW_LOCK
 # the renderers' GL contexts not yet freed
 _live: set = set()
 
@@ -132,6 +145,7 @@ class BatchRenderer:
         self.height, self.width = height, width
         self._gl = None
         self._thread = None
+        self._lock = draw_lock()
         if threaded:
             self._thread = _RenderThread()
             try:
@@ -211,8 +225,9 @@ class BatchRenderer:
             if before_draw is not None:
                 before_draw()
                 before_draw = None
-            mujoco.mjr_render(rect, scene, context)
-            mujoco.mjr_readPixels(out[row], None, rect, context)
+            with self._lock:
+                mujoco.mjr_render(rect, scene, context)
+                mujoco.mjr_readPixels(out[row], None, rect, context)
         # OpenGL rows run bottom-up
         out[:] = out[:, ::-1]
         return out

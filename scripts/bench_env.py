@@ -13,7 +13,8 @@ The raw side is always one thread.  ``cores`` is the env's CPU seconds per wall-
 ratio divided by it: how much of one core's raw speed each CPU second the env uses keeps.
 
 Also reported: what TorchRL's step path costs on its own (the same loop over an env of the same keys that simulates
-nothing), and so the most any single env can keep of raw; one world through the gymnasium adapter
+nothing), and so the most any single env can keep of raw; one world as users step it: TorchRL's ``env.rollout``
+(random actions, every step kept; once more with ``info=True``, the diagnostics' cost) and the gymnasium adapter
 (``gymnasium.make("evaaa/<level>-v0")``); the cost of a reset in steps; resident memory over a long run.
 
 The peer: MiniWorld's ``MiniWorld-CollectHealth-v0`` (a 3-D survival task with 64x64 egocentric pixels, one world
@@ -83,6 +84,20 @@ def time_env(env, actions: np.ndarray, warmup: int = 50) -> tuple[float, float]:
         _, td = env.step_and_maybe_reset(td)
     elapsed = time.perf_counter() - start
     return (len(actions) - warmup) * actions.shape[1] / elapsed, (time.process_time() - cpu) / elapsed
+
+
+def time_rollout(level: str, steps: int, warmup: int = 50, **kwargs) -> tuple[float, float]:
+    """Steps per second of one world through ``env.rollout`` (TorchRL's own loop, random actions from the action
+    spec, every step kept and stacked at the end: how a TorchRL user steps one world), and its CPU seconds per
+    wall-clock second.  ``kwargs`` go to ``make_env``."""
+    env = make_env(level, num_envs=1, seed=0, **kwargs)
+    torch.manual_seed(0)
+    env.rollout(warmup, break_when_any_done=False)
+    start, cpu = time.perf_counter(), time.process_time()
+    env.rollout(steps - warmup, break_when_any_done=False)
+    elapsed = time.perf_counter() - start
+    env.close()
+    return (steps - warmup) / elapsed, (time.process_time() - cpu) / elapsed
 
 
 class IdleEnv(EvaaaEnv):
@@ -281,10 +296,15 @@ def measure(args) -> dict:
                                 "ceiling_ratio_1_env": ceiling}
     print(f"{'  TorchRL step path alone (1 env)':<40}{idle_rate:>12.0f}{'':>13}{'':>8}{'':>17}   "
           f"{1e6 / idle_rate:.0f} us/step: 1 env can keep at most {ceiling:.2f} of raw")
-    # one world through gymnasium, and the peer, as rates beside the TorchRL one
-    one = next(r for r in results["settings"] if r["setting"] == "1 env")
+    # one world as a user steps it: TorchRL's rollout (also with every info field asked for), gymnasium; the peer
+    rollout_rate, rollout_cores = time_rollout(level, steps)
+    info_rate, info_cores = time_rollout(level, steps, info=True)
     gym_rate, gym_cores = time_gym(level, random_actions(steps, 1, seed=1)[:, 0])
+    results["rollout"] = {"steps_per_s": rollout_rate, "cores": rollout_cores}
+    results["rollout_info"] = {"steps_per_s": info_rate, "cores": info_cores}
     results["gymnasium"] = {"steps_per_s": gym_rate, "cores": gym_cores}
+    print(f"{'1 env through env.rollout':<40}{rollout_rate:>12.0f}{'':>13}{'':>8}{rollout_cores:>7.2f}")
+    print(f"{'  the same, info=True':<40}{info_rate:>12.0f}{'':>13}{'':>8}{info_cores:>7.2f}")
     print(f"{'1 env through gymnasium':<40}{gym_rate:>12.0f}{'':>13}{'':>8}{gym_cores:>7.2f}")
     if args.peer:
         peer, why = time_peer(Path(args.peer_venv).expanduser(), steps)
@@ -292,12 +312,13 @@ def measure(args) -> dict:
             print(f"peer MiniWorld-CollectHealth skipped: {why}")
             results["peer"] = {"skipped": why}
         else:
-            torchrl_x, gym_x = one["env_steps_per_s"] / peer["steps_per_s"], gym_rate / peer["steps_per_s"]
+            torchrl_x, gym_x = rollout_rate / peer["steps_per_s"], gym_rate / peer["steps_per_s"]
             results["peer"] = {"name": "MiniWorld-CollectHealth-v0, 64x64, LP_NUM_THREADS=0", **peer,
                                "torchrl_ratio": torchrl_x, "gymnasium_ratio": gym_x}
             print(f"{'peer: MiniWorld-CollectHealth 64x64':<40}{peer['steps_per_s']:>12.0f}{'':>13}{'':>8}"
                   f"{peer['cores']:>7.2f}")
-            print(f"  1 env / peer: TorchRL {torchrl_x:.2f}x, gymnasium {gym_x:.2f}x   (target >= 1.5x each)")
+            print(f"  1 env / peer: TorchRL (env.rollout) {torchrl_x:.2f}x, gymnasium {gym_x:.2f}x   "
+                  "(target >= 1.5x each)")
     n = args.num_envs
     env_rows(f"num_envs={n} (1 process)", n, 2, 0.85)
 

@@ -58,7 +58,7 @@ def main(argv=None) -> int:
     level = evaaa.load_level(args.level)
     args.out.mkdir(parents=True, exist_ok=True)
 
-    env = make_env(args.level, num_envs=args.num_envs, seed=args.seed)
+    env = make_env(args.level, num_envs=args.num_envs, seed=args.seed, info=["end_type"])
     try:
         params = env.sim.params
         n = args.num_envs

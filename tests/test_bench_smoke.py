@@ -40,6 +40,7 @@ def test_bench_reports_ratios_reset_cost_and_memory(tmp_path):
     assert figures["reset"]["in_steps"] > 0
     assert len(figures["memory"]["samples_mb"]) == 2
     assert figures["gymnasium"]["steps_per_s"] > 0 and "peer" not in figures
+    assert figures["rollout"]["steps_per_s"] > 0 and figures["rollout_info"]["steps_per_s"] > 0
 
 
 def fake_peer_venv(root, rate: float):
@@ -60,12 +61,11 @@ def test_the_peer_is_timed_in_the_same_run_and_given_as_ratios(tmp_path, capsys)
     assert load_bench().main(["steps=80", "num_envs=2", "resets=2", "memory_steps=2000", "skip_parallel=true",
                               f"peer_venv={venv}", f"json={out}"]) == 0
     figures = json.loads(out.read_text())
-    one = next(r for r in figures["settings"] if r["setting"] == "1 env")
     peer = figures["peer"]
     assert peer["steps_per_s"] == 50.0
-    assert peer["torchrl_ratio"] == pytest.approx(one["env_steps_per_s"] / 50.0)
+    assert peer["torchrl_ratio"] == pytest.approx(figures["rollout"]["steps_per_s"] / 50.0)  # as users step it
     assert peer["gymnasium_ratio"] == pytest.approx(figures["gymnasium"]["steps_per_s"] / 50.0)
-    assert "1 env / peer: TorchRL" in capsys.readouterr().out
+    assert "1 env / peer: TorchRL (env.rollout)" in capsys.readouterr().out
 
 
 def test_a_peer_that_cannot_be_installed_is_skipped_with_the_reason(tmp_path, capsys):

@@ -48,17 +48,18 @@ def end_name(info) -> str:
 )
 def test_check_env_specs(level, num_envs, dropped):
     modalities = None if dropped is None else [m for m in evaaa.MODALITIES if m != dropped]
-    env = evaaa.make_env(level, num_envs=num_envs, seed=0, modalities=modalities)
+    info = dropped is None  # the diagnostics' specs are checked with every sense on; without, no "info" key
+    env = evaaa.make_env(level, num_envs=num_envs, seed=0, modalities=modalities, info=info)
     check_env_specs(env, seed=0)
     keys = set(env.observation_spec.keys())
     if dropped is not None:
         assert dropped not in keys
-    assert set(modalities or evaaa.MODALITIES) | {"info"} == keys
+    assert set(modalities or evaaa.MODALITIES) | ({"info"} if info else set()) == keys
     env.close()
 
 
 def test_contract_shapes_and_dtypes():
-    env = evaaa.make_env("1-1", num_envs=2, seed=0)
+    env = evaaa.make_env("1-1", num_envs=2, seed=0, info=True)
     td = env.reset()
     assert td["pixels"].shape == (2, 64, 64, 3) and td["pixels"].dtype == torch.uint8
     for key, dim in [("interoception", 4), ("olfaction", 10), ("thermoception", 8), ("collision", 10)]:
@@ -70,6 +71,29 @@ def test_contract_shapes_and_dtypes():
                                                "food_eaten", "water_eaten", "collision", "damage_taken",
                                                "step_count", "end_type"}
     env.close()
+
+
+def test_info_is_emitted_only_as_asked():
+    """No "info" by default (it would cost every step); a list emits just those fields, with the values of the full
+    set; an unknown field or a wrong type is refused naming the allowed fields."""
+    plain = evaaa.make_env("1-1", num_envs=2, seed=0, modalities=["interoception"])
+    assert "info" not in plain.observation_spec.keys() and "info" not in plain.rollout(3).keys(True)
+    some = evaaa.make_env("1-1", num_envs=2, seed=0, modalities=["interoception"], info=["end_type", "yaw"])
+    full = evaaa.make_env("1-1", num_envs=2, seed=0, modalities=["interoception"], info=True)
+    assert list(some.observation_spec["info"].keys()) == ["yaw", "end_type"] and "info=['yaw', 'end_type']" in repr(some)
+    torch.manual_seed(0)
+    a = some.rollout(20, break_when_any_done=False)
+    torch.manual_seed(0)
+    b = full.rollout(20, break_when_any_done=False)
+    assert set(a["next", "info"].keys()) == {"yaw", "end_type"}
+    assert torch.equal(a["next", "info", "yaw"], b["next", "info", "yaw"])
+    assert torch.equal(a["next", "interoception"], b["next", "interoception"])
+    for bad, match in [(["end_type", "hunger"], r"info names unknown fields \['hunger'\]; allowed: position, yaw"),
+                       (3, r"info must be True, False or a list of fields of position, yaw")]:
+        with pytest.raises(ValueError, match=match):
+            evaaa.make_env("1-1", info=bad)
+    for env in (plain, some, full):
+        env.close()
 
 
 def test_resolution_is_configurable():
@@ -267,7 +291,7 @@ def test_an_ev_pushed_past_its_bound_terminates_with_its_end_type(column, value,
 
 
 def test_truncation_at_max_steps_is_not_termination():
-    env = evaaa.make_env("1-1", seed=0, **{"episode.max_steps": 5})
+    env = evaaa.make_env("1-1", seed=0, info=["end_type"], **{"episode.max_steps": 5})
     td = env.reset()
     for step in range(1, 6):
         td["action"] = torch.tensor([NONE])
@@ -283,7 +307,7 @@ def test_truncation_at_max_steps_is_not_termination():
 
 
 def test_reward_equals_its_terms():
-    env = evaaa.make_env("1-1", seed=3)
+    env = evaaa.make_env("1-1", seed=3, info=True)
     data = env.rollout(60)
     info = data["next", "info"]
     expected = -0.01 * (info["satiation"] ** 2 + info["hydration"] ** 2 + info["temperature"] ** 2
@@ -447,7 +471,7 @@ def test_layouts_are_redrawn_each_episode_without_recompiling():
 
 
 def test_partial_reset_only_touches_masked_worlds():
-    env = evaaa.make_env("1-1", num_envs=3, seed=0)
+    env = evaaa.make_env("1-1", num_envs=3, seed=0, info=["step_count"])
     td = env.reset()
     for _ in range(5):
         td["action"] = torch.full((3,), FORWARD)
@@ -462,7 +486,7 @@ def test_partial_reset_only_touches_masked_worlds():
 
 
 def test_worlds_in_a_batch_are_independent():
-    env = evaaa.make_env("1-1", num_envs=2, seed=0)
+    env = evaaa.make_env("1-1", num_envs=2, seed=0, info=["position"])
     td = env.reset()
     assert not torch.equal(td["pixels"][0], td["pixels"][1])
     td["action"] = torch.tensor([FORWARD, NONE])
@@ -614,7 +638,7 @@ def test_threads_give_the_same_trajectories(level):
 def test_one_world_with_a_helper_gives_the_same_trajectory(level):
     # one world, threads=2: the frame is drawn on the calling thread while a helper does the EVs and other senses
     def trajectory(threads: int):
-        env = evaaa.EvaaaEnv(level, num_envs=1, seed=5, threads=threads)
+        env = evaaa.EvaaaEnv(level, num_envs=1, seed=5, threads=threads, info=True)
         assert env.sim.threads == threads and not env.sim._renderer.threaded
         generator = torch.Generator().manual_seed(0)
         td = env.rollout(150, policy=lambda td: td.set("action", torch.randint(0, 5, (1,), generator=generator)),
@@ -704,6 +728,41 @@ def test_night_fog_density_reaches_the_pixels():
     assert np.array_equal(night_frame(0.02, first=0), thin)
 
 
+@pytest.mark.parametrize("parallel", ["0", "1"])
+def test_render_threads_take_turns_to_draw_unless_told_otherwise(monkeypatch, parallel):
+    """Two render threads of one process never draw at once by default (Mesa's llvmpipe crashed doing so);
+    EVAAA_PARALLEL_DRAW=1 lets them (the check sees both at once then, so it can fail).  Frames are the same."""
+    import threading
+    import time
+
+    from evaaa import render
+
+    monkeypatch.setenv("EVAAA_PARALLEL_DRAW", parallel)
+    inside, most, guard = [0], [0], threading.Lock()
+    draw = render.mujoco.mjr_render
+
+    def watched(*args):
+        with guard:
+            inside[0] += 1
+            most[0] = max(most[0], inside[0])
+        time.sleep(0.002)  # a wide window, the GIL released, for the other thread to come in
+        draw(*args)
+        with guard:
+            inside[0] -= 1
+
+    monkeypatch.setattr(render.mujoco, "mjr_render", watched)
+    frames = {}
+    for threads in (2, 1):
+        env = evaaa.make_env("1-1", num_envs=4, seed=0, modalities=["pixels"], threads=threads)
+        assert isinstance(env.sim._renderer, render.SplitRenderer) == (threads == 2)
+        torch.manual_seed(0)
+        frames[threads] = env.rollout(10, break_when_any_done=False)["next", "pixels"]
+        env.close()
+        if threads == 2:
+            assert most[0] == (1 if parallel == "0" else 2)
+    assert torch.equal(frames[2], frames[1])
+
+
 def test_threads_setting(monkeypatch):
     from evaaa import render, sim
 
@@ -778,7 +837,7 @@ def test_a_scene_mujoco_refuses_is_a_level_error_naming_the_field(overrides, fie
 
 # ------------------------------------------------------------------------------------------------ API hygiene
 def test_a_missing_or_one_hot_action_gets_a_clear_error():
-    env = evaaa.make_env("1-1", num_envs=2, seed=0, modalities=["interoception"])
+    env = evaaa.make_env("1-1", num_envs=2, seed=0, modalities=["interoception"], info=["step_count"])
     td = env.reset()
     with pytest.raises(ValueError, match=r"no 'action' entry: set td\['action'\] to an integer tensor of shape \(2,\)"):
         env.step(td.clone())
@@ -807,7 +866,7 @@ def test_stepping_a_closed_env_is_an_error_and_rebuilds_nothing():
 
 def test_repr_says_what_the_env_is():
     env = evaaa.make_env("2-1", num_envs=3, seed=4, modalities=["olfaction", "pixels"], threads=1)
-    assert repr(env) == ("EvaaaEnv(level='2-1', num_envs=3, modalities=['pixels', 'olfaction'], device=cpu, "
+    assert repr(env) == ("EvaaaEnv(level='2-1', num_envs=3, modalities=['pixels', 'olfaction'], info=False, device=cpu, "
                          "seed=4, threads=1)")
     env.close()
 

@@ -51,7 +51,8 @@ def test_the_packaged_sensors_are_found_in_their_canonical_order():
 
 def test_a_sensor_of_ones_own_is_one_class(compass):
     assert SENSORS["compass"] is compass and "compass" not in MODALITIES  # asked for by name, not on by default
-    env = evaaa.make_env("1-1", num_envs=2, seed=0, modalities=["compass", "interoception"], threads=1)
+    env = evaaa.make_env("1-1", num_envs=2, seed=0, modalities=["compass", "interoception"], threads=1,
+                         info=["yaw"])
     assert list(env.sim.modalities) == ["interoception", "compass"]  # canonical order: by `order`
     assert env.observation_spec["compass"].shape == (2, 2)
     td = env.rollout(5, break_when_any_done=False)
