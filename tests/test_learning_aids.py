@@ -195,3 +195,51 @@ def test_a_ppo_run_made_without_reward_scaling_resumes_only_with_it_off(tmp_path
         train(cfg("total_steps=128", "resume=true"), tmp_path / "run")
     train(cfg("total_steps=128", "resume=true", "algo.normalize_reward=false"), tmp_path / "run")
     assert (tmp_path / "run" / "model-0-1-1.pt").exists()
+
+
+def fill_replay(share: float, *, rows: int, eaten_at: list[tuple[int, int]], capacity: int | None = None):
+    """A 2-world in-memory replay of ``rows`` steps per world whose ``step`` entry counts the rows written, with
+    ``("next", "consumed")`` set at (row, world) for ``eaten_at``."""
+    replay = dreamer.SequenceReplay(capacity or 2 * rows, 2, 8, 10, consume_share=share)
+    for t in range(rows):
+        replay.extend(TensorDict({"step": torch.full((2,), t), "next": {
+            "consumed": torch.tensor([(t, w) in eaten_at for w in range(2)]).unsqueeze(-1)}}, [2]))
+    return replay
+
+
+def test_a_share_of_the_replayed_sequences_hold_an_eating_step():
+    torch.manual_seed(0)
+    eaten_at = [(40, 0), (90, 1)]
+    replay = fill_replay(0.3, rows=120, eaten_at=eaten_at)
+    assert replay.consume_sequences == 3
+    seen = []
+    for _ in range(20):
+        batch = replay.sample()
+        assert batch.shape == (10, 8)
+        steps = batch["step"]
+        assert ((steps[:, 1:] - steps[:, :-1]) == 1).all()  # consecutive steps of one world
+        holds = batch["next", "consumed"].reshape(10, 8).any(-1)
+        assert holds[-3:].all()  # the last three sequences are drawn around an eating step
+        seen.append(holds[:-3].float().mean())
+    assert float(torch.stack(seen).mean()) < 0.5  # the others are uniform: 2 eating rows in 240 are seldom seen
+    # where the eating step sits in its sequence is drawn, not fixed
+    positions = {int(replay.sample()["next", "consumed"][-1].reshape(8).nonzero()[0]) for _ in range(30)}
+    assert len(positions) > 3
+
+
+def test_the_uniform_replay_is_left_alone_and_a_share_outside_zero_one_is_refused():
+    plain = fill_replay(0.0, rows=50, eaten_at=[(10, 0)])
+    assert plain.consume_sequences == 0 and plain.sample().shape == (10, 8)
+    none_yet = fill_replay(0.5, rows=50, eaten_at=[])
+    assert none_yet.sample().shape == (10, 8)  # nothing eaten yet: all uniform
+    with pytest.raises(ValueError, match=r"algo.consume_share must lie in \[0, 1\], got 1.5"):
+        dreamer.SequenceReplay(100, 2, 8, 10, consume_share=1.5)
+
+
+def test_sequences_around_eating_never_run_across_the_writers_cursor():
+    # 40 rows per world, 70 steps written: the cursor is at row 30, where the newest step (69, row 29) meets the
+    # oldest (30, row 30); steps 68 and 32 were eaten, two and three rows from it
+    replay = fill_replay(1.0, rows=70, eaten_at=[(68, 0), (32, 1)], capacity=80)
+    for _ in range(40):
+        steps = replay.sample()["step"]
+        assert ((steps[:, 1:] - steps[:, :-1]) == 1).all()
