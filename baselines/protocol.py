@@ -7,7 +7,7 @@ evaluation, the report), each a subprocess of ``scripts/train.py``, ``scripts/ev
 A cell is *done* only when its outputs are complete: a training run when the final model of its last stage exists
 and the done-marker written after ``train.py`` exited 0 (``<root>/done/<cell>.done``); an evaluation when every
 ``out`` folder of it holds ``episodes.csv`` (evaluate.py writes it last); the report when its marker is newer than
-every other cell's outputs.  A training cell that was started and not finished is continued with ``resume=true``;
+every other cell's outputs and every other cell is done.  A training cell that was started and not finished is continued with ``resume=true``;
 an evaluation's ``out`` folder without ``episodes.csv`` is moved aside (``<out>.partial-<UTC time>``, never deleted)
 and the evaluation run again.
 """
@@ -434,10 +434,11 @@ def status(cell: Cell, lay: Layout, cells: Sequence[Cell] = ()) -> Literal["done
     if all(o.exists() for o in outs):
         if cell.kind != "report":
             return "done"
-        others = [o for c in cells if c.kind != "report" for o in outputs(c, lay)]
-        if lay.marker(cell.name).stat().st_mtime >= _newest(others):
+        others = [c for c in cells if c.kind != "report"]
+        if all(status(c, lay) == "done" for c in others) and \
+                lay.marker(cell.name).stat().st_mtime >= _newest([o for c in others for o in outputs(c, lay)]):
             return "done"
-        return "partial"
+        return "partial"  # written before some cell was (re)done
     if cell.kind == "train":
         return "partial" if cell.run_dir is not None and cell.run_dir.is_dir() and any(cell.run_dir.iterdir()) \
             else "todo"
@@ -461,7 +462,7 @@ def command_now(cell: Cell, lay: Layout, redo: bool = False) -> list[Command]:
         return [cmd]
     if cell.kind in ("eval", "ref"):
         return [c for c in cell.commands if redo or not (c.out / "episodes.csv").exists()]  # type: ignore[operator]
-    return cell.commands
+    return list(cell.commands)
 
 
 # ------------------------------------------------------------------------------------------------ plan
@@ -529,16 +530,16 @@ class _Job:
     commands: list[Command]
     proc: subprocess.Popen | None = None
     log: Any = None
-    failed: bool = False
+    redo: bool = False
 
 
 class Scheduler:
     """Runs cells as subprocesses, ``jobs`` at a time, each when the files it needs exist."""
 
     def __init__(self, p: Protocol, cells: Sequence[Cell], lay: Layout, *, jobs: int = 1,
-                 max_minutes: float | None = None, redo: bool = False, python: str = sys.executable,
-                 progress: bool = True, echo: Callable[[str], None] = print):
-        self.p, self.cells, self.lay, self.jobs = p, list(cells), lay, jobs
+                 max_minutes: float | None = None, redo: bool = False, retries: int = 0,
+                 python: str = sys.executable, progress: bool = True, echo: Callable[[str], None] = print):
+        self.p, self.cells, self.lay, self.jobs, self.retries = p, list(cells), lay, jobs, retries
         self.max_minutes, self.redo, self.python, self.progress, self.echo = max_minutes, redo, python, progress, echo
         self.env = {**os.environ, "EVAAA_THREADS": str(p.threads), "OMP_NUM_THREADS": str(p.threads),
                     "MKL_NUM_THREADS": str(p.threads), "PYTHONUNBUFFERED": "1"}
@@ -549,7 +550,7 @@ class Scheduler:
             aside = cmd.out.with_name(f"{cmd.out.name}.partial-{utc_stamp()}")
             cmd.out.rename(aside)  # an interrupted evaluation: kept, out of the way
             self.echo(f"{job.cell.name}: moved the unfinished evaluation {cmd.out} to {aside}")
-        if cmd.out is not None and self.redo and (cmd.out / "episodes.csv").exists():
+        if cmd.out is not None and job.redo and (cmd.out / "episodes.csv").exists():
             aside = cmd.out.with_name(f"{cmd.out.name}.old-{utc_stamp()}")
             cmd.out.rename(aside)
             self.echo(f"{job.cell.name}: redo: moved the earlier evaluation {cmd.out} to {aside}")
@@ -560,8 +561,10 @@ class Scheduler:
         job.log = open(log_path, "a")
         job.log.write(f"\n== {utc_stamp()} {cmd.text(self.p.threads)}\n")
         job.log.flush()
+        # a session of its own: a Ctrl-C at the terminal reaches reproduce.py only, which passes exactly one on (a
+        # second one would stop a training at once, without its checkpoint)
         job.proc = subprocess.Popen([self.python, *cmd.argv], cwd=REPO, env=self.env, stdout=job.log,
-                                    stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+                                    stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)
 
     def _report_command(self, cmd: Command) -> Command:
         """The report over the evaluations that are complete (the others are not passed: report.py would refuse
@@ -596,6 +599,7 @@ class Scheduler:
         finished: set[str] = set()
         failed: set[str] = set()
         blocked: list[str] = []
+        tries: dict[str, int] = {}
         began = time.monotonic()
         stopping = False
         bar = None
@@ -622,6 +626,13 @@ class Scheduler:
                     if rc == 0:
                         self._finish(job.cell)
                         finished.add(job.cell.name)
+                    elif tries.get(job.cell.name, 0) < self.retries and rc not in (130, -signal.SIGINT):
+                        # e.g. the renderer's crash: the same cell again, continuing from what it left
+                        tries[job.cell.name] = tries.get(job.cell.name, 0) + 1
+                        self.echo(f"{job.cell.name}: exit status {rc}; trying again ({tries[job.cell.name]} of "
+                                  f"{self.retries}); see {self.lay.log(job.cell.name)}")
+                        waiting.append(job.cell)
+                        continue
                     else:
                         failed.add(job.cell.name)
                         self.echo(f"{job.cell.name}: FAILED (exit status {rc}); see {self.lay.log(job.cell.name)}")
@@ -646,12 +657,13 @@ class Scheduler:
                         continue
                     if ready:
                         waiting.remove(cell)
-                        commands = command_now(cell, self.lay, self.redo)
+                        redo = self.redo and cell.name not in tries  # a retry continues what the first try began
+                        commands = command_now(cell, self.lay, redo)
                         if not commands:
                             self._finish(cell)
                             finished.add(cell.name)
                             continue
-                        job = _Job(cell, commands)
+                        job = _Job(cell, list(commands), redo=redo)  # commands popped as they start
                         self._start(job)
                         running.append(job)
                 if bar is not None:

@@ -36,6 +36,9 @@ class ReproduceConfig:
                                "train.py's start_over=true, an evaluation's folder renamed <out>.old-<UTC time>)")
     max_minutes: float | None = option(None, "start no new cell after this many minutes (running cells finish)",
                                        check=(lambda v: v > 0, "a positive number"))
+    retries: int = option(1, "times a failed cell is tried again in the same session (a training continues from "
+                             "its checkpoint: the renderer crash of docs/training.md)",
+                          check=(lambda v: v >= 0, "0 or more"))
     out: str | None = option(None, "the report's folder (default: the protocol's report.out)")
     progress: bool = option(True, "a progress bar over the cells")
 
@@ -65,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"reproduce.py: {len(todo)} of {len(cells)} cells to run under {lay.root}, {cfg.jobs} at a time; logs in "
           f"{lay.logs}", flush=True)
     scheduler = Scheduler(p, cells, lay, jobs=cfg.jobs, max_minutes=cfg.max_minutes, redo=cfg.redo,
-                          progress=cfg.progress)
+                          retries=cfg.retries, progress=cfg.progress)
     try:
         rc = scheduler.run(todo)
     except KeyboardInterrupt:

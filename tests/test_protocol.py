@@ -167,15 +167,16 @@ def test_an_unfinished_evaluation_is_moved_aside_and_run_again(tmp_path):
     out = lay.evals / "a"
     (out / "episodes.csv").rename(out / ".episodes.csv.partial")  # as evaluate.py leaves a killed evaluation
     assert status(cells[1], lay, cells) == "partial"
-    assert status(cells[2], lay, cells) == "done"
+    assert status(cells[2], lay, cells) == "partial"  # a report is done only while every other cell is
     todo = [c for c in cells if status(c, lay, cells) != "done"]
-    assert names(todo) == ["eval/a"]
+    assert names(todo) == ["eval/a", "report"]
     _scheduler(lay, cells).run(todo)
     aside = list(lay.evals.glob("a.partial-*"))
     assert len(aside) == 1 and (aside[0] / ".episodes.csv.partial").is_file()  # kept, never deleted
     assert (out / "episodes.csv").is_file() and status(cells[1], lay, cells) == "done"
-    # the report is older than the evaluation now: it is due again
-    assert status(cells[2], lay, cells) == "partial"
+    assert status(cells[2], lay, cells) == "done"
+    assert lay.log("train/a").read_text().count("\n== ") == 1  # the training did not run again
+    assert lay.log("report").read_text().count("\n== ") == 2
 
 
 def test_a_started_training_run_continues_with_resume_and_redo_starts_over(tmp_path):
@@ -291,3 +292,21 @@ def test_the_smoke_protocol_produces_every_kind_of_cell_and_the_report(tmp_path)
     for heading in ("Fig. 4a, left", "Fig. 4a, right", "Fig. 4b, left", "Fig. 4b, right", "Fig. 26",
                     "The paper's claims"):
         assert heading in report
+
+
+def test_a_failed_cell_is_tried_again_once_and_continues(tmp_path):
+    lay, cells = _fake(tmp_path)
+    flag = tmp_path / "crashed"
+    # the first try dies (as the renderer's crash does) after writing part of its run; the retry finishes it
+    code = (f"import pathlib; d=pathlib.Path({str(cells[0].run_dir)!r}); d.mkdir(parents=True, exist_ok=True); "
+            f"f=pathlib.Path({str(flag)!r}); (d/'checkpoint.pt').write_text('c')\n"
+            "if not f.exists(): f.write_text('1'); raise SystemExit(-11)\n"
+            "(d/'model-0-1-1.pt').write_text('m')")
+    cells[0].commands = [Command(_py(code))]
+    messages = []
+    sched = Scheduler(load_protocol("smoke"), cells, lay, progress=False, echo=messages.append, retries=1)
+    assert sched.run(cells) == 0
+    assert any("train/a: exit status 245; trying again (1 of 1)" in m for m in messages)
+    log = lay.log("train/a").read_text()
+    assert log.count("\n== ") == 2 and log.split("\n== ")[2].rstrip().endswith("resume=true")
+    assert all(status(c, lay, cells) == "done" for c in cells)
