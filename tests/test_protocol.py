@@ -64,6 +64,28 @@ def test_paper_cpu_expands_into_the_issue_cells(tmp_path):
     assert not by["train/dqn/direct-1-1/seed0"].keep_checkpoints and by["train/ppo/direct-1-1/seed0"].keep_checkpoints
 
 
+def test_every_training_command_of_paper_cpu_composes_as_train_py_would(tmp_path):
+    from hydra import initialize_config_dir
+
+    from evaaa_baselines.config import CONF_DIR, compose_checked, register_levels
+
+    register_levels()
+    trains = [c for c in build_cells(load_protocol("paper_cpu"), tmp_path) if c.kind == "train"]
+    # one of each set-up and algorithm (the seeds and levels vary nothing else)
+    kinds = {(c.name.split("/")[1], c.name.split("/")[2].split("-")[0]): c for c in trains}
+    with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
+        for cell in kinds.values():
+            cfg = compose_checked(cell.commands[0].argv[1:])
+            S = load_protocol("paper_cpu").stage_steps
+            assert cfg.threads == 1 and cfg.eval.every == S and cfg.checkpoint.every == S // 2
+            assert (cfg.level.stage_steps if cfg.level.name == "curriculum" else cfg.total_steps) == S
+            assert cfg.reward.name == ("dqn" if cfg.algo.name == "dqn" else "original")
+            if cfg.algo.name in ("ppo", "ppo_lstm"):
+                assert cfg.algo.normalize_reward is True
+            if cfg.algo.name == "dqn":
+                assert cfg.algo.eps_anneal_updates * cfg.env.num_envs + cfg.algo.learning_starts == S // 2
+
+
 def test_plan_lists_every_cell_its_status_estimate_total_and_command(tmp_path, capsys):
     assert reproduce.main(["protocol=paper_cpu", "plan=true", f"root={tmp_path}"]) == 0
     out = capsys.readouterr().out
