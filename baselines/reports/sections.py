@@ -411,7 +411,7 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
     """The verdicts of claims (a)–(e) (:mod:`.claims`) from the report's inputs: survival per level from the final
     survival of every finished stage of runs with every sense (curriculum runs where an algorithm has them, else its
     direct runs), testbed success of each run's furthest-trained checkpoint, generalisation of curriculum runs'
-    stage models, and the ablations of runs trained on one level with several modality sets."""
+    stage models, and the ablations: runs of one algorithm and training set-up with several modality sets."""
     order = list(evaaa.LEVELS)
     runs = inp.by_dir
     empty = pd.DataFrame(columns=["algo", "setup", "level", *STAT_COLUMNS])
@@ -455,11 +455,10 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
                 rules.curriculum_beats_direct(by_setup, order),
                 rules.algorithm_ordering(survival, random, order),
                 rules.testbeds_below_ceiling(success, ref_tests, gen, order)]
-    # ablations: runs trained on one level (not a curriculum) with several modality sets, per algorithm and level
+    # ablations: runs of one algorithm and training set-up (a level, or the curriculum) with several modality sets
     groups: dict[tuple, list[RunRecord]] = {}
     for r in inp.usable:
-        if not r.curriculum:
-            groups.setdefault((r.algo, r.training), []).append(r)
+        groups.setdefault((r.algo, r.training), []).append(r)
     groups = {k: v for k, v in groups.items() if len({r.modality for r in v}) > 1}
     if not groups:
         verdicts.append(rules.missing(rules.ablations(pd.DataFrame(), pd.DataFrame()).claim,
