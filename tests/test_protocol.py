@@ -99,6 +99,13 @@ def test_plan_lists_every_cell_its_status_estimate_total_and_command(tmp_path, c
     for part in ("curriculum", "direct", "ablations", "evaluation"):
         assert part in out
     assert "WARNING" not in out
+    # docs/reports.md quotes this plan: its budget table and S must be what the code prints
+    docs = (Path(__file__).parents[1] / "docs/reports.md").read_text()
+    assert f"| **total** | | | | | **{total:.2f}** |" in docs
+    for algo in ("ppo", "dqn", "ppo_lstm"):
+        row = re.search(rf"^  {algo}\s+([\d. ]+)$", out, re.M).group(1).split()
+        assert f"| {algo} | " + " | ".join("–" if v == "0.00" else v for v in row) + " |" in docs
+    assert f"S = **{load_protocol('paper_cpu').stage_steps:,}** env steps" in docs
 
 
 @pytest.mark.parametrize("change, message", [
