@@ -1,4 +1,4 @@
-"""Run the paper's experiments as a protocol of cells: ``python scripts/reproduce.py protocol=paper_cpu plan=true``.
+"""Run the paper's experiments as a protocol of named cells, resumably: plan them, run what is not done.
 
 A protocol (``conf/protocol/<name>.yaml``, or a path) expands into cells — a training run, the evaluations of one
 model, a reference agent's evaluation, the report — each a subprocess of scripts/train.py, evaluate.py or report.py
@@ -11,6 +11,8 @@ stopped: a started training run continues (resume=true), an unfinished evaluatio
 
 from __future__ import annotations
 
+import fcntl
+import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -65,6 +67,18 @@ def main(argv: list[str] | None = None) -> int:
         print(f"reproduce.py: nothing to do: {'the cells asked for are' if cfg.cells else 'every cell is'} done "
               f"({lay.root})")
         return 0
+    lay.root.mkdir(parents=True, exist_ok=True)
+    lock = open(lay.root / ".reproduce.lock", "a+")
+    try:  # two sessions on one root would run the same cells twice, into the same folders
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        lock.seek(0)
+        cli.fail("reproduce.py", f"another reproduce.py (pid {lock.read().strip() or '?'}) is running on {lay.root}; "
+                                 "nothing was started")
+    lock.seek(0)
+    lock.truncate()
+    lock.write(str(os.getpid()))
+    lock.flush()
     print(f"reproduce.py: {len(todo)} of {len(cells)} cells to run under {lay.root}, {cfg.jobs} at a time; logs in "
           f"{lay.logs}", flush=True)
     scheduler = Scheduler(p, cells, lay, jobs=cfg.jobs, max_minutes=cfg.max_minutes, redo=cfg.redo,

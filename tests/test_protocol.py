@@ -131,6 +131,24 @@ def test_a_bad_field_is_refused_naming_it(tmp_path, change, message):
     assert str(path) in str(err.value)
 
 
+def test_a_second_session_on_the_same_root_is_refused(tmp_path, capsys):
+    import fcntl
+
+    spec = tmp_path / "tiny.yaml"
+    spec.write_text(TINY)
+    root = tmp_path / "root"
+    root.mkdir()
+    with open(root / ".reproduce.lock", "a+") as held:
+        fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        held.write("4242")
+        held.flush()
+        with pytest.raises(SystemExit) as stop:
+            reproduce.main([f"protocol={spec}", f"root={root}", "progress=false"])
+    assert stop.value.code == 2
+    assert f"another reproduce.py (pid 4242) is running on {root}; nothing was started" in capsys.readouterr().err
+    assert sorted(p.name for p in root.iterdir()) == [".reproduce.lock"]
+
+
 def test_an_unknown_protocol_name_and_a_bad_key_are_one_line_errors(capsys):
     with pytest.raises(SystemExit) as stop:
         reproduce.main(["protocol=paper_gpu", "plan=true"])
