@@ -541,8 +541,8 @@ class Scheduler:
                  python: str = sys.executable, progress: bool = True, echo: Callable[[str], None] = print):
         self.p, self.cells, self.lay, self.jobs, self.retries = p, list(cells), lay, jobs, retries
         self.max_minutes, self.redo, self.python, self.progress, self.echo = max_minutes, redo, python, progress, echo
-        self.env = {**os.environ, "EVAAA_THREADS": str(p.threads), "OMP_NUM_THREADS": str(p.threads),
-                    "MKL_NUM_THREADS": str(p.threads), "PYTHONUNBUFFERED": "1"}
+        # exactly what plan=true prints (Command.text): EVAAA_THREADS here, threads= on the command line
+        self.env = {**os.environ, "EVAAA_THREADS": str(p.threads), "PYTHONUNBUFFERED": "1"}
 
     def _start(self, job: _Job) -> None:
         cmd = job.commands.pop(0)
