@@ -277,7 +277,7 @@ report: {out: null}
 
 def test_a_tiny_protocol_runs_end_to_end_and_a_second_run_does_nothing(tmp_path, capsys):
     spec = tmp_path / "tiny.yaml"
-    spec.write_text(TINY)
+    spec.write_text(TINY.replace("steps_per_second: 30,", "steps_per_second: 30, keep_checkpoints: false,"))
     root = tmp_path / "root"
     args = [f"protocol={spec}", f"root={root}", "progress=false"]
     assert reproduce.main(args) == 0
@@ -289,6 +289,10 @@ def test_a_tiny_protocol_runs_end_to_end_and_a_second_run_does_nothing(tmp_path,
     assert (root / "runs/ppo/direct-1-1/seed0/model-0-1-1.pt").is_file()
     assert (root / "done/train/ppo/direct-1-1/seed0.done").is_file()
     assert (root / "evals/ppo/direct-1-1/seed0/testbeds/episodes.csv").is_file()
+    # keep_checkpoints: false: the finished run's checkpoints are gone, the run is reported finished all the same
+    assert not list((root / "runs/ppo/direct-1-1/seed0").glob("checkpoint*.pt"))
+    assert re.search(r"\| \S*runs/ppo/direct-1-1/seed0 \| ppo \| all \| original \| 1-1 \| 0 \| 128 / 128 \| finished \|",
+                     report)
     log = (root / "logs/train/ppo/direct-1-1/seed0.log").read_text()
     assert "EVAAA_THREADS=1 python scripts/train.py algo=ppo level=1-1 total_steps=128 seed=0 threads=1" in log
     before = {p: p.stat().st_mtime for p in root.rglob("*") if p.is_file()}
