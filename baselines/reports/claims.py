@@ -33,13 +33,17 @@ class Verdict:
     parts: list[Verdict] = field(default_factory=list)
 
 
+def _num(x: float) -> str:
+    return f"{x:.0f}" if abs(x) >= 100 else f"{x:.3g}"  # survival in whole decisions, rates to 3 digits
+
+
 def _fmt(row) -> str:
     v, lo, hi = float(row["value"]), float(row["low"]), float(row["high"])
     if math.isnan(v):
         return "n/a"
     if math.isnan(lo):
-        return f"{v:.3g}"
-    return f"{v:.3g} [{lo:.3g}, {hi:.3g}]"
+        return _num(v)
+    return f"{_num(v)} [{_num(lo)}, {_num(hi)}]"
 
 
 def above(a, b) -> bool:
