@@ -23,6 +23,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+import torch
 from tqdm import tqdm
 
 import evaaa
@@ -65,6 +66,8 @@ class EvalConfig:
                                  "summary.md", check=(lambda v: 0.0 <= v <= 1.0, "a number in [0, 1]"))
     step_log: bool = option(False, "also write a per-step behaviour log, out/steps-<UTC time>.csv (one row per "
                                    "world and decision: evaaa.records.STEP_FIELDS)")
+    threads: int | None = option(None, "torch intra-op threads (null: torch's default), as train.py's threads=",
+                                 check=(lambda v: v >= 1, "a positive integer"))
     device: str = option("auto", "for checkpoints: where the networks run: auto (CUDA when available), cpu, cuda or "
                                  "cuda:N; the worlds stay on the CPU",
                          check=(lambda v: re.fullmatch(r"auto|cpu|cuda(:\d+)?", v) is not None,
@@ -98,6 +101,8 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"evaluate.py: {out} already holds an evaluation ({', '.join(earlier)}); nothing was "
                          "changed: choose another out=, or move those files away first")
     out.mkdir(parents=True, exist_ok=True)
+    if cfg.threads is not None:
+        torch.set_num_threads(cfg.threads)
     try:
         policies = [EvaluatedPolicy(spec, cfg.seed, cfg.modalities, cfg.epsilon, cfg.sample, cfg.device)
                     for spec in cfg.policy]

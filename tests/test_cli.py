@@ -26,7 +26,8 @@ ROOT = Path(__file__).resolve().parents[1]
 #: each script's config dataclass (train.py's config is Hydra's, composed from conf/)
 SCHEMAS = {"evaluate": "EvalConfig", "report": "ReportConfig", "bench_env": "BenchConfig",
            "bench_train": "BenchConfig", "demo": "DemoConfig", "profile_env": "ProfileConfig",
-           "render_levels": "RenderConfig", "play": "PlaySettings", "wall_hits": "WallHitsConfig"}
+           "render_levels": "RenderConfig", "play": "PlaySettings", "wall_hits": "WallHitsConfig",
+           "reproduce": "ReproduceConfig"}
 
 
 def schema(name: str) -> type:

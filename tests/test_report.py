@@ -662,3 +662,36 @@ def test_training_writes_the_episode_fields_of_evaluations():
     assert shared == [f for f in EPISODE_FIELDS if f in shared]  # in evaluation's order
     assert {"steps", "return", "end_type", "final_satiation"} <= set(shared)
     assert set(TRAINING_OLD_NAMES.values()) <= set(shared) and not set(TRAINING_OLD_NAMES) & set(EPISODE_FIELDS)
+
+
+# ------------------------------------------------------------------------------------------------ the claims
+def test_the_claims_are_judged_on_the_numbers_of_the_report(world):
+    from evaaa_baselines.reports import claims as rules
+    from evaaa_baselines.reports.sections import claim_verdicts, read_inputs
+
+    text = world["text"]
+    claims = text[text.index("## The paper's claims"):]
+    for letter in "abcde":
+        assert f"- **({letter}) " in claims
+    verdicts = {v.claim[:3]: v for v in claim_verdicts(read_inputs([world["base"] / "runs"],
+                                                                   [world["base"] / "eval", world["base"] / "human.csv"]))}
+    tables = world["report"].tables
+
+    def fmt(frame, **match):
+        row = frame[np.logical_and.reduce([frame[k] == v for k, v in match.items()])].iloc[0]
+        return rules._fmt(row)
+
+    # (b) compares exactly the cells of Fig. 4a right, on the levels after the first
+    cmp = tables["curriculum_vs_direct"]
+    (ppo,) = [p for p in verdicts["(b)"].parts if p.claim == "ppo"]
+    assert ppo.evidence[0] == (f"1-2: curriculum {fmt(cmp, label='ppo · curriculum', level='1-2')} vs direct "
+                               f"{fmt(cmp, label='ppo · direct', level='1-2')}")
+    # (d) finds the human records
+    assert verdicts["(d)"].parts[0].claim == "humans ≈ ceiling (the oracle)"
+    # (e) compares each modality set with `all` among runs of one algorithm and set-up (here ppo's curricula)
+    ablation = [v for k, v in verdicts.items() if k == "(e)"][0]
+    assert ablation.claim.endswith("(ppo, trained on curriculum)")
+    final = tables["ablation_final_survival"]
+    part = next(p for p in ablation.parts if p.claim == "no_vision fails (survival)")
+    assert part.evidence == [f"no_vision {fmt(final, label='no_vision', group='ppo · curriculum')} vs all "
+                             f"{fmt(final, label='all', group='ppo · curriculum')}"]

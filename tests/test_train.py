@@ -213,11 +213,12 @@ def test_existing_run_needs_resume_and_the_same_experiment(runs, tmp_path):
         train(debug_cfg("dqn", "resume=true"), run_dir)
 
 
-def test_evaluation_acts_epsilon_greedily_on_request(runs):
+@pytest.mark.parametrize("algo", ["dqn", "ppo"])  # any checkpoint: epsilon over its deterministic action
+def test_evaluation_acts_epsilon_greedily_on_request(runs, algo):
     from helpers import load_script
 
     script = load_script("evaluate")
-    path = str(runs("dqn")["whole"] / "model-0-1-1.pt")
+    path = str(runs(algo)["whole"] / "model-0-1-1.pt")
     with pytest.raises(SystemExit) as exit_:
         script.parse([f"policy={path}", "epsilon=1.5"])
     assert exit_.value.code == 2
@@ -227,8 +228,8 @@ def test_evaluation_acts_epsilon_greedily_on_request(runs):
         env = policy.make_env("1-1", num_envs=2, seed=0)
         try:
             td = env.reset()
-            greedy = policy.loaded(td)["action"]
-            acts = torch.stack([policy.act(env, td) for _ in range(400)])
+            greedy = policy.loaded(td.clone())["action"]
+            acts = torch.stack([policy.act(env, td.clone()) for _ in range(400)])
         finally:
             env.close()
         assert acts.shape == (400, 2) and int(acts.min()) >= 0 and int(acts.max()) < 5

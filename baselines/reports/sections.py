@@ -14,7 +14,8 @@ import pandas as pd
 
 import evaaa
 
-from .aggregate import across_seeds, curves, final_survival, per_run, reference_stats
+from . import claims as rules
+from .aggregate import STAT_COLUMNS, across_seeds, curves, final_survival, per_run, reference_stats
 from .figures import plot_bars, plot_lines
 from .load import (MODEL_FILE, Evaluations, ReportError, RunRecord, attach, describe_extras, final_checkpoints,
                    find_run_dirs, labels, level_sorted, load_evaluations, load_run, select_acting)
@@ -400,9 +401,102 @@ def _modality_key(name: str) -> tuple[int, str]:
     return (0 if name == "all" else 1, name)
 
 
+def _pooled_success(episodes: pd.DataFrame, by: Sequence[str]) -> pd.DataFrame:
+    """Per ``by`` (``run`` among them): the successes of all its testbed episodes pooled, as one seed's scores."""
+    grouped = episodes.assign(_v=episodes["success"].astype(float)).groupby(list(by), sort=False)["_v"]
+    return grouped.agg(success="mean", scores=lambda v: tuple(v.dropna())).reset_index()
+
+
+def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
+    """The verdicts of claims (a)–(e) (:mod:`.claims`) from the report's inputs: survival per level from the final
+    survival of every finished stage of runs with every sense (curriculum runs where an algorithm has them, else its
+    direct runs), testbed success of each run's furthest-trained checkpoint, generalisation of curriculum runs'
+    stage models, and the ablations: runs of one algorithm and training set-up with several modality sets."""
+    order = list(evaaa.LEVELS)
+    runs = inp.by_dir
+    empty = pd.DataFrame(columns=["algo", "setup", "level", *STAT_COLUMNS])
+    final = inp.final
+    full = final[final["run"].map(lambda d: runs[d].modality == "all")] if len(final) else final
+    if len(full):
+        full = full.assign(algo=full["run"].map(lambda d: runs[d].algo),
+                           setup=full["run"].map(lambda d: "curriculum" if runs[d].curriculum else "direct"))
+        by_setup = across_seeds(full, ["algo", "setup", "level"], "survival")
+    else:
+        by_setup = empty
+    with_cur = set(by_setup.loc[by_setup["setup"] == "curriculum", "algo"])
+    survival = by_setup[(by_setup["setup"] == "curriculum") | ~by_setup["algo"].isin(with_cur)]
+    random = inp.reference_training
+    random = random[random["label"] == "random"] if len(random) else random
+
+    def agent(d: Path) -> str:
+        r = inp.runs[d]
+        return f"{r.algo} · {r.training}"
+
+    best = inp.best
+    best = best[best["run"].map(lambda d: inp.runs[d].modality == "all")] if len(best) else best
+    if len(best):
+        best = best[best["run"].map(lambda d: inp.runs[d].curriculum or inp.runs[d].algo not in with_cur)]
+    success = across_seeds(per_run(best, "success").assign(agent=lambda d: d["run"].map(agent)),
+                           ["agent", "level"], "success", success=True) if len(best) else \
+        pd.DataFrame(columns=["agent", "level", *STAT_COLUMNS])
+    refs = inp.evals.references
+    ref_tests = reference_stats(refs[refs["level"].isin(evaaa.TESTBEDS)], "success").rename(
+        columns={"label": "agent"}) if len(refs) else pd.DataFrame(columns=["agent", "level", *STAT_COLUMNS])
+
+    tests = inp.testbed_episodes
+    tests = tests[tests["run"].map(lambda d: inp.runs[d].curriculum and inp.runs[d].modality == "all")
+                  & tests["policy"].map(lambda p: bool(MODEL_FILE.match(Path(p).name)))] if len(tests) else tests
+    gen = across_seeds(_pooled_success(tests, ["run", "ckpt_level"]).assign(
+        agent=lambda d: d["run"].map(lambda x: inp.runs[x].algo)), ["agent", "ckpt_level"], "success",
+        success=True).rename(columns={"ckpt_level": "level"}) if len(tests) else \
+        pd.DataFrame(columns=["agent", "level", *STAT_COLUMNS])
+
+    verdicts = [rules.survival_falls(survival, order),
+                rules.curriculum_beats_direct(by_setup, order),
+                rules.algorithm_ordering(survival, random, order),
+                rules.testbeds_below_ceiling(success, ref_tests, gen, order)]
+    # ablations: runs of one algorithm and training set-up (a level, or the curriculum) with several modality sets
+    groups: dict[tuple, list[RunRecord]] = {}
+    for r in inp.usable:
+        groups.setdefault((r.algo, r.training), []).append(r)
+    groups = {k: v for k, v in groups.items() if len({r.modality for r in v}) > 1}
+    if not groups:
+        verdicts.append(rules.missing(rules.ablations(pd.DataFrame(), pd.DataFrame()).claim,
+                                      "no runs of one algorithm and level with several modality sets"))
+    for (algo, level), members in groups.items():
+        dirs = {r.dir: r.modality for r in members}
+        last = final[final["run"].isin(list(dirs)) & final["last"]] if len(final) else final
+        surv = across_seeds(last.assign(modality=last["run"].map(dirs)), ["modality"], "survival") if len(last) \
+            else pd.DataFrame(columns=["modality", *STAT_COLUMNS])
+        ab_best = inp.best[inp.best["run"].isin(list(dirs))] if len(inp.best) else inp.best
+        succ = across_seeds(_pooled_success(ab_best, ["run"]).assign(modality=lambda d: d["run"].map(dirs)),
+                            ["modality"], "success", success=True) if len(ab_best) else \
+            pd.DataFrame(columns=["modality", *STAT_COLUMNS])
+        v = rules.ablations(surv, succ)
+        v.claim += f" ({algo}, trained on {level})"
+        verdicts.append(v)
+    return verdicts
+
+
+def claims(doc: Document, inp: Inputs) -> None:
+    """The paper's claims (a)–(e), one by one: reproduced, contradicted or not resolvable at this scale, with the
+    rule and the numbers (:mod:`.claims`)."""
+    acting = list(dict.fromkeys(inp.evals.checkpoints["acting"].astype(str))) if len(inp.evals.checkpoints) else []
+    doc.md += ["## The paper's claims", "",
+               "Each claim of the EVAAA paper judged against the numbers above by a fixed rule: two cells differ only "
+               "where their 95 % intervals do not overlap, and overlapping intervals never decide a claim (not "
+               "resolvable at this scale). A claim of several parts is reproduced when every part is, contradicted "
+               "when some part is and none is reproduced. Survival per level: "
+               + inp.source_note[len("Survival: "):].rstrip(".") + " (runs with every sense; curriculum runs where an "
+               "algorithm has them). Testbed success: each run's furthest-trained evaluated checkpoint"
+               + (f", acting {', '.join(f'`{a}`' for a in acting)}" if acting else "") + ".", ""]
+    doc.md += rules.markdown(claim_verdicts(inp))
+    doc.md.append("")
+
+
 #: The sections after the runs, in the order the report shows them.
 SECTIONS = (survival_per_level, curriculum_vs_direct, success_per_testbed, generalisation, evaluation_survival,
-            training_curves, ablation_curves, ablation_success)
+            training_curves, ablation_curves, ablation_success, claims)
 
 
 # ------------------------------------------------------------------------------------------------ the report

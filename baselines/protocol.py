@@ -1,0 +1,713 @@
+"""The paper's experiments as a protocol: a YAML file (``conf/protocol/<name>.yaml``) read into a validated
+:class:`Protocol`, expanded into named **cells** (one training run, the evaluations of one model, a reference agent's
+evaluation, the report), each a subprocess of ``scripts/train.py``, ``scripts/evaluate.py`` or
+``scripts/report.py``; and the scheduler that runs the cells not yet done, a few at a time, resumably
+(``scripts/reproduce.py``; docs/reports.md, "The paper's protocol at CPU scale").
+
+A cell is *done* only when its outputs are complete: a training run when the final model of its last stage exists
+and the done-marker written after ``train.py`` exited 0 (``<root>/done/<cell>.done``); an evaluation when every
+``out`` folder of it holds ``episodes.csv`` (evaluate.py writes it last); the report when its marker is newer than
+every other cell's outputs and every other cell is done.  A training cell that was started and not finished is continued with ``resume=true``;
+an evaluation's ``out`` folder without ``episodes.csv`` is moved aside (``<out>.partial-<UTC time>``, never deleted)
+and the evaluation run again.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import json
+import os
+import shlex
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from functools import lru_cache
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+import evaaa
+
+from .algos import names as algorithm_names
+from .config import CONF_DIR
+
+REPO = CONF_DIR.parent
+PROTOCOL_DIR = CONF_DIR / "protocol"
+MODALITIES = sorted(p.stem for p in (CONF_DIR / "modality").glob("*.yaml"))
+REWARDS = sorted(p.stem for p in (CONF_DIR / "reward").glob("*.yaml"))
+#: the level groups evaluate.py expands (scripts/evaluate.py GROUPS)
+LEVEL_GROUPS = {"testbeds": evaaa.TESTBEDS, "training": evaaa.LEVELS, "all": evaaa.LEVELS + evaaa.TESTBEDS}
+#: seconds a script takes to start (imports, first env) on the 2-core box, added to every cell's estimate
+STARTUP_SECONDS = 10.0
+#: a run's checkpoints (baselines/runner.py), deleted once it is done where keep_checkpoints is false
+CHECKPOINTS = ("checkpoint.pt", "checkpoint-previous.pt")
+
+
+class ProtocolError(ValueError):
+    """A protocol file that cannot be used; the message names the file, the field and what it accepts."""
+
+
+# ------------------------------------------------------------------------------------------------ the file
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+def _check_levels(names: Sequence[str], allowed: Sequence[str], what: str) -> list[str]:
+    bad = [n for n in names if n not in allowed]
+    if bad:
+        raise ValueError(f"{bad[0]!r} is not {what}; allowed: {', '.join(allowed)}")
+    return list(names)
+
+
+class AlgorithmSpec(_Strict):
+    enabled: bool = True
+    steps_per_second: float = Field(gt=0, description="measured env steps/s of one training run (estimates)")
+    overrides: list[str] = []  # train.py overrides of this algorithm's runs (reward, hyperparameters)
+    # false: once a run is done, its checkpoint.pt and checkpoint-previous.pt are deleted (a DQN checkpoint holds
+    # its replay buffer, ~2.4 GB); the models, logs and records stay, but the run cannot be continued further
+    keep_checkpoints: bool = True
+
+
+class TrainingSpec(_Strict):
+    overrides: list[str] = []  # train.py overrides of every training run
+    curriculum: bool = True  # one run through all `levels` per algorithm and seed
+    direct: bool = True  # one run per level per algorithm and seed
+
+
+class AblationSpec(_Strict):
+    enabled: bool = True
+    algorithm: str
+    level: str
+    modalities: list[str]  # `all` is the direct run of `algorithm` on `level` (trained once)
+    seeds: list[int] | None = None  # null: the protocol's seeds
+
+    @field_validator("level")
+    @classmethod
+    def _level(cls, v: str) -> str:
+        return _check_levels([v], evaaa.LEVELS, "a training level")[0]
+
+    @field_validator("modalities")
+    @classmethod
+    def _modalities(cls, v: list[str]) -> list[str]:
+        return _check_levels(v, MODALITIES, "a modality option (conf/modality)")
+
+
+def _any_levels(v: list[str]) -> list[str]:
+    return _check_levels(v, [*LEVEL_GROUPS, *evaaa.LEVELS, *evaaa.TESTBEDS], "a level, testbed or group")
+
+
+class EvalPart(_Strict):
+    levels: list[str] = ["testbeds"]
+    episodes: int = Field(ge=1)
+    num_envs: int = Field(default=4, ge=1)
+
+    _levels = field_validator("levels")(_any_levels)
+
+
+class OwnLevelPart(_Strict):
+    episodes: int = Field(ge=1)
+    num_envs: int = Field(default=4, ge=1)
+
+
+class EvaluationSpec(_Strict):
+    seed: int = 0
+    epsilon: float = Field(default=0.05, ge=0, le=1)
+    sample: bool = False
+    testbeds: EvalPart | None = None  # every evaluated model on these levels (null: none)
+    own_level: OwnLevelPart | None = None  # every evaluated model on the level it was trained up to (null: none)
+    steps_per_second: float = Field(gt=0, description="measured world steps/s of evaluate.py (estimates)")
+
+
+class ReferenceSpec(_Strict):
+    policies: list[Literal["oracle", "random"]] = ["oracle", "random"]
+    levels: list[str] = ["all"]
+    episodes: int = Field(default=20, ge=1)
+    num_envs: int = Field(default=10, ge=1)
+    steps_per_second: float = Field(gt=0)
+
+    _levels = field_validator("levels")(_any_levels)
+
+
+class ReportSpec(_Strict):
+    out: str | None = None  # relative paths: to the repository root; null: <root>/report
+    survival: Literal["eval", "train"] = "eval"
+    title: str | None = None
+
+
+class Protocol(_Strict):
+    name: str
+    description: str = ""
+    stage_steps: int = Field(gt=0)  # S: env steps of every curriculum stage and every direct run
+    seeds: list[int] = Field(min_length=1)
+    levels: list[str] | None = None  # curriculum stages and direct levels (null: every level of evaaa.LEVELS)
+    threads: int = Field(default=1, ge=1)  # torch threads and EVAAA_THREADS of every training and evaluation
+    budget_cpu_hours: float | None = Field(default=None, gt=0)  # plan=true says when the estimate exceeds it
+    algorithms: dict[str, AlgorithmSpec]
+    training: TrainingSpec = TrainingSpec()
+    ablations: AblationSpec | None = None
+    evaluation: EvaluationSpec
+    references: ReferenceSpec | None = None
+    report: ReportSpec
+
+    @field_validator("levels")
+    @classmethod
+    def _levels(cls, v: list[str] | None) -> list[str] | None:
+        return None if v is None else _check_levels(v, evaaa.LEVELS, "a training level")
+
+    @field_validator("algorithms")
+    @classmethod
+    def _algorithms(cls, v: dict[str, AlgorithmSpec]) -> dict[str, AlgorithmSpec]:
+        _check_levels(list(v), algorithm_names(), "an algorithm")
+        if not any(a.enabled for a in v.values()):
+            raise ValueError("no algorithm is enabled")
+        return v
+
+    @model_validator(mode="after")
+    def _ablation_algorithm(self) -> Protocol:
+        ab = self.ablations
+        if ab is not None and ab.enabled:
+            enabled = [n for n, a in self.algorithms.items() if a.enabled]
+            if ab.algorithm not in enabled:
+                raise ValueError(f"ablations.algorithm: {ab.algorithm!r} is not an enabled algorithm of this "
+                                 f"protocol; allowed: {', '.join(enabled)}")
+        return self
+
+    @property
+    def stage_levels(self) -> list[str]:
+        return list(self.levels or evaaa.LEVELS)
+
+
+# integer arithmetic for settings derived from stage_steps in a protocol file: ${idiv:${stage_steps},2}
+OmegaConf.register_new_resolver("idiv", lambda a, b: int(a) // int(b), replace=True)
+OmegaConf.register_new_resolver("sub", lambda a, b: int(a) - int(b), replace=True)
+
+
+def _field_path(loc: Sequence[Any]) -> str:
+    return ".".join(str(p) for p in loc if p not in ("function-after", "function-before"))
+
+
+def _fields_at(loc: Sequence[Any]) -> list[str] | None:
+    """The fields allowed where ``loc`` points (for an unknown field's message)."""
+    model: Any = Protocol
+    for part in loc[:-1]:
+        info = getattr(model, "model_fields", {}).get(part) if isinstance(part, str) else None
+        if info is None:
+            if model is Protocol and loc[0] == "algorithms":
+                model = AlgorithmSpec
+                continue
+            return None
+        tp = info.annotation
+        args = [a for a in getattr(tp, "__args__", (tp,)) if isinstance(a, type) and issubclass(a, BaseModel)]
+        model = args[0] if args else tp
+    return list(getattr(model, "model_fields", {})) or None
+
+
+def load_protocol(spec: str | Path) -> Protocol:
+    """The protocol named ``spec`` (``conf/protocol/<spec>.yaml``) or in the YAML file ``spec``; interpolations
+    (``${stage_steps}``, ``${idiv:${stage_steps},16}``) resolved.  Raises :class:`ProtocolError`."""
+    path = Path(spec)
+    if not path.suffix:
+        path = PROTOCOL_DIR / f"{spec}.yaml"
+    if not path.is_file():
+        known = ", ".join(sorted(p.stem for p in PROTOCOL_DIR.glob("*.yaml")))
+        raise ProtocolError(f"protocol={spec}: no such protocol; allowed: {known}, or a path to a .yaml file")
+    try:
+        raw = OmegaConf.to_container(OmegaConf.load(path), resolve=True)
+    except (yaml.YAMLError, OmegaConfBaseException) as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f" (line {mark.line + 1})" if mark is not None else ""
+        raise ProtocolError(f"{path}: not a valid protocol file{where}: {' '.join(str(err).split())}") from None
+    if not isinstance(raw, dict):
+        raise ProtocolError(f"{path}: a protocol is a mapping of fields ({', '.join(Protocol.model_fields)})")
+    try:
+        return Protocol.model_validate(raw)
+    except ValidationError as err:
+        first = err.errors()[0]
+        where = _field_path(first["loc"]) or "(top level)"
+        msg = first["msg"].removeprefix("Value error, ")
+        if first["type"] == "extra_forbidden":
+            allowed = _fields_at(first["loc"])
+            msg = "unknown field" + (f"; allowed: {', '.join(allowed)}" if allowed else "")
+        elif first["type"] == "missing":
+            msg = "required field missing"
+        raise ProtocolError(f"{path}: field {where}: {msg}") from None
+
+
+# ------------------------------------------------------------------------------------------------ cells
+@dataclass
+class Command:
+    """One subprocess of a cell; ``out``: the evaluation folder it writes (None for training and the report)."""
+
+    argv: list[str]
+    out: Path | None = None
+
+    def text(self, threads: int) -> str:
+        return f"EVAAA_THREADS={threads} python " + " ".join(shlex.quote(a) for a in self.argv)
+
+
+@dataclass
+class Cell:
+    """One experiment of the protocol: its name, what kind, its commands, the files it needs and makes."""
+
+    name: str
+    kind: Literal["train", "eval", "ref", "report"]
+    commands: list[Command]
+    minutes: float  # estimated CPU-minutes
+    group: str  # the budget line it counts in (e.g. "ppo curriculum", "evaluation")
+    run_dir: Path | None = None  # training: the run directory
+    final_model: Path | None = None  # training: the last stage's model
+    needs: list[Path] = field(default_factory=list)  # files that must exist before it starts (models)
+    needs_cells: list[str] = field(default_factory=list)  # cells whose outputs those are
+    keep_checkpoints: bool = True  # training: false deletes the run's checkpoints once it is done
+    report_out: Path | None = None  # the report: its folder
+
+
+def _safe(name: str) -> str:
+    return name.replace("/", os.sep)
+
+
+@lru_cache(maxsize=None)
+def max_steps(level: str) -> int:
+    """A level's episode cap (decisions), for the estimates."""
+    return int(evaaa.load_level(level).episode.max_steps)
+
+
+def expand_levels(names: Sequence[str]) -> list[str]:
+    out: list[str] = []
+    for n in names:
+        out += [x for x in LEVEL_GROUPS.get(n, (n,)) if x not in out]
+    return out
+
+
+class Layout:
+    """Where a protocol's files go under ``root``."""
+
+    def __init__(self, root: Path):
+        self.root = root.resolve()
+        self.runs = self.root / "runs"
+        self.evals = self.root / "evals"
+        self.logs = self.root / "logs"
+        self.done = self.root / "done"
+
+    def marker(self, cell: str) -> Path:
+        return self.done / f"{_safe(cell)}.done"
+
+    def log(self, cell: str) -> Path:
+        return self.logs / f"{_safe(cell)}.log"
+
+
+def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list[Cell]:
+    """Every cell of ``p`` with its files under ``root``, in the order the scheduler prefers: references, then per
+    algorithm each training run followed by the evaluations of its models, then the report."""
+    lay = Layout(root)
+    S, levels, th = p.stage_steps, p.stage_levels, p.threads
+    ev = p.evaluation
+    cells: list[Cell] = []
+    eval_outs: list[Path] = []
+
+    def eval_cell(name: str, model: Path, own: str, train_cell: str, sps: float, algo: str) -> Cell:
+        cmds, seconds = [], 0.0
+        common = [f"seed={ev.seed}", f"epsilon={ev.epsilon:g}", f"sample={str(ev.sample).lower()}",
+                  f"threads={th}", f"policy=[{model}]"]
+        if ev.testbeds is not None:
+            out = lay.evals / _safe(name.removeprefix("eval/")) / "testbeds"
+            tb = expand_levels(ev.testbeds.levels)
+            cmds.append(Command(["scripts/evaluate.py", *common, f"levels=[{','.join(ev.testbeds.levels)}]",
+                                 f"episodes={ev.testbeds.episodes}", f"num_envs={ev.testbeds.num_envs}",
+                                 f"out={out}"], out))
+            seconds += STARTUP_SECONDS + ev.testbeds.episodes * sum(max_steps(t) for t in tb) / sps
+        if ev.own_level is not None:
+            out = lay.evals / _safe(name.removeprefix("eval/")) / "level"
+            cmds.append(Command(["scripts/evaluate.py", *common, f"levels=[{own}]",
+                                 f"episodes={ev.own_level.episodes}", f"num_envs={ev.own_level.num_envs}",
+                                 f"out={out}"], out))
+            seconds += STARTUP_SECONDS + ev.own_level.episodes * max_steps(own) / sps
+        eval_outs.extend(c.out for c in cmds if c.out is not None)
+        return Cell(name, "eval", cmds, seconds / 60, f"{algo} evaluation", needs=[model], needs_cells=[train_cell])
+
+    if p.references is not None:
+        ref = p.references
+        ref_levels = expand_levels(ref.levels)
+        for policy in ref.policies:
+            out = lay.evals / "ref" / policy
+            cmd = Command(["scripts/evaluate.py", f"policy=[{policy}]", f"levels=[{','.join(ref.levels)}]",
+                           f"episodes={ref.episodes}", f"num_envs={ref.num_envs}", f"seed={ev.seed}",
+                           f"threads={th}", f"out={out}"], out)
+            seconds = STARTUP_SECONDS + ref.episodes * sum(max_steps(lv) for lv in ref_levels) / ref.steps_per_second
+            cells.append(Cell(f"ref/{policy}", "ref", [cmd], seconds / 60, "references"))
+            eval_outs.append(out)
+
+    def train_cell(algo: str, spec: AlgorithmSpec, setup: str, seed: int, level_args: list[str],
+                   stages: list[str], group: str, extra: Sequence[str] = ()) -> None:
+        name = f"train/{algo}/{setup}/seed{seed}"
+        run_name = f"{algo}/{setup}/seed{seed}"
+        run_dir = lay.runs / _safe(run_name)
+        argv = ["scripts/train.py", f"algo={algo}", *level_args, f"seed={seed}", f"threads={th}",
+                *p.training.overrides, *spec.overrides, *extra, f"run.root={lay.runs}", f"run.name={run_name}"]
+        steps = S * len(stages)
+        minutes = (STARTUP_SECONDS + steps / spec.steps_per_second) / 60
+        final = run_dir / f"model-{len(stages) - 1}-{stages[-1]}.pt"
+        cells.append(Cell(name, "train", [Command(argv)], minutes, f"{algo} {group}", run_dir=run_dir,
+                          final_model=final, keep_checkpoints=spec.keep_checkpoints))
+        if len(stages) > 1:
+            for i, lv in enumerate(stages):
+                cells.append(eval_cell(f"eval/{algo}/{setup}/seed{seed}/stage{i}-{lv}", run_dir / f"model-{i}-{lv}.pt",
+                                       lv, name, ev.steps_per_second, algo))
+        else:
+            cells.append(eval_cell(f"eval/{algo}/{setup}/seed{seed}", final, stages[0], name, ev.steps_per_second,
+                                   algo))
+
+    ab = p.ablations if p.ablations is not None and p.ablations.enabled else None
+    for algo, spec in p.algorithms.items():
+        if not spec.enabled:
+            continue
+        for seed in p.seeds:
+            if p.training.curriculum:
+                train_cell(algo, spec, "curriculum", seed, ["level=curriculum", f"level.stages=[{','.join(levels)}]",
+                                                            f"level.stage_steps={S}"], levels, "curriculum")
+        direct_levels = list(levels) if p.training.direct else []
+        if ab is not None and ab.algorithm == algo and "all" in ab.modalities and ab.level not in direct_levels:
+            direct_levels.append(ab.level)  # the ablation's `all` condition is this direct run
+        for lv in direct_levels:
+            seeds = p.seeds if lv in levels and p.training.direct else (ab.seeds or p.seeds)
+            if ab is not None and ab.algorithm == algo and lv == ab.level and "all" in ab.modalities:
+                seeds = list(dict.fromkeys([*seeds, *(ab.seeds or p.seeds)]))
+            for seed in seeds:
+                train_cell(algo, spec, f"direct-{lv}", seed, [f"level={lv}", f"total_steps={S}"], [lv], "direct")
+        if ab is not None and ab.algorithm == algo:
+            for mod in ab.modalities:
+                if mod == "all":
+                    continue
+                for seed in ab.seeds or p.seeds:
+                    train_cell(algo, spec, f"ablation-{mod}", seed, [f"level={ab.level}", f"total_steps={S}"],
+                               [ab.level], "ablations", extra=[f"modality={mod}"])
+
+    out = Path(report_out) if report_out is not None else lay.root / "report" if p.report.out is None \
+        else REPO / p.report.out
+    out = out.resolve()
+    title = p.report.title or default_title(p)
+    argv = ["scripts/report.py", f"runs=[{lay.runs}]", "evals=[" + ",".join(map(str, eval_outs)) + "]",
+            f"out={out}", f"survival={p.report.survival}", f"title={title}"]
+    if any(c.kind == "eval" for c in cells):
+        argv.append(f"acting={acting(ev)}")
+    cells.append(Cell("report", "report", [Command(argv, None)], 1.0, "report", needs_cells=[c.name for c in cells],
+                      report_out=out))
+    return cells
+
+
+def acting(ev: EvaluationSpec) -> str:
+    """How evaluate.py names the acting mode of the protocol's checkpoint evaluations (its ``acting`` column)."""
+    return ("sample" if ev.sample else "mode") + (f"+epsilon={ev.epsilon:g}" if ev.epsilon else "")
+
+
+def default_title(p: Protocol) -> str:
+    algos = ", ".join(n for n, a in p.algorithms.items() if a.enabled)
+    return (f"evaaa: the paper's protocol at CPU scale ({p.name}: {algos}; {p.stage_steps:,} env steps per "
+            f"stage; seeds {', '.join(map(str, p.seeds))}; checkpoints act {acting(p.evaluation)})")
+
+
+# ------------------------------------------------------------------------------------------------ status
+def _newest(paths: Sequence[Path]) -> float:
+    return max((q.stat().st_mtime for q in paths if q.exists()), default=0.0)
+
+
+def outputs(cell: Cell, lay: Layout) -> list[Path]:
+    """The files whose presence makes ``cell`` done."""
+    if cell.kind == "train":
+        return [cell.final_model, lay.marker(cell.name)]  # type: ignore[list-item]
+    if cell.kind in ("eval", "ref"):
+        return [c.out / "episodes.csv" for c in cell.commands if c.out is not None]
+    return [cell.report_out / "report.md", lay.marker(cell.name)]  # type: ignore[operator]
+
+
+def status(cell: Cell, lay: Layout, cells: Sequence[Cell] = ()) -> Literal["done", "partial", "todo"]:
+    """done: every output complete; partial: started (a run directory, an ``out`` folder) but not complete; todo."""
+    outs = outputs(cell, lay)
+    if all(o.exists() for o in outs):
+        if cell.kind != "report":
+            return "done"
+        others = [c for c in cells if c.kind != "report"]
+        if all(status(c, lay) == "done" for c in others) and \
+                lay.marker(cell.name).stat().st_mtime >= _newest([o for c in others for o in outputs(c, lay)]):
+            return "done"
+        return "partial"  # written before some cell was (re)done
+    if cell.kind == "train":
+        return "partial" if cell.run_dir is not None and cell.run_dir.is_dir() and any(cell.run_dir.iterdir()) \
+            else "todo"
+    if cell.kind in ("eval", "ref"):
+        return "partial" if any(c.out is not None and c.out.exists() for c in cell.commands) else "todo"
+    return "partial" if any(o.exists() for o in outs) else "todo"
+
+
+def command_now(cell: Cell, lay: Layout, redo: bool = False) -> list[Command]:
+    """The commands that bring ``cell`` to done from where it stands: a started training run continues
+    (``resume=true``; with ``redo``: ``start_over=true``); evaluations whose ``episodes.csv`` exists are skipped (all
+    run again with ``redo``)."""
+    if cell.kind == "train":
+        (cmd,) = cell.commands
+        started = cell.run_dir is not None and cell.run_dir.is_dir() and any(cell.run_dir.iterdir())
+        pruned = not any((cell.run_dir / n).exists() for n in CHECKPOINTS)  # type: ignore[operator]
+        if started and not redo and cell.final_model.exists() and pruned:  # type: ignore[union-attr]
+            return []  # finished, checkpoints deleted: only the done-marker is missing
+        if started:
+            return [Command([*cmd.argv, "start_over=true" if redo else "resume=true"])]
+        return [cmd]
+    if cell.kind in ("eval", "ref"):
+        return [c for c in cell.commands if redo or not (c.out / "episodes.csv").exists()]  # type: ignore[operator]
+    return list(cell.commands)
+
+
+# ------------------------------------------------------------------------------------------------ plan
+def budget(cells: Sequence[Cell]) -> dict[str, float]:
+    """Estimated CPU-minutes per budget line, in order."""
+    lines: dict[str, float] = {}
+    for c in cells:
+        lines[c.group] = lines.get(c.group, 0.0) + c.minutes
+    return lines
+
+
+def plan_text(p: Protocol, cells: Sequence[Cell], lay: Layout, threads: int) -> str:
+    """The plan: every cell with its status and estimate, the budget split, the totals, each cell's command."""
+    states = {c.name: status(c, lay, cells) for c in cells}
+    width = max(len(c.name) for c in cells)
+    lines = [f"protocol {p.name}: {len(cells)} cells under {lay.root}; S = {p.stage_steps:,} env steps per stage "
+             f"(curriculum stage and direct run), seeds {p.seeds}; checkpoints act {acting(p.evaluation)}", "",
+             f"{'cell':<{width}}  {'status':<7}  {'CPU-min':>8}"]
+    for c in cells:
+        lines.append(f"{c.name:<{width}}  {states[c.name]:<7}  {c.minutes:8.1f}")
+    total = sum(c.minutes for c in cells)
+    left = sum(c.minutes for c in cells if states[c.name] != "done")
+    counts = {s: sum(1 for v in states.values() if v == s) for s in ("done", "partial", "todo")}
+    lines += ["", "estimated CPU-hours (one core per cell, threads=1; rates in the protocol file; evaluation episodes "
+              "taken to their step limit):"]
+    split = budget(cells)
+    parts = ("curriculum", "direct", "ablations", "evaluation")
+    algos = list(dict.fromkeys(g.split(" ")[0] for g in split if " " in g))
+    lines.append(f"  {'':<12}" + "".join(f"{x:>12}" for x in (*parts, "all")))
+    for a in algos:
+        row = [split.get(f"{a} {x}", 0.0) / 60 for x in parts]
+        lines.append(f"  {a:<12}" + "".join(f"{v:12.2f}" for v in (*row, sum(row))))
+    for g in (g for g in split if " " not in g):
+        lines.append(f"  {g:<12}" + " " * 12 * len(parts) + f"{split[g] / 60:12.2f}")
+    lines.append(f"  {'total':<12}" + " " * 12 * len(parts) + f"{total / 60:12.2f}  ({len(cells)} cells: "
+                 f"{counts['done']} done, {counts['partial']} partial, {counts['todo']} todo; {left / 60:.2f} h left)")
+    if p.budget_cpu_hours is not None and total / 60 > p.budget_cpu_hours:
+        lines.append(f"  WARNING: over the protocol's budget of {p.budget_cpu_hours:g} CPU-hours")
+    lines += ["", "commands (run from the repository root; a started training run gets resume=true):"]
+    for c in cells:
+        for cmd in command_now(c, lay) if states[c.name] != "done" else c.commands:
+            lines.append(f"[{c.name}] {cmd.text(threads)}")
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------------------------ running
+def utc_stamp() -> str:
+    return datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+
+
+def select(cells: Sequence[Cell], patterns: Sequence[str]) -> list[Cell]:
+    """The cells named by ``patterns`` (names or shell patterns, ``eval/ppo/*``); an unmatched one is an error."""
+    chosen: list[Cell] = []
+    for pat in patterns:
+        hits = [c for c in cells if fnmatch.fnmatchcase(c.name, pat)]
+        if not hits:
+            raise ProtocolError(f"cells: no cell named {pat!r} (plan=true lists them)")
+        chosen += [c for c in hits if c not in chosen]
+    return [c for c in cells if c in chosen]
+
+
+@dataclass
+class _Job:
+    cell: Cell
+    commands: list[Command]
+    proc: subprocess.Popen | None = None
+    log: Any = None
+    redo: bool = False
+
+
+class Scheduler:
+    """Runs cells as subprocesses, ``jobs`` at a time, each when the files it needs exist."""
+
+    def __init__(self, p: Protocol, cells: Sequence[Cell], lay: Layout, *, jobs: int = 1,
+                 max_minutes: float | None = None, redo: bool = False, retries: int = 0,
+                 python: str = sys.executable, progress: bool = True, echo: Callable[[str], None] = print):
+        self.p, self.cells, self.lay, self.jobs, self.retries = p, list(cells), lay, jobs, retries
+        self.max_minutes, self.redo, self.python, self.progress, self.echo = max_minutes, redo, python, progress, echo
+        # exactly what plan=true prints (Command.text): EVAAA_THREADS here, threads= on the command line
+        self.env = {**os.environ, "EVAAA_THREADS": str(p.threads), "PYTHONUNBUFFERED": "1"}
+
+    def _start(self, job: _Job) -> None:
+        cmd = job.commands.pop(0)
+        if cmd.out is not None and cmd.out.exists() and not (cmd.out / "episodes.csv").exists():
+            aside = cmd.out.with_name(f"{cmd.out.name}.partial-{utc_stamp()}")
+            cmd.out.rename(aside)  # an interrupted evaluation: kept, out of the way
+            self.echo(f"{job.cell.name}: moved the unfinished evaluation {cmd.out} to {aside}")
+        if cmd.out is not None and job.redo and (cmd.out / "episodes.csv").exists():
+            aside = cmd.out.with_name(f"{cmd.out.name}.old-{utc_stamp()}")
+            cmd.out.rename(aside)
+            self.echo(f"{job.cell.name}: redo: moved the earlier evaluation {cmd.out} to {aside}")
+        if job.cell.kind == "report":
+            cmd = self._report_command(cmd)
+        log_path = self.lay.log(job.cell.name)
+        log_path.parent.mkdir(parents=True, exist_ok=True)
+        job.log = open(log_path, "a")
+        job.log.write(f"\n== {utc_stamp()} {cmd.text(self.p.threads)}\n")
+        job.log.flush()
+        # a session of its own: a Ctrl-C at the terminal reaches reproduce.py only, which passes exactly one on (a
+        # second one would stop a training at once, without its checkpoint)
+        job.proc = subprocess.Popen([self.python, *cmd.argv], cwd=REPO, env=self.env, stdout=job.log,
+                                    stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)
+
+    def _report_command(self, cmd: Command) -> Command:
+        """The report over the evaluations that are complete (the others are not passed: report.py would refuse
+        a folder without episodes.csv)."""
+        argv = []
+        for a in cmd.argv:
+            if a.startswith("evals=["):
+                done = [x for x in a[len("evals=["):-1].split(",") if x and (Path(x) / "episodes.csv").exists()]
+                a = "evals=[" + ",".join(done) + "]"
+            argv.append(a)
+        return Command(argv)
+
+    def _ready(self, cell: Cell, finished: set[str], failed: set[str], selected: set[str]) -> bool | None:
+        """True: may start; False: wait; None: can never start in this session (a needed cell failed or is not
+        being run and its files are missing)."""
+        if cell.kind == "report":
+            pending = [n for n in cell.needs_cells if n in selected and n not in finished]
+            if any(n in failed for n in pending):
+                return None
+            return not pending
+        if all(f.exists() for f in cell.needs):
+            return True
+        if any(n in failed or n in finished or n not in selected for n in cell.needs_cells):
+            return None
+        return False
+
+    def run(self, todo: Sequence[Cell]) -> int:
+        """Run ``todo`` (in its order, as their needs allow); returns 0 when every one finished, else 1."""
+        selected = {c.name for c in todo}
+        waiting = list(todo)
+        running: list[_Job] = []
+        finished: set[str] = set()
+        failed: set[str] = set()
+        blocked: list[str] = []
+        tries: dict[str, int] = {}
+        began = time.monotonic()
+        stopping = False
+        bar = None
+        if self.progress:
+            from tqdm import tqdm
+            bar = tqdm(total=len(todo), desc="cells", unit="cell", dynamic_ncols=True)
+
+        def interrupt(signum, frame):
+            raise KeyboardInterrupt
+
+        previous = signal.signal(signal.SIGTERM, interrupt)
+        try:
+            while waiting or running:
+                for job in list(running):
+                    rc = job.proc.poll()
+                    if rc is None:
+                        continue
+                    if rc == 0 and job.commands:
+                        job.log.close()
+                        self._start(job)
+                        continue
+                    job.log.close()
+                    running.remove(job)
+                    if rc == 0:
+                        self._finish(job.cell)
+                        finished.add(job.cell.name)
+                    elif tries.get(job.cell.name, 0) < self.retries and rc not in (130, -signal.SIGINT):
+                        # e.g. the renderer's crash: the same cell again, continuing from what it left
+                        tries[job.cell.name] = tries.get(job.cell.name, 0) + 1
+                        self.echo(f"{job.cell.name}: exit status {rc}; trying again ({tries[job.cell.name]} of "
+                                  f"{self.retries}); see {self.lay.log(job.cell.name)}")
+                        waiting.append(job.cell)
+                        continue
+                    else:
+                        failed.add(job.cell.name)
+                        self.echo(f"{job.cell.name}: FAILED (exit status {rc}); see {self.lay.log(job.cell.name)}")
+                    if bar is not None:
+                        bar.update(1)
+                if self.max_minutes is not None and not stopping and time.monotonic() - began > 60 * self.max_minutes:
+                    stopping = True
+                    self.echo(f"max_minutes={self.max_minutes:g} reached: no new cell starts; the {len(running)} "
+                              "running finish")
+                if stopping:
+                    waiting = []
+                for cell in list(waiting):
+                    if len(running) >= self.jobs:
+                        break
+                    ready = self._ready(cell, finished, failed, selected)
+                    if ready is None:
+                        waiting.remove(cell)
+                        blocked.append(cell.name)
+                        failed.add(cell.name)
+                        if bar is not None:
+                            bar.update(1)
+                        continue
+                    if ready:
+                        waiting.remove(cell)
+                        redo = self.redo and cell.name not in tries  # a retry continues what the first try began
+                        commands = command_now(cell, self.lay, redo)
+                        if not commands:
+                            self._finish(cell)
+                            finished.add(cell.name)
+                            continue
+                        job = _Job(cell, list(commands), redo=redo)  # commands popped as they start
+                        self._start(job)
+                        running.append(job)
+                if bar is not None:
+                    bar.set_postfix_str(", ".join(j.cell.name for j in running)[:80])
+                if not running and waiting:  # nothing runs and nothing could start: nothing ever will
+                    blocked += [c.name for c in waiting]
+                    failed.update(c.name for c in waiting)
+                    waiting = []
+                if running:
+                    time.sleep(0.2)
+        except KeyboardInterrupt:
+            self.echo(f"reproduce: stopping: {len(running)} running cell(s) asked to stop (training writes a "
+                      "checkpoint; an evaluation stops and is run again next time)")
+            for job in running:
+                if job.proc.poll() is None:
+                    job.proc.send_signal(signal.SIGINT)
+            for job in running:
+                try:
+                    job.proc.wait(timeout=120)
+                except subprocess.TimeoutExpired:
+                    job.proc.kill()
+                    job.proc.wait()
+                job.log.close()
+            raise
+        finally:
+            signal.signal(signal.SIGTERM, previous)
+            if bar is not None:
+                bar.close()
+        if blocked:
+            self.echo("not started (a cell they need failed or was not selected, and its files are missing): "
+                      + ", ".join(blocked))
+        not_started = len(todo) - len(finished) - len(failed)
+        if not_started:
+            self.echo(f"{not_started} cell(s) not started (max_minutes); the same command continues")
+        return 0 if len(finished) == len(todo) else 1
+
+    def _finish(self, cell: Cell) -> None:
+        if cell.kind in ("train", "report"):
+            if cell.kind == "train" and not cell.final_model.exists():  # type: ignore[union-attr]
+                self.echo(f"{cell.name}: train.py exited 0 but {cell.final_model} is missing; not marked done")
+                return
+            marker = self.lay.marker(cell.name)
+            marker.parent.mkdir(parents=True, exist_ok=True)
+            marker.write_text(json.dumps({"finished": utc_stamp(), "protocol": self.p.name}) + "\n")
+            if cell.kind == "train" and not cell.keep_checkpoints:
+                for name in CHECKPOINTS:
+                    (cell.run_dir / name).unlink(missing_ok=True)  # type: ignore[operator]

@@ -1,0 +1,312 @@
+"""The paper's claims (a)–(e) of issue 20 judged against a report's numbers: each claim's rule, applied to tables of
+estimates with 95 % intervals (``value``, ``low``, ``high``), gives a :class:`Verdict` — reproduced, contradicted, or
+not resolvable at this scale — with the numbers behind it.
+
+The rules are deliberately conservative: two cells differ only where their intervals do not overlap; overlapping
+intervals never decide a claim.  A claim made of parts is reproduced when every part with data is, contradicted when
+some part is and none is reproduced, and otherwise not resolvable (the parts' verdicts are listed).  A part without
+data (DreamerV3, human records) is said to be missing and counts as not resolvable.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import pandas as pd
+from scipy import stats as sps
+
+REPRODUCED, CONTRADICTED, UNRESOLVED = "reproduced", "contradicted", "not resolvable at this scale"
+#: levels the paper calls hard: survival drops sharply from 3-2 on
+HARD_FROM = "3-2"
+
+
+@dataclass
+class Verdict:
+    """One claim or part of a claim: what it says, the verdict, the rule applied and the numbers behind it."""
+
+    claim: str
+    verdict: str
+    rule: str
+    evidence: list[str] = field(default_factory=list)
+    parts: list[Verdict] = field(default_factory=list)
+
+
+def _num(x: float) -> str:
+    return f"{x:.0f}" if abs(x) >= 100 else f"{x:.3g}"  # survival in whole decisions, rates to 3 digits
+
+
+def _fmt(row) -> str:
+    v, lo, hi = float(row["value"]), float(row["low"]), float(row["high"])
+    if math.isnan(v):
+        return "n/a"
+    if math.isnan(lo):
+        return _num(v)
+    return f"{_num(v)} [{_num(lo)}, {_num(hi)}]"
+
+
+def above(a, b) -> bool:
+    """``a``'s interval lies entirely above ``b``'s (no overlap)."""
+    return not (math.isnan(a["low"]) or math.isnan(b["high"])) and a["low"] > b["high"]
+
+
+def combine(claim: str, parts: Sequence[Verdict], rule: str) -> Verdict:
+    """A claim made of ``parts``: reproduced when every part is, contradicted when some part is and none is
+    reproduced, otherwise not resolvable."""
+    verdicts = [p.verdict for p in parts]
+    if verdicts and all(v == REPRODUCED for v in verdicts):
+        verdict = REPRODUCED
+    elif CONTRADICTED in verdicts and REPRODUCED not in verdicts:
+        verdict = CONTRADICTED
+    else:
+        verdict = UNRESOLVED
+    return Verdict(claim, verdict, rule, parts=list(parts))
+
+
+def missing(claim: str, what: str) -> Verdict:
+    return Verdict(claim, UNRESOLVED, "no data", [f"no data: {what}"])
+
+
+def _sorted(frame: pd.DataFrame, order: Sequence[str]) -> pd.DataFrame:
+    rank = {n: i for i, n in enumerate(order)}
+    return frame[frame["level"].isin(rank)].sort_values("level", key=lambda s: s.map(rank))
+
+
+# ------------------------------------------------------------------------------------------------ (a)
+def survival_falls(survival: pd.DataFrame, order: Sequence[str], hard_from: str = HARD_FROM) -> Verdict:
+    """(a) Survival falls with level difficulty, sharply from 3-2 on.  ``survival``: columns algo, level, value,
+    low, high (survival per training level).  Per algorithm: Spearman's rho of survival against level order (scipy,
+    two-sided p) and whether every level from ``hard_from`` on lies below every level before it (intervals apart).
+    Reproduced: rho < 0 with p < 0.05 and the hard levels apart below; contradicted: rho > 0 with p < 0.05, or the
+    hard levels apart above; otherwise not resolvable."""
+    claim = f"(a) survival falls with level difficulty, sharply from {hard_from} on"
+    rule = (f"per algorithm: Spearman's rho of survival IQM against level order (p < 0.05), and every level from "
+            f"{hard_from} on below every earlier level (95 % intervals apart)")
+    if not len(survival):
+        return missing(claim, "no survival per training level")
+    cut = list(order).index(hard_from)
+    parts = []
+    for algo, part in survival.groupby("algo", sort=False):
+        part = _sorted(part.dropna(subset=["value"]), order)
+        rank = part["level"].map({n: i for i, n in enumerate(order)})
+        evidence = ["; ".join(f"{r.level}: {_fmt(r._asdict())}" for r in part.itertuples())]
+        if len(part) < 3 or part["value"].nunique() < 2:
+            parts.append(Verdict(f"{algo}", UNRESOLVED, rule, evidence + ["fewer than 3 levels, or all equal"]))
+            continue
+        rho, p = sps.spearmanr(rank, part["value"])
+        early, late = part[rank < cut], part[rank >= cut]
+        apart_below = len(early) and len(late) and late["high"].max() < early["low"].min()
+        apart_above = len(early) and len(late) and late["low"].min() > early["high"].max()
+        evidence.append(f"Spearman's rho {rho:.2f} (p = {p:.3g}, {len(part)} levels); levels from {hard_from} on "
+                        + ("apart below the earlier ones" if apart_below else "apart above the earlier ones"
+                           if apart_above else "not apart from the earlier ones (intervals overlap)"))
+        if rho < 0 and p < 0.05 and apart_below:
+            verdict = REPRODUCED
+        elif (rho > 0 and p < 0.05) or apart_above:
+            verdict = CONTRADICTED
+        else:
+            verdict = UNRESOLVED
+        parts.append(Verdict(f"{algo}", verdict, rule, evidence))
+    return combine(claim, parts, rule)
+
+
+# ------------------------------------------------------------------------------------------------ (b)
+def curriculum_beats_direct(cmp: pd.DataFrame, order: Sequence[str], skip: Sequence[str] = ("1-1",)) -> Verdict:
+    """(b) Curriculum beats direct training.  ``cmp``: columns algo, setup (curriculum or direct), level, value,
+    low, high.  Per algorithm, over the levels both have (``skip``: the first level, where both are the same
+    training): reproduced when curriculum's interval lies above direct's on at least half of them and below on none;
+    contradicted when direct's lies above on at least half and curriculum's above on none; otherwise not
+    resolvable."""
+    claim = "(b) curriculum beats direct training"
+    rule = ("per algorithm, levels after the first: curriculum's 95 % interval above direct's (no overlap) on at least "
+            "half of the levels and below on none")
+    if not len(cmp) or set(cmp["setup"]) != {"curriculum", "direct"}:
+        return missing(claim, "no algorithm with both curriculum and direct runs")
+    parts = []
+    for algo, part in cmp.groupby("algo", sort=False):
+        cur = part[part["setup"] == "curriculum"].set_index("level")
+        dire = part[part["setup"] == "direct"].set_index("level")
+        levels = [lv for lv in order if lv in cur.index and lv in dire.index and lv not in skip]
+        if not levels:
+            parts.append(missing(algo, "no level with both curriculum and direct runs"))
+            continue
+        up = [lv for lv in levels if above(cur.loc[lv], dire.loc[lv])]
+        down = [lv for lv in levels if above(dire.loc[lv], cur.loc[lv])]
+        evidence = ["; ".join(f"{lv}: curriculum {_fmt(cur.loc[lv])} vs direct {_fmt(dire.loc[lv])}" for lv in levels),
+                    f"curriculum above on {len(up)} of {len(levels)} levels ({', '.join(up) or 'none'}), below on "
+                    f"{len(down)} ({', '.join(down) or 'none'})"]
+        if 2 * len(up) >= len(levels) and not down:
+            verdict = REPRODUCED
+        elif 2 * len(down) >= len(levels) and not up:
+            verdict = CONTRADICTED
+        else:
+            verdict = UNRESOLVED
+        parts.append(Verdict(algo, verdict, rule, evidence))
+    return combine(claim, parts, rule)
+
+
+# ------------------------------------------------------------------------------------------------ (c)
+def _ordered(a: str, b: str, survival: pd.DataFrame, order: Sequence[str]) -> Verdict:
+    """``a`` survives longer than ``b``: per level, intervals apart; reproduced when a is above on at least half of
+    the levels both have and below on none (and the reverse for contradicted)."""
+    rule = "per level, 95 % intervals apart: above on at least half of the levels both have and below on none"
+    sa, sb = (survival[survival["algo"] == x].set_index("level") for x in (a, b))
+    if not len(sa) or not len(sb):
+        return missing(f"{a} > {b}", f"no survival of {a if not len(sa) else b}")
+    levels = [lv for lv in order if lv in sa.index and lv in sb.index]
+    up = [lv for lv in levels if above(sa.loc[lv], sb.loc[lv])]
+    down = [lv for lv in levels if above(sb.loc[lv], sa.loc[lv])]
+    evidence = [f"{a} above {b} on {len(up)} of {len(levels)} levels ({', '.join(up) or 'none'}), below on "
+                f"{len(down)} ({', '.join(down) or 'none'})"]
+    verdict = (REPRODUCED if levels and 2 * len(up) >= len(levels) and not down else
+               CONTRADICTED if levels and 2 * len(down) >= len(levels) and not up else UNRESOLVED)
+    return Verdict(f"{a} > {b} in survival", verdict, rule, evidence)
+
+
+def _fails(algo: str, levels: Sequence[str], survival: pd.DataFrame, random: pd.DataFrame,
+           learns_on: Sequence[str] = ()) -> Verdict:
+    """``algo`` fails on ``levels`` (its survival interval not above random's there) — and, where ``learns_on`` is
+    given, does not fail on at least one of those."""
+    name = f"{algo} fails" + (f" beyond {learns_on[-1]}" if learns_on else "")
+    rule = ("fails on a level: its 95 % interval not above the random agent's; reproduced when it fails on every "
+            "level" + (f" beyond {learns_on[-1]} and is above random on {' or '.join(learns_on)}" if learns_on else "")
+            + "; contradicted when it is above random on most of those levels")
+    s = survival[survival["algo"] == algo].set_index("level")
+    r = random.set_index("level")
+    if not len(s):
+        return missing(name, f"no survival of {algo}")
+    checked = [lv for lv in levels if lv in s.index and lv in r.index]
+    if not checked:
+        return missing(name, "no random-agent survival on those levels (references on the training levels)")
+    beats = [lv for lv in checked if above(s.loc[lv], r.loc[lv])]
+    evidence = ["; ".join(f"{lv}: {_fmt(s.loc[lv])} vs random {_fmt(r.loc[lv])}" for lv in checked),
+                f"above random on {len(beats)} of {len(checked)} ({', '.join(beats) or 'none'})"]
+    early_ok = True
+    if learns_on:
+        early = [lv for lv in learns_on if lv in s.index and lv in r.index]
+        early_ok = any(above(s.loc[lv], r.loc[lv]) for lv in early)
+        evidence.append(f"above random on {' or '.join(learns_on)}: {'yes' if early_ok else 'no'}")
+    verdict = (REPRODUCED if not beats and early_ok else CONTRADICTED if 2 * len(beats) > len(checked)
+               else UNRESOLVED)
+    return Verdict(name, verdict, rule, evidence)
+
+
+def algorithm_ordering(survival: pd.DataFrame, random: pd.DataFrame, order: Sequence[str]) -> Verdict:
+    """(c) DreamerV3 > DQN > PPO in survival; DQN fails beyond 1-2; PPO+LSTM fails.  ``survival``: columns algo,
+    level, value, low, high; ``random``: the random agent's survival per level (level, value, low, high).  DQN's
+    speed on 1-1 (learning curves) is not judged by a rule here."""
+    claim = "(c) DreamerV3 > DQN > PPO in survival; DQN fails beyond 1-2; PPO+LSTM fails"
+    algos = set(survival["algo"]) if len(survival) else set()
+    dreamer = next((a for a in ("dreamer", "dreamer_xs") if a in algos), None)
+    parts = [_ordered(dreamer, "dqn", survival, order) if dreamer else missing("DreamerV3 > DQN", "no DreamerV3 runs"),
+             _ordered("dqn", "ppo", survival, order),
+             _fails("dqn", [lv for lv in order if list(order).index(lv) > 1], survival, random, learns_on=order[:2]),
+             _fails("ppo_lstm", list(order), survival, random)]
+    return combine(claim, parts, "each part by its rule")
+
+
+# ------------------------------------------------------------------------------------------------ (d)
+def testbeds_below_ceiling(success: pd.DataFrame, references: pd.DataFrame, generalisation: pd.DataFrame,
+                           order: Sequence[str]) -> Verdict:
+    """(d) On the testbeds humans are near the ceiling, agents far below, and more training difficulty does not give
+    monotonic gains.  ``success``: agents' testbed success (agent, level, value, low, high); ``references``: the
+    same for oracle, random and human (column agent); ``generalisation``: per agent the mean testbed success by the
+    level trained up to (agent, level, value, low, high)."""
+    claim = "(d) testbeds: humans ≈ ceiling, agents far below; no monotonic gain with training difficulty"
+    refs = {a: p.set_index("level") for a, p in references.groupby("agent")} if len(references) else {}
+    parts = []
+    oracle = refs.get("oracle")
+    if "human" in refs and oracle is not None:
+        human = refs["human"]
+        tb = [lv for lv in human.index if lv in oracle.index]
+        below = [lv for lv in tb if above(oracle.loc[lv], human.loc[lv])]
+        parts.append(Verdict("humans ≈ ceiling (the oracle)", REPRODUCED if tb and not below else
+                             CONTRADICTED if tb and 2 * len(below) > len(tb) else UNRESOLVED,
+                             "humans' 95 % interval not below the oracle's on any testbed",
+                             [f"humans below the oracle on {len(below)} of {len(tb)} testbeds"]))
+    else:
+        parts.append(missing("humans ≈ ceiling", "no human play records (scripts/play.py) among the evaluations"))
+    if oracle is None or not len(success):
+        parts.append(missing("agents far below the ceiling", "no oracle or no agent evaluated on the testbeds"))
+    else:
+        for agent, part in success.groupby("agent", sort=False):
+            p = part.set_index("level")
+            tb = [lv for lv in p.index if lv in oracle.index]
+            below = [lv for lv in tb if above(oracle.loc[lv], p.loc[lv])]
+            near = [lv for lv in tb if p.loc[lv]["value"] >= oracle.loc[lv]["low"]]
+            verdict = (REPRODUCED if tb and 2 * len(below) >= len(tb) else
+                       CONTRADICTED if tb and 2 * len(near) > len(tb) else UNRESOLVED)
+            parts.append(Verdict(f"{agent} far below the oracle", verdict,
+                                 "below: its 95 % interval under the oracle's; reproduced when below on at least half "
+                                 "of the testbeds, contradicted when its rate reaches the oracle's lower bound on "
+                                 "most", [f"below on {len(below)} of {len(tb)} testbeds; at the oracle's level on "
+                                          f"{len(near)}"]))
+    if not len(generalisation):
+        parts.append(missing("no monotonic gain", "no checkpoint of several training levels evaluated on testbeds"))
+    else:
+        for agent, part in generalisation.groupby("agent", sort=False):
+            part = _sorted(part, order).reset_index(drop=True)
+            if len(part) < 3:
+                parts.append(missing(f"{agent}: no monotonic gain", "fewer than 3 training levels"))
+                continue
+            drops = [(part.loc[i, "level"], part.loc[j, "level"]) for i in range(len(part))
+                     for j in range(i + 1, len(part)) if above(part.loc[i], part.loc[j])]
+            rises = all(part.loc[i + 1, "value"] >= part.loc[i, "value"] for i in range(len(part) - 1)) \
+                and above(part.iloc[-1], part.iloc[0])
+            evidence = ["; ".join(f"{r.level}: {_fmt(r._asdict())}" for r in part.itertuples()),
+                        f"resolved drops (a later level's interval below an earlier one's): "
+                        f"{', '.join(f'{a}→{b}' for a, b in drops) or 'none'}"]
+            verdict = REPRODUCED if drops else CONTRADICTED if rises else UNRESOLVED
+            parts.append(Verdict(f"{agent}: no monotonic gain with training level", verdict,
+                                 "reproduced by a resolved drop; contradicted by a rise at every step whose last "
+                                 "level's interval lies above the first's", evidence))
+    return combine(claim, parts, "each part by its rule")
+
+
+# ------------------------------------------------------------------------------------------------ (e)
+def ablations(survival: pd.DataFrame, success: pd.DataFrame) -> Verdict:
+    """(e) No-EV (no_interoception) and no-vision ablations fail; olfaction matters least, thermoception and
+    collision more.  ``survival`` / ``success``: per modality (column modality) the final survival and the success
+    pooled over the testbeds (value, low, high), of one algorithm and training set-up."""
+    claim = "(e) no-EV and no-vision fail; olfaction matters least, thermoception and collision more"
+    parts = []
+    for name, table in (("survival", survival), ("testbed success", success)):
+        t = table.set_index("modality") if len(table) else table
+        if not len(t) or "all" not in t.index:
+            parts.append(missing(f"ablations ({name})", "no ablation runs beside modality=all"))
+            continue
+        base = t.loc["all"]
+        for mod in ("no_interoception", "no_vision"):
+            if mod not in t.index:
+                parts.append(missing(f"{mod} fails ({name})", f"no {mod} run"))
+                continue
+            v = (REPRODUCED if above(base, t.loc[mod]) else CONTRADICTED if above(t.loc[mod], base) else UNRESOLVED)
+            parts.append(Verdict(f"{mod} fails ({name})", v, "its 95 % interval below all's (contradicted: above)",
+                                 [f"{mod} {_fmt(t.loc[mod])} vs all {_fmt(base)}"]))
+        need = ("no_olfaction", "no_thermoception", "no_collision")
+        if not all(m in t.index for m in need):
+            parts.append(missing(f"olfaction matters least ({name})", "no_olfaction, no_thermoception and "
+                                 "no_collision runs"))
+            continue
+        olf = t.loc["no_olfaction"]
+        others = {m: t.loc[m] for m in need[1:]}
+        v = (REPRODUCED if all(above(olf, o) for o in others.values()) else
+             CONTRADICTED if any(above(o, olf) for o in others.values()) else UNRESOLVED)
+        parts.append(Verdict(f"olfaction matters least ({name})", v,
+                             "no_olfaction's 95 % interval above no_thermoception's and no_collision's (contradicted: "
+                             "below either)", [f"no_olfaction {_fmt(olf)}; " + "; ".join(
+                                 f"{m} {_fmt(o)}" for m, o in others.items())]))
+    return combine(claim, parts, "each part by its rule")
+
+
+def markdown(verdicts: Sequence[Verdict]) -> list[str]:
+    """The claims as Markdown: a line per claim with its verdict, then its parts with rules and numbers."""
+    lines = []
+    for v in verdicts:
+        lines.append(f"- **{v.claim}: {v.verdict}.**" + (f" Rule: {v.rule}." if not v.parts else ""))
+        lines += [f"  - {e}" for e in v.evidence]
+        for p in v.parts:
+            lines.append(f"  - {p.claim}: *{p.verdict}* (rule: {p.rule})")
+            lines += [f"    - {e}" for e in p.evidence]
+    return lines

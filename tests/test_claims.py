@@ -1,0 +1,180 @@
+"""The rules that judge the paper's claims (a)–(e) (evaaa_baselines.reports.claims), on aggregated tables written
+here by hand: every rule reaches each of its verdicts — reproduced, contradicted, not resolvable at this scale —
+from the numbers that should give it, and says which numbers it used."""
+
+from __future__ import annotations
+
+import pandas as pd
+import pytest
+
+from evaaa_baselines.reports import claims as c
+
+LEVELS = ["1-1", "1-2", "2-1", "2-2", "3-1", "3-2", "4-1", "4-2"]
+
+
+def cell(value: float, half: float = 10.0, **keys) -> dict:
+    return {**keys, "value": value, "low": value - half, "high": value + half}
+
+
+def frame(rows) -> pd.DataFrame:
+    return pd.DataFrame(rows)
+
+
+def per_level(algo: str, values, half: float = 10.0, levels=LEVELS, **keys) -> list[dict]:
+    return [cell(v, half, algo=algo, level=lv, **keys) for lv, v in zip(levels, values)]
+
+
+# ------------------------------------------------------------------------------------------------ (a)
+def test_a_survival_falling_and_hard_levels_apart_is_reproduced():
+    v = c.survival_falls(frame(per_level("ppo", [900, 850, 800, 780, 700, 200, 150, 100])), LEVELS)
+    assert v.verdict == c.REPRODUCED
+    (part,) = v.parts
+    assert "Spearman's rho -1.00" in part.evidence[1] and "apart below" in part.evidence[1]
+    assert "3-2: 200 [190, 210]" in part.evidence[0]
+
+
+def test_a_survival_rising_is_contradicted():
+    v = c.survival_falls(frame(per_level("dqn", [100, 150, 200, 250, 300, 800, 850, 900])), LEVELS)
+    assert v.verdict == c.CONTRADICTED
+
+
+def test_a_falling_but_hard_levels_not_apart_is_not_resolvable():
+    # falls steadily, but every interval is wide enough to overlap its neighbours across 3-1 / 3-2
+    v = c.survival_falls(frame(per_level("ppo", [900, 850, 800, 750, 700, 650, 600, 550], half=200)), LEVELS)
+    assert v.verdict == c.UNRESOLVED
+    assert "intervals overlap" in v.parts[0].evidence[1]
+    assert c.survival_falls(frame([]), LEVELS).verdict == c.UNRESOLVED
+
+
+def test_a_claim_of_parts_is_reproduced_only_when_every_part_is():
+    mixed = frame(per_level("ppo", [900, 850, 800, 780, 700, 200, 150, 100])
+                  + per_level("dqn", [100, 150, 200, 250, 300, 800, 850, 900]))
+    assert c.survival_falls(mixed, LEVELS).verdict == c.UNRESOLVED  # one reproduces, one contradicts
+    parts = [c.Verdict("x", c.CONTRADICTED, ""), c.Verdict("y", c.UNRESOLVED, "")]
+    assert c.combine("z", parts, "").verdict == c.CONTRADICTED
+
+
+# ------------------------------------------------------------------------------------------------ (b)
+def cmp_rows(algo, cur, direct, half=10.0):
+    return per_level(algo, cur, half, setup="curriculum") + per_level(algo, direct, half, setup="direct")
+
+
+def test_b_curriculum_above_direct_on_most_levels_is_reproduced():
+    v = c.curriculum_beats_direct(frame(cmp_rows("ppo", [500] * 8, [500, 100, 100, 100, 100, 505, 495, 100])),
+                                  LEVELS)
+    assert v.verdict == c.REPRODUCED
+    assert "curriculum above on 5 of 7 levels" in v.parts[0].evidence[1]  # 1-1 is the same training: skipped
+
+
+def test_b_direct_above_curriculum_is_contradicted_and_overlap_is_not_resolvable():
+    assert c.curriculum_beats_direct(frame(cmp_rows("dqn", [100] * 8, [500] * 8)), LEVELS).verdict == c.CONTRADICTED
+    assert c.curriculum_beats_direct(frame(cmp_rows("dqn", [100] * 8, [110] * 8)), LEVELS).verdict == c.UNRESOLVED
+    only_cur = frame(per_level("ppo", [1] * 8, setup="curriculum"))
+    v = c.curriculum_beats_direct(only_cur, LEVELS)
+    assert v.verdict == c.UNRESOLVED and "no algorithm with both" in v.evidence[0]
+
+
+# ------------------------------------------------------------------------------------------------ (c)
+def survival_c(dreamer=None, dqn=(800, 700, 100, 100, 100, 100, 100, 100), ppo=(300,) * 8,
+               lstm=(100,) * 8):
+    rows = per_level("dqn", dqn) + per_level("ppo", ppo) + per_level("ppo_lstm", lstm)
+    if dreamer is not None:
+        rows += per_level("dreamer_xs", dreamer)
+    return frame(rows)
+
+
+RANDOM = frame([cell(100, level=lv) for lv in LEVELS])
+
+
+def test_c_every_part_holding_is_reproduced_and_dreamer_missing_is_said():
+    v = c.algorithm_ordering(survival_c(dreamer=(2000,) * 8, ppo=(50,) * 8), RANDOM, LEVELS)
+    assert v.verdict == c.REPRODUCED, [(p.claim, p.verdict, p.evidence) for p in v.parts]
+    v = c.algorithm_ordering(survival_c(ppo=(50,) * 8), RANDOM, LEVELS)
+    assert v.verdict == c.UNRESOLVED
+    assert v.parts[0].evidence == ["no data: no DreamerV3 runs"]
+    assert [p.verdict for p in v.parts[1:]] == [c.REPRODUCED] * 3
+
+
+def test_c_ppo_above_dqn_and_lstm_learning_are_contradicted():
+    v = c.algorithm_ordering(survival_c(dqn=(100,) * 8, ppo=(900,) * 8, lstm=(900,) * 8), RANDOM, LEVELS)
+    assert v.verdict == c.CONTRADICTED
+    verdicts = {p.claim: p.verdict for p in v.parts}
+    assert verdicts["dqn > ppo in survival"] == c.CONTRADICTED
+    assert verdicts["ppo_lstm fails"] == c.CONTRADICTED
+    # DQN at random's level on 1-1 and 1-2 too: it never learned, so "fails beyond 1-2" is not shown either way
+    assert verdicts["dqn fails beyond 1-2"] == c.UNRESOLVED
+
+
+# ------------------------------------------------------------------------------------------------ (d)
+TESTBEDS = ["two-resource-food", "y-maze", "risk-taking"]
+
+
+def refs(human=True):
+    rows = [cell(1.0, 0.1, agent="oracle", level=t) for t in TESTBEDS]
+    rows += [cell(0.05, 0.05, agent="random", level=t) for t in TESTBEDS]
+    if human:
+        rows += [cell(0.95, 0.1, agent="human", level=t) for t in TESTBEDS]
+    return frame(rows)
+
+
+def gen(values):
+    return frame([cell(v, 0.05, agent="ppo", level=lv) for lv, v in zip(LEVELS, values)])
+
+
+def test_d_agents_below_humans_at_ceiling_and_a_drop_is_reproduced():
+    success = frame([cell(0.1, 0.1, agent="ppo · curriculum", level=t) for t in TESTBEDS])
+    v = c.testbeds_below_ceiling(success, refs(), gen([0.1, 0.3, 0.5, 0.2, 0.2, 0.2, 0.2, 0.2]), LEVELS)
+    assert v.verdict == c.REPRODUCED, [(p.claim, p.verdict) for p in v.parts]
+    assert "2-1→2-2" in v.parts[-1].evidence[1]  # 1-2 (0.3 ± 0.05) touches 2-2 (0.2 ± 0.05): not apart
+
+
+def test_d_without_human_records_is_not_resolvable_and_says_so():
+    success = frame([cell(0.1, 0.1, agent="ppo · curriculum", level=t) for t in TESTBEDS])
+    v = c.testbeds_below_ceiling(success, refs(human=False), gen([0.1, 0.3, 0.5, 0.2] * 2), LEVELS)
+    assert v.verdict == c.UNRESOLVED
+    assert "no human play records" in v.parts[0].evidence[0]
+
+
+def test_d_agents_at_the_oracle_and_a_monotonic_rise_are_contradicted():
+    success = frame([cell(0.98, 0.05, agent="ppo · curriculum", level=t) for t in TESTBEDS])
+    rising = gen([0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8])
+    v = c.testbeds_below_ceiling(success, refs(human=False), rising, LEVELS)
+    assert [p.verdict for p in v.parts[1:]] == [c.CONTRADICTED, c.CONTRADICTED]
+    assert v.verdict == c.CONTRADICTED
+    flat = c.testbeds_below_ceiling(success, refs(human=False), gen([0.1] * 8), LEVELS)
+    assert flat.parts[-1].verdict == c.UNRESOLVED
+
+
+# ------------------------------------------------------------------------------------------------ (e)
+def ablation(values, half=10.0):
+    return frame([cell(v, half, modality=m) for m, v in values.items()])
+
+
+def test_e_reproduced_contradicted_and_not_resolvable():
+    good = {"all": 900, "no_vision": 100, "no_interoception": 100, "no_olfaction": 800, "no_thermoception": 400,
+            "no_collision": 500}
+    v = c.ablations(ablation(good), ablation({k: x / 1000 for k, x in good.items()}, 0.01))
+    assert v.verdict == c.REPRODUCED, [(p.claim, p.verdict) for p in v.parts]
+    bad = dict(good, no_vision=1500, no_olfaction=100)
+    v = c.ablations(ablation(bad), frame([]))
+    verdicts = {p.claim: p.verdict for p in v.parts}
+    assert verdicts["no_vision fails (survival)"] == c.CONTRADICTED
+    assert verdicts["olfaction matters least (survival)"] == c.CONTRADICTED
+    assert verdicts["ablations (testbed success)"] == c.UNRESOLVED
+    assert v.verdict == c.UNRESOLVED  # no_interoception still fails: one part reproduced
+    wide = c.ablations(ablation(good, half=1000), frame([]))
+    assert all(p.verdict == c.UNRESOLVED for p in wide.parts)
+
+
+def test_markdown_names_every_verdict_rule_and_number():
+    v = c.survival_falls(frame(per_level("ppo", [900, 850, 800, 780, 700, 200, 150, 100])), LEVELS)
+    text = "\n".join(c.markdown([v]))
+    assert text.startswith("- **(a) survival falls with level difficulty, sharply from 3-2 on: reproduced.**")
+    assert "Spearman's rho" in text and "4-2: 100 [90, 110]" in text
+
+
+@pytest.mark.parametrize("a, b, expected", [({"low": 5, "high": 6}, {"low": 1, "high": 4}, True),
+                                            ({"low": 4, "high": 6}, {"low": 1, "high": 4}, False),
+                                            ({"low": float("nan"), "high": 6}, {"low": 1, "high": 4}, False)])
+def test_above_needs_intervals_apart(a, b, expected):
+    assert c.above(a, b) is expected

@@ -1,0 +1,363 @@
+"""The paper's protocol (baselines/protocol.py, scripts/reproduce.py): the paper_cpu file expands into the cells the
+issue asks for with the decisions it encodes; a bad field is refused naming it; the scheduler respects what each cell
+needs, moves an unfinished evaluation aside, blocks what a failed cell would have fed, and runs again only what is
+not done; a tiny real protocol runs end to end into a report and a second run does nothing."""
+
+from __future__ import annotations
+
+import re
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+from helpers import load_script
+
+from evaaa_baselines.protocol import (Cell, Command, Layout, ProtocolError, Scheduler, build_cells, load_protocol,
+                                      status)
+
+reproduce = load_script("reproduce")
+
+
+def names(cells) -> list[str]:
+    return [c.name for c in cells]
+
+
+# ------------------------------------------------------------------------------------------------ paper_cpu
+def test_paper_cpu_expands_into_the_issue_cells(tmp_path):
+    p = load_protocol("paper_cpu")
+    cells = build_cells(p, tmp_path)
+    got = names(cells)
+    S = p.stage_steps
+    assert len(got) == len(set(got))
+    algos = ("ppo", "dqn", "ppo_lstm")
+    levels = ("1-1", "1-2", "2-1", "2-2", "3-1", "3-2", "4-1", "4-2")
+    for a in algos:
+        for seed in (0, 1):
+            assert f"train/{a}/curriculum/seed{seed}" in got
+            for i, lv in enumerate(levels):
+                assert f"eval/{a}/curriculum/seed{seed}/stage{i}-{lv}" in got
+                assert f"train/{a}/direct-{lv}/seed{seed}" in got and f"eval/{a}/direct-{lv}/seed{seed}" in got
+    ablations = ("no_vision", "no_interoception", "no_olfaction", "no_thermoception", "no_collision")
+    assert {n for n in got if "ablation" in n and n.startswith("train/")} == {
+        f"train/ppo/ablation-{m}/seed{s}" for m in ablations for s in (0, 1)}
+    assert not any("dreamer" in n for n in got)  # listed, not enabled
+    assert {"ref/oracle", "ref/random"} <= set(got) and got[-1] == "report"
+    # 3 algorithms x 2 seeds x (1 curriculum + 8 direct) + 10 ablations trainings, their evaluations, refs, report
+    trains = 3 * 2 * 9 + 10
+    evals = 3 * 2 * (8 + 8) + 10
+    assert len(got) == trains + evals + 2 + 1
+    by = {c.name: c for c in cells}
+    cur = " ".join(by["train/dqn/curriculum/seed1"].commands[0].argv)
+    assert f"level.stage_steps={S}" in cur and "reward=dqn" in cur and "threads=1" in cur
+    # epsilon reaches its floor at half a stage: (S/2 - learning_starts) / 8 worlds updates
+    assert f"algo.eps_anneal_updates={(S // 2 - 5000) // 8}" in cur and "algo.learning_starts=5000" in cur
+    assert "algo.normalize_reward=true" in by["train/ppo_lstm/direct-3-1/seed0"].commands[0].argv
+    assert f"total_steps={S}" in by["train/ppo_lstm/direct-3-1/seed0"].commands[0].argv
+    assert "modality=no_olfaction" in by["train/ppo/ablation-no_olfaction/seed1"].commands[0].argv
+    ev = by["eval/ppo/curriculum/seed0/stage3-2-2"].commands
+    assert [c.argv[c.argv.index("epsilon=0.05")] for c in ev] == ["epsilon=0.05"] * 2
+    assert "levels=[testbeds]" in ev[0].argv and "episodes=10" in ev[0].argv
+    assert "levels=[2-2]" in ev[1].argv and "episodes=5" in ev[1].argv
+    assert by["eval/ppo/curriculum/seed0/stage3-2-2"].needs == [tmp_path / "runs/ppo/curriculum/seed0/model-3-2-2.pt"]
+    assert by["train/ppo/curriculum/seed0"].final_model.name == "model-7-4-2.pt"
+    assert not by["train/dqn/direct-1-1/seed0"].keep_checkpoints and by["train/ppo/direct-1-1/seed0"].keep_checkpoints
+
+
+def test_every_training_command_of_paper_cpu_composes_as_train_py_would(tmp_path):
+    from hydra import initialize_config_dir
+
+    from evaaa_baselines.config import CONF_DIR, compose_checked, register_levels
+
+    register_levels()
+    trains = [c for c in build_cells(load_protocol("paper_cpu"), tmp_path) if c.kind == "train"]
+    # one of each set-up and algorithm (the seeds and levels vary nothing else)
+    kinds = {(c.name.split("/")[1], c.name.split("/")[2].split("-")[0]): c for c in trains}
+    with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
+        for cell in kinds.values():
+            cfg = compose_checked(cell.commands[0].argv[1:])
+            S = load_protocol("paper_cpu").stage_steps
+            assert cfg.threads == 1 and cfg.eval.every == S and cfg.checkpoint.every == S // 2
+            assert (cfg.level.stage_steps if cfg.level.name == "curriculum" else cfg.total_steps) == S
+            assert cfg.reward.name == ("dqn" if cfg.algo.name == "dqn" else "original")
+            if cfg.algo.name in ("ppo", "ppo_lstm"):
+                assert cfg.algo.normalize_reward is True
+            if cfg.algo.name == "dqn":
+                assert cfg.algo.eps_anneal_updates * cfg.env.num_envs + cfg.algo.learning_starts == S // 2
+
+
+def test_plan_lists_every_cell_its_status_estimate_total_and_command(tmp_path, capsys):
+    assert reproduce.main(["protocol=paper_cpu", "plan=true", f"root={tmp_path}"]) == 0
+    out = capsys.readouterr().out
+    cells = build_cells(load_protocol("paper_cpu"), tmp_path)
+    for c in cells:
+        assert re.search(rf"^{re.escape(c.name)}\s+todo\s+\d+\.\d$", out, re.M), c.name
+        assert f"[{c.name}] EVAAA_THREADS=1 python scripts/" in out
+    total = float(re.search(r"^  total\s+(\d+\.\d+)", out, re.M).group(1))
+    assert total == pytest.approx(sum(c.minutes for c in cells) / 60, abs=0.01)
+    assert total <= 15  # the protocol's budget
+    for part in ("curriculum", "direct", "ablations", "evaluation"):
+        assert part in out
+    assert "WARNING" not in out
+    # docs/reports.md quotes this plan: its budget table and S must be what the code prints
+    docs = (Path(__file__).parents[1] / "docs/reports.md").read_text()
+    assert f"| **total** | | | | | **{total:.2f}** |" in docs
+    for algo in ("ppo", "dqn", "ppo_lstm"):
+        row = re.search(rf"^  {algo}\s+([\d. ]+)$", out, re.M).group(1).split()
+        assert f"| {algo} | " + " | ".join("–" if v == "0.00" else v for v in row) + " |" in docs
+    assert f"S = **{load_protocol('paper_cpu').stage_steps:,}** env steps" in docs
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"algorithms": {"ppo2": {"steps_per_second": 1}}}, "field algorithms: 'ppo2' is not an algorithm; allowed: "),
+    ({"stage_steps": 0}, "field stage_steps: Input should be greater than 0"),
+    ({"speed": 3}, "field speed: unknown field; allowed: name, description, stage_steps"),
+    ({"ablations": {"algorithm": "ppo", "level": "1-1", "modalities": ["no_smell"]}},
+     "field ablations.modalities: 'no_smell' is not a modality option (conf/modality); allowed: all, no_collision"),
+    ({"ablations": {"algorithm": "dqn", "level": "1-1", "modalities": ["all"]}},
+     "'dqn' is not an enabled algorithm of this protocol; allowed: ppo"),
+    ({"evaluation": {"steps_per_second": 1, "testbeds": {"levels": ["maze"], "episodes": 1}}},
+     "field evaluation.testbeds.levels: 'maze' is not a level, testbed or group"),
+    ({"report": {"out": "x", "survival": "best"}}, "field report.survival: Input should be 'eval' or 'train'"),
+])
+def test_a_bad_field_is_refused_naming_it(tmp_path, change, message):
+    base = yaml.safe_load((Path(__file__).parents[1] / "conf/protocol/smoke.yaml").read_text())
+    base.update(change)
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(base))
+    with pytest.raises(ProtocolError) as err:
+        load_protocol(path)
+    assert message in str(err.value)
+    assert str(path) in str(err.value)
+
+
+def test_a_second_session_on_the_same_root_is_refused(tmp_path, capsys):
+    import fcntl
+
+    spec = tmp_path / "tiny.yaml"
+    spec.write_text(TINY)
+    root = tmp_path / "root"
+    root.mkdir()
+    with open(root / ".reproduce.lock", "a+") as held:
+        fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        held.write("4242")
+        held.flush()
+        with pytest.raises(SystemExit) as stop:
+            reproduce.main([f"protocol={spec}", f"root={root}", "progress=false"])
+    assert stop.value.code == 2
+    assert f"another reproduce.py (pid 4242) is running on {root}; nothing was started" in capsys.readouterr().err
+    assert sorted(p.name for p in root.iterdir()) == [".reproduce.lock"]
+
+
+def test_an_unknown_protocol_name_and_a_bad_key_are_one_line_errors(capsys):
+    with pytest.raises(SystemExit) as stop:
+        reproduce.main(["protocol=paper_gpu", "plan=true"])
+    assert stop.value.code == 2
+    assert "protocol=paper_gpu: no such protocol; allowed: paper_cpu, smoke" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        reproduce.main(["protocol=smoke", "cells=[train/nothing]", "plan=true"])
+    assert "no cell named 'train/nothing'" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------------------------ the scheduler
+def _py(code: str) -> list[str]:
+    return ["-c", code]
+
+
+def _fake(tmp_path: Path, fail_train: bool = False):
+    """A train cell that writes its final model, an eval cell that needs it and writes episodes.csv, a report."""
+    lay = Layout(tmp_path)
+    run_dir = lay.runs / "a"
+    model = run_dir / "model-0-1-1.pt"
+    out = lay.evals / "a"
+    code = (f"import pathlib,time; d=pathlib.Path({str(run_dir)!r}); d.mkdir(parents=True, exist_ok=True); "
+            f"time.sleep(0.3); (d/'model-0-1-1.pt').write_text('m')" + ("; raise SystemExit(3)" if fail_train else ""))
+    train = Cell("train/a", "train", [Command(_py(code))], 1.0, "a", run_dir=run_dir, final_model=model)
+    ev_code = (f"import pathlib; m=pathlib.Path({str(model)!r}); assert m.exists(); o=pathlib.Path({str(out)!r}); "
+               "o.mkdir(parents=True, exist_ok=True); (o/'episodes.csv').write_text('x')")
+    ev = Cell("eval/a", "eval", [Command(_py(ev_code), out)], 1.0, "e", needs=[model], needs_cells=["train/a"])
+    report_out = tmp_path / "report"
+    rep_code = f"import pathlib; o=pathlib.Path({str(report_out)!r}); o.mkdir(exist_ok=True); (o/'report.md').write_text('r')"
+    rep = Cell("report", "report", [Command(_py(rep_code))], 1.0, "r", needs_cells=["train/a", "eval/a"],
+               report_out=report_out)
+    return lay, [train, ev, rep]
+
+
+def _scheduler(lay, cells, **kw):
+    p = load_protocol("smoke")
+    return Scheduler(p, cells, lay, progress=False, echo=lambda s: None, **kw)
+
+
+def test_cells_run_when_what_they_need_exists_and_a_second_run_has_nothing_to_do(tmp_path):
+    lay, cells = _fake(tmp_path)
+    assert [status(c, lay, cells) for c in cells] == ["todo"] * 3
+    assert _scheduler(lay, cells, jobs=3).run(cells) == 0  # 3 at once: the eval still waits for the model
+    assert [status(c, lay, cells) for c in cells] == ["done"] * 3
+    assert lay.marker("train/a").is_file() and lay.marker("report").is_file()
+    assert all(lay.log(c.name).read_text().count("\n== ") == 1 for c in cells)
+
+
+def test_a_failed_training_blocks_its_evaluation_and_the_report(tmp_path):
+    lay, cells = _fake(tmp_path, fail_train=True)
+    messages = []
+    sched = Scheduler(load_protocol("smoke"), cells, lay, progress=False, echo=messages.append, jobs=2)
+    assert sched.run(cells) == 1
+    assert not lay.marker("train/a").exists()  # exited 3: not done, although its model file exists
+    assert status(cells[0], lay, cells) == "partial"
+    assert any("train/a: FAILED (exit status 3)" in m for m in messages)
+    assert not (tmp_path / "report" / "report.md").exists()
+
+
+def test_an_unfinished_evaluation_is_moved_aside_and_run_again(tmp_path):
+    lay, cells = _fake(tmp_path)
+    _scheduler(lay, cells).run(cells)
+    out = lay.evals / "a"
+    (out / "episodes.csv").rename(out / ".episodes.csv.partial")  # as evaluate.py leaves a killed evaluation
+    assert status(cells[1], lay, cells) == "partial"
+    assert status(cells[2], lay, cells) == "partial"  # a report is done only while every other cell is
+    todo = [c for c in cells if status(c, lay, cells) != "done"]
+    assert names(todo) == ["eval/a", "report"]
+    _scheduler(lay, cells).run(todo)
+    aside = list(lay.evals.glob("a.partial-*"))
+    assert len(aside) == 1 and (aside[0] / ".episodes.csv.partial").is_file()  # kept, never deleted
+    assert (out / "episodes.csv").is_file() and status(cells[1], lay, cells) == "done"
+    assert status(cells[2], lay, cells) == "done"
+    assert lay.log("train/a").read_text().count("\n== ") == 1  # the training did not run again
+    assert lay.log("report").read_text().count("\n== ") == 2
+
+
+def test_a_started_training_run_continues_with_resume_and_redo_starts_over(tmp_path):
+    lay, cells = _fake(tmp_path)
+    train = cells[0]
+    from evaaa_baselines.protocol import command_now
+    assert command_now(train, lay)[0].argv == train.commands[0].argv
+    train.run_dir.mkdir(parents=True)
+    (train.run_dir / "checkpoint.pt").write_text("c")
+    assert status(train, lay) == "partial"
+    assert command_now(train, lay)[0].argv[-1] == "resume=true"
+    assert command_now(train, lay, redo=True)[0].argv[-1] == "start_over=true"
+    # a finished run whose checkpoints were deleted (keep_checkpoints: false) only lacks its marker
+    (train.run_dir / "checkpoint.pt").unlink()
+    train.final_model.write_text("m")
+    assert command_now(train, lay) == []
+
+
+def test_max_minutes_starts_nothing_new(tmp_path):
+    lay, cells = _fake(tmp_path)
+    sched = _scheduler(lay, cells, max_minutes=1e-9)
+    import time
+    time.sleep(0.01)
+    assert sched.run(cells) == 1
+    assert [status(c, lay, cells) for c in cells] == ["todo"] * 3
+
+
+def test_only_the_selected_cells_run(tmp_path, capsys):
+    lay, cells = _fake(tmp_path)
+    _scheduler(lay, cells).run(cells[:1])
+    assert status(cells[0], lay, cells) == "done" and status(cells[1], lay, cells) == "todo"
+
+
+# ------------------------------------------------------------------------------------------------ end to end
+TINY = """
+name: tiny
+stage_steps: 128
+seeds: [0]
+levels: [1-1]
+training:
+  overrides: [preset=debug, logger=csv, progress=false, eval.episodes=2]
+  curriculum: false
+algorithms:
+  ppo: {steps_per_second: 30, overrides: [reward=original]}
+evaluation:
+  testbeds: {levels: [two-resource-temp], episodes: 1, num_envs: 1}
+  steps_per_second: 300
+report: {out: null}
+"""
+
+
+def test_a_tiny_protocol_runs_end_to_end_and_a_second_run_does_nothing(tmp_path, capsys):
+    spec = tmp_path / "tiny.yaml"
+    spec.write_text(TINY.replace("steps_per_second: 30,", "steps_per_second: 30, keep_checkpoints: false,"))
+    root = tmp_path / "root"
+    args = [f"protocol={spec}", f"root={root}", "progress=false"]
+    assert reproduce.main(args) == 0
+    out = capsys.readouterr().out
+    assert "3 of 3 cells to run" in out and "3 of 3 cells done" in out
+    report = (root / "report" / "report.md").read_text()
+    assert "## The paper's claims" in report and "(b) curriculum beats direct training" in report
+    assert "mode+epsilon=0.05" in report
+    assert (root / "runs/ppo/direct-1-1/seed0/model-0-1-1.pt").is_file()
+    assert (root / "done/train/ppo/direct-1-1/seed0.done").is_file()
+    assert (root / "evals/ppo/direct-1-1/seed0/testbeds/episodes.csv").is_file()
+    # keep_checkpoints: false: the finished run's checkpoints are gone, the run is reported finished all the same
+    assert not list((root / "runs/ppo/direct-1-1/seed0").glob("checkpoint*.pt"))
+    assert re.search(r"\| \S*runs/ppo/direct-1-1/seed0 \| ppo \| all \| original \| 1-1 \| 0 \| 128 / 128 \| finished \|",
+                     report)
+    log = (root / "logs/train/ppo/direct-1-1/seed0.log").read_text()
+    assert "EVAAA_THREADS=1 python scripts/train.py algo=ppo level=1-1 total_steps=128 seed=0 threads=1" in log
+    before = {p: p.stat().st_mtime for p in root.rglob("*") if p.is_file()}
+    assert reproduce.main(args) == 0
+    assert "nothing to do" in capsys.readouterr().out
+    assert {p: p.stat().st_mtime for p in root.rglob("*") if p.is_file()} == before
+
+
+@pytest.mark.slow
+def test_a_killed_protocol_continues_only_what_is_not_done(tmp_path, capsys):
+    spec = tmp_path / "tiny.yaml"
+    spec.write_text(TINY)
+    root = tmp_path / "root"
+    args = [f"protocol={spec}", f"root={root}", "progress=false"]
+    assert reproduce.main(args) == 0
+    logs = {n: root / "logs" / f"{n}.log" for n in ("train/ppo/direct-1-1/seed0", "eval/ppo/direct-1-1/seed0",
+                                                     "report")}
+    # a lost done-marker and an evaluation killed mid-way: both cells run again, and the report after them
+    (root / "done/train/ppo/direct-1-1/seed0.done").unlink()
+    out = root / "evals/ppo/direct-1-1/seed0/testbeds"
+    (out / "episodes.csv").rename(out / ".episodes.csv.partial")
+    capsys.readouterr()
+    assert reproduce.main([*args, "plan=true"]) == 0
+    plan = capsys.readouterr().out
+    assert re.search(r"^train/ppo/direct-1-1/seed0\s+partial", plan, re.M)
+    assert re.search(r"^eval/ppo/direct-1-1/seed0\s+partial", plan, re.M)
+    assert "resume=true" in plan
+    assert reproduce.main(args) == 0
+    assert all(p.read_text().count("\n== ") == 2 for p in logs.values())
+    assert "resuming" in logs["train/ppo/direct-1-1/seed0"].read_text()  # continued, not started again
+    assert len(list(out.parent.glob("testbeds.partial-*"))) == 1 and (out / "episodes.csv").is_file()
+    # cells=[...] runs just those, redo=true although done
+    assert reproduce.main([*args, "cells=[eval/ppo/*]", "redo=true"]) == 0
+    assert logs["eval/ppo/direct-1-1/seed0"].read_text().count("\n== ") == 3
+    assert logs["train/ppo/direct-1-1/seed0"].read_text().count("\n== ") == 2
+    assert len(list(out.parent.glob("testbeds.old-*"))) == 1
+
+
+@pytest.mark.slow
+def test_the_smoke_protocol_produces_every_kind_of_cell_and_the_report(tmp_path):
+    root = tmp_path / "root"
+    assert reproduce.main(["protocol=smoke", f"root={root}", "progress=false", "jobs=2"]) == 0
+    lay = Layout(root)
+    cells = build_cells(load_protocol("smoke"), root)
+    assert {c.kind for c in cells} == {"train", "eval", "ref", "report"}
+    assert all(status(c, lay, cells) == "done" for c in cells)
+    report = (root / "report" / "report.md").read_text()
+    for heading in ("Fig. 4a, left", "Fig. 4a, right", "Fig. 4b, left", "Fig. 4b, right", "Fig. 26",
+                    "The paper's claims"):
+        assert heading in report
+
+
+def test_a_failed_cell_is_tried_again_once_and_continues(tmp_path):
+    lay, cells = _fake(tmp_path)
+    flag = tmp_path / "crashed"
+    # the first try dies (as the renderer's crash does) after writing part of its run; the retry finishes it
+    code = (f"import pathlib; d=pathlib.Path({str(cells[0].run_dir)!r}); d.mkdir(parents=True, exist_ok=True); "
+            f"f=pathlib.Path({str(flag)!r}); (d/'checkpoint.pt').write_text('c')\n"
+            "if not f.exists(): f.write_text('1'); raise SystemExit(-11)\n"
+            "(d/'model-0-1-1.pt').write_text('m')")
+    cells[0].commands = [Command(_py(code))]
+    messages = []
+    sched = Scheduler(load_protocol("smoke"), cells, lay, progress=False, echo=messages.append, retries=1)
+    assert sched.run(cells) == 0
+    assert any("train/a: exit status 245; trying again (1 of 1)" in m for m in messages)
+    log = lay.log("train/a").read_text()
+    assert log.count("\n== ") == 2 and log.split("\n== ")[2].rstrip().endswith("resume=true")
+    assert all(status(c, lay, cells) == "done" for c in cells)
