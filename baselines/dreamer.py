@@ -598,6 +598,14 @@ def diagnostics(model: DreamerModel, critic: TensorDictSequential, posterior: Te
 
 
 # ------------------------------------------------------------------------------------------------ training
+def vector_reconstruction(posterior: TensorDictBase, keys: Sequence[str]) -> torch.Tensor:
+    """The vector keys' reconstruction loss as ``DreamerV3ModelLoss`` counts it (squared error in symlog space,
+    summed over each key's entries, averaged over the replayed steps), summed over ``keys``.  With pixels it is a
+    small part of the loss (4 EVs against 12,288 pixel values): ``algo.world_model.vector_scale`` weighs it more."""
+    return sum(((symlog(posterior["next", k].float()) - symlog(posterior["next", f"reco_{k}"].float())) ** 2)
+               .sum(-1).mean() for k in keys)
+
+
 def replay_value_loss(value_loss: DreamerV3ValueLoss, posterior: TensorDictBase, imagined: TensorDictBase,
                       cfg: DictConfig) -> torch.Tensor:
     """The critic's loss on the replayed sequences themselves (DreamerV3's ``repval``, ``algo.critic.replay_scale``):
@@ -689,6 +697,8 @@ def train(run: Run) -> None:
     model_loss.to(device), actor_loss.to(device), value_loss.to(device)
     slow_critic = SoftUpdate(value_loss, tau=cfg.critic.tau)
     replay_scale = float(cfg.critic.get("replay_scale", 0.0))
+    vector_keys = [k for k in keys if k != "pixels"]
+    vector_extra = float(cfg.world_model.get("vector_scale", 1.0)) - 1.0
     reward_scale = float(cfg.get("reward_scale", 1.0))
 
     def adam(params, section: DictConfig) -> torch.optim.Adam:
@@ -732,6 +742,10 @@ def train(run: Run) -> None:
         with run.autocast():
             losses, posterior = model_loss(batch)
             wm_loss = sum(v for k, v in losses.items() if k.startswith("loss_")).squeeze()
+            if vector_keys:
+                vector_reco = vector_reconstruction(posterior, vector_keys)
+                if vector_extra:
+                    wm_loss = wm_loss + vector_extra * vector_reco
         wm_norm = step("world_model", wm_loss, model.world_model_parameters(), cfg.world_model.grad_clip)
         # behaviour learning starts from every posterior latent of the batch, without gradient into the model
         latents = TensorDict({k: posterior["next", k].reshape(-1, posterior["next", k].shape[-1]).float()
@@ -758,6 +772,11 @@ def train(run: Run) -> None:
                     "imagined_return": imagined["lambda_target"].mean()}
         if replay_scale:
             metrics["critic_replay_loss"] = replay_loss.detach()
+        if vector_keys:
+            metrics["model_reco_vector"] = vector_reco.detach()
+        if "interoception" in keys:  # how well the latent knows the EVs the reward is computed from (raw units)
+            metrics["interoception_error"] = (posterior["next", "reco_interoception"].detach().float()
+                                              - posterior["next", "interoception"].float()).abs().mean()
         if run.log_due:
             metrics |= diagnostics(model, critic, posterior, imagined, actor_out["return_scale"])
         return metrics

@@ -243,3 +243,17 @@ def test_sequences_around_eating_never_run_across_the_writers_cursor():
     for _ in range(40):
         steps = replay.sample()["step"]
         assert ((steps[:, 1:] - steps[:, :-1]) == 1).all()
+
+
+def test_the_vector_reconstruction_is_the_symlog_squared_error_summed_per_key():
+    truth = torch.tensor([[[3.0, -1.0], [0.0, 0.0]]])            # [batch 1, time 2, 2 entries]
+    reco = torch.tensor([[[math.e - 1, -1.0], [0.0, 1.0]]])      # symlog(e - 1) = 1, symlog(3) = log 4
+    smell = torch.tensor([[[2.0], [2.0]]])
+    posterior = TensorDict({"next": {"interoception": truth, "reco_interoception": reco,
+                                     "olfaction": smell, "reco_olfaction": smell}}, [1, 2])
+    first = (math.log(4.0) - 1.0) ** 2                           # step 0: one entry off
+    second = math.log(2.0) ** 2                                  # step 1: symlog(1) = log 2
+    expected = (first + second) / 2
+    got = dreamer.vector_reconstruction(posterior, ["interoception", "olfaction"])
+    assert float(got) == pytest.approx(expected, rel=1e-5)
+    assert float(dreamer.vector_reconstruction(posterior, ["olfaction"])) == 0.0
