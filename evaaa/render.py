@@ -66,13 +66,15 @@ _DRAW_LOCK = threading.Lock()
 
 
 def draw_lock():
-    """What a frame's draw and read-back are done under: one lock for the whole process, unless
-    ``EVAAA_PARALLEL_DRAW=1``.  Two training runs died in ``mjr_render`` (Mesa 22.3 llvmpipe through EGL) while two
-    render threads of one process drew at once, each in its own GL context; with the draws taken in turn only the
-    scene updates, the physics and the rest overlap.  Read when a renderer is made."""
-    if os.environ.get("EVAAA_PARALLEL_DRAW", "0") == "1":
-        return contextlib.nullcontext()
-    return _DRAW_LOCK
+    """What a frame's draw and read-back are done under: nothing, or with ``EVAAA_SERIAL_DRAW=1`` one lock for the
+    whole process.  Two training runs died in ``mjr_render`` (Mesa 22.3 llvmpipe through EGL) while two render
+    threads of one process drew at once, each in its own GL context.  Taking the draws in turn avoids that, but a
+    batch split in two shares then steps slower than on one thread (``scripts/bench_env.py``), so it is not the
+    default: ``threads=1`` (one render thread) is the safe setting that keeps the speed of one thread.  Read when a
+    renderer is made."""
+    if os.environ.get("EVAAA_SERIAL_DRAW", "0") == "1":
+        return _DRAW_LOCK
+    return contextlib.nullcontext()
 # the renderers' GL contexts not yet freed
 _live: set = set()
 

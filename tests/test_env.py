@@ -728,16 +728,17 @@ def test_night_fog_density_reaches_the_pixels():
     assert np.array_equal(night_frame(0.02, first=0), thin)
 
 
-@pytest.mark.parametrize("parallel", ["0", "1"])
-def test_render_threads_take_turns_to_draw_unless_told_otherwise(monkeypatch, parallel):
-    """Two render threads of one process never draw at once by default (Mesa's llvmpipe crashed doing so);
-    EVAAA_PARALLEL_DRAW=1 lets them (the check sees both at once then, so it can fail).  Frames are the same."""
+@pytest.mark.parametrize("serial", ["1", "0"])
+def test_render_threads_take_turns_to_draw_when_told(monkeypatch, serial):
+    """With EVAAA_SERIAL_DRAW=1 two render threads of one process never draw at once (Mesa's llvmpipe crashed
+    doing so, rarely); by default they do (the check sees both at once then, so it can fail).  Frames are the
+    same either way."""
     import threading
     import time
 
     from evaaa import render
 
-    monkeypatch.setenv("EVAAA_PARALLEL_DRAW", parallel)
+    monkeypatch.setenv("EVAAA_SERIAL_DRAW", serial)
     inside, most, guard = [0], [0], threading.Lock()
     draw = render.mujoco.mjr_render
 
@@ -759,7 +760,7 @@ def test_render_threads_take_turns_to_draw_unless_told_otherwise(monkeypatch, pa
         frames[threads] = env.rollout(10, break_when_any_done=False)["next", "pixels"]
         env.close()
         if threads == 2:
-            assert most[0] == (1 if parallel == "0" else 2)
+            assert most[0] == (1 if serial == "1" else 2)
     assert torch.equal(frames[2], frames[1])
 
 
