@@ -28,10 +28,11 @@ import shutil
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModule, TensorDictModuleBase, TensorDictSequential
 from torch import nn
@@ -57,6 +58,7 @@ from torchrl.objectives.utils import ValueEstimators
 
 from evaaa import ACTION_NAMES
 
+from .checkpoint import CHECKPOINT, load_checkpoint
 from .nets import compile_networks, symlog
 from .runtime import Counters, Run, parameter_count
 
@@ -551,6 +553,46 @@ def consumed(transition: TensorDictBase) -> torch.Tensor:
     ``("next", "consumed")`` so that :func:`diagnostics` can tell the reward head's error on those rare steps."""
     before, after = transition["info"], transition["next", "info"]
     return (after["food_eaten"] + after["water_eaten"]) > (before["food_eaten"] + before["water_eaten"])
+
+
+def ev_decoding_errors(run_dir: str | Path, sequences: int = 64) -> dict[str, Any]:
+    """How well a DreamerV3 run's world model knows the EVs: the mean absolute error, in raw units, of the
+    interoception decoded from the posterior, on the eating steps and on the other steps of ``sequences`` replayed
+    sequences of 32 steps around the last eating steps stored (spread over the replay where there are too few),
+    with the run's last checkpoint and its memory-mapped replay.  The reward is computed from the EVs: a latent
+    that does not hold them cannot predict it."""
+    from evaaa import EV_NAMES
+
+    state = load_checkpoint(Path(run_dir) / CHECKPOINT)
+    if state.get("algo") not in ("dreamer", "dreamer_xs") or "interoception" not in state["obs_keys"]:
+        raise ValueError(f"{run_dir}: not a DreamerV3 run that observes interoception")
+    replay = state["components"]["replay"]
+    if "on_disk" not in replay:
+        raise ValueError(f"{run_dir}: its replay buffer was kept in memory (algo.buffer_on_disk=false), not on disk")
+    cfg = OmegaConf.create(state["config"])
+    model = make_model(cfg.algo, {k: tuple(v) for k, v in state["obs_shapes"].items()})
+    model.load_state_dict(state["model"])
+    num_envs = int(state["num_envs"])
+    rows = replay["length"] // num_envs
+    data = TensorDict.load_memmap(replay["on_disk"])[:rows]
+    length = min(32, rows)
+    eaten = data["next", "consumed"].reshape(rows, num_envs).nonzero()
+    spread = torch.stack([torch.arange(sequences) * rows // sequences, torch.arange(sequences) % num_envs], dim=1)
+    anchors = torch.cat([eaten[-sequences:], spread])[:sequences]  # too few eating steps: others, spread out
+    start = (anchors[:, 0] - length // 2).clamp(0, rows - length)
+    batch = data[start[:, None] + torch.arange(length), anchors[:, 1:2]].clone()
+    batch["state"] = torch.zeros(*batch.shape, model.state_dim)
+    batch["belief"] = torch.zeros(*batch.shape, model.belief_dim)
+    with torch.no_grad():
+        out = world_model(model)(batch)
+    error = (out["next", "reco_interoception"] - out["next", "interoception"]).abs()
+    at = out["next", "consumed"].reshape(batch.shape)
+    result: dict[str, Any] = {"env_steps": state["counters"]["steps"], "sequences": len(batch),
+                              "eating_steps": int(at.sum())}
+    for name, mask in (("eating", at), ("other", ~at)):
+        per_ev = error[mask].mean(0) if mask.any() else torch.full((len(EV_NAMES),), float("nan"))
+        result[name] = dict(zip(EV_NAMES, per_ev.tolist()))
+    return result
 
 
 def _masked_mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:

@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SCHEMAS = {"evaluate": "EvalConfig", "report": "ReportConfig", "bench_env": "BenchConfig",
            "bench_train": "BenchConfig", "demo": "DemoConfig", "profile_env": "ProfileConfig",
            "render_levels": "RenderConfig", "play": "PlaySettings", "wall_hits": "WallHitsConfig",
-           "reproduce": "ReproduceConfig"}
+           "reproduce": "ReproduceConfig", "probe_dreamer": "ProbeConfig"}
 
 
 def schema(name: str) -> type:

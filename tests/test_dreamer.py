@@ -16,7 +16,7 @@ from pathlib import Path
 
 import matplotlib.image
 import pytest
-from helpers import read_csv, train_scalars
+from helpers import load_script, read_csv, train_scalars
 import torch
 from hydra import compose, initialize_config_dir
 from tensordict import TensorDict
@@ -255,3 +255,16 @@ def test_evaluate_script_runs_a_dreamer_checkpoint(runs, tmp_path):
     assert done.returncode == 0, done.stderr[-3000:]
     rows = read_csv(tmp_path / "episodes.csv")
     assert len(rows) == 2 and all(r["level"] == "1-1" for r in rows)
+
+
+def test_the_probe_decodes_the_evs_of_a_run_and_says_how_far_off_they_are(runs, capsys):
+    from evaaa import EV_NAMES
+
+    result = dreamer.ev_decoding_errors(runs["whole"], sequences=4)
+    assert result["sequences"] == 4 and result["env_steps"] > 0
+    assert list(result["other"]) == list(EV_NAMES)
+    assert all(math.isfinite(v) and v >= 0 for v in result["other"].values())
+    assert result["eating_steps"] > 0 or all(math.isnan(v) for v in result["eating"].values())
+    probe = load_script("probe_dreamer")
+    assert probe.main([f"run={runs['whole']}", "sequences=4"]) == 0
+    assert "mean absolute error of the decoded EVs" in capsys.readouterr().out
