@@ -721,11 +721,15 @@ def train(run: Run) -> None:
 
     # world model: KL balancing (dynamics / representation weights, free nats, unimix), pixels as x/255 and the
     # vector keys in symlog space, two-hot reward, continue predicted from "terminated" (not truncation)
+    vector_keys = [k for k in keys if k != "pixels"]
+    vector_extra = float(cfg.world_model.get("vector_scale", 1.0)) - 1.0
     model_loss = DreamerV3ModelLoss(
         world_model(model), kl_mode="separate", lambda_dynamic=cfg.world_model.kl_dynamic,
         lambda_representation=cfg.world_model.kl_representation, free_bits=cfg.world_model.free_nats,
         unimix=cfg.model.unimix, lambda_continue=cfg.world_model.continue_scale, reco_loss="l2",
-        reco_symlog=[k != "pixels" for k in keys], reward_two_hot=True, num_reward_bins=cfg.model.bins)
+        reco_symlog=[k != "pixels" for k in keys], reward_two_hot=True, num_reward_bins=cfg.model.bins,
+        # the vector keys' extra reconstruction term needs the graph; everything else reads the output detached
+        detach_output=not vector_extra)
     model_loss.set_keys(pixels=list(keys), reco_pixels=[f"reco_{k}" for k in keys])
     critic = value_model(model)
     actor_loss = DreamerV3ActorLoss(
@@ -739,8 +743,6 @@ def train(run: Run) -> None:
     model_loss.to(device), actor_loss.to(device), value_loss.to(device)
     slow_critic = SoftUpdate(value_loss, tau=cfg.critic.tau)
     replay_scale = float(cfg.critic.get("replay_scale", 0.0))
-    vector_keys = [k for k in keys if k != "pixels"]
-    vector_extra = float(cfg.world_model.get("vector_scale", 1.0)) - 1.0
     reward_scale = float(cfg.get("reward_scale", 1.0))
 
     def adam(params, section: DictConfig) -> torch.optim.Adam:
@@ -784,10 +786,10 @@ def train(run: Run) -> None:
         with run.autocast():
             losses, posterior = model_loss(batch)
             wm_loss = sum(v for k, v in losses.items() if k.startswith("loss_")).squeeze()
-            if vector_keys:
+            if vector_extra:
                 vector_reco = vector_reconstruction(posterior, vector_keys)
-                if vector_extra:
-                    wm_loss = wm_loss + vector_extra * vector_reco
+                wm_loss = wm_loss + vector_extra * vector_reco
+                posterior = posterior.detach()
         wm_norm = step("world_model", wm_loss, model.world_model_parameters(), cfg.world_model.grad_clip)
         # behaviour learning starts from every posterior latent of the batch, without gradient into the model
         latents = TensorDict({k: posterior["next", k].reshape(-1, posterior["next", k].shape[-1]).float()
@@ -814,8 +816,10 @@ def train(run: Run) -> None:
                     "imagined_return": imagined["lambda_target"].mean()}
         if replay_scale:
             metrics["critic_replay_loss"] = replay_loss.detach()
-        if vector_keys:
-            metrics["model_reco_vector"] = vector_reco.detach()
+        if vector_keys:  # a metric only, unless vector_scale made it part of the loss (then computed above)
+            with torch.no_grad():
+                metrics["model_reco_vector"] = (vector_reco.detach() if vector_extra
+                                                else vector_reconstruction(posterior, vector_keys))
         if "interoception" in keys:  # how well the latent knows the EVs the reward is computed from (raw units)
             metrics["interoception_error"] = (posterior["next", "reco_interoception"].detach().float()
                                               - posterior["next", "interoception"].float()).abs().mean()

@@ -61,6 +61,8 @@ def _gl_context_class():
 
 # the GL context made current last in each thread (making one current costs ~20 us)
 _current = threading.local()
+# the renderers' GL contexts not yet freed
+_live: set = set()
 # held around every draw and read-back when drawing is serial (see draw_lock)
 _DRAW_LOCK = threading.Lock()
 
@@ -75,8 +77,6 @@ def draw_lock():
     if os.environ.get("EVAAA_SERIAL_DRAW", "0") == "1":
         return _DRAW_LOCK
     return contextlib.nullcontext()
-# the renderers' GL contexts not yet freed
-_live: set = set()
 
 
 class _RenderThread:
