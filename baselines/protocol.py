@@ -7,9 +7,15 @@ evaluation, the report), each a subprocess of ``scripts/train.py``, ``scripts/ev
 A cell is *done* only when its outputs are complete: a training run when the final model of its last stage exists
 and the done-marker written after ``train.py`` exited 0 (``<root>/done/<cell>.done``); an evaluation when every
 ``out`` folder of it holds ``episodes.csv`` (evaluate.py writes it last); the report when its marker is newer than
-every other cell's outputs and every other cell is done.  A training cell that was started and not finished is continued with ``resume=true``;
-an evaluation's ``out`` folder without ``episodes.csv`` is moved aside (``<out>.partial-<UTC time>``, never deleted)
-and the evaluation run again.
+every other cell's outputs and every other cell is done.  A training cell that was started and not finished is
+continued with ``resume=true``; an evaluation's ``out`` folder without ``episodes.csv`` is moved aside
+(``<out>.partial-<UTC time>``, never deleted) and the evaluation run again.
+
+A protocol's ``root`` may lie inside the repository (paper_cpu's does): commands name the files there relative to
+the repository root, the folder's ``.gitignore`` keeps checkpoints, models and logs out of git, and the rest (run
+settings and CSV logs, evaluation episodes, done-markers) can be committed.  On a clone of it a finished training
+run whose models are gone counts as done while every evaluation of it is; one with evaluations still to make is
+trained again (``start_over=true``).
 """
 
 from __future__ import annotations
@@ -156,6 +162,11 @@ class Protocol(_Strict):
     evaluation: EvaluationSpec
     references: ReferenceSpec | None = None
     report: ReportSpec
+    # where the runs, evaluations, logs and done-markers go (reproduce.py's root= overrides it); relative paths: to
+    # the repository root. A folder inside the repository can be committed (its .gitignore keeps the checkpoints
+    # and logs out): a cell whose outputs are committed is done on any clone, so a protocol longer than one
+    # session continues on another machine
+    root: str | None = None
 
     @field_validator("levels")
     @classmethod
@@ -304,6 +315,47 @@ class Layout:
         return self.logs / f"{_safe(cell)}.log"
 
 
+def arg(path: Path) -> str:
+    """``path`` as a command line names it: relative to the repository root (where every cell runs) when it lies
+    inside it, so that the files a protocol writes there (evaluations name their checkpoints) hold on any clone."""
+    try:
+        return str(Path(path).resolve().relative_to(REPO.resolve()))
+    except ValueError:
+        return str(path)
+
+
+#: what keep_out_of_git writes: a protocol's committed results are its settings, CSV logs, evaluation episodes and
+#: done-markers, never its models, checkpoints, logs of text or per-evaluation figures (each report draws its own);
+#: ``runs/``, which the repository's own .gitignore leaves out everywhere, is taken back in
+GITIGNORE = """\
+# written by scripts/reproduce.py: commit the results, not the models, checkpoints, text logs or figures
+!/runs/
+*.pt
+*.log
+/logs/
+/evals/**/*.png
+.reproduce.lock
+*.partial-*/
+*.old-*/
+.*.replaced-*/
+"""
+
+
+def keep_out_of_git(lay: Layout) -> Path | None:
+    """Inside the repository, give ``lay.root`` its ``.gitignore`` (:data:`GITIGNORE`; one already there is kept
+    as it is); returns the file written, or None."""
+    try:
+        lay.root.resolve().relative_to(REPO.resolve())
+    except ValueError:
+        return None
+    path = lay.root / ".gitignore"
+    if path.exists():
+        return None
+    lay.root.mkdir(parents=True, exist_ok=True)
+    path.write_text(GITIGNORE)
+    return path
+
+
 def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list[Cell]:
     """Every cell of ``p`` with its files under ``root``, in the order the scheduler prefers: references, then per
     algorithm each training run followed by the evaluations of its models, then the report."""
@@ -316,19 +368,19 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
     def eval_cell(name: str, model: Path, own: str, train_cell: str, sps: float, algo: str) -> Cell:
         cmds, seconds = [], 0.0
         common = [f"seed={ev.seed}", f"epsilon={ev.epsilon:g}", f"sample={str(ev.sample).lower()}",
-                  f"threads={th}", f"policy=[{model}]"]
+                  f"threads={th}", f"policy=[{arg(model)}]"]
         if ev.testbeds is not None:
             out = lay.evals / _safe(name.removeprefix("eval/")) / "testbeds"
             tb = expand_levels(ev.testbeds.levels)
             cmds.append(Command(["scripts/evaluate.py", *common, f"levels=[{','.join(ev.testbeds.levels)}]",
                                  f"episodes={ev.testbeds.episodes}", f"num_envs={ev.testbeds.num_envs}",
-                                 f"out={out}"], out))
+                                 f"out={arg(out)}"], out))
             seconds += STARTUP_SECONDS + ev.testbeds.episodes * sum(max_steps(t) for t in tb) / sps
         if ev.own_level is not None:
             out = lay.evals / _safe(name.removeprefix("eval/")) / "level"
             cmds.append(Command(["scripts/evaluate.py", *common, f"levels=[{own}]",
                                  f"episodes={ev.own_level.episodes}", f"num_envs={ev.own_level.num_envs}",
-                                 f"out={out}"], out))
+                                 f"out={arg(out)}"], out))
             seconds += STARTUP_SECONDS + ev.own_level.episodes * max_steps(own) / sps
         eval_outs.extend(c.out for c in cmds if c.out is not None)
         return Cell(name, "eval", cmds, seconds / 60, f"{algo} evaluation", needs=[model], needs_cells=[train_cell])
@@ -340,7 +392,7 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
             out = lay.evals / "ref" / policy
             cmd = Command(["scripts/evaluate.py", f"policy=[{policy}]", f"levels=[{','.join(ref.levels)}]",
                            f"episodes={ref.episodes}", f"num_envs={ref.num_envs}", f"seed={ev.seed}",
-                           f"threads={th}", f"out={out}"], out)
+                           f"threads={th}", f"out={arg(out)}"], out)
             seconds = STARTUP_SECONDS + ref.episodes * sum(max_steps(lv) for lv in ref_levels) / ref.steps_per_second
             cells.append(Cell(f"ref/{policy}", "ref", [cmd], seconds / 60, "references"))
             eval_outs.append(out)
@@ -351,7 +403,7 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
         run_name = f"{algo}/{setup}/seed{seed}"
         run_dir = lay.runs / _safe(run_name)
         argv = ["scripts/train.py", f"algo={algo}", *level_args, f"seed={seed}", f"threads={th}",
-                *p.training.overrides, *spec.overrides, *extra, f"run.root={lay.runs}", f"run.name={run_name}"]
+                *p.training.overrides, *spec.overrides, *extra, f"run.root={arg(lay.runs)}", f"run.name={run_name}"]
         steps = S * len(stages)
         minutes = (STARTUP_SECONDS + steps / spec.steps_per_second) / 60
         final = run_dir / f"model-{len(stages) - 1}-{stages[-1]}.pt"
@@ -394,8 +446,8 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
         else REPO / p.report.out
     out = out.resolve()
     title = p.report.title or default_title(p)
-    argv = ["scripts/report.py", f"runs=[{lay.runs}]", "evals=[" + ",".join(map(str, eval_outs)) + "]",
-            f"out={out}", f"survival={p.report.survival}", f"title={title}"]
+    argv = ["scripts/report.py", f"runs=[{arg(lay.runs)}]", "evals=[" + ",".join(map(arg, eval_outs)) + "]",
+            f"out={arg(out)}", f"survival={p.report.survival}", f"title={title}"]
     if any(c.kind == "eval" for c in cells):
         argv.append(f"acting={acting(ev)}")
     cells.append(Cell("report", "report", [Command(argv, None)], 1.0, "report", needs_cells=[c.name for c in cells],
@@ -431,6 +483,11 @@ def outputs(cell: Cell, lay: Layout) -> list[Path]:
 def status(cell: Cell, lay: Layout, cells: Sequence[Cell] = ()) -> Literal["done", "partial", "todo"]:
     """done: every output complete; partial: started (a run directory, an ``out`` folder) but not complete; todo."""
     outs = outputs(cell, lay)
+    if cell.kind == "train" and lay.marker(cell.name).exists() and not cell.final_model.exists():  # type: ignore[union-attr]
+        # finished, and its models are gone (a clone of committed results holds no checkpoints): done while every
+        # evaluation of it is; otherwise it is trained again for the evaluations still to make
+        dependents = [c for c in cells if c.kind == "eval" and cell.name in c.needs_cells]
+        return "done" if all(status(c, lay) == "done" for c in dependents) else "partial"
     if all(o.exists() for o in outs):
         if cell.kind != "report":
             return "done"
@@ -453,6 +510,10 @@ def command_now(cell: Cell, lay: Layout, redo: bool = False) -> list[Command]:
     run again with ``redo``)."""
     if cell.kind == "train":
         (cmd,) = cell.commands
+        if lay.marker(cell.name).exists() and not cell.final_model.exists():  # type: ignore[union-attr]
+            # a finished run whose models are gone, with evaluations still to make: trained again from zero (the
+            # old run directory is moved aside by train.py, never deleted)
+            return [Command([*cmd.argv, "start_over=true"])]
         started = cell.run_dir is not None and cell.run_dir.is_dir() and any(cell.run_dir.iterdir())
         pruned = not any((cell.run_dir / n).exists() for n in CHECKPOINTS)  # type: ignore[operator]
         if started and not redo and cell.final_model.exists() and pruned:  # type: ignore[union-attr]
@@ -572,7 +633,7 @@ class Scheduler:
         argv = []
         for a in cmd.argv:
             if a.startswith("evals=["):
-                done = [x for x in a[len("evals=["):-1].split(",") if x and (Path(x) / "episodes.csv").exists()]
+                done = [x for x in a[len("evals=["):-1].split(",") if x and (REPO / x / "episodes.csv").exists()]
                 a = "evals=[" + ",".join(done) + "]"
             argv.append(a)
         return Command(argv)

@@ -19,16 +19,16 @@ from pathlib import Path
 
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
-from evaaa_baselines.protocol import (Layout, ProtocolError, Scheduler, build_cells, load_protocol, plan_text, select,
-                                      status)
+from evaaa_baselines.protocol import (REPO, Layout, ProtocolError, Scheduler, build_cells, keep_out_of_git,
+                                      load_protocol, plan_text, select, status)
 
 
 @dataclass
 class ReproduceConfig:
     protocol: str = option("paper_cpu", "a protocol of conf/protocol/ (paper_cpu, smoke) or the path of a protocol "
                                         "YAML file")
-    root: str | None = option(None, "folder of the runs, evaluations, logs and done-markers (default: "
-                                    "runs/protocol/<protocol name>)")
+    root: str | None = option(None, "folder of the runs, evaluations, logs and done-markers (default: the "
+                                    "protocol's root, else runs/protocol/<protocol name>)")
     plan: bool = option(False, "print the cells, their status, estimated CPU-minutes and commands; run nothing")
     jobs: int = option(1, "cells run at once (one core each: threads=1)", check=(lambda v: v >= 1,
                                                                                "a positive integer"))
@@ -48,13 +48,13 @@ class ReproduceConfig:
 def main(argv: list[str] | None = None) -> int:
     cfg = cli.parse(ReproduceConfig, argv, prog="reproduce.py", description=__doc__.split("\n\n")[0],
                     examples=["protocol=paper_cpu plan=true",
-                              "protocol=paper_cpu jobs=2 root=/work/runs/paper-cpu",
-                              "protocol=paper_cpu root=/work/runs/paper-cpu cells=[eval/ppo/curriculum/seed0/*]"])
+                              "protocol=paper_cpu jobs=2",
+                              "protocol=paper_cpu cells=[eval/ppo/curriculum/seed0/*]"])
     if cfg.redo and not cfg.cells:
         cli.fail("reproduce.py", "redo=true needs cells=[...]: the cells to run again")
     try:
         p = load_protocol(cfg.protocol)
-        lay = Layout(Path(cfg.root or Path("runs") / "protocol" / p.name))
+        lay = Layout(Path(cfg.root) if cfg.root else REPO / p.root if p.root else Path("runs") / "protocol" / p.name)
         cells = build_cells(p, lay.root, Path(cfg.out) if cfg.out else None)
         chosen = select(cells, cfg.cells) if cfg.cells else cells
     except ProtocolError as err:
@@ -68,6 +68,7 @@ def main(argv: list[str] | None = None) -> int:
               f"({lay.root})")
         return 0
     lay.root.mkdir(parents=True, exist_ok=True)
+    keep_out_of_git(lay)
     lock = open(lay.root / ".reproduce.lock", "a+")
     try:  # two sessions on one root would run the same cells twice, into the same folders
         fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)

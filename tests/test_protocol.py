@@ -361,3 +361,67 @@ def test_a_failed_cell_is_tried_again_once_and_continues(tmp_path):
     log = lay.log("train/a").read_text()
     assert log.count("\n== ") == 2 and log.split("\n== ")[2].rstrip().endswith("resume=true")
     assert all(status(c, lay, cells) == "done" for c in cells)
+
+
+# ------------------------------------------------------------------------------------------------ committed results
+def test_a_finished_training_whose_models_are_gone_is_trained_again_only_for_evaluations_left(tmp_path):
+    from evaaa_baselines.protocol import command_now
+    lay, cells = _fake(tmp_path)
+    train, ev, _ = cells
+    assert _scheduler(lay, cells).run(cells) == 0
+    train.final_model.unlink()  # a clone of the committed results: no models
+    assert status(train, lay, cells) == "done" and command_now(train, lay) == [Command([*train.commands[0].argv,
+                                                                                        "start_over=true"])]
+    (ev.commands[0].out / "episodes.csv").unlink()  # an evaluation still to make needs the model again
+    assert status(train, lay, cells) == "partial"
+    todo = [c for c in cells if status(c, lay, cells) != "done"]
+    assert names(todo) == ["train/a", "eval/a", "report"]
+    assert _scheduler(lay, cells).run(todo) == 0
+    assert lay.log("train/a").read_text().split("\n== ")[-1].rstrip().endswith("start_over=true")
+    assert train.final_model.is_file() and all(status(c, lay, cells) == "done" for c in cells)
+
+
+def test_commands_name_files_inside_the_repository_relative_to_it(tmp_path):
+    from evaaa_baselines.protocol import REPO
+    inside = REPO / "runs" / "protocol" / "named-relative"
+    for root, prefix in ((inside, "runs/protocol/named-relative/"), (tmp_path, f"{tmp_path.resolve()}/")):
+        cells = build_cells(load_protocol("smoke"), root, report_out=root / "report")
+        argv = " ".join(a for c in cells for cmd in c.commands for a in cmd.argv)
+        assert f"run.root={prefix}runs" in argv and f"policy=[{prefix}runs/ppo/" in argv
+        assert f"out={prefix}evals/" in argv and f"runs=[{prefix}runs]" in argv and f"out={prefix}report" in argv
+        assert all(c.run_dir.is_absolute() for c in cells if c.kind == "train")  # the runner checks absolute paths
+    assert not inside.exists()  # expanding cells writes nothing
+
+
+def test_a_root_inside_the_repository_keeps_models_and_logs_out_of_git(tmp_path):
+    import shutil
+    import subprocess
+
+    from evaaa_baselines.protocol import GITIGNORE, REPO, keep_out_of_git
+    assert keep_out_of_git(Layout(tmp_path / "outside")) is None and not (tmp_path / "outside").exists()
+    inside = REPO / "runs" / "protocol" / "gitignore-test"
+    try:
+        written = keep_out_of_git(Layout(inside))
+        assert written == inside / ".gitignore" and written.read_text() == GITIGNORE
+        written.write_text("# mine\n")
+        assert keep_out_of_git(Layout(inside)) is None and written.read_text() == "# mine\n"  # kept as it was
+    finally:
+        shutil.rmtree(inside, ignore_errors=True)
+    repo = tmp_path / "repo"
+    (repo / "record").mkdir(parents=True)
+    subprocess.run(["git", "init", "-q", str(repo)], check=True)
+    (repo / ".gitignore").write_text((REPO / ".gitignore").read_text())  # which leaves every runs/ folder out
+    (repo / "record" / ".gitignore").write_text(GITIGNORE)
+    run = "record/runs/ppo/curriculum/seed0"
+    ignored = [f"{run}/model-0-1-1.pt", f"{run}/checkpoint.pt", f"{run}/train.log", "record/logs/train/ppo.log",
+               "record/evals/ppo/a/testbeds/survival.png", "record/evals/ppo/a/testbeds.partial-20261125/episodes.csv",
+               "record/evals/ppo/a/testbeds.old-20261125/episodes.csv", "record/.reproduce.lock",
+               "record/runs/ppo/curriculum/.seed0.replaced-20261125-101010/eval.csv"]
+    kept = [f"{run}/.hydra/config.yaml", f"{run}/episodes.csv", f"{run}/eval.csv", f"{run}/logs/scalars/train/lr.csv",
+            "record/evals/ppo/a/testbeds/episodes.csv", "record/evals/ppo/a/testbeds/summary.md",
+            "record/done/train/ppo/curriculum/seed0.done"]
+    for path in ignored + kept:
+        (repo / path).parent.mkdir(parents=True, exist_ok=True)
+        (repo / path).write_text("x")
+    check = subprocess.run(["git", "-C", str(repo), "check-ignore", *ignored, *kept], capture_output=True, text=True)
+    assert sorted(check.stdout.split()) == sorted(ignored)

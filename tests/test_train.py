@@ -255,6 +255,21 @@ def test_evaluation_samples_from_the_policy_on_request(runs):
     assert distinct[False] == 1 and distinct[True] >= 3
 
 
+def test_a_dqn_checkpoint_asked_to_sample_takes_its_greedy_action(runs):
+    """The protocol's acting rule (sample=true, epsilon 0.05 for every agent) relies on it: DQN's policy is its
+    greedy action, so sample=true leaves it as it is."""
+    path = str(runs("dqn")["whole"] / "model-0-1-1.pt")
+    policy = EvaluatedPolicy(path, seed=0, sample=True)
+    env = policy.make_env("1-1", num_envs=2, seed=0)
+    try:
+        td = env.reset()
+        greedy = policy.loaded(td.clone(), deterministic=True)["action"]
+        acts = torch.stack([policy.act(env, td.clone()) for _ in range(100)])
+    finally:
+        env.close()
+    assert policy.acting == "sample" and bool((acts == greedy).all())
+
+
 def test_loader_gives_a_policy_and_refuses_other_observation_keys(runs):
     path = runs("ppo_lstm")["whole"] / "model-0-1-1.pt"
     with pytest.raises(ValueError, match="observation keys") as error:
