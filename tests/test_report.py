@@ -62,13 +62,13 @@ class Sim:
         self.runs: dict[Path, dict] = {}
 
     def run(self, algo: str, seed: int, *, level: str = "curriculum", modality: str = "all", finish: int = 2,
-            partial_steps: int = 0, files: bool = True) -> Path:
+            partial_steps: int = 0, files: bool = True, overrides: tuple[str, ...] = ()) -> Path:
         """``finish``: stages finished (a curriculum has two, a direct run one); ``partial_steps``: env steps the
         next, unfinished stage got to; ``files``: False leaves the config alone (a run that never started)."""
         extra = ([f"level.stage_steps={BUDGET}", f"level.stages=[{','.join(STAGES)}]"] if level == "curriculum"
                  else [f"total_steps={BUDGET}"])
         cfg = make_cfg(f"algo={algo}", f"seed={seed}", f"level={level}", f"modality={modality}", "preset=debug",
-                       "logger=csv", *extra)
+                       "logger=csv", *extra, *overrides)
         run_dir = self.root / OmegaConf.to_container(cfg, resolve=True)["run"]["name"]
         (run_dir / ".hydra").mkdir(parents=True)
         OmegaConf.save(cfg, run_dir / ".hydra" / "config.yaml")  # as Hydra saves it: interpolations kept
@@ -263,6 +263,17 @@ def test_survival_per_level_is_the_mean_and_se_across_seeds_of_each_stage_final_
     # the run killed in stage 2 counts for the level it finished, not for the one it did not
     assert "(n=4 seeds × 2 ep.)" in got["1-1"]["dqn · all"] and "(n=3 seeds × 2 ep.)" in got["1-2"]["dqn · all"]
     assert set(got["1-1"]) == {"ppo · all", "dqn · all", "ppo · no_vision"}  # direct ppo runs are in 4a right
+
+
+def test_the_survival_note_says_how_the_in_training_evaluations_acted(world, tmp_path):
+    assert "(`eval.csv`, deterministic episodes)" in world["text"]
+    sim = Sim(tmp_path / "runs")
+    sim.run("ppo", 0, level="1-1", finish=1, overrides=("eval.sample=true",))
+    sampled = build_report([tmp_path / "runs"], [], tmp_path / "out").markdown.read_text()
+    assert "(`eval.csv`, episodes sampled from the policy)" in sampled
+    sim.run("ppo", 1, level="1-1", finish=1)
+    mixed = build_report([tmp_path / "runs"], [], tmp_path / "out2").markdown.read_text()
+    assert "deterministic episodes, or sampled ones where a run set `eval.sample`" in mixed
 
 
 def test_curriculum_vs_direct_compares_the_same_level(world):

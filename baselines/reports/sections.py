@@ -93,7 +93,10 @@ class Inputs:
     def source_note(self) -> str:
         """Where the final-survival values come from, for the sections that show them."""
         fallback = int((self.final["source"] == "train").sum()) if self.survival == "eval" else 0
-        note = ("Survival: the last evaluation of each finished stage (`eval.csv`, deterministic episodes)"
+        modes = {bool((r.config.get("eval") or {}).get("sample", False)) for r in self.usable}
+        how = {frozenset({False}): "deterministic episodes", frozenset({True}): "episodes sampled from the policy"}.get(
+            frozenset(modes), "deterministic episodes, or sampled ones where a run set `eval.sample`")
+        note = (f"Survival: the last evaluation of each finished stage (`eval.csv`, {how})"
                 if self.survival == "eval" else f"Survival: the mean of each finished stage's last {self.window} "
                 "training episodes")
         if fallback:
