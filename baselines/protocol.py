@@ -314,6 +314,19 @@ class Layout:
     def log(self, cell: str) -> Path:
         return self.logs / f"{_safe(cell)}.log"
 
+    def clock(self, cell: str) -> Path:
+        """Seconds of wall time the cell's commands have run so far, over every session (one core each)."""
+        return self.done / f"{_safe(cell)}.seconds"
+
+    def took(self, cell: str) -> float | None:
+        """Seconds a done cell took (its marker), or None where it was not timed."""
+        marker = self.marker(cell)
+        try:
+            seconds = json.loads(marker.read_text()).get("seconds") if marker.exists() else None
+        except (ValueError, AttributeError):
+            return None
+        return float(seconds) if isinstance(seconds, (int, float)) else None
+
 
 def arg(path: Path) -> str:
     """``path`` as a command line names it: relative to the repository root (where every cell runs) when it lies
@@ -541,9 +554,12 @@ def plan_text(p: Protocol, cells: Sequence[Cell], lay: Layout, threads: int) -> 
     width = max(len(c.name) for c in cells)
     lines = [f"protocol {p.name}: {len(cells)} cells under {lay.root}; S = {p.stage_steps:,} env steps per stage "
              f"(curriculum stage and direct run), seeds {p.seeds}; checkpoints act {acting(p.evaluation)}", "",
-             f"{'cell':<{width}}  {'status':<7}  {'CPU-min':>8}"]
+             f"{'cell':<{width}}  {'status':<7}  {'CPU-min':>8}  {'took':>8}"]
+    took = {c.name: lay.took(c.name) if states[c.name] == "done" else None for c in cells}
     for c in cells:
-        lines.append(f"{c.name:<{width}}  {states[c.name]:<7}  {c.minutes:8.1f}")
+        t = took[c.name]
+        lines.append(f"{c.name:<{width}}  {states[c.name]:<7}  {c.minutes:8.1f}  "
+                     f"{'' if t is None else f'{t / 60:8.1f}'}".rstrip())
     total = sum(c.minutes for c in cells)
     left = sum(c.minutes for c in cells if states[c.name] != "done")
     counts = {s: sum(1 for v in states.values() if v == s) for s in ("done", "partial", "todo")}
@@ -560,6 +576,11 @@ def plan_text(p: Protocol, cells: Sequence[Cell], lay: Layout, threads: int) -> 
         lines.append(f"  {g:<12}" + " " * 12 * len(parts) + f"{split[g] / 60:12.2f}")
     lines.append(f"  {'total':<12}" + " " * 12 * len(parts) + f"{total / 60:12.2f}  ({len(cells)} cells: "
                  f"{counts['done']} done, {counts['partial']} partial, {counts['todo']} todo; {left / 60:.2f} h left)")
+    timed = [c for c in cells if took[c.name] is not None]
+    if timed:
+        # wall time of one core per cell (threads=1), summed over the sessions that ran them
+        lines.append(f"  measured: the {len(timed)} timed done cells took {sum(took[c.name] for c in timed) / 3600:.2f} "
+                     f"CPU-hours (one core each), against {sum(c.minutes for c in timed) / 60:.2f} estimated for them")
     if p.budget_cpu_hours is not None and total / 60 > p.budget_cpu_hours:
         lines.append(f"  WARNING: over the protocol's budget of {p.budget_cpu_hours:g} CPU-hours")
     lines += ["", "commands (run from the repository root; a started training run gets resume=true):"]
@@ -592,6 +613,7 @@ class _Job:
     proc: subprocess.Popen | None = None
     log: Any = None
     redo: bool = False
+    began: float | None = None  # time.monotonic() when the running command started
 
 
 class Scheduler:
@@ -626,6 +648,20 @@ class Scheduler:
         # second one would stop a training at once, without its checkpoint)
         job.proc = subprocess.Popen([self.python, *cmd.argv], cwd=REPO, env=self.env, stdout=job.log,
                                     stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)
+        job.began = time.monotonic()
+
+    def _clock(self, job: _Job) -> None:
+        """Add the wall time of the command that just ended to its cell's account (:meth:`Layout.clock`)."""
+        if job.began is None:
+            return
+        path = self.lay.clock(job.cell.name)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            before = float(path.read_text())
+        except (OSError, ValueError):
+            before = 0.0
+        path.write_text(f"{before + time.monotonic() - job.began:.1f}\n")
+        job.began = None
 
     def _report_command(self, cmd: Command) -> Command:
         """The report over the evaluations that are complete (the others are not passed: report.py would refuse
@@ -678,6 +714,7 @@ class Scheduler:
                     rc = job.proc.poll()
                     if rc is None:
                         continue
+                    self._clock(job)
                     if rc == 0 and job.commands:
                         job.log.close()
                         self._start(job)
@@ -724,6 +761,8 @@ class Scheduler:
                             self._finish(cell)
                             finished.add(cell.name)
                             continue
+                        if redo or "start_over=true" in commands[0].argv:  # timed from zero again
+                            self.lay.clock(cell.name).unlink(missing_ok=True)
                         job = _Job(cell, list(commands), redo=redo)  # commands popped as they start
                         self._start(job)
                         running.append(job)
@@ -747,6 +786,7 @@ class Scheduler:
                 except subprocess.TimeoutExpired:
                     job.proc.kill()
                     job.proc.wait()
+                self._clock(job)
                 job.log.close()
             raise
         finally:
@@ -762,13 +802,20 @@ class Scheduler:
         return 0 if len(finished) == len(todo) else 1
 
     def _finish(self, cell: Cell) -> None:
-        if cell.kind in ("train", "report"):
-            if cell.kind == "train" and not cell.final_model.exists():  # type: ignore[union-attr]
-                self.echo(f"{cell.name}: train.py exited 0 but {cell.final_model} is missing; not marked done")
-                return
-            marker = self.lay.marker(cell.name)
-            marker.parent.mkdir(parents=True, exist_ok=True)
-            marker.write_text(json.dumps({"finished": utc_stamp(), "protocol": self.p.name}) + "\n")
-            if cell.kind == "train" and not cell.keep_checkpoints:
-                for name in CHECKPOINTS:
-                    (cell.run_dir / name).unlink(missing_ok=True)  # type: ignore[operator]
+        """Mark ``cell`` done (every kind gets a marker with the wall seconds its commands took, over every session;
+        only a training's and the report's marker count for :func:`status`)."""
+        if cell.kind == "train" and not cell.final_model.exists():  # type: ignore[union-attr]
+            self.echo(f"{cell.name}: train.py exited 0 but {cell.final_model} is missing; not marked done")
+            return
+        clock = self.lay.clock(cell.name)
+        try:
+            seconds: float | None = round(float(clock.read_text()), 1)
+        except (OSError, ValueError):
+            seconds = None
+        marker = self.lay.marker(cell.name)
+        marker.parent.mkdir(parents=True, exist_ok=True)
+        marker.write_text(json.dumps({"finished": utc_stamp(), "protocol": self.p.name, "seconds": seconds}) + "\n")
+        clock.unlink(missing_ok=True)
+        if cell.kind == "train" and not cell.keep_checkpoints:
+            for name in CHECKPOINTS:
+                (cell.run_dir / name).unlink(missing_ok=True)  # type: ignore[operator]

@@ -197,6 +197,20 @@ def test_cells_run_when_what_they_need_exists_and_a_second_run_has_nothing_to_do
     assert all(lay.log(c.name).read_text().count("\n== ") == 1 for c in cells)
 
 
+def test_every_finished_cell_records_the_wall_time_it_took_and_the_plan_sums_them(tmp_path):
+    import json
+    from evaaa_baselines.protocol import plan_text
+    lay, cells = _fake(tmp_path)
+    assert _scheduler(lay, cells).run(cells) == 0
+    seconds = {c.name: json.loads(lay.marker(c.name).read_text())["seconds"] for c in cells}
+    assert seconds["train/a"] >= 0.3 and all(v > 0 for v in seconds.values())  # the training sleeps 0.3 s
+    assert not list(lay.done.rglob("*.seconds"))  # the running account is folded into the marker
+    plan = plan_text(load_protocol("smoke"), cells, lay, 1)
+    assert re.search(rf"^train/a\s+done\s+1\.0\s+{seconds['train/a'] / 60:.1f}$", plan, re.M)
+    total = sum(seconds.values()) / 3600
+    assert f"measured: the 3 timed done cells took {total:.2f} CPU-hours (one core each), against 0.05" in plan
+
+
 def test_a_failed_training_blocks_its_evaluation_and_the_report(tmp_path):
     lay, cells = _fake(tmp_path, fail_train=True)
     messages = []
@@ -361,6 +375,7 @@ def test_a_failed_cell_is_tried_again_once_and_continues(tmp_path):
     log = lay.log("train/a").read_text()
     assert log.count("\n== ") == 2 and log.split("\n== ")[2].rstrip().endswith("resume=true")
     assert all(status(c, lay, cells) == "done" for c in cells)
+    assert lay.took("train/a") > 0 and not lay.clock("train/a").exists()  # both tries timed, into the marker
 
 
 # ------------------------------------------------------------------------------------------------ committed results
