@@ -135,11 +135,19 @@ class EvaluationSpec(_Strict):
 class ReferenceSpec(_Strict):
     policies: list[Literal["oracle", "random"]] = ["oracle", "random"]
     levels: list[str] = ["all"]
+    # a policy's own levels where they differ from `levels` (the oracle survives every training level to its step
+    # limit: hours of CPU for a number known in advance)
+    levels_of: dict[Literal["oracle", "random"], list[str]] = {}
     episodes: int = Field(default=20, ge=1)
     num_envs: int = Field(default=10, ge=1)
     steps_per_second: float = Field(gt=0)
 
     _levels = field_validator("levels")(_any_levels)
+
+    @field_validator("levels_of")
+    @classmethod
+    def _levels_of(cls, v: dict[str, list[str]]) -> dict[str, list[str]]:
+        return {k: _any_levels(lv) for k, lv in v.items()}
 
 
 class ReportSpec(_Strict):
@@ -400,10 +408,11 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
 
     if p.references is not None:
         ref = p.references
-        ref_levels = expand_levels(ref.levels)
         for policy in ref.policies:
+            names = ref.levels_of.get(policy, ref.levels)
+            ref_levels = expand_levels(names)
             out = lay.evals / "ref" / policy
-            cmd = Command(["scripts/evaluate.py", f"policy=[{policy}]", f"levels=[{','.join(ref.levels)}]",
+            cmd = Command(["scripts/evaluate.py", f"policy=[{policy}]", f"levels=[{','.join(names)}]",
                            f"episodes={ref.episodes}", f"num_envs={ref.num_envs}", f"seed={ev.seed}",
                            f"threads={th}", f"out={arg(out)}"], out)
             seconds = STARTUP_SECONDS + ref.episodes * sum(max_steps(lv) for lv in ref_levels) / ref.steps_per_second

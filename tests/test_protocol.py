@@ -43,6 +43,8 @@ def test_paper_cpu_expands_into_the_issue_cells(tmp_path):
         f"train/ppo/ablation-{m}/seed{s}" for m in ablations for s in (0, 1)}
     assert not any("dreamer" in n for n in got)  # listed, not enabled
     assert {"ref/oracle", "ref/random"} <= set(got) and got[-1] == "report"
+    refs = {c.name: " ".join(c.commands[0].argv) for c in cells if c.kind == "ref"}
+    assert "levels=[testbeds]" in refs["ref/oracle"] and "levels=[all]" in refs["ref/random"]  # levels_of
     # 3 algorithms x 2 seeds x (1 curriculum + 8 direct) + 10 ablations trainings, their evaluations, refs, report
     trains = 3 * 2 * 9 + 10
     evals = 3 * 2 * (8 + 8) + 10
@@ -119,6 +121,8 @@ def test_plan_lists_every_cell_its_status_estimate_total_and_command(tmp_path, c
     ({"evaluation": {"steps_per_second": 1, "testbeds": {"levels": ["maze"], "episodes": 1}}},
      "field evaluation.testbeds.levels: 'maze' is not a level, testbed or group"),
     ({"report": {"out": "x", "survival": "best"}}, "field report.survival: Input should be 'eval' or 'train'"),
+    ({"references": {"steps_per_second": 1, "levels_of": {"oracle": ["maze"]}}},
+     "field references.levels_of: 'maze' is not a level, testbed or group"),
 ])
 def test_a_bad_field_is_refused_naming_it(tmp_path, change, message):
     base = yaml.safe_load((Path(__file__).parents[1] / "conf/protocol/smoke.yaml").read_text())
