@@ -323,17 +323,26 @@ class Layout:
         return self.logs / f"{_safe(cell)}.log"
 
     def clock(self, cell: str) -> Path:
-        """Seconds of wall time the cell's commands have run so far, over every session (one core each)."""
+        """The wall and CPU seconds the cell's commands have run so far, over every session (JSON)."""
         return self.done / f"{_safe(cell)}.seconds"
 
     def took(self, cell: str) -> float | None:
-        """Seconds a done cell took (its marker), or None where it was not timed."""
+        """CPU seconds a done cell took (its marker), or None where it was not timed."""
         marker = self.marker(cell)
         try:
-            seconds = json.loads(marker.read_text()).get("seconds") if marker.exists() else None
+            seconds = json.loads(marker.read_text()).get("cpu_seconds") if marker.exists() else None
         except (ValueError, AttributeError):
             return None
         return float(seconds) if isinstance(seconds, (int, float)) else None
+
+
+def read_clock(path: Path) -> dict[str, float]:
+    """A cell's running account (:meth:`Layout.clock`); zeros where there is none or it cannot be read."""
+    try:
+        account = json.loads(path.read_text())
+        return {k: float(account[k]) for k in ("seconds", "cpu_seconds")}
+    except (OSError, ValueError, KeyError, TypeError):
+        return {"seconds": 0.0, "cpu_seconds": 0.0}
 
 
 def arg(path: Path) -> str:
@@ -587,9 +596,9 @@ def plan_text(p: Protocol, cells: Sequence[Cell], lay: Layout, threads: int) -> 
                  f"{counts['done']} done, {counts['partial']} partial, {counts['todo']} todo; {left / 60:.2f} h left)")
     timed = [c for c in cells if took[c.name] is not None]
     if timed:
-        # wall time of one core per cell (threads=1), summed over the sessions that ran them
+        # the CPU time of each cell's processes, summed over the sessions that ran them
         lines.append(f"  measured: the {len(timed)} timed done cells took {sum(took[c.name] for c in timed) / 3600:.2f} "
-                     f"CPU-hours (one core each), against {sum(c.minutes for c in timed) / 60:.2f} estimated for them")
+                     f"CPU-hours, against {sum(c.minutes for c in timed) / 60:.2f} estimated for them")
     if p.budget_cpu_hours is not None and total / 60 > p.budget_cpu_hours:
         lines.append(f"  WARNING: over the protocol's budget of {p.budget_cpu_hours:g} CPU-hours")
     lines += ["", "commands (run from the repository root; a started training run gets resume=true):"]
@@ -659,18 +668,26 @@ class Scheduler:
                                     stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)
         job.began = time.monotonic()
 
-    def _clock(self, job: _Job) -> None:
-        """Add the wall time of the command that just ended to its cell's account (:meth:`Layout.clock`)."""
-        if job.began is None:
-            return
-        path = self.lay.clock(job.cell.name)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        try:
-            before = float(path.read_text())
-        except (OSError, ValueError):
-            before = 0.0
-        path.write_text(f"{before + time.monotonic() - job.began:.1f}\n")
-        job.began = None
+    def _reap(self, job: _Job, block: bool = False) -> int | None:
+        """The exit status of the job's running command, or None while it runs (``block``: wait for it). An ended
+        command's wall time and CPU time (its own ``rusage``: the CPU it used, however many processes shared the
+        cores) are added to its cell's account (:meth:`Layout.clock`)."""
+        proc = job.proc
+        if proc.returncode is not None:
+            return proc.returncode
+        pid, status, usage = os.wait4(proc.pid, 0 if block else os.WNOHANG)
+        if pid == 0:
+            return None
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        if job.began is not None:
+            path = self.lay.clock(job.cell.name)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            account = read_clock(path)
+            account["seconds"] += time.monotonic() - job.began
+            account["cpu_seconds"] += usage.ru_utime + usage.ru_stime
+            path.write_text(json.dumps({k: round(v, 2) for k, v in account.items()}) + "\n")
+            job.began = None
+        return proc.returncode
 
     def _report_command(self, cmd: Command) -> Command:
         """The report over the evaluations that are complete (the others are not passed: report.py would refuse
@@ -720,10 +737,9 @@ class Scheduler:
         try:
             while waiting or running:
                 for job in list(running):
-                    rc = job.proc.poll()
+                    rc = self._reap(job)
                     if rc is None:
                         continue
-                    self._clock(job)
                     if rc == 0 and job.commands:
                         job.log.close()
                         self._start(job)
@@ -787,15 +803,15 @@ class Scheduler:
             self.echo(f"reproduce: stopping: {len(running)} running cell(s) asked to stop (training writes a "
                       "checkpoint; an evaluation stops and is run again next time)")
             for job in running:
-                if job.proc.poll() is None:
+                if self._reap(job) is None:
                     job.proc.send_signal(signal.SIGINT)
             for job in running:
-                try:
-                    job.proc.wait(timeout=120)
-                except subprocess.TimeoutExpired:
+                deadline = time.monotonic() + 120
+                while self._reap(job) is None and time.monotonic() < deadline:
+                    time.sleep(0.2)
+                if self._reap(job) is None:
                     job.proc.kill()
-                    job.proc.wait()
-                self._clock(job)
+                    self._reap(job, block=True)
                 job.log.close()
             raise
         finally:
@@ -811,19 +827,16 @@ class Scheduler:
         return 0 if len(finished) == len(todo) else 1
 
     def _finish(self, cell: Cell) -> None:
-        """Mark ``cell`` done (every kind gets a marker with the wall seconds its commands took, over every session;
-        only a training's and the report's marker count for :func:`status`)."""
+        """Mark ``cell`` done (every kind gets a marker with the wall and CPU seconds its commands took, over every
+        session; only a training's and the report's marker count for :func:`status`)."""
         if cell.kind == "train" and not cell.final_model.exists():  # type: ignore[union-attr]
             self.echo(f"{cell.name}: train.py exited 0 but {cell.final_model} is missing; not marked done")
             return
         clock = self.lay.clock(cell.name)
-        try:
-            seconds: float | None = round(float(clock.read_text()), 1)
-        except (OSError, ValueError):
-            seconds = None
+        account = read_clock(clock) if clock.exists() else {"seconds": None, "cpu_seconds": None}
         marker = self.lay.marker(cell.name)
         marker.parent.mkdir(parents=True, exist_ok=True)
-        marker.write_text(json.dumps({"finished": utc_stamp(), "protocol": self.p.name, "seconds": seconds}) + "\n")
+        marker.write_text(json.dumps({"finished": utc_stamp(), "protocol": self.p.name, **account}) + "\n")
         clock.unlink(missing_ok=True)
         if cell.kind == "train" and not cell.keep_checkpoints:
             for name in CHECKPOINTS:

@@ -205,14 +205,22 @@ def test_every_finished_cell_records_the_wall_time_it_took_and_the_plan_sums_the
     import json
     from evaaa_baselines.protocol import plan_text
     lay, cells = _fake(tmp_path)
+    train = cells[0]
+    # half a second of work, then half a second asleep, then the model
+    code = (f"import pathlib,time; t=time.process_time(); exec('while time.process_time() - t < 0.5: pass'); "
+            f"time.sleep(0.5); d=pathlib.Path({str(train.run_dir)!r}); d.mkdir(parents=True, exist_ok=True); "
+            f"(d/'model-0-1-1.pt').write_text('m')")
+    train.commands = [Command(_py(code))]
     assert _scheduler(lay, cells).run(cells) == 0
-    seconds = {c.name: json.loads(lay.marker(c.name).read_text())["seconds"] for c in cells}
-    assert seconds["train/a"] >= 0.3 and all(v > 0 for v in seconds.values())  # the training sleeps 0.3 s
+    markers = {c.name: json.loads(lay.marker(c.name).read_text()) for c in cells}
+    assert markers["train/a"]["seconds"] >= 1.0  # wall time: both halves
+    assert 0.5 <= markers["train/a"]["cpu_seconds"] < markers["train/a"]["seconds"] - 0.3  # CPU time: the work
+    assert all(0 <= m["cpu_seconds"] <= m["seconds"] + 0.1 for m in markers.values())
     assert not list(lay.done.rglob("*.seconds"))  # the running account is folded into the marker
     plan = plan_text(load_protocol("smoke"), cells, lay, 1)
-    assert re.search(rf"^train/a\s+done\s+1\.0\s+{seconds['train/a'] / 60:.1f}$", plan, re.M)
-    total = sum(seconds.values()) / 3600
-    assert f"measured: the 3 timed done cells took {total:.2f} CPU-hours (one core each), against 0.05" in plan
+    assert re.search(rf"^train/a\s+done\s+1\.0\s+{markers['train/a']['cpu_seconds'] / 60:.1f}$", plan, re.M)
+    total = sum(m["cpu_seconds"] for m in markers.values()) / 3600
+    assert f"measured: the 3 timed done cells took {total:.2f} CPU-hours, against 0.05" in plan
 
 
 def test_a_failed_training_blocks_its_evaluation_and_the_report(tmp_path):
@@ -444,3 +452,27 @@ def test_a_root_inside_the_repository_keeps_models_and_logs_out_of_git(tmp_path)
         (repo / path).write_text("x")
     check = subprocess.run(["git", "-C", str(repo), "check-ignore", *ignored, *kept], capture_output=True, text=True)
     assert sorted(check.stdout.split()) == sorted(ignored)
+
+
+def test_a_stopped_protocol_passes_one_ctrl_c_to_each_cell_and_keeps_its_time(tmp_path):
+    import json
+    import os
+    import signal
+    import threading
+    lay, cells = _fake(tmp_path)
+    train = cells[0]
+    code = (f"import pathlib,signal,sys,time; d=pathlib.Path({str(train.run_dir)!r}); d.mkdir(parents=True); "
+            "signal.signal(signal.SIGINT, lambda *a: ((d/'stopped').write_text('1'), sys.exit(130))); "
+            "(d/'ready').write_text('1'); time.sleep(60)")
+    train.commands = [Command(_py(code))]
+    stopper = threading.Timer(1.5, os.kill, (os.getpid(), signal.SIGTERM))  # as `kill` of reproduce.py does
+    stopper.start()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            _scheduler(lay, cells).run(cells)
+    finally:
+        stopper.cancel()
+    assert (train.run_dir / "stopped").is_file()  # it got its Ctrl-C and stopped cleanly
+    assert status(train, lay, cells) == "partial" and not lay.marker("train/a").exists()
+    account = json.loads(lay.clock("train/a").read_text())  # the time so far, kept for the next session
+    assert 1.0 <= account["seconds"] < 30 and 0 <= account["cpu_seconds"] < account["seconds"]
