@@ -8,7 +8,7 @@ A cell is *done* only when its outputs are complete: a training run when the fin
 and the done-marker written after ``train.py`` exited 0 (``<root>/done/<cell>.done``); an evaluation when every
 ``out`` folder of it holds ``episodes.csv`` (evaluate.py writes it last); the report when its marker is newer than
 every other cell's outputs and every other cell is done.  A training cell that was started and not finished is
-continued with ``resume=true``; an evaluation's ``out`` folder without ``episodes.csv`` is moved aside
+continued with ``resume=true`` (started over, ``start_over=true``, where it holds no checkpoint); an evaluation's ``out`` folder without ``episodes.csv`` is moved aside
 (``<out>.partial-<UTC time>``, never deleted) and the evaluation run again.
 
 A protocol's ``root`` may lie inside the repository (paper_cpu's does): commands name the files there relative to
@@ -365,6 +365,7 @@ GITIGNORE = """\
 /logs/
 /evals/**/*.png
 .reproduce.lock
+*.seconds
 *.partial-*/
 *.old-*/
 .*.replaced-*/
@@ -550,7 +551,8 @@ def command_now(cell: Cell, lay: Layout, redo: bool = False) -> list[Command]:
         if started and not redo and cell.final_model.exists() and pruned:  # type: ignore[union-attr]
             return []  # finished, checkpoints deleted: only the done-marker is missing
         if started:
-            return [Command([*cmd.argv, "start_over=true" if redo else "resume=true"])]
+            # without a checkpoint (never reached, or a clone of committed files) there is nothing to resume
+            return [Command([*cmd.argv, "start_over=true" if redo or pruned else "resume=true"])]
         return [cmd]
     if cell.kind in ("eval", "ref"):
         return [c for c in cell.commands if redo or not (c.out / "episodes.csv").exists()]  # type: ignore[operator]
@@ -786,8 +788,8 @@ class Scheduler:
                             self._finish(cell)
                             finished.add(cell.name)
                             continue
-                        if redo or "start_over=true" in commands[0].argv:  # timed from zero again
-                            self.lay.clock(cell.name).unlink(missing_ok=True)
+                        if redo or "start_over=true" in commands[0].argv or status(cell, self.lay) == "todo":
+                            self.lay.clock(cell.name).unlink(missing_ok=True)  # nothing of it is left: timed anew
                         job = _Job(cell, list(commands), redo=redo)  # commands popped as they start
                         self._start(job)
                         running.append(job)

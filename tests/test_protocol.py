@@ -262,8 +262,12 @@ def test_a_started_training_run_continues_with_resume_and_redo_starts_over(tmp_p
     assert status(train, lay) == "partial"
     assert command_now(train, lay)[0].argv[-1] == "resume=true"
     assert command_now(train, lay, redo=True)[0].argv[-1] == "start_over=true"
-    # a finished run whose checkpoints were deleted (keep_checkpoints: false) only lacks its marker
+    # a started run without any checkpoint (a clone of committed results holds none): trained again from zero,
+    # its old folder moved aside by train.py
     (train.run_dir / "checkpoint.pt").unlink()
+    (train.run_dir / "episodes.csv").write_text("e")
+    assert command_now(train, lay)[0].argv[-1] == "start_over=true"
+    # a finished run whose checkpoints were deleted (keep_checkpoints: false) only lacks its marker
     train.final_model.write_text("m")
     assert command_now(train, lay) == []
 
@@ -443,6 +447,7 @@ def test_a_root_inside_the_repository_keeps_models_and_logs_out_of_git(tmp_path)
     ignored = [f"{run}/model-0-1-1.pt", f"{run}/checkpoint.pt", f"{run}/train.log", "record/logs/train/ppo.log",
                "record/evals/ppo/a/testbeds/survival.png", "record/evals/ppo/a/testbeds.partial-20261125/episodes.csv",
                "record/evals/ppo/a/testbeds.old-20261125/episodes.csv", "record/.reproduce.lock",
+               "record/done/train/ppo/curriculum/seed1.seconds",
                "record/runs/ppo/curriculum/.seed0.replaced-20261125-101010/eval.csv"]
     kept = [f"{run}/.hydra/config.yaml", f"{run}/episodes.csv", f"{run}/eval.csv", f"{run}/logs/scalars/train/lr.csv",
             "record/evals/ppo/a/testbeds/episodes.csv", "record/evals/ppo/a/testbeds/summary.md",
@@ -476,3 +481,11 @@ def test_a_stopped_protocol_passes_one_ctrl_c_to_each_cell_and_keeps_its_time(tm
     assert status(train, lay, cells) == "partial" and not lay.marker("train/a").exists()
     account = json.loads(lay.clock("train/a").read_text())  # the time so far, kept for the next session
     assert 1.0 <= account["seconds"] < 30 and 0 <= account["cpu_seconds"] < account["seconds"]
+    # where nothing of the cell is left (a clone without the unfinished run), it is timed from zero again
+    import shutil
+    shutil.rmtree(train.run_dir)
+    train.commands = [Command(_py(
+        f"import pathlib; d=pathlib.Path({str(train.run_dir)!r}); d.mkdir(parents=True); "
+        "(d/'model-0-1-1.pt').write_text('m')"))]
+    assert _scheduler(lay, cells).run(cells) == 0
+    assert json.loads(lay.marker("train/a").read_text())["seconds"] < 1.0
