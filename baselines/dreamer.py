@@ -593,30 +593,37 @@ def ev_decoding_errors(run_dir: str | Path, sequences: int = 64) -> dict[str, An
         per_ev = error[mask].mean(0) if mask.any() else torch.full((len(EV_NAMES),), float("nan"))
         result[name] = dict(zip(EV_NAMES, per_ev.tolist()))
     # where the EVs are lost: a linear read-out of them from each stage, fitted on half of the sequences and
-    # measured on the other half (the decoder is one read-out; these say whether the information is there at all)
+    # measured on the other half as the share of their variance it explains (the decoder is one read-out; these say
+    # whether the information is there at all)
     target = out["next", "interoception"].float().reshape(-1, len(EV_NAMES))
     fit = (torch.arange(len(batch)) % 2 == 0)[:, None].expand(batch.shape).reshape(-1)
     nxt = out["next"]
-    sources = {"embedding": nxt["encoded_latents"], "stochastic latent": nxt["state"],
+    # "nothing": a constant feature (the fitted rows' mean, about 0 by construction): the check of the read-out
+    sources = {"nothing": torch.zeros(*batch.shape, 1), "embedding": nxt["encoded_latents"],
+               "stochastic latent": nxt["state"],
                "deterministic state": nxt["belief"], "latent (both)": torch.cat([nxt["state"], nxt["belief"]], -1)}
     result["linear_probe"] = {
-        name: dict(zip(EV_NAMES, linear_probe_error(x.float().reshape(len(target), -1), target, fit).tolist()))
+        name: dict(zip(EV_NAMES, linear_probe_r2(x.float().reshape(len(target), -1), target, fit).tolist()))
         for name, x in sources.items()} if bool(fit.any()) and bool((~fit).any()) else {}
     return result
 
 
-def linear_probe_error(features: torch.Tensor, target: torch.Tensor, fit: torch.Tensor,
-                       ridge: float = 1e-3) -> torch.Tensor:
-    """Mean absolute error, per target column, of a ridge regression from ``features`` to ``target`` fitted on the
-    rows where ``fit`` is true and measured on the others (features standardised on the fitted rows; ``ridge``
-    times the number of fitted rows is the penalty, so it does not grow weaker with more data)."""
-    x, y = features[fit].double(), target[fit].double()
-    mean, std = x.mean(0), x.std(0).clamp_min(1e-6)
+def linear_probe_r2(features: torch.Tensor, target: torch.Tensor, fit: torch.Tensor,
+                    ridge: float = 1e-3) -> torch.Tensor:
+    """Per target column, the share of ``symlog(target)``'s variance (as the model codes the EVs) that a ridge
+    regression from ``features`` explains on the rows where ``fit`` is false, fitted on the rows where it is true:
+    1 holds it all, 0 nothing beyond the fitted mean (below 0: worse than that mean).  Features are standardised on
+    the fitted rows; ``ridge`` times the number of fitted rows is the penalty."""
+    x, y = features[fit].double(), symlog(target[fit].double())
+    mean, std = x.mean(0), x.std(0).clamp_min(1e-6)  # a constant column: zeros, only the intercept is fitted
     x = torch.cat([(x - mean) / std, torch.ones(len(x), 1, dtype=x.dtype)], 1)
     gram = x.T @ x + ridge * len(x) * torch.eye(x.shape[1], dtype=x.dtype)
     weights = torch.linalg.solve(gram, x.T @ y)
     test = torch.cat([(features[~fit].double() - mean) / std, torch.ones(int((~fit).sum()), 1, dtype=x.dtype)], 1)
-    return ((test @ weights) - target[~fit].double()).abs().mean(0).float()
+    truth = symlog(target[~fit].double())
+    residual = ((test @ weights) - truth).pow(2).sum(0)
+    spread = (truth - y.mean(0)).pow(2).sum(0).clamp_min(1e-12)
+    return (1 - residual / spread).float()
 
 
 def _masked_mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:

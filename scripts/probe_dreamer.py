@@ -4,7 +4,7 @@
 
 Decodes the interoception from the posterior of the run's last checkpoint on replayed sequences around the last
 eating steps its memory-mapped replay holds, and prints the mean absolute error of each EV, in raw units, on the
-eating steps and on the others; then the error of a linear read-out of the EVs from the encoder's embedding, the
+eating steps and on the others; then how much of the EVs a linear read-out finds in the encoder's embedding, the
 stochastic latent, the deterministic state and both, which tells where in the model the EVs are lost
 (docs/training.md, "What was tried on level 1-1").
 """
@@ -36,10 +36,10 @@ def main(argv: list[str] | None = None) -> int:
     for name in ("eating", "other"):
         print(f"  {name + ' steps':<21}" + "  ".join(f"{ev} {err:.2f}" for ev, err in result[name].items()))
     if result["linear_probe"]:
-        print("a linear read-out of the EVs from each part of the model, fitted on half of the sequences, its mean "
-              "absolute error on the other half (raw units)")
-        for name, errors in result["linear_probe"].items():
-            print(f"  {name:<21}" + "  ".join(f"{ev} {err:.2f}" for ev, err in errors.items()))
+        print("a linear read-out of the EVs (symlog) from each part of the model, fitted on half of the sequences: "
+              "the share of their variance it explains on the other half (1: all of it; 0: no more than the mean)")
+        for name, shares in result["linear_probe"].items():
+            print(f"  {name:<21}" + "  ".join(f"{ev} {r2:5.2f}" for ev, r2 in shares.items()))
     return 0
 
 

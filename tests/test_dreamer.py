@@ -265,8 +265,9 @@ def test_the_probe_decodes_the_evs_of_a_run_and_says_how_far_off_they_are(runs, 
     assert list(result["other"]) == list(EV_NAMES)
     assert all(math.isfinite(v) and v >= 0 for v in result["other"].values())
     assert result["eating_steps"] > 0 or all(math.isnan(v) for v in result["eating"].values())
-    assert list(result["linear_probe"]) == ["embedding", "stochastic latent", "deterministic state", "latent (both)"]
-    assert all(math.isfinite(v) and v >= 0 for errors in result["linear_probe"].values() for v in errors.values())
+    assert list(result["linear_probe"]) == ["nothing", "embedding", "stochastic latent", "deterministic state",
+                                            "latent (both)"]
+    assert all(math.isfinite(v) and v <= 1 for shares in result["linear_probe"].values() for v in shares.values())
     probe = load_script("probe_dreamer")
     assert probe.main([f"run={runs['whole']}", "sequences=4"]) == 0
     out = capsys.readouterr().out
@@ -278,8 +279,10 @@ def test_the_linear_probe_reads_what_the_features_hold_and_not_what_they_lack():
     target = torch.randn(400, 4, generator=gen) * 5
     fit = torch.arange(400) % 2 == 0
     mixing = torch.randn(4, 16, generator=gen)
-    holding = target @ mixing + 0.01 * torch.randn(400, 16, generator=gen)  # the targets, linearly mixed
+    # the targets' symlog (as the model codes them), linearly mixed
+    holding = dreamer.symlog(target) @ mixing + 0.001 * torch.randn(400, 16, generator=gen)
     lacking = torch.randn(400, 16, generator=gen)  # nothing of them
-    assert float(dreamer.linear_probe_error(holding, target, fit).max()) < 0.1
-    # without the information the read-out is no better than the mean: |N(0, 5)| averages 5 * sqrt(2 / pi) = 4.0
-    assert float(dreamer.linear_probe_error(lacking, target, fit).min()) > 3.5
+    assert float(dreamer.linear_probe_r2(holding, target, fit).min()) > 0.99
+    assert float(dreamer.linear_probe_r2(lacking, target, fit).max()) < 0.1
+    nothing = dreamer.linear_probe_r2(torch.zeros(400, 1), target, fit)  # the fitted mean
+    assert float(nothing.abs().max()) < 0.05
