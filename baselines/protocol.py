@@ -8,8 +8,9 @@ A cell is *done* only when its outputs are complete: a training run when the fin
 and the done-marker written after ``train.py`` exited 0 (``<root>/done/<cell>.done``); an evaluation when every
 ``out`` folder of it holds ``episodes.csv`` (evaluate.py writes it last); the report when its marker is newer than
 every other cell's outputs and every other cell is done.  A training cell that was started and not finished is
-continued with ``resume=true`` (started over, ``start_over=true``, where it holds no checkpoint); an evaluation's ``out`` folder without ``episodes.csv`` is moved aside
-(``<out>.partial-<UTC time>``, never deleted) and the evaluation run again.
+continued with ``resume=true`` (started over, ``start_over=true``, where it holds no checkpoint); an evaluation's
+``out`` folder without ``episodes.csv`` is moved aside (``<out>.partial-<UTC time>``, never deleted) and the
+evaluation run again.
 
 A protocol's ``root`` may lie inside the repository (paper_cpu's does): commands name the files there relative to
 the repository root, the folder's ``.gitignore`` keeps checkpoints, models and logs out of git, and the rest (run
@@ -515,7 +516,8 @@ def outputs(cell: Cell, lay: Layout) -> list[Path]:
 def status(cell: Cell, lay: Layout, cells: Sequence[Cell] = ()) -> Literal["done", "partial", "todo"]:
     """done: every output complete; partial: started (a run directory, an ``out`` folder) but not complete; todo."""
     outs = outputs(cell, lay)
-    if cell.kind == "train" and lay.marker(cell.name).exists() and not cell.final_model.exists():  # type: ignore[union-attr]
+    lost = cell.kind == "train" and not cell.final_model.exists()  # type: ignore[union-attr]
+    if lost and lay.marker(cell.name).exists():
         # finished, and its models are gone (a clone of committed results holds no checkpoints): done while every
         # evaluation of it is; otherwise it is trained again for the evaluations still to make
         dependents = [c for c in cells if c.kind == "eval" and cell.name in c.needs_cells]
@@ -599,8 +601,10 @@ def plan_text(p: Protocol, cells: Sequence[Cell], lay: Layout, threads: int) -> 
     timed = [c for c in cells if took[c.name] is not None]
     if timed:
         # the CPU time of each cell's processes, summed over the sessions that ran them
-        lines.append(f"  measured: the {len(timed)} timed done cells took {sum(took[c.name] for c in timed) / 3600:.2f} "
-                     f"CPU-hours, against {sum(c.minutes for c in timed) / 60:.2f} estimated for them")
+        spent = sum(took[c.name] for c in timed) / 3600  # type: ignore[misc]
+        planned = sum(c.minutes for c in timed) / 60
+        lines.append(f"  measured: the {len(timed)} timed done cells took {spent:.2f} CPU-hours, against "
+                     f"{planned:.2f} estimated for them")
     if p.budget_cpu_hours is not None and total / 60 > p.budget_cpu_hours:
         lines.append(f"  WARNING: over the protocol's budget of {p.budget_cpu_hours:g} CPU-hours")
     lines += ["", "commands (run from the repository root; a started training run gets resume=true):"]

@@ -35,9 +35,9 @@ def mean_se(values: Iterable[float]) -> tuple[float, float, int]:
 def final_survival(runs: Sequence[RunRecord], source: str = "eval", window: int = 20) -> pd.DataFrame:
     """One row per finished stage of every run: the survival the stage ended with.
 
-    ``source="eval"``: the stage's last evaluation (``eval.csv``: episodes at the stage's end, deterministic or, with ``eval.sample``, sampled), or,
-    in a stage without evaluations, the mean survival of its last ``window`` training episodes; ``"train"``: always
-    the training episodes.  The ``source`` column says which.
+    ``source="eval"``: the stage's last evaluation (``eval.csv``: episodes at the stage's end, deterministic or,
+    with ``eval.sample``, sampled), or, in a stage without evaluations, the mean survival of its last ``window``
+    training episodes; ``"train"``: always the training episodes.  The ``source`` column says which.
     """
     rows = []
     for r in runs:
