@@ -361,8 +361,14 @@ class SequenceReplay:
         transition["world"] = torch.arange(self.num_envs, device=transition.device)
         self.buffer.extend(transition.unsqueeze(1))  # [world, time]; the storage keeps time first
 
+    @property
+    def pins(self) -> bool:
+        """Whether sampled batches go to the device through pinned memory: memory-mapped rows are read on the host;
+        a buffer in memory already lives on the device (its batches are there, nothing to pin)."""
+        return self.device.type == "cuda" and self.directory is not None
+
     def _to_device(self, batch: TensorDictBase) -> TensorDictBase:
-        if self.device.type == "cuda" and batch.device != self.device:
+        if self.pins:
             return batch.pin_memory().to(self.device, non_blocking=True)
         return batch.to(self.device)
 

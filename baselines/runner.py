@@ -37,7 +37,7 @@ from torchrl.record.loggers import Logger, get_logger
 from .algos import algorithm
 from .checkpoint import CHECKPOINT, PREVIOUS, CheckpointError, load_latest, remove_stale_temporaries, seed_everything
 from .config import observation_keys, stages
-from .runtime import Interrupted, Run, resolve_device
+from .runtime import Interrupted, Run, deterministic_kernels, resolve_device
 
 log = logging.getLogger(__name__)
 
@@ -256,7 +256,8 @@ def train(cfg: DictConfig, run_dir: str | Path, *, records: Mapping[str, Any] | 
 
 
 def _train(cfg: DictConfig, run_dir: Path, records: Mapping[str, Any] | None, stop: threading.Event) -> Path:
-    resolve_device(cfg.get("device", "auto"))  # a device this machine lacks fails here, before anything is written
+    device = resolve_device(cfg.get("device", "auto"))  # a device this machine lacks fails here, before any write
+    deterministic_kernels(cfg.get("deterministic", True), device)
     algo = algorithm(cfg.algo.name)
     plan = stages(cfg)
     state, notes, aside = _decide(cfg, run_dir, plan)

@@ -94,6 +94,21 @@ def resolve_device(spec: str | torch.device) -> torch.device:
     return torch.device("cuda", index)
 
 
+def deterministic_kernels(on: bool, device: torch.device) -> None:
+    """``deterministic=true`` on CUDA: cuDNN's deterministic convolutions and torch's deterministic algorithms (a
+    warning names any operation that has none), so that a run repeats and a killed run resumes to the same
+    weights as an uninterrupted one; ``false`` leaves torch's faster defaults.  The CPU's kernels repeat as they
+    are: nothing changes there."""
+    if device.type != "cuda":
+        return
+    if on:  # cuBLAS repeats its sums only with a fixed workspace (read when torch creates one)
+        os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
+    torch.backends.cudnn.deterministic = on
+    if on:
+        torch.backends.cudnn.benchmark = False
+    torch.use_deterministic_algorithms(on, warn_only=True)
+
+
 class OnDevice(TensorDictModuleBase):
     """A policy whose networks live on ``device``, acting on tensordicts of CPU worlds: the observations go to the
     device, the policy's outputs come back (tensordict's ``to`` overlaps the copies and synchronises once).  On

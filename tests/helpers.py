@@ -13,6 +13,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
+import torch
 
 SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
 
@@ -83,3 +84,10 @@ def train_scalars(run_dir: Path) -> dict[str, dict[int, str]]:
         with open(path) as f:
             out[path.stem] = {int(step): value for step, value in csv.reader(f)}
     return out
+
+
+#: the device a killed test run resumes on.  Where ``device=auto`` is the CPU, ``cpu``: a changed ``device`` setting
+#: then resumes too, to the same weights.  On a CUDA machine ``auto``: the GPU's sums differ from the CPU's in the
+#: last bits, so only a resume on the same device can equal the uninterrupted run (the crossing from CUDA to the
+#: CPU has its own test there).
+RESUME_DEVICE = "auto" if torch.cuda.is_available() else "cpu"

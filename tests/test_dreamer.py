@@ -16,7 +16,7 @@ from pathlib import Path
 
 import matplotlib.image
 import pytest
-from helpers import load_script, read_csv, train_scalars
+from helpers import RESUME_DEVICE, load_script, read_csv, train_scalars
 import torch
 from hydra import compose, initialize_config_dir
 from tensordict import TensorDict
@@ -25,6 +25,7 @@ import evaaa
 from evaaa_baselines import checkpoint, dreamer, evaluate, load_policy, runtime
 from evaaa_baselines.config import CONF_DIR, observation_keys, register_levels
 from evaaa_baselines.runner import train
+from evaaa_baselines.runtime import resolve_device
 
 register_levels()
 
@@ -100,10 +101,11 @@ def killed_and_resumed(run_dir: Path, *overrides: str, resume_with: tuple[str, .
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    """An uninterrupted debug run (device=auto), and the same run killed at KILL_AT then resumed with device=cpu."""
+    """An uninterrupted debug run (device=auto), and the same run killed at KILL_AT then resumed with
+    device=RESUME_DEVICE (cpu, or auto on a CUDA machine)."""
     root = tmp_path_factory.mktemp("dreamer")
     train(debug_cfg(), root / "whole")
-    at_kill = killed_and_resumed(root / "resumed", resume_with=("device=cpu",))
+    at_kill = killed_and_resumed(root / "resumed", resume_with=(f"device={RESUME_DEVICE}",))
     return {"whole": root / "whole", "resumed": root / "resumed",
             "steps_at_kill_checkpoint": at_kill["counters"]["steps"]}
 
@@ -166,11 +168,11 @@ def test_open_loop_pictures_show_real_and_imagined_frames(runs):
 
 
 def test_killed_and_resumed_run_equals_uninterrupted_run(runs):
-    # killed under device=auto, resumed under device=cpu: the checkpoint loads under either setting
+    # killed under device=auto, resumed under device=cpu (on a CPU machine): the checkpoint loads under either setting
     assert runs["steps_at_kill_checkpoint"] < KILL_AT
     whole = checkpoint.load_checkpoint(runs["whole"] / checkpoint.CHECKPOINT)
     resumed = checkpoint.load_checkpoint(runs["resumed"] / checkpoint.CHECKPOINT)
-    assert (whole["config"]["device"], resumed["config"]["device"]) == ("auto", "cpu")
+    assert (whole["config"]["device"], resumed["config"]["device"]) == ("auto", RESUME_DEVICE)
     same_training(whole, resumed)
     assert (replay_rows(runs["whole"]) == replay_rows(runs["resumed"])).all()
     assert train_scalars(runs["whole"]) == train_scalars(runs["resumed"])
@@ -206,9 +208,20 @@ def test_a_buffer_in_memory_is_checkpointed_and_resumes_exactly(tmp_path):
         train(debug_cfg("resume=true", "total_steps=512"), tmp_path / "whole")
 
 
+def test_only_memory_mapped_batches_go_to_a_gpu_through_pinned_memory(tmp_path):
+    # a buffer in memory lives on the training device: its batches are there already and cannot be pinned (on a GPU
+    # that raised at the first gradient step); memory-mapped rows are read on the host and pinned for the copy
+    shape = dict(capacity=64, num_envs=2, sequence_length=8, batch_size=2)
+    in_memory, mapped = dreamer.SequenceReplay(**shape), dreamer.SequenceReplay(**shape, directory=tmp_path / "replay")
+    assert not in_memory.pins and not mapped.pins  # on the CPU nothing is pinned
+    in_memory.device = mapped.device = torch.device("cuda")  # as a run with device=cuda makes them (CPU-only here)
+    assert not in_memory.pins and mapped.pins
+
+
 def test_a_buffer_larger_than_the_memory_is_refused_naming_both(tmp_path, monkeypatch):
     monkeypatch.setattr(dreamer, "available_memory", lambda device: 10_000_000)
-    with pytest.raises(ValueError, match=r"algo.buffer_size=1,024 transitions need .* but cpu has 0.01 GB "
+    where = resolve_device("auto").type  # a buffer in memory lives on the training device
+    with pytest.raises(ValueError, match=rf"algo.buffer_size=1,024 transitions need .* but {where} has 0.01 GB "
                                          r"available: use algo.buffer_on_disk=true"):
         train(debug_cfg("algo.buffer_on_disk=false"), tmp_path / "run")
 

@@ -19,7 +19,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from helpers import read_csv, train_scalars
+from helpers import RESUME_DEVICE, read_csv, train_scalars
 import torch
 from hydra import compose, initialize_config_dir
 
@@ -125,7 +125,7 @@ def run_killed(cfg, run_dir: Path, at: int, monkeypatch, stage: int = 0) -> None
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     """Per algorithm: an uninterrupted smoke run (device=auto), and the same run killed at KILL_AT then resumed with
-    device=cpu (made once)."""
+    device=RESUME_DEVICE (cpu, or auto on a CUDA machine; made once)."""
     made: dict[str, dict] = {}
 
     def get(algo: str) -> dict:
@@ -135,7 +135,7 @@ def runs(tmp_path_factory):
             with pytest.MonkeyPatch.context() as patch:
                 run_killed(debug_cfg(algo), root / "resumed", KILL_AT, patch)
             at_kill = checkpoint.load_checkpoint(root / "resumed" / checkpoint.CHECKPOINT)
-            train(debug_cfg(algo, "resume=true", "device=cpu"), root / "resumed")
+            train(debug_cfg(algo, "resume=true", f"device={RESUME_DEVICE}"), root / "resumed")
             made[algo] = {"whole": root / "whole", "resumed": root / "resumed",
                           "steps_at_kill_checkpoint": at_kill["counters"]["steps"]}
         return made[algo]
@@ -189,7 +189,7 @@ def test_killed_and_resumed_run_equals_uninterrupted_run(runs, algo):
     assert r["steps_at_kill_checkpoint"] < KILL_AT  # the kill lost work that the resumed run had to redo
     whole = checkpoint.load_checkpoint(r["whole"] / checkpoint.CHECKPOINT)
     resumed = checkpoint.load_checkpoint(r["resumed"] / checkpoint.CHECKPOINT)
-    assert (whole["config"]["device"], resumed["config"]["device"]) == ("auto", "cpu")
+    assert (whole["config"]["device"], resumed["config"]["device"]) == ("auto", RESUME_DEVICE)
     assert whole["counters"] == resumed["counters"]
     for name, value in whole["model"].items():
         assert torch.equal(value, resumed["model"][name]), name
@@ -303,7 +303,7 @@ def test_curriculum_hands_weights_over_and_resumes_mid_curriculum(tmp_path, monk
     train(debug_cfg("ppo", *overrides, total_steps=128), tmp_path / "whole")
     stage0_final = checkpoint.load_checkpoint(tmp_path / "whole" / "model-0-1-1.pt")["model"]
     stage1_start = dict(started)[1]
-    assert all(torch.equal(stage0_final[k], v) for k, v in stage1_start.items())
+    assert all(torch.equal(stage0_final[k], v.cpu()) for k, v in stage1_start.items())  # checkpoints load on the CPU
     assert (tmp_path / "whole" / "model-1-1-2.pt").exists()
     assert {r["level"] for r in read_csv(tmp_path / "whole" / "episodes.csv")} == {"1-1", "1-2"}
 
@@ -446,6 +446,33 @@ def test_device_names_only_devices_this_machine_has(monkeypatch):
     assert resolve_device("auto") == torch.device("cuda") and resolve_device("cuda:1") == torch.device("cuda", 1)
     with pytest.raises(DeviceError, match=r"device=cuda:2: this machine has 2 CUDA device\(s\): cuda:0 to cuda:1"):
         resolve_device("cuda:2")
+
+
+def test_deterministic_kernels_are_chosen_on_cuda_only(monkeypatch):
+    calls = []
+    monkeypatch.setattr(torch, "use_deterministic_algorithms", lambda on, warn_only: calls.append((on, warn_only)))
+    monkeypatch.setattr(torch.backends.cudnn, "deterministic", False)
+    monkeypatch.delenv("CUBLAS_WORKSPACE_CONFIG", raising=False)
+    runtime.deterministic_kernels(True, torch.device("cpu"))  # the CPU's kernels repeat as they are
+    assert calls == [] and "CUBLAS_WORKSPACE_CONFIG" not in os.environ
+    runtime.deterministic_kernels(True, torch.device("cuda"))
+    assert calls == [(True, True)] and torch.backends.cudnn.deterministic
+    assert os.environ["CUBLAS_WORKSPACE_CONFIG"] == ":4096:8"
+    runtime.deterministic_kernels(False, torch.device("cuda"))
+    assert calls[-1] == (False, True) and not torch.backends.cudnn.deterministic
+    assert make_cfg("algo=ppo").deterministic is True  # the default
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_a_checkpoint_written_on_cuda_resumes_on_the_cpu(runs, tmp_path, monkeypatch):
+    run_killed(debug_cfg("ppo", "device=cuda"), tmp_path / "run", KILL_AT, monkeypatch)
+    train(debug_cfg("ppo", "resume=true", "device=cpu"), tmp_path / "run")
+    whole = checkpoint.load_checkpoint(runs("ppo")["whole"] / checkpoint.CHECKPOINT)
+    resumed = checkpoint.load_checkpoint(tmp_path / "run" / checkpoint.CHECKPOINT)
+    assert resumed["config"]["device"] == "cpu" and resumed["counters"] == whole["counters"]
+    for name, value in resumed["model"].items():  # the same run, trained on in the CPU's arithmetic
+        assert value.shape == whole["model"][name].shape and torch.isfinite(value).all(), name
+    assert (tmp_path / "run" / "model-0-1-1.pt").exists()
 
 
 @pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has CUDA")
