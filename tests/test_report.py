@@ -532,8 +532,12 @@ def test_how_a_run_was_started_does_not_split_its_group(tmp_path):
     config = dirs[1] / ".hydra" / "config.yaml"
     config.write_text(config.read_text().replace("start_over: false", "start_over: true")
                       .replace("resume: false", "resume: true"))
+    older = dirs[0] / ".hydra" / "config.yaml"  # a run made before the deterministic key existed
+    older.write_text("".join(line for line in older.read_text().splitlines(keepends=True)
+                             if not line.startswith("deterministic:")))
     runs = [load_run(d) for d in dirs]
     assert runs[1].config["start_over"] and runs[1].config["resume"]
+    assert runs[1].config["deterministic"] and "deterministic" not in runs[0].config  # a run made before the key
     describe_extras(runs)
     assert runs[0].extras == runs[1].extras == ()
 

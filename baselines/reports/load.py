@@ -31,9 +31,10 @@ REFERENCES = ("oracle", "random", "human")
 MODEL_FILE = re.compile(r"^model-(\d+)-(.+)\.pt$")
 #: the network of a stage's best evaluation (runtime.Run.best_model_path)
 BEST_MODEL_FILE = re.compile(r"^model-best-(\d+)-(.+)\.pt$")
-#: Settings that do not change what is trained: runs differing only in these (and the seed) are pooled.
+#: Settings that do not change what is trained: runs differing only in these (and the seed) are pooled
+#: (``deterministic`` picks CUDA kernels that repeat; runs made before it existed have no such key).
 BOOKKEEPING = ("seed", "resume", "start_over", "threads", "progress", "progress_window", "log_every", "total_steps",
-               "stages", "run.", "logger.", "checkpoint.", "eval.", "level.", "hydra.")
+               "deterministic", "stages", "run.", "logger.", "checkpoint.", "eval.", "level.", "hydra.")
 RUN_COLUMNS = ("env_steps", "stage", "level", "steps")
 EVAL_RUN_COLUMNS = ("env_steps", "stage", "level", "survival_mean")
 EVAL_FILE_COLUMNS = ("policy", "level", "steps", "success", "episode")
