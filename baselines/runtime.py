@@ -103,9 +103,8 @@ def deterministic_kernels(on: bool, device: torch.device) -> None:
         return
     if on:  # cuBLAS repeats its sums only with a fixed workspace (read when torch creates one)
         os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
-    torch.backends.cudnn.deterministic = on
-    if on:
         torch.backends.cudnn.benchmark = False
+    torch.backends.cudnn.deterministic = on
     torch.use_deterministic_algorithms(on, warn_only=True)
 
 
