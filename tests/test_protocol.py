@@ -98,7 +98,7 @@ def test_plan_lists_every_cell_its_status_estimate_total_and_command(tmp_path, c
         assert f"[{c.name}] EVAAA_THREADS=1 python scripts/" in out
     total = float(re.search(r"^  total\s+(\d+\.\d+)", out, re.M).group(1))
     assert total == pytest.approx(sum(c.minutes for c in cells) / 60, abs=0.01)
-    assert total <= 15  # the protocol's budget
+    assert total <= load_protocol("paper_cpu").budget_cpu_hours  # the protocol's own budget
     for part in ("curriculum", "direct", "ablations", "evaluation"):
         assert part in out
     assert "WARNING" not in out
