@@ -178,3 +178,20 @@ def test_markdown_names_every_verdict_rule_and_number():
                                             ({"low": float("nan"), "high": 6}, {"low": 1, "high": 4}, False)])
 def test_above_needs_intervals_apart(a, b, expected):
     assert c.above(a, b) is expected
+
+
+def test_spearman_p_is_exact_for_few_levels_so_a_perfect_order_of_four_is_not_significant():
+    rho, p = c.spearman([0, 1, 2, 3], [400, 300, 200, 100])
+    assert rho == pytest.approx(-1.0) and p == pytest.approx(2 / 24)  # two of the 24 orders are this extreme
+    assert c.spearman(range(8), range(8, 0, -1))[1] == pytest.approx(2 / 40320)
+    v = c.survival_falls(frame(per_level("dqn", [900, 800, 300, 200], levels=LEVELS[:4])), LEVELS)
+    assert v.verdict == c.UNRESOLVED and "p = 0.0833" in v.parts[0].evidence[1]
+
+
+def test_fails_is_not_reproduced_on_levels_without_an_interval():
+    nan = float("nan")
+    one_seed = frame([{"algo": "ppo_lstm", "level": lv, "value": 900.0, "low": nan, "high": nan}
+                      for lv in LEVELS[:3]])
+    v = c._fails("ppo_lstm", LEVELS[:3], one_seed, RANDOM)
+    assert v.verdict == c.UNRESOLVED
+    assert "no interval on 1-1, 1-2, 2-1" in v.evidence[-1]

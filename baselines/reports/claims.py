@@ -14,6 +14,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+import numpy as np
 import pandas as pd
 from scipy import stats as sps
 
@@ -49,6 +50,24 @@ def _fmt(row) -> str:
 def above(a, b) -> bool:
     """``a``'s interval lies entirely above ``b``'s (no overlap)."""
     return not (math.isnan(a["low"]) or math.isnan(b["high"])) and a["low"] > b["high"]
+
+
+def spearman(x, y) -> tuple[float, float]:
+    """Spearman's rho of ``y`` against ``x`` and its two-sided p-value from the exact permutation distribution (all
+    n! orders of ``y``, at most 8 levels here): scipy's ``spearmanr`` p-value comes from a t approximation that
+    gives p = 0 to any perfect order, even of 3 or 4 levels, where the exact p is 1/3 or 1/12."""
+    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    rx = sps.rankdata(x)
+
+    def rho(v, axis=-1):
+        rv = sps.rankdata(v, axis=axis)
+        rv = rv - rv.mean(axis=axis, keepdims=True)
+        r0 = rx - rx.mean()
+        return (rv * r0).sum(axis=axis) / np.sqrt((rv ** 2).sum(axis=axis) * (r0 ** 2).sum())
+
+    res = sps.permutation_test((y,), rho, permutation_type="pairings", vectorized=True,
+                               n_resamples=math.factorial(len(y)), alternative="two-sided")
+    return float(res.statistic), float(res.pvalue)
 
 
 def combine(claim: str, parts: Sequence[Verdict], rule: str) -> Verdict:
@@ -94,7 +113,7 @@ def survival_falls(survival: pd.DataFrame, order: Sequence[str], hard_from: str 
         if len(part) < 3 or part["value"].nunique() < 2:
             parts.append(Verdict(f"{algo}", UNRESOLVED, rule, evidence + ["fewer than 3 levels, or all equal"]))
             continue
-        rho, p = sps.spearmanr(rank, part["value"])
+        rho, p = spearman(rank, part["value"])
         early, late = part[rank < cut], part[rank >= cut]
         apart_below = len(early) and len(late) and late["high"].max() < early["low"].min()
         apart_above = len(early) and len(late) and late["low"].min() > early["high"].max()
@@ -180,14 +199,18 @@ def _fails(algo: str, levels: Sequence[str], survival: pd.DataFrame, random: pd.
     if not checked:
         return missing(name, "no random-agent survival on those levels (references on the training levels)")
     beats = [lv for lv in checked if above(s.loc[lv], r.loc[lv])]
+    # a level without an interval (one seed's single number) shows neither failing nor learning there
+    unknown = [lv for lv in checked if math.isnan(s.loc[lv]["low"]) or math.isnan(r.loc[lv]["high"])]
     evidence = ["; ".join(f"{lv}: {_fmt(s.loc[lv])} vs random {_fmt(r.loc[lv])}" for lv in checked),
                 f"above random on {len(beats)} of {len(checked)} ({', '.join(beats) or 'none'})"]
+    if unknown:
+        evidence.append(f"no interval on {', '.join(unknown)}: failing there is not shown")
     early_ok = True
     if learns_on:
         early = [lv for lv in learns_on if lv in s.index and lv in r.index]
         early_ok = any(above(s.loc[lv], r.loc[lv]) for lv in early)
         evidence.append(f"above random on {' or '.join(learns_on)}: {'yes' if early_ok else 'no'}")
-    verdict = (REPRODUCED if not beats and early_ok else CONTRADICTED if 2 * len(beats) > len(checked)
+    verdict = (REPRODUCED if not beats and not unknown and early_ok else CONTRADICTED if 2 * len(beats) > len(checked)
                else UNRESOLVED)
     return Verdict(name, verdict, rule, evidence)
 
