@@ -57,12 +57,12 @@ def spearman(x, y) -> tuple[float, float]:
     n! orders of ``y``, at most 8 levels here): scipy's ``spearmanr`` p-value comes from a t approximation that
     gives p = 0 to any perfect order, even of 3 or 4 levels, where the exact p is 1/3 or 1/12."""
     x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
-    rx = sps.rankdata(x)
+    r0 = sps.rankdata(x)
+    r0 = r0 - r0.mean()
 
     def rho(v, axis=-1):
         rv = sps.rankdata(v, axis=axis)
         rv = rv - rv.mean(axis=axis, keepdims=True)
-        r0 = rx - rx.mean()
         return (rv * r0).sum(axis=axis) / np.sqrt((rv ** 2).sum(axis=axis) * (r0 ** 2).sum())
 
     res = sps.permutation_test((y,), rho, permutation_type="pairings", vectorized=True,
