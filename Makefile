@@ -17,11 +17,15 @@ train: setup
 demo: setup
 	$(PY) scripts/demo.py $(ARGS)
 
+# the suite on every core (pytest-xdist: one worker per core, each test file on one worker, so a file's shared
+# fixtures are built once); add -n 0 to a pytest call to run it in one process
+XDIST := -n auto --dist loadfile
+
 test: setup
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q $(XDIST)
 
 test-fast: setup
-	$(PY) -m pytest -q -m "not slow"
+	$(PY) -m pytest -q -m "not slow" $(XDIST)
 
 bench: setup
 	$(PY) scripts/bench_env.py $(ARGS)
