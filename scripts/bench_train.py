@@ -147,13 +147,26 @@ def first_gradient_step(run_dir: Path, launched: float) -> float | None:
     return datetime.strptime(match.group(1), "%Y-%m-%d %H:%M:%S,%f").timestamp() - launched
 
 
+# Runs the command given after it and prints its exit status and peak resident set (ru_maxrss, kB). A process
+# started by fork or vfork and exec counts its parent's resident high-water mark into its own ru_maxrss, so the
+# command is started from this small interpreter rather than from a caller that may already hold gigabytes (a
+# test worker, a notebook).
+_MEASURE = """
+import os, subprocess, sys
+with open(sys.argv[1], "w") as out:
+    child = subprocess.Popen(sys.argv[2:], stdout=out, stderr=subprocess.STDOUT)
+    _, status, usage = os.wait4(child.pid, 0)
+print(os.waitstatus_to_exitcode(status), usage.ru_maxrss)
+"""
+
+
 def run_measured(cmd: list[str], out_path: Path) -> tuple[int, int]:
-    """Run ``cmd`` with its output in ``out_path``; returns its exit status and peak resident memory in bytes."""
-    with open(out_path, "w") as out:
-        child = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, cwd=ROOT, env=os.environ.copy())
-        _, status, usage = os.wait4(child.pid, 0)
-    child.returncode = os.waitstatus_to_exitcode(status)
-    return child.returncode, usage.ru_maxrss * 1024  # kilobytes on Linux
+    """Run ``cmd`` with its output in ``out_path``; returns its exit status and peak resident memory in bytes (its
+    own: the command is started from a small measuring process, ``_MEASURE``)."""
+    done = subprocess.run([sys.executable, "-c", _MEASURE, str(out_path), *cmd], cwd=ROOT, env=os.environ.copy(),
+                          stdout=subprocess.PIPE, text=True, check=True)
+    status, kilobytes = done.stdout.split()
+    return int(status), int(kilobytes) * 1024  # kilobytes on Linux
 
 
 def resume_steps(run_dir: Path) -> list[int]:
