@@ -135,9 +135,16 @@ class DreamerDecoder(nn.Module):
             if key == "pixels":
                 out.append(self.cnn(latent).movedim(-3, -1))
             else:
-                y = self.heads[key](hidden)
-                out.append(torch.sign(y) * torch.expm1(y.abs()))  # symexp
+                out.append(self._symexp(self.heads[key](hidden)))
         return tuple(out)
+
+    def vector(self, key: str, state: torch.Tensor, belief: torch.Tensor) -> torch.Tensor:
+        """One vector key's reconstruction alone (raw units), without decoding the pixels."""
+        return self._symexp(self.heads[key](self.mlp(torch.cat([state, belief], dim=-1))))
+
+    @staticmethod
+    def _symexp(y: torch.Tensor) -> torch.Tensor:
+        return torch.sign(y) * torch.expm1(y.abs())
 
 
 class DreamerModel(nn.Module):
@@ -561,14 +568,10 @@ def consumed(transition: TensorDictBase) -> torch.Tensor:
     return (after["food_eaten"] + after["water_eaten"]) > (before["food_eaten"] + before["water_eaten"])
 
 
-def ev_decoding_errors(run_dir: str | Path, sequences: int = 64) -> dict[str, Any]:
-    """How well a DreamerV3 run's world model knows the EVs: the mean absolute error, in raw units, of the
-    interoception decoded from the posterior, on the eating steps and on the other steps of ``sequences`` replayed
-    sequences of 32 steps around the last eating steps stored (spread over the replay where there are too few),
-    with the run's last checkpoint and its memory-mapped replay.  The reward is computed from the EVs: a latent
-    that does not hold them cannot predict it."""
-    from evaaa import EV_NAMES
-
+def _probe_replay(run_dir: str | Path, sequences: int) -> tuple[dict, DictConfig, DreamerModel, TensorDictBase]:
+    """A DreamerV3 run's last checkpoint (its state, config and model) and ``sequences`` replayed sequences of 32
+    steps from its memory-mapped replay, around the last eating steps stored (spread over the replay where there
+    are too few), with the zero initial latent the world model starts from: what the probes read."""
     state = load_checkpoint(Path(run_dir) / CHECKPOINT)
     if state.get("algo") not in ("dreamer", "dreamer_xs") or "interoception" not in state["obs_keys"]:
         raise ValueError(f"{run_dir}: not a DreamerV3 run that observes interoception")
@@ -578,6 +581,7 @@ def ev_decoding_errors(run_dir: str | Path, sequences: int = 64) -> dict[str, An
     cfg = OmegaConf.create(state["config"])
     model = make_model(cfg.algo, {k: tuple(v) for k, v in state["obs_shapes"].items()})
     model.load_state_dict(state["model"])
+    model.eval()
     num_envs = int(state["num_envs"])
     rows = replay["length"] // num_envs
     data = TensorDict.load_memmap(replay["on_disk"])[:rows]
@@ -589,6 +593,18 @@ def ev_decoding_errors(run_dir: str | Path, sequences: int = 64) -> dict[str, An
     batch = data[start[:, None] + torch.arange(length), anchors[:, 1:2]].clone()
     batch["state"] = torch.zeros(*batch.shape, model.state_dim)
     batch["belief"] = torch.zeros(*batch.shape, model.belief_dim)
+    return state, cfg, model, batch
+
+
+def ev_decoding_errors(run_dir: str | Path, sequences: int = 64) -> dict[str, Any]:
+    """How well a DreamerV3 run's world model knows the EVs: the mean absolute error, in raw units, of the
+    interoception decoded from the posterior, on the eating steps and on the other steps of ``sequences`` replayed
+    sequences of 32 steps around the last eating steps stored (spread over the replay where there are too few),
+    with the run's last checkpoint and its memory-mapped replay.  The reward is computed from the EVs: a latent
+    that does not hold them cannot predict it."""
+    from evaaa import EV_NAMES
+
+    state, _, model, batch = _probe_replay(run_dir, sequences)
     with torch.no_grad():
         out = world_model(model)(batch)
     error = (out["next", "reco_interoception"] - out["next", "interoception"]).abs()
@@ -630,6 +646,92 @@ def linear_probe_r2(features: torch.Tensor, target: torch.Tensor, fit: torch.Ten
     residual = ((test @ weights) - truth).pow(2).sum(0)
     spread = (truth - y.mean(0)).pow(2).sum(0).clamp_min(1e-12)
     return (1 - residual / spread).float()
+
+
+def imagine_each_action(prior: Any, state: torch.Tensor, belief: torch.Tensor, samples: int = 8,
+                        **heads: Any) -> dict[str, torch.Tensor]:
+    """Every action taken once from each latent ``[N, ...]`` through ``prior`` (``(state, belief, one-hot) ->
+    (logits, state, belief)``), the next latent drawn ``samples`` times: each head ``(state, belief) -> [N, ...]``
+    read on it, averaged over the draws, as ``[N, actions, ...]``.  What imagination believes one action does."""
+    out: dict[str, list[torch.Tensor]] = {name: [] for name in heads}
+    for a in range(NUM_ACTIONS):
+        onehot = _one_hot(torch.full(state.shape[:-1], a, dtype=torch.long, device=state.device))
+        totals: dict[str, torch.Tensor] = {}
+        for _ in range(samples):
+            _, next_state, next_belief = prior(state, belief, onehot)
+            for name, head in heads.items():
+                totals[name] = totals.get(name, 0) + head(next_state, next_belief) / samples
+        for name in heads:
+            out[name].append(totals[name])
+    return {name: torch.stack(values, dim=1) for name, values in out.items()}
+
+
+@torch.no_grad()
+def imagined_action_values(run_dir: str | Path, sequences: int = 64, samples: int = 8) -> dict[str, Any]:
+    """What a DreamerV3 run's world model and critic say each action is worth, from the posterior states of
+    ``sequences`` replayed sequences (as :func:`ev_decoding_errors` picks them): one imagined step of every action,
+    then the critic, ``r + γ·c·v`` (``samples`` draws of the next latent), beside the actor's probabilities and the
+    EVs decoded before and after the step.  Grouped by what really followed each state: every state, the steps that
+    ate or drank, the eat actions that found nothing, and the five steps before an eating step.  Where imagination
+    ranks the actions the same way in every group, and eating raises no decoded EV where real eating did, the actor
+    has nothing to learn from but a bias (docs/training.md, "What was tried on level 1-1")."""
+    from evaaa import EV_NAMES
+
+    state, cfg, model, batch = _probe_replay(run_dir, sequences)
+    nxt = world_model(model)(batch)["next"]
+    # start from the posterior after each observation; what really followed it is the next row's action and outcome
+    shape = (len(batch), batch.shape[1] - 1)
+    latent = {k: nxt[k][:, :-1].reshape(-1, nxt[k].shape[-1]).float() for k in LATENT}
+    action = batch["action"][:, 1:].reshape(-1)
+    ate = batch["next", "consumed"][:, 1:].reshape(shape)
+    fresh = batch["is_init"][:, 1:].reshape(-1)
+    evs = nxt["interoception"].float()
+    real_change = (evs[:, 1:] - evs[:, :-1]).reshape(-1, len(EV_NAMES))
+
+    def reward(s: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+        return model.two_hot(model.reward(s, b)).squeeze(-1)
+
+    def value(s: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+        return model.two_hot(model.value(s, b)).squeeze(-1)
+
+    def going_on(s: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+        return torch.sigmoid(model.cont(s, b)).squeeze(-1)
+
+    def interoception(s: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+        return model.decoder.vector("interoception", s, b)
+
+    step = imagine_each_action(model.prior, latent["state"], latent["belief"], samples, reward=reward,
+                               value=value, going_on=going_on, interoception=interoception)
+    q = step["reward"] + cfg.algo.gamma * step["going_on"] * step["value"]
+    now = interoception(latent["state"], latent["belief"])
+    ev_change = step["interoception"] - now[:, None]
+    probs = model.actor.get_dist(TensorDict(latent, [len(action)])).probs
+    norm = state["components"]["return_norm"]
+    scale = max(float(norm["high"].max() - norm["low"].min()), 1.0) if "high" in norm else float("nan")
+    before = torch.zeros(shape, dtype=torch.bool)
+    for d in range(1, 6):
+        before[:, :-d] |= ate[:, d:]
+    ate, before = ate.reshape(-1), before.reshape(-1)
+    eat = ACTION_NAMES.index("eat")
+    groups = {"every state": ~fresh, "ate or drank": ate & ~fresh,
+              "ate nothing": (action == eat) & ~ate & ~fresh, "1-5 steps before eating": before & ~ate & ~fresh}
+    result: dict[str, Any] = {"env_steps": state["counters"]["steps"], "sequences": len(batch),
+                              "return_scale": scale, "groups": {}}
+    for name, mask in groups.items():
+        if not bool(mask.any()):
+            result["groups"][name] = {"states": 0}
+            continue
+        result["groups"][name] = {
+            "states": int(mask.sum()),
+            "policy": dict(zip(ACTION_NAMES, probs[mask].mean(0).tolist())),
+            "value_over_mean": dict(zip(ACTION_NAMES, (q[mask] - q[mask].mean(1, keepdim=True)).mean(0).tolist())),
+            "best_share": dict(zip(ACTION_NAMES, (torch.bincount(q[mask].argmax(1), minlength=NUM_ACTIONS)
+                                                  / int(mask.sum())).tolist())),
+            "ev_change": {a: dict(zip(EV_NAMES, ev_change[mask][:, i].mean(0).tolist()))
+                          for i, a in enumerate(ACTION_NAMES)},
+            "real_ev_change": dict(zip(EV_NAMES, real_change[mask].mean(0).tolist())),
+        }
+    return result
 
 
 def _masked_mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:

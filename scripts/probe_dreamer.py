@@ -1,4 +1,4 @@
-"""How well a DreamerV3 run's world model knows the EVs the reward is computed from.
+"""How well a DreamerV3 run's world model knows the EVs the reward is computed from, and what it says each action is worth.
 
     python scripts/probe_dreamer.py run=runs/1-1/dreamer_xs/all-drive_reduction/seed0
 
@@ -6,7 +6,10 @@ Decodes the interoception from the posterior of the run's last checkpoint on rep
 eating steps its memory-mapped replay holds, and prints the mean absolute error of each EV, in raw units, on the
 eating steps and on the others; then how much of the EVs a linear read-out finds in the encoder's embedding, the
 stochastic latent, the deterministic state and both, which tells where in the model the EVs are lost
-(docs/training.md, "What was tried on level 1-1").
+(docs/training.md, "What was tried on level 1-1"). Then, from the same replayed states, one imagined step of every
+action followed by the critic: each action's value against the mean of the five, the actor's probabilities and the
+decoded change of satiation and hydration, for every state, the steps that really ate or drank, the eat actions that
+found nothing, and the five steps before an eating step: whether imagination knows that eating pays where food is.
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ from dataclasses import dataclass
 
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
-from evaaa_baselines.dreamer import ev_decoding_errors
+from evaaa_baselines.dreamer import ev_decoding_errors, imagined_action_values
 
 
 @dataclass
@@ -24,6 +27,7 @@ class ProbeConfig:
     run: str = option("", "a DreamerV3 run directory (its checkpoint.pt and replay/)",
                       check=(lambda v: bool(v), "a run directory"))
     sequences: int = option(64, "replayed sequences of 32 steps", check=(lambda v: v >= 1, ">= 1"))
+    samples: int = option(8, "draws of the next latent for each imagined action", check=(lambda v: v >= 1, ">= 1"))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -40,6 +44,22 @@ def main(argv: list[str] | None = None) -> int:
               "the share of their variance it explains on the other half (1: all of it; 0: no more than the mean)")
         for name, shares in result["linear_probe"].items():
             print(f"  {name:<21}" + "  ".join(f"{ev} {r2:5.2f}" for ev, r2 in shares.items()))
+    values = imagined_action_values(cfg.run, cfg.sequences, cfg.samples)
+    print(f"one imagined step of each action, then the critic (r + gamma * c * v); the actor divides its advantages "
+          f"by a return scale of {values['return_scale']:.3g}")
+    for name, group in values["groups"].items():
+        print(f"  {name}: {group['states']:,} states")
+        if not group["states"]:
+            continue
+        print(f"    {'':<30}" + "".join(f"{a:>9}" for a in group["policy"]))
+        rows = {"actor's probability": group["policy"], "value above the mean": group["value_over_mean"],
+                "best of the five (share)": group["best_share"]}
+        for ev in ("satiation", "hydration"):
+            rows[f"{ev} change, imagined"] = {a: change[ev] for a, change in group["ev_change"].items()}
+        for label, row in rows.items():
+            print(f"    {label:<30}" + "".join(f"{v:9.3f}" for v in row.values()))
+        real = group["real_ev_change"]
+        print(f"    {'real change, action taken':<30}satiation {real['satiation']:.3f}, hydration {real['hydration']:.3f}")
     return 0
 
 

@@ -281,10 +281,37 @@ def test_the_probe_decodes_the_evs_of_a_run_and_says_how_far_off_they_are(runs, 
     assert list(result["linear_probe"]) == ["nothing", "embedding", "stochastic latent", "deterministic state",
                                             "latent (both)"]
     assert all(math.isfinite(v) and v <= 1 for shares in result["linear_probe"].values() for v in shares.values())
+    values = dreamer.imagined_action_values(runs["whole"], sequences=4, samples=2)
+    assert list(values["groups"]) == ["every state", "ate or drank", "ate nothing", "1-5 steps before eating"]
+    every = values["groups"]["every state"]
+    assert every["states"] > 0 and values["return_scale"] >= 1
+    assert list(every["policy"]) == list(evaaa.ACTION_NAMES)
+    assert sum(every["policy"].values()) == pytest.approx(1, abs=1e-5)
+    assert sum(every["value_over_mean"].values()) == pytest.approx(0, abs=1e-3)  # against the mean of the five
+    assert sum(every["best_share"].values()) == pytest.approx(1)
+    assert list(every["ev_change"]["eat"]) == list(EV_NAMES)
     probe = load_script("probe_dreamer")
-    assert probe.main([f"run={runs['whole']}", "sequences=4"]) == 0
+    assert probe.main([f"run={runs['whole']}", "sequences=4", "samples=2"]) == 0
     out = capsys.readouterr().out
     assert "mean absolute error of the decoded EVs" in out and "deterministic state" in out
+    assert "one imagined step of each action" in out and "ate nothing" in out
+
+
+def test_imagining_each_action_takes_that_action_and_averages_the_draws():
+    draws = iter(range(100))
+
+    def prior(state, belief, onehot):  # the next belief is the action taken; the next state a new draw each time
+        return None, torch.full_like(state, float(next(draws))), onehot
+
+    state, belief = torch.zeros(3, 2), torch.zeros(3, 5)
+    out = dreamer.imagine_each_action(prior, state, belief, samples=4,
+                                      paid=lambda s, b: b[:, evaaa.ACTION_NAMES.index("eat")] * 10,
+                                      drawn=lambda s, b: s[:, 0])
+    assert out["paid"].shape == (3, dreamer.NUM_ACTIONS)
+    assert out["paid"][:, evaaa.ACTION_NAMES.index("eat")].eq(10).all()  # only eating pays, in every state
+    assert out["paid"].sum(1).eq(10).all()
+    # action a's four draws are 4a .. 4a + 3: their mean
+    assert out["drawn"][0].tolist() == [4 * a + 1.5 for a in range(dreamer.NUM_ACTIONS)]
 
 
 def test_the_linear_probe_reads_what_the_features_hold_and_not_what_they_lack():
