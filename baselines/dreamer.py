@@ -630,6 +630,106 @@ def ev_decoding_errors(run_dir: str | Path, sequences: int = 64) -> dict[str, An
     return result
 
 
+def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Sequence[str] = (),
+                    held_out: float = 0.1, seed: int = 0, report: Any = None) -> list[dict[str, float]]:
+    """How fast a fresh world model learns what eating does, from a DreamerV3 run's stored replay alone: no env,
+    no actor, no critic, so world-model settings can be compared in minutes on the same data.
+
+    Builds the run's world model anew (its config with ``overrides``, dotted ``algo`` keys such as
+    ``model.stochastic=32`` or ``consume_share=0.5``), trains it for ``updates`` gradient steps on the first
+    ``1 - held_out`` of the replay's rows (batches as the run drew them: ``batch_size`` sequences of
+    ``sequence_length`` steps, ``consume_share`` of them around an eating step), and every ``every`` steps measures
+    on the held-out rows' eating steps: from the posterior before each, one imagined step of every action
+    (:func:`imagine_each_action`), and the decoded satiation plus hydration change of eating against the mean of the
+    other four actions (``eat_effect``), beside the same on the eat actions that found nothing
+    (``eat_effect_nothing``, which should stay near 0) and the real change (``real_effect``).  ``report(row)`` is
+    called with each measurement."""
+    state = load_checkpoint(Path(run_dir) / CHECKPOINT)
+    if state.get("algo") not in ("dreamer", "dreamer_xs") or "interoception" not in state["obs_keys"]:
+        raise ValueError(f"{run_dir}: not a DreamerV3 run that observes interoception")
+    replay = state["components"]["replay"]
+    if "on_disk" not in replay:
+        raise ValueError(f"{run_dir}: its replay buffer was kept in memory (algo.buffer_on_disk=false), not on disk")
+    cfg = OmegaConf.merge(OmegaConf.create(state["config"]).algo, OmegaConf.from_dotlist(list(overrides)))
+    torch.manual_seed(seed)
+    model = make_model(cfg, {k: tuple(v) for k, v in state["obs_shapes"].items()})
+    loss = WorldModelLoss(cfg, model)
+    optimizer = torch.optim.Adam(model.world_model_parameters(), lr=cfg.world_model.lr, eps=cfg.world_model.eps)
+    num_envs = int(state["num_envs"])
+    rows = replay["length"] // num_envs
+    data = TensorDict.load_memmap(replay["on_disk"])[:rows]
+    length, context = cfg.sequence_length, 16
+    split = int(rows * (1 - held_out))
+    if split < length or rows - split < context + 1:
+        raise ValueError(f"{run_dir}: {rows} rows per world are too few to hold out {held_out} of them")
+    eaten = data["next", "consumed"].reshape(rows, num_envs)
+    train_eaten = eaten[:split].nonzero()
+    consume = round(float(cfg.get("consume_share", 0.0)) * cfg.batch_size) if len(train_eaten) else 0
+    gen = torch.Generator().manual_seed(seed)
+
+    def sequences(starts: torch.Tensor, worlds: torch.Tensor, steps: int) -> TensorDictBase:
+        batch = data[starts[:, None] + torch.arange(steps), worlds[:, None]].clone()
+        batch["state"] = torch.zeros(*batch.shape, model.state_dim)
+        batch["belief"] = torch.zeros(*batch.shape, model.belief_dim)
+        return batch
+
+    # held out: the context before each eating step (and each fruitless eat), the step itself last
+    eat = ACTION_NAMES.index("eat")
+    test_eaten = eaten[split:].nonzero()
+    test_eaten = test_eaten[test_eaten[:, 0] >= context]
+    pressed = ((data["action"][split:] == eat) & ~eaten[split:]).nonzero()
+    pressed = pressed[pressed[:, 0] >= context]
+    pressed = pressed[torch.randperm(len(pressed), generator=gen)[:256]]
+
+    @torch.no_grad()
+    def eat_effect(where: torch.Tensor) -> tuple[float, float]:
+        if not len(where):
+            return float("nan"), float("nan")
+        batch = sequences(split + where[:, 0] - context, where[:, 1], context + 1)
+        nxt = world_model(model)(batch)["next"]
+        # the posterior after the step before the action; the action's own step is the last row
+        before = {k: nxt[k][:, -2] for k in LATENT}
+        step = imagine_each_action(model.prior, before["state"], before["belief"], 8,
+                                   ev=lambda st, be: model.decoder.vector("interoception", st, be)[..., :2])
+        change = step["ev"].sum(-1) - model.decoder.vector("interoception", before["state"],
+                                                           before["belief"])[..., :2].sum(-1)[:, None]
+        others = [i for i in range(NUM_ACTIONS) if i != eat]
+        effect = float((change[:, eat] - change[:, others].mean(1)).mean())
+        real = float((batch["next", "interoception"][:, -1, :2] - batch["next", "interoception"][:, -2, :2])
+                     .float().sum(-1).mean())
+        return effect, real
+
+    rows_out: list[dict[str, float]] = []
+    began = time.perf_counter()
+    for update in range(updates + 1):
+        if update % every == 0 or update == updates:
+            model.eval()
+            effect, real = eat_effect(test_eaten)
+            nothing, _ = eat_effect(pressed)
+            row = {"updates": update, "seconds": time.perf_counter() - began, "eat_effect": effect,
+                   "eat_effect_nothing": nothing, "real_effect": real, "held_out_eating_steps": len(test_eaten)}
+            rows_out.append(row)
+            if report is not None:
+                report(row)
+            model.train()
+        if update == updates:
+            break
+        uniform = cfg.batch_size - consume
+        starts = torch.randint(split - length + 1, (uniform,), generator=gen)
+        worlds = torch.randint(num_envs, (uniform,), generator=gen)
+        if consume:
+            picks = train_eaten[torch.randint(len(train_eaten), (consume,), generator=gen)]
+            offset = torch.randint(length, (consume,), generator=gen)
+            starts = torch.cat([starts, (picks[:, 0] - offset).clamp(0, split - length)])
+            worlds = torch.cat([worlds, picks[:, 1]])
+        total, *_ = loss(sequences(starts, worlds, length))
+        optimizer.zero_grad(set_to_none=True)
+        total.backward()
+        nn.utils.clip_grad_norm_(model.world_model_parameters(), cfg.world_model.grad_clip)
+        optimizer.step()
+    return rows_out
+
+
 def linear_probe_r2(features: torch.Tensor, target: torch.Tensor, fit: torch.Tensor,
                     ridge: float = 1e-3) -> torch.Tensor:
     """Per target column, the share of ``symlog(target)``'s variance (as the model codes the EVs) that a ridge
@@ -787,6 +887,42 @@ def vector_reconstruction(posterior: TensorDictBase, keys: Sequence[str]) -> tor
                .sum(-1).mean() for k in keys)
 
 
+class WorldModelLoss(nn.Module):
+    """The world model's loss on a replayed batch: torchrl's ``DreamerV3ModelLoss`` (KL balancing with dynamics /
+    representation weights, free nats and unimix; pixels as x/255 and the vector keys in symlog space; two-hot
+    reward; continue predicted from ``terminated``, not truncation), plus ``algo.world_model.vector_scale - 1``
+    times the vector keys' reconstruction.  Returns the total, the loss's terms, the posterior (detached) and the
+    vector keys' reconstruction loss (None without vector keys)."""
+
+    def __init__(self, cfg: DictConfig, model: DreamerModel):
+        super().__init__()
+        keys = model.obs_keys
+        self.vector_keys = [k for k in keys if k != "pixels"]
+        self.vector_extra = float(cfg.world_model.get("vector_scale", 1.0)) - 1.0
+        self.loss = DreamerV3ModelLoss(
+            world_model(model), kl_mode="separate", lambda_dynamic=cfg.world_model.kl_dynamic,
+            lambda_representation=cfg.world_model.kl_representation, free_bits=cfg.world_model.free_nats,
+            unimix=cfg.model.unimix, lambda_continue=cfg.world_model.continue_scale, reco_loss="l2",
+            reco_symlog=[k != "pixels" for k in keys], reward_two_hot=True, num_reward_bins=cfg.model.bins,
+            # the vector keys' extra reconstruction term needs the graph; everything else reads the output detached
+            detach_output=not self.vector_extra)
+        self.loss.set_keys(pixels=list(keys), reco_pixels=[f"reco_{k}" for k in keys])
+
+    def forward(self, batch: TensorDictBase) -> tuple[torch.Tensor, TensorDictBase, TensorDictBase,
+                                                       torch.Tensor | None]:
+        losses, posterior = self.loss(batch)
+        total = sum(v for k, v in losses.items() if k.startswith("loss_")).squeeze()
+        vector_reco = None
+        if self.vector_extra:
+            vector_reco = vector_reconstruction(posterior, self.vector_keys)
+            total = total + self.vector_extra * vector_reco
+            posterior = posterior.detach()
+        elif self.vector_keys:  # a metric only
+            with torch.no_grad():
+                vector_reco = vector_reconstruction(posterior, self.vector_keys)
+        return total, losses, posterior, vector_reco
+
+
 def replay_value_loss(value_loss: DreamerV3ValueLoss, posterior: TensorDictBase, imagined: TensorDictBase,
                       cfg: DictConfig) -> torch.Tensor:
     """The critic's loss on the replayed sequences themselves (DreamerV3's ``repval``, ``algo.critic.replay_scale``):
@@ -858,18 +994,7 @@ def train(run: Run) -> None:
         # the plain-torch networks the loops call many times: the RSSM in every replayed and imagined step
         compile_networks(model, (DreamerEncoder, DreamerDecoder, RSSMPriorV3, RSSMPosteriorV3, DreamerV3MLP))
 
-    # world model: KL balancing (dynamics / representation weights, free nats, unimix), pixels as x/255 and the
-    # vector keys in symlog space, two-hot reward, continue predicted from "terminated" (not truncation)
-    vector_keys = [k for k in keys if k != "pixels"]
-    vector_extra = float(cfg.world_model.get("vector_scale", 1.0)) - 1.0
-    model_loss = DreamerV3ModelLoss(
-        world_model(model), kl_mode="separate", lambda_dynamic=cfg.world_model.kl_dynamic,
-        lambda_representation=cfg.world_model.kl_representation, free_bits=cfg.world_model.free_nats,
-        unimix=cfg.model.unimix, lambda_continue=cfg.world_model.continue_scale, reco_loss="l2",
-        reco_symlog=[k != "pixels" for k in keys], reward_two_hot=True, num_reward_bins=cfg.model.bins,
-        # the vector keys' extra reconstruction term needs the graph; everything else reads the output detached
-        detach_output=not vector_extra)
-    model_loss.set_keys(pixels=list(keys), reco_pixels=[f"reco_{k}" for k in keys])
+    model_loss = WorldModelLoss(cfg, model)
     critic = value_model(model)
     actor_loss = DreamerV3ActorLoss(
         model.actor, critic, imagination_env(model, device), continuation_model=continuation_model(model),
@@ -923,12 +1048,7 @@ def train(run: Run) -> None:
         batch["state"] = torch.zeros(*batch.shape, model.state_dim, device=device)
         batch["belief"] = torch.zeros(*batch.shape, model.belief_dim, device=device)
         with run.autocast():
-            losses, posterior = model_loss(batch)
-            wm_loss = sum(v for k, v in losses.items() if k.startswith("loss_")).squeeze()
-            if vector_extra:
-                vector_reco = vector_reconstruction(posterior, vector_keys)
-                wm_loss = wm_loss + vector_extra * vector_reco
-                posterior = posterior.detach()
+            wm_loss, losses, posterior, vector_reco = model_loss(batch)
         wm_norm = step("world_model", wm_loss, model.world_model_parameters(), cfg.world_model.grad_clip)
         # behaviour learning starts from every posterior latent of the batch, without gradient into the model
         latents = TensorDict({k: posterior["next", k].reshape(-1, posterior["next", k].shape[-1]).float()
@@ -955,10 +1075,8 @@ def train(run: Run) -> None:
                     "imagined_return": imagined["lambda_target"].mean()}
         if replay_scale:
             metrics["critic_replay_loss"] = replay_loss.detach()
-        if vector_keys:  # a metric only, unless vector_scale made it part of the loss (then computed above)
-            with torch.no_grad():
-                metrics["model_reco_vector"] = (vector_reco.detach() if vector_extra
-                                                else vector_reconstruction(posterior, vector_keys))
+        if vector_reco is not None:
+            metrics["model_reco_vector"] = vector_reco.detach()
         if "interoception" in keys:  # how well the latent knows the EVs the reward is computed from (raw units)
             metrics["interoception_error"] = (posterior["next", "reco_interoception"].detach().float()
                                               - posterior["next", "interoception"].float()).abs().mean()

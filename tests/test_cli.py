@@ -27,7 +27,8 @@ ROOT = Path(__file__).resolve().parents[1]
 SCHEMAS = {"evaluate": "EvalConfig", "report": "ReportConfig", "bench_env": "BenchConfig",
            "bench_train": "BenchConfig", "demo": "DemoConfig", "profile_env": "ProfileConfig",
            "render_levels": "RenderConfig", "play": "PlaySettings", "wall_hits": "WallHitsConfig",
-           "reproduce": "ReproduceConfig", "probe_dreamer": "ProbeConfig"}
+           "reproduce": "ReproduceConfig", "probe_dreamer": "ProbeConfig",
+           "fit_world_model": "FitConfig"}
 
 
 def schema(name: str) -> type:

@@ -297,6 +297,23 @@ def test_the_probe_decodes_the_evs_of_a_run_and_says_how_far_off_they_are(runs, 
     assert "one imagined step of each action" in out and "ate nothing" in out
 
 
+def test_a_fresh_world_model_fits_a_runs_replay_and_measures_what_eating_does(runs, capsys, tmp_path):
+    seen = []
+    rows = dreamer.fit_world_model(runs["whole"], updates=6, every=3, overrides=["consume_share=0.5"],
+                                   held_out=0.25, report=seen.append)
+    assert [r["updates"] for r in rows] == [0, 3, 6] and seen == rows
+    assert all(math.isfinite(r["eat_effect_nothing"]) or math.isnan(r["eat_effect_nothing"]) for r in rows)
+    # with no held-out eating step there is nothing to measure: NaN, not a made-up 0
+    assert all(math.isnan(r["eat_effect"]) == (r["held_out_eating_steps"] == 0) for r in rows)
+    with pytest.raises(ValueError, match="too few to hold out"):
+        dreamer.fit_world_model(runs["whole"], updates=1, every=1, held_out=0.99)
+    fit = load_script("fit_world_model")
+    out = tmp_path / "fit.csv"
+    assert fit.main([f"run={runs['whole']}", "updates=2", "every=1", "held_out=0.25", f"out={out}", "threads=1"]) == 0
+    assert "eat effect" in capsys.readouterr().out
+    assert [r["updates"] for r in read_csv(out)] == ["0", "1", "2"]
+
+
 def test_imagining_each_action_takes_that_action_and_averages_the_draws():
     draws = iter(range(100))
 

@@ -1,0 +1,66 @@
+"""How fast a fresh DreamerV3 world model learns what eating does, from a run's stored replay alone.
+
+    python scripts/fit_world_model.py run=runs/1-1/dreamer_xs/all-squared/seed0 updates=2000 "set=[consume_share=0.5]"
+
+Trains a new world model (the run's config, with `set` overriding `algo` keys) on the first 90 % of the run's
+memory-mapped replay and, every `every` gradient steps, imagines one step of each action from the posterior before
+each held-out eating step: the decoded satiation + hydration change of eating against the other four actions
+(`eat effect`; the real change beside it) and the same where eating found nothing (should stay near 0).  No env,
+actor or critic: world-model settings compared in minutes on the same data (docs/training.md, "What was tried on
+level 1-1").
+"""
+
+from __future__ import annotations
+
+import csv
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from evaaa_baselines import cli
+from evaaa_baselines.cli import option
+from evaaa_baselines.dreamer import fit_world_model
+
+
+@dataclass
+class FitConfig:
+    run: str = option("", "a DreamerV3 run directory (its checkpoint.pt and replay/)",
+                      check=(lambda v: bool(v), "a run directory"))
+    updates: int = option(2000, "gradient steps", check=(lambda v: v >= 1, ">= 1"))
+    every: int = option(250, "gradient steps between measurements", check=(lambda v: v >= 1, ">= 1"))
+    set: list[str] = option([], "algo keys to override, e.g. [consume_share=0.5,model.stochastic=32]")
+    held_out: float = option(0.1, "share of the replay's rows kept for measuring",
+                             check=(lambda v: 0 < v < 1, "in (0, 1)"))
+    seed: int = option(0, "seed of the new model and of the batches")
+    out: str = option("", "a CSV file for the measurements (empty: print only)")
+    threads: int | None = option(None, "torch intra-op threads (null: torch's default), as train.py's threads=",
+                                 check=(lambda v: v is None or v >= 1, "null or >= 1"))
+
+
+def main(argv: list[str] | None = None) -> int:
+    cfg = cli.parse(FitConfig, argv, prog="fit_world_model.py", description=__doc__.split("\n\n")[0],
+                    examples=["run=runs/1-1/dreamer_xs/all-squared/seed0 updates=1000 \"set=[consume_share=0.5]\""])
+    if cfg.threads is not None:
+        torch.set_num_threads(cfg.threads)
+    print(f"{cfg.run}: a new world model, {cfg.updates:,} gradient steps" + (f", {' '.join(cfg.set)}" if cfg.set else ""))
+    print(f"{'updates':>8} {'seconds':>8} {'eat effect':>11} {'real':>7} {'eat, nothing there':>19}")
+
+    def report(row: dict) -> None:
+        print(f"{row['updates']:>8,} {row['seconds']:>8.0f} {row['eat_effect']:>11.3f} {row['real_effect']:>7.3f} "
+              f"{row['eat_effect_nothing']:>19.3f}", flush=True)
+
+    rows = fit_world_model(cfg.run, cfg.updates, cfg.every, cfg.set, cfg.held_out, cfg.seed, report)
+    print(f"held-out eating steps: {rows[-1]['held_out_eating_steps']}")
+    if cfg.out:
+        Path(cfg.out).parent.mkdir(parents=True, exist_ok=True)
+        with open(cfg.out, "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+            writer.writeheader()
+            writer.writerows(rows)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
