@@ -631,7 +631,8 @@ def ev_decoding_errors(run_dir: str | Path, sequences: int = 64) -> dict[str, An
 
 
 def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Sequence[str] = (),
-                    held_out: float = 0.1, seed: int = 0, report: Any = None) -> list[dict[str, float]]:
+                    held_out: float = 0.1, seed: int = 0, report: Any = None,
+                    keys: Sequence[str] | None = None) -> list[dict[str, float]]:
     """How fast a fresh world model learns what eating does, from a DreamerV3 run's stored replay alone: no env,
     no actor, no critic, so world-model settings can be compared in minutes on the same data.
 
@@ -642,8 +643,9 @@ def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Se
     on the held-out rows' eating steps: from the posterior before each, one imagined step of every action
     (:func:`imagine_each_action`), and the decoded satiation plus hydration change of eating against the mean of the
     other four actions (``eat_effect``), beside the same on the eat actions that found nothing
-    (``eat_effect_nothing``, which should stay near 0) and the real change (``real_effect``).  ``report(row)`` is
-    called with each measurement."""
+    (``eat_effect_nothing``, which should stay near 0) and the real change (``real_effect``).  ``keys``: the
+    observation keys the new model sees (default: the run's; interoception is needed).  ``report(row)`` is called
+    with each measurement."""
     state = load_checkpoint(Path(run_dir) / CHECKPOINT)
     if state.get("algo") not in ("dreamer", "dreamer_xs") or "interoception" not in state["obs_keys"]:
         raise ValueError(f"{run_dir}: not a DreamerV3 run that observes interoception")
@@ -651,8 +653,14 @@ def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Se
     if "on_disk" not in replay:
         raise ValueError(f"{run_dir}: its replay buffer was kept in memory (algo.buffer_on_disk=false), not on disk")
     cfg = OmegaConf.merge(OmegaConf.create(state["config"]).algo, OmegaConf.from_dotlist(list(overrides)))
+    shapes = {k: tuple(v) for k, v in state["obs_shapes"].items()}
+    if keys is not None:
+        if "interoception" not in keys or not set(keys) <= set(shapes):
+            raise ValueError(f"keys must include interoception and come from the run's {sorted(shapes)}, got "
+                             f"{list(keys)}")
+        shapes = {k: v for k, v in shapes.items() if k in keys}
     torch.manual_seed(seed)
-    model = make_model(cfg, {k: tuple(v) for k, v in state["obs_shapes"].items()})
+    model = make_model(cfg, shapes)
     loss = WorldModelLoss(cfg, model)
     optimizer = torch.optim.Adam(model.world_model_parameters(), lr=cfg.world_model.lr, eps=cfg.world_model.eps)
     num_envs = int(state["num_envs"])
@@ -707,7 +715,8 @@ def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Se
             effect, real = eat_effect(test_eaten)
             nothing, _ = eat_effect(pressed)
             row = {"updates": update, "seconds": time.perf_counter() - began, "eat_effect": effect,
-                   "eat_effect_nothing": nothing, "real_effect": real, "held_out_eating_steps": len(test_eaten)}
+                   "eat_effect_nothing": nothing, "real_effect": real, "held_out_eating_steps": len(test_eaten),
+                   "world_model_parameters": sum(p.numel() for p in model.world_model_parameters())}
             rows_out.append(row)
             if report is not None:
                 report(row)

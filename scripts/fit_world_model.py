@@ -31,6 +31,8 @@ class FitConfig:
     updates: int = option(2000, "gradient steps", check=(lambda v: v >= 1, ">= 1"))
     every: int = option(250, "gradient steps between measurements", check=(lambda v: v >= 1, ">= 1"))
     set: list[str] = option([], "algo keys to override, e.g. [consume_share=0.5,model.stochastic=32]")
+    keys: list[str] | None = option(None, "observation keys the new model sees (null: the run's), e.g. "
+                                    "[interoception,olfaction] to leave the pixels out")
     held_out: float = option(0.1, "share of the replay's rows kept for measuring",
                              check=(lambda v: 0 < v < 1, "in (0, 1)"))
     seed: int = option(0, "seed of the new model and of the batches")
@@ -44,14 +46,15 @@ def main(argv: list[str] | None = None) -> int:
                     examples=["run=runs/1-1/dreamer_xs/all-squared/seed0 updates=1000 \"set=[consume_share=0.5]\""])
     if cfg.threads is not None:
         torch.set_num_threads(cfg.threads)
-    print(f"{cfg.run}: a new world model, {cfg.updates:,} gradient steps" + (f", {' '.join(cfg.set)}" if cfg.set else ""))
+    print(f"{cfg.run}: a new world model, {cfg.updates:,} gradient steps" + (f", {' '.join(cfg.set)}" if cfg.set else "")
+          + (f", seeing {', '.join(cfg.keys)}" if cfg.keys else ""))
     print(f"{'updates':>8} {'seconds':>8} {'eat effect':>11} {'real':>7} {'eat, nothing there':>19}")
 
     def report(row: dict) -> None:
         print(f"{row['updates']:>8,} {row['seconds']:>8.0f} {row['eat_effect']:>11.3f} {row['real_effect']:>7.3f} "
               f"{row['eat_effect_nothing']:>19.3f}", flush=True)
 
-    rows = fit_world_model(cfg.run, cfg.updates, cfg.every, cfg.set, cfg.held_out, cfg.seed, report)
+    rows = fit_world_model(cfg.run, cfg.updates, cfg.every, cfg.set, cfg.held_out, cfg.seed, report, cfg.keys)
     print(f"held-out eating steps: {rows[-1]['held_out_eating_steps']}")
     if cfg.out:
         Path(cfg.out).parent.mkdir(parents=True, exist_ok=True)

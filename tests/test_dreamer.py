@@ -305,6 +305,12 @@ def test_a_fresh_world_model_fits_a_runs_replay_and_measures_what_eating_does(ru
     assert all(math.isfinite(r["eat_effect_nothing"]) or math.isnan(r["eat_effect_nothing"]) for r in rows)
     # with no held-out eating step there is nothing to measure: NaN, not a made-up 0
     assert all(math.isnan(r["eat_effect"]) == (r["held_out_eating_steps"] == 0) for r in rows)
+    blind = dreamer.fit_world_model(runs["whole"], updates=1, every=1, held_out=0.25,
+                                    keys=["interoception", "olfaction"])
+    assert len(blind) == 2  # without the pixels' encoder and decoder
+    assert blind[0]["world_model_parameters"] < rows[0]["world_model_parameters"]
+    with pytest.raises(ValueError, match="keys must include interoception"):
+        dreamer.fit_world_model(runs["whole"], updates=1, every=1, held_out=0.25, keys=["pixels"])
     with pytest.raises(ValueError, match="too few to hold out"):
         dreamer.fit_world_model(runs["whole"], updates=1, every=1, held_out=0.99)
     fit = load_script("fit_world_model")
