@@ -888,19 +888,24 @@ def diagnostics(model: DreamerModel, critic: TensorDictSequential, posterior: Te
 
 
 # ------------------------------------------------------------------------------------------------ training
-def vector_reconstruction(posterior: TensorDictBase, keys: Sequence[str]) -> torch.Tensor:
-    """The vector keys' reconstruction loss as ``DreamerV3ModelLoss`` counts it (squared error in symlog space,
-    summed over each key's entries, averaged over the replayed steps), summed over ``keys``.  With pixels it is a
-    small part of the loss (4 EVs against 12,288 pixel values): ``algo.world_model.vector_scale`` weighs it more."""
-    return sum(((symlog(posterior["next", k].float()) - symlog(posterior["next", f"reco_{k}"].float())) ** 2)
-               .sum(-1).mean() for k in keys)
+def vector_reconstruction(posterior: TensorDictBase, keys: Sequence[str], raw: Sequence[str] = ()) -> torch.Tensor:
+    """The vector keys' reconstruction loss as ``DreamerV3ModelLoss`` counts it (squared error in symlog space, or
+    in raw units for the keys in ``raw``, summed over each key's entries, averaged over the replayed steps), summed
+    over ``keys``.  With pixels it is a small part of the loss (4 EVs against 12,288 pixel values):
+    ``algo.world_model.vector_scale`` weighs it more."""
+    def space(k: str, x: torch.Tensor) -> torch.Tensor:
+        return x.float() if k in raw else symlog(x.float())
+
+    return sum(((space(k, posterior["next", k]) - space(k, posterior["next", f"reco_{k}"])) ** 2).sum(-1).mean()
+               for k in keys)
 
 
 class WorldModelLoss(nn.Module):
     """The world model's loss on a replayed batch: torchrl's ``DreamerV3ModelLoss`` (KL balancing with dynamics /
     representation weights, free nats and unimix; pixels as x/255 and the vector keys in symlog space; two-hot
     reward; continue predicted from ``terminated``, not truncation), plus ``algo.world_model.vector_scale - 1``
-    times the vector keys' reconstruction.  Returns the total, the loss's terms, the posterior (detached) and the
+    times the vector keys' reconstruction.  The keys in ``algo.world_model.raw_keys`` are reconstructed in raw units
+    instead of symlog space: symlog squeezes a meal's +3.3 satiation at -8 to a change of 0.34.  Returns the total, the loss's terms, the posterior (detached) and the
     vector keys' reconstruction loss (None without vector keys)."""
 
     def __init__(self, cfg: DictConfig, model: DreamerModel):
@@ -908,11 +913,17 @@ class WorldModelLoss(nn.Module):
         keys = model.obs_keys
         self.vector_keys = [k for k in keys if k != "pixels"]
         self.vector_extra = float(cfg.world_model.get("vector_scale", 1.0)) - 1.0
+        raw = cfg.world_model.get("raw_keys", ())
+        self.raw_keys = (raw,) if isinstance(raw, str) else tuple(raw)  # one key may come as a plain string
+        if not set(self.raw_keys) <= set(self.vector_keys):
+            raise ValueError(f"algo.world_model.raw_keys must name vector observation keys of this run "
+                             f"({self.vector_keys}), got {list(self.raw_keys)}")
+        symlogged = [k != "pixels" and k not in self.raw_keys for k in keys]
         self.loss = DreamerV3ModelLoss(
             world_model(model), kl_mode="separate", lambda_dynamic=cfg.world_model.kl_dynamic,
             lambda_representation=cfg.world_model.kl_representation, free_bits=cfg.world_model.free_nats,
             unimix=cfg.model.unimix, lambda_continue=cfg.world_model.continue_scale, reco_loss="l2",
-            reco_symlog=[k != "pixels" for k in keys], reward_two_hot=True, num_reward_bins=cfg.model.bins,
+            reco_symlog=symlogged, reward_two_hot=True, num_reward_bins=cfg.model.bins,
             # the vector keys' extra reconstruction term needs the graph; everything else reads the output detached
             detach_output=not self.vector_extra)
         self.loss.set_keys(pixels=list(keys), reco_pixels=[f"reco_{k}" for k in keys])
@@ -923,12 +934,12 @@ class WorldModelLoss(nn.Module):
         total = sum(v for k, v in losses.items() if k.startswith("loss_")).squeeze()
         vector_reco = None
         if self.vector_extra:
-            vector_reco = vector_reconstruction(posterior, self.vector_keys)
+            vector_reco = vector_reconstruction(posterior, self.vector_keys, self.raw_keys)
             total = total + self.vector_extra * vector_reco
             posterior = posterior.detach()
         elif self.vector_keys:  # a metric only
             with torch.no_grad():
-                vector_reco = vector_reconstruction(posterior, self.vector_keys)
+                vector_reco = vector_reconstruction(posterior, self.vector_keys, self.raw_keys)
         return total, losses, posterior, vector_reco
 
 

@@ -257,6 +257,21 @@ def test_the_vector_reconstruction_is_the_symlog_squared_error_summed_per_key():
     got = dreamer.vector_reconstruction(posterior, ["interoception", "olfaction"])
     assert float(got) == pytest.approx(expected, rel=1e-5)
     assert float(dreamer.vector_reconstruction(posterior, ["olfaction"])) == 0.0
+    # in raw units: step 0 is off by 3 - (e - 1), step 1 by 1
+    raw = ((3.0 - (math.e - 1)) ** 2 + 1.0) / 2
+    assert float(dreamer.vector_reconstruction(posterior, ["interoception"], raw=["interoception"])) == \
+        pytest.approx(raw, rel=1e-5)
+
+
+def test_raw_keys_must_be_vector_keys_of_the_run():
+    with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
+        cfg = compose("config", overrides=["algo=dreamer", "preset=debug", "algo.world_model.raw_keys=[pixels]"])
+    model = dreamer.make_model(cfg.algo, {"pixels": (64, 64, 3), "interoception": (4,)})
+    with pytest.raises(ValueError, match="raw_keys must name vector observation keys"):
+        dreamer.WorldModelLoss(cfg.algo, model)
+    cfg.algo.world_model.raw_keys = "interoception"  # one key as a plain string (a dotted override's value)
+    loss = dreamer.WorldModelLoss(cfg.algo, model)
+    assert loss.raw_keys == ("interoception",) and loss.loss.reco_symlog == [False, False]
 
 
 def test_vector_scale_changes_what_the_world_model_learns(tmp_path):
