@@ -643,7 +643,8 @@ def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Se
     on the held-out rows' eating steps: from the posterior before each, one imagined step of every action
     (:func:`imagine_each_action`), and the decoded satiation plus hydration change of eating against the mean of the
     other four actions (``eat_effect``), beside the same on the eat actions that found nothing
-    (``eat_effect_nothing``, which should stay near 0) and the real change (``real_effect``).  ``keys``: the
+    (``eat_effect_nothing``, which should stay near 0), the real change (``real_effect``) and the change decoded
+    from the posterior that saw the observation after eating (``posterior_effect``: whether the latent holds it).  ``keys``: the
     observation keys the new model sees (default: the run's; interoception is needed).  ``report(row)`` is called
     with each measurement."""
     state = load_checkpoint(Path(run_dir) / CHECKPOINT)
@@ -689,33 +690,38 @@ def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Se
     pressed = pressed[pressed[:, 0] >= context]
     pressed = pressed[torch.randperm(len(pressed), generator=gen)[:256]]
 
+    def decoded(latent: Mapping[str, torch.Tensor]) -> torch.Tensor:  # satiation + hydration
+        return model.decoder.vector("interoception", latent["state"], latent["belief"])[..., :2].sum(-1)
+
     @torch.no_grad()
-    def eat_effect(where: torch.Tensor) -> tuple[float, float]:
+    def eat_effect(where: torch.Tensor) -> tuple[float, float, float]:
         if not len(where):
-            return float("nan"), float("nan")
+            return float("nan"), float("nan"), float("nan")
         batch = sequences(split + where[:, 0] - context, where[:, 1], context + 1)
         nxt = world_model(model)(batch)["next"]
         # the posterior after the step before the action; the action's own step is the last row
         before = {k: nxt[k][:, -2] for k in LATENT}
         step = imagine_each_action(model.prior, before["state"], before["belief"], 8,
                                    ev=lambda st, be: model.decoder.vector("interoception", st, be)[..., :2])
-        change = step["ev"].sum(-1) - model.decoder.vector("interoception", before["state"],
-                                                           before["belief"])[..., :2].sum(-1)[:, None]
+        change = step["ev"].sum(-1) - decoded(before)[:, None]
         others = [i for i in range(NUM_ACTIONS) if i != eat]
         effect = float((change[:, eat] - change[:, others].mean(1)).mean())
         real = float((batch["next", "interoception"][:, -1, :2] - batch["next", "interoception"][:, -2, :2])
                      .float().sum(-1).mean())
-        return effect, real
+        # the same change read from the posteriors, which saw the observation after eating: what the latent holds
+        seen = float((decoded({k: nxt[k][:, -1] for k in LATENT}) - decoded(before)).mean())
+        return effect, real, seen
 
     rows_out: list[dict[str, float]] = []
     began = time.perf_counter()
     for update in range(updates + 1):
         if update % every == 0 or update == updates:
             model.eval()
-            effect, real = eat_effect(test_eaten)
-            nothing, _ = eat_effect(pressed)
+            effect, real, seen = eat_effect(test_eaten)
+            nothing, _, _ = eat_effect(pressed)
             row = {"updates": update, "seconds": time.perf_counter() - began, "eat_effect": effect,
-                   "eat_effect_nothing": nothing, "real_effect": real, "held_out_eating_steps": len(test_eaten),
+                   "eat_effect_nothing": nothing, "real_effect": real, "posterior_effect": seen,
+                   "held_out_eating_steps": len(test_eaten),
                    "world_model_parameters": sum(p.numel() for p in model.world_model_parameters())}
             rows_out.append(row)
             if report is not None:
@@ -737,6 +743,62 @@ def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Se
         nn.utils.clip_grad_norm_(model.world_model_parameters(), cfg.world_model.grad_clip)
         optimizer.step()
     return rows_out
+
+
+def logistic_readout_auc(features: torch.Tensor, labels: torch.Tensor, fit: torch.Tensor) -> float:
+    """How well a logistic regression from ``features`` [N, F], fitted (classes balanced, L-BFGS) on the rows where
+    ``fit`` is true, tells ``labels`` apart on the other rows: the area under the ROC curve there (0.5: no better
+    than chance; 1: perfectly), from the Mann-Whitney U of the scores.  NaN without both labels on both sides."""
+    from scipy.stats import mannwhitneyu
+
+    y = labels.bool()
+    if not (y[fit].any() and (~y[fit]).any() and y[~fit].any() and (~y[~fit]).any()):
+        return float("nan")
+    x = features.double()
+    mean, std = x[fit].mean(0), x[fit].std(0).clamp_min(1e-6)
+    x = (x - mean) / std
+    weights = torch.zeros(x.shape[1], dtype=x.dtype, requires_grad=True)
+    bias = torch.zeros((), dtype=x.dtype, requires_grad=True)
+    balance = (~y[fit]).sum() / y[fit].sum()
+    optimizer = torch.optim.LBFGS([weights, bias], max_iter=200, line_search_fn="strong_wolfe")
+
+    def closure() -> torch.Tensor:
+        optimizer.zero_grad()
+        loss = F.binary_cross_entropy_with_logits(x[fit] @ weights + bias, y[fit].double(), pos_weight=balance)
+        loss = loss + 1e-4 * weights.pow(2).sum()
+        loss.backward()
+        return loss
+
+    optimizer.step(closure)
+    with torch.no_grad():
+        score = (x[~fit] @ weights).numpy()
+    test = y[~fit].numpy()
+    u = mannwhitneyu(score[test], score[~test]).statistic
+    return float(u / (test.sum() * (~test).sum()))
+
+
+def eat_success_readout(run_dir: str | Path, held_out: float = 0.2) -> dict[str, Any]:
+    """Whether the observations say when eating will work: for every stored eat press of a DreamerV3 run's replay,
+    the observation it was pressed on, and whether it ate or drank.  A logistic read-out per vector key (and of all
+    of them together) is fitted on the first ``1 - held_out`` of the rows; its held-out AUC says how much of "food
+    within reach" the key carries, the information a world model needs to predict what eating does."""
+    state = load_checkpoint(Path(run_dir) / CHECKPOINT)
+    replay = state["components"]["replay"]
+    if state.get("algo") not in ("dreamer", "dreamer_xs") or "on_disk" not in replay:
+        raise ValueError(f"{run_dir}: not a DreamerV3 run with its replay on disk")
+    num_envs = int(state["num_envs"])
+    rows = replay["length"] // num_envs
+    data = TensorDict.load_memmap(replay["on_disk"])[:rows]
+    # row r's action was taken on the observation stored as row r - 1's next; a reset's first one is not stored
+    pressed = (data["action"][1:] == ACTION_NAMES.index("eat")) & ~data["is_init"][1:].reshape(rows - 1, num_envs)
+    where = pressed.nonzero()
+    ate = data["next", "consumed"].reshape(rows, num_envs)[1:][pressed]
+    fit = where[:, 0] < int((rows - 1) * (1 - held_out))
+    keys = [k for k in state["obs_keys"] if k != "pixels"]
+    seen = {k: data["next", k][:-1][where[:, 0], where[:, 1]].float().reshape(len(where), -1) for k in keys}
+    auc = {k: logistic_readout_auc(x, ate, fit) for k, x in seen.items()}
+    auc["all of them"] = logistic_readout_auc(torch.cat(list(seen.values()), -1), ate, fit)
+    return {"presses": len(where), "ate": int(ate.sum()), "held_out_ate": int(ate[~fit].sum()), "auc": auc}
 
 
 def linear_probe_r2(features: torch.Tensor, target: torch.Tensor, fit: torch.Tensor,

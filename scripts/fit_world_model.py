@@ -5,9 +5,11 @@
 Trains a new world model (the run's config, with `set` overriding `algo` keys) on the first 90 % of the run's
 memory-mapped replay and, every `every` gradient steps, imagines one step of each action from the posterior before
 each held-out eating step: the decoded satiation + hydration change of eating against the other four actions
-(`eat effect`; the real change beside it) and the same where eating found nothing (should stay near 0).  No env,
-actor or critic: world-model settings compared in minutes on the same data (docs/training.md, "What was tried on
-level 1-1").
+(`eat effect`; beside it the real change, and the change the posterior decodes once it has seen the observation
+after eating) and the same where eating found nothing (should stay near 0).  First it prints how well each
+observation key tells a successful eat press from a fruitless one (a logistic read-out's AUC): whether the data hold
+what the model should learn.  No env, actor or critic: world-model settings compared in minutes on the same data
+(docs/training.md, "What was tried on level 1-1").
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ import torch
 
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
-from evaaa_baselines.dreamer import fit_world_model
+from evaaa_baselines.dreamer import eat_success_readout, fit_world_model
 
 
 @dataclass
@@ -48,11 +50,16 @@ def main(argv: list[str] | None = None) -> int:
         torch.set_num_threads(cfg.threads)
     print(f"{cfg.run}: a new world model, {cfg.updates:,} gradient steps" + (f", {' '.join(cfg.set)}" if cfg.set else "")
           + (f", seeing {', '.join(cfg.keys)}" if cfg.keys else ""))
-    print(f"{'updates':>8} {'seconds':>8} {'eat effect':>11} {'real':>7} {'eat, nothing there':>19}")
+    readout = eat_success_readout(cfg.run, cfg.held_out)
+    print(f"its replay: {readout['presses']:,} eat presses, {readout['ate']} of them ate or drank "
+          f"({readout['held_out_ate']} in the held-out rows); how well a logistic read-out of the observation pressed "
+          "on tells which (held-out AUC, 0.5: chance): "
+          + ", ".join(f"{k} {v:.3f}" for k, v in readout["auc"].items()))
+    print(f"{'updates':>8} {'seconds':>8} {'eat effect':>11} {'real':>7} {'posterior':>10} {'eat, nothing there':>19}")
 
     def report(row: dict) -> None:
         print(f"{row['updates']:>8,} {row['seconds']:>8.0f} {row['eat_effect']:>11.3f} {row['real_effect']:>7.3f} "
-              f"{row['eat_effect_nothing']:>19.3f}", flush=True)
+              f"{row['posterior_effect']:>10.3f} {row['eat_effect_nothing']:>19.3f}", flush=True)
 
     rows = fit_world_model(cfg.run, cfg.updates, cfg.every, cfg.set, cfg.held_out, cfg.seed, report, cfg.keys)
     print(f"held-out eating steps: {rows[-1]['held_out_eating_steps']}")

@@ -316,8 +316,22 @@ def test_a_fresh_world_model_fits_a_runs_replay_and_measures_what_eating_does(ru
     fit = load_script("fit_world_model")
     out = tmp_path / "fit.csv"
     assert fit.main([f"run={runs['whole']}", "updates=2", "every=1", "held_out=0.25", f"out={out}", "threads=1"]) == 0
-    assert "eat effect" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "eat effect" in printed and "held-out AUC" in printed
+    readout = dreamer.eat_success_readout(runs["whole"])
+    assert readout["ate"] <= readout["presses"] and "all of them" in readout["auc"]
     assert [r["updates"] for r in read_csv(out)] == ["0", "1", "2"]
+
+
+def test_the_logistic_readout_tells_what_the_features_carry_and_not_what_they_lack():
+    gen = torch.Generator().manual_seed(0)
+    labels = torch.rand(600, generator=gen) < 0.1  # rare, as eating is
+    carrying = torch.randn(600, 5, generator=gen)
+    carrying[:, 2] += 3 * labels  # one feature says it
+    fit = torch.arange(600) % 2 == 0
+    assert dreamer.logistic_readout_auc(carrying, labels, fit) > 0.95
+    assert abs(dreamer.logistic_readout_auc(torch.randn(600, 5, generator=gen), labels, fit) - 0.5) < 0.15
+    assert math.isnan(dreamer.logistic_readout_auc(carrying, torch.zeros(600, dtype=torch.bool), fit))
 
 
 def test_imagining_each_action_takes_that_action_and_averages_the_draws():
