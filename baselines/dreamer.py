@@ -568,23 +568,30 @@ def consumed(transition: TensorDictBase) -> torch.Tensor:
     return (after["food_eaten"] + after["water_eaten"]) > (before["food_eaten"] + before["water_eaten"])
 
 
-def _probe_replay(run_dir: str | Path, sequences: int) -> tuple[dict, DictConfig, DreamerModel, TensorDictBase]:
-    """A DreamerV3 run's last checkpoint (its state, config and model) and ``sequences`` replayed sequences of 32
-    steps from its memory-mapped replay, around the last eating steps stored (spread over the replay where there
-    are too few), with the zero initial latent the world model starts from: what the probes read."""
+def _run_replay(run_dir: str | Path) -> tuple[dict, TensorDictBase, int, int]:
+    """A DreamerV3 run's last checkpoint and the rows its memory-mapped replay holds ``[rows, worlds]``, with the
+    number of worlds and of rows; refused for another algorithm, a run without interoception or a replay kept in
+    memory."""
     state = load_checkpoint(Path(run_dir) / CHECKPOINT)
     if state.get("algo") not in ("dreamer", "dreamer_xs") or "interoception" not in state["obs_keys"]:
         raise ValueError(f"{run_dir}: not a DreamerV3 run that observes interoception")
     replay = state["components"]["replay"]
     if "on_disk" not in replay:
         raise ValueError(f"{run_dir}: its replay buffer was kept in memory (algo.buffer_on_disk=false), not on disk")
+    num_envs = int(state["num_envs"])
+    rows = replay["length"] // num_envs
+    return state, TensorDict.load_memmap(replay["on_disk"])[:rows], num_envs, rows
+
+
+def _probe_replay(run_dir: str | Path, sequences: int) -> tuple[dict, DictConfig, DreamerModel, TensorDictBase]:
+    """A DreamerV3 run's last checkpoint (its state, config and model) and ``sequences`` replayed sequences of 32
+    steps from its memory-mapped replay, around the last eating steps stored (spread over the replay where there
+    are too few), with the zero initial latent the world model starts from: what the probes read."""
+    state, data, num_envs, rows = _run_replay(run_dir)
     cfg = OmegaConf.create(state["config"])
     model = make_model(cfg.algo, {k: tuple(v) for k, v in state["obs_shapes"].items()})
     model.load_state_dict(state["model"])
     model.eval()
-    num_envs = int(state["num_envs"])
-    rows = replay["length"] // num_envs
-    data = TensorDict.load_memmap(replay["on_disk"])[:rows]
     length = min(32, rows)
     eaten = data["next", "consumed"].reshape(rows, num_envs).nonzero()
     spread = torch.stack([torch.arange(sequences) * rows // sequences, torch.arange(sequences) % num_envs], dim=1)
@@ -644,15 +651,10 @@ def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Se
     (:func:`imagine_each_action`), and the decoded satiation plus hydration change of eating against the mean of the
     other four actions (``eat_effect``), beside the same on the eat actions that found nothing
     (``eat_effect_nothing``, which should stay near 0), the real change (``real_effect``) and the change decoded
-    from the posterior that saw the observation after eating (``posterior_effect``: whether the latent holds it).  ``keys``: the
-    observation keys the new model sees (default: the run's; interoception is needed).  ``report(row)`` is called
-    with each measurement."""
-    state = load_checkpoint(Path(run_dir) / CHECKPOINT)
-    if state.get("algo") not in ("dreamer", "dreamer_xs") or "interoception" not in state["obs_keys"]:
-        raise ValueError(f"{run_dir}: not a DreamerV3 run that observes interoception")
-    replay = state["components"]["replay"]
-    if "on_disk" not in replay:
-        raise ValueError(f"{run_dir}: its replay buffer was kept in memory (algo.buffer_on_disk=false), not on disk")
+    from the posterior that saw the observation after eating (``posterior_effect``: whether the latent holds it).
+    ``keys``: the observation keys the new model sees (default: the run's; interoception is needed).
+    ``report(row)`` is called with each measurement."""
+    state, data, num_envs, rows = _run_replay(run_dir)
     cfg = OmegaConf.merge(OmegaConf.create(state["config"]).algo, OmegaConf.from_dotlist(list(overrides)))
     shapes = {k: tuple(v) for k, v in state["obs_shapes"].items()}
     if keys is not None:
@@ -664,9 +666,6 @@ def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Se
     model = make_model(cfg, shapes)
     loss = WorldModelLoss(cfg, model)
     optimizer = torch.optim.Adam(model.world_model_parameters(), lr=cfg.world_model.lr, eps=cfg.world_model.eps)
-    num_envs = int(state["num_envs"])
-    rows = replay["length"] // num_envs
-    data = TensorDict.load_memmap(replay["on_disk"])[:rows]
     length, context = cfg.sequence_length, 16
     split = int(rows * (1 - held_out))
     if split < length or rows - split < context + 1:
@@ -782,13 +781,7 @@ def eat_success_readout(run_dir: str | Path, held_out: float = 0.2) -> dict[str,
     the observation it was pressed on, and whether it ate or drank.  A logistic read-out per vector key (and of all
     of them together) is fitted on the first ``1 - held_out`` of the rows; its held-out AUC says how much of "food
     within reach" the key carries, the information a world model needs to predict what eating does."""
-    state = load_checkpoint(Path(run_dir) / CHECKPOINT)
-    replay = state["components"]["replay"]
-    if state.get("algo") not in ("dreamer", "dreamer_xs") or "on_disk" not in replay:
-        raise ValueError(f"{run_dir}: not a DreamerV3 run with its replay on disk")
-    num_envs = int(state["num_envs"])
-    rows = replay["length"] // num_envs
-    data = TensorDict.load_memmap(replay["on_disk"])[:rows]
+    state, data, num_envs, rows = _run_replay(run_dir)
     # row r's action was taken on the observation stored as row r - 1's next; a reset's first one is not stored
     pressed = (data["action"][1:] == ACTION_NAMES.index("eat")) & ~data["is_init"][1:].reshape(rows - 1, num_envs)
     where = pressed.nonzero()
@@ -967,8 +960,9 @@ class WorldModelLoss(nn.Module):
     representation weights, free nats and unimix; pixels as x/255 and the vector keys in symlog space; two-hot
     reward; continue predicted from ``terminated``, not truncation), plus ``algo.world_model.vector_scale - 1``
     times the vector keys' reconstruction.  The keys in ``algo.world_model.raw_keys`` are reconstructed in raw units
-    instead of symlog space: symlog squeezes a meal's +3.3 satiation at -8 to a change of 0.34.  Returns the total, the loss's terms, the posterior (detached) and the
-    vector keys' reconstruction loss (None without vector keys)."""
+    instead of symlog space: symlog squeezes a meal's +3.3 satiation at -8 to a change of 0.34.  Returns the total,
+    the loss's terms, the posterior (detached) and the vector keys' reconstruction loss (None without vector
+    keys)."""
 
     def __init__(self, cfg: DictConfig, model: DreamerModel):
         super().__init__()

@@ -48,7 +48,8 @@ def main(argv: list[str] | None = None) -> int:
                     examples=["run=runs/1-1/dreamer_xs/all-squared/seed0 updates=1000 \"set=[consume_share=0.5]\""])
     if cfg.threads is not None:
         torch.set_num_threads(cfg.threads)
-    print(f"{cfg.run}: a new world model, {cfg.updates:,} gradient steps" + (f", {' '.join(cfg.set)}" if cfg.set else "")
+    print(f"{cfg.run}: a new world model, {cfg.updates:,} gradient steps"
+          + (f", {' '.join(cfg.set)}" if cfg.set else "")
           + (f", seeing {', '.join(cfg.keys)}" if cfg.keys else ""))
     readout = eat_success_readout(cfg.run, cfg.held_out)
     print(f"its replay: {readout['presses']:,} eat presses, {readout['ate']} of them ate or drank "

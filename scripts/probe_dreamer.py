@@ -1,4 +1,4 @@
-"""How well a DreamerV3 run's world model knows the EVs the reward is computed from, and what it says each action is worth.
+"""How well a DreamerV3 run's world model knows the EVs, and what it says each action is worth.
 
     python scripts/probe_dreamer.py run=runs/1-1/dreamer_xs/all-drive_reduction/seed0
 
@@ -59,7 +59,8 @@ def main(argv: list[str] | None = None) -> int:
         for label, row in rows.items():
             print(f"    {label:<30}" + "".join(f"{v:9.3f}" for v in row.values()))
         real = group["real_ev_change"]
-        print(f"    {'real change, action taken':<30}satiation {real['satiation']:.3f}, hydration {real['hydration']:.3f}")
+        print(f"    {'real change, action taken':<30}satiation {real['satiation']:.3f}, "
+              f"hydration {real['hydration']:.3f}")
     return 0
 
 
