@@ -688,15 +688,18 @@ def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Se
     pressed = ((data["action"][split:] == eat) & ~eaten[split:]).nonzero()
     pressed = pressed[pressed[:, 0] >= context]
     pressed = pressed[torch.randperm(len(pressed), generator=gen)[:256]]
+    # the same measurement on eating steps the model trains on: learnt there but not held out is too few meals
+    seen_eaten = train_eaten[train_eaten[:, 0] >= context]
+    seen_eaten = seen_eaten[torch.randperm(len(seen_eaten), generator=gen)[:64]]
 
     def decoded(latent: Mapping[str, torch.Tensor]) -> torch.Tensor:  # satiation + hydration
         return model.decoder.vector("interoception", latent["state"], latent["belief"])[..., :2].sum(-1)
 
     @torch.no_grad()
-    def eat_effect(where: torch.Tensor) -> tuple[float, float, float]:
+    def eat_effect(where: torch.Tensor, offset: int = split) -> tuple[float, float, float]:
         if not len(where):
             return float("nan"), float("nan"), float("nan")
-        batch = sequences(split + where[:, 0] - context, where[:, 1], context + 1)
+        batch = sequences(offset + where[:, 0] - context, where[:, 1], context + 1)
         nxt = world_model(model)(batch)["next"]
         # the posterior after the step before the action; the action's own step is the last row
         before = {k: nxt[k][:, -2] for k in LATENT}
@@ -718,8 +721,10 @@ def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Se
             model.eval()
             effect, real, seen = eat_effect(test_eaten)
             nothing, _, _ = eat_effect(pressed)
+            trained, _, _ = eat_effect(seen_eaten, 0)
             row = {"updates": update, "seconds": time.perf_counter() - began, "eat_effect": effect,
-                   "eat_effect_nothing": nothing, "real_effect": real, "posterior_effect": seen,
+                   "eat_effect_nothing": nothing, "eat_effect_trained": trained, "real_effect": real,
+                   "posterior_effect": seen,
                    "held_out_eating_steps": len(test_eaten),
                    "world_model_parameters": sum(p.numel() for p in model.world_model_parameters())}
             rows_out.append(row)

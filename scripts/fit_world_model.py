@@ -6,10 +6,11 @@ Trains a new world model (the run's config, with `set` overriding `algo` keys) o
 memory-mapped replay and, every `every` gradient steps, imagines one step of each action from the posterior before
 each held-out eating step: the decoded satiation + hydration change of eating against the other four actions
 (`eat effect`; beside it the real change, and the change the posterior decodes once it has seen the observation
-after eating) and the same where eating found nothing (should stay near 0).  First it prints how well each
-observation key tells a successful eat press from a fruitless one (a logistic read-out's AUC): whether the data hold
-what the model should learn.  No env, actor or critic: world-model settings compared in minutes on the same data
-(docs/training.md, "What was tried on level 1-1").
+after eating), the same on up to 64 eating steps it trains on (`on trained`: learnt there but not on the held-out
+ones means too few meals to generalise from) and where eating found nothing (should stay near 0).  First it prints
+how well each observation key tells a successful eat press from a fruitless one (a logistic read-out's AUC):
+whether the data hold what the model should learn.  No env, actor or critic: world-model settings compared in
+minutes on the same data (docs/training.md, "What was tried on level 1-1").
 """
 
 from __future__ import annotations
@@ -56,10 +57,12 @@ def main(argv: list[str] | None = None) -> int:
           f"({readout['held_out_ate']} in the held-out rows); how well a logistic read-out of the observation pressed "
           "on tells which (held-out AUC, 0.5: chance): "
           + ", ".join(f"{k} {v:.3f}" for k, v in readout["auc"].items()))
-    print(f"{'updates':>8} {'seconds':>8} {'eat effect':>11} {'real':>7} {'posterior':>10} {'eat, nothing there':>19}")
+    print(f"{'updates':>8} {'seconds':>8} {'eat effect':>11} {'on trained':>11} {'real':>7} {'posterior':>10} "
+          f"{'eat, nothing there':>19}")
 
     def report(row: dict) -> None:
-        print(f"{row['updates']:>8,} {row['seconds']:>8.0f} {row['eat_effect']:>11.3f} {row['real_effect']:>7.3f} "
+        print(f"{row['updates']:>8,} {row['seconds']:>8.0f} {row['eat_effect']:>11.3f} "
+              f"{row['eat_effect_trained']:>11.3f} {row['real_effect']:>7.3f} "
               f"{row['posterior_effect']:>10.3f} {row['eat_effect_nothing']:>19.3f}", flush=True)
 
     rows = fit_world_model(cfg.run, cfg.updates, cfg.every, cfg.set, cfg.held_out, cfg.seed, report, cfg.keys)
