@@ -140,7 +140,13 @@ class DreamerDecoder(nn.Module):
 
     def vector(self, key: str, state: torch.Tensor, belief: torch.Tensor) -> torch.Tensor:
         """One vector key's reconstruction alone (raw units), without decoding the pixels."""
-        return self._symexp(self.heads[key](self.mlp(torch.cat([state, belief], dim=-1))))
+        return self.vectors(state, belief, (key,))[key]
+
+    def vectors(self, state: torch.Tensor, belief: torch.Tensor,
+                keys: Sequence[str] | None = None) -> dict[str, torch.Tensor]:
+        """The vector keys' reconstructions (raw units; all of them by default), without decoding the pixels."""
+        hidden = self.mlp(torch.cat([state, belief], dim=-1))
+        return {key: self._symexp(self.heads[key](hidden)) for key in (self.heads if keys is None else keys)}
 
     @staticmethod
     def _symexp(y: torch.Tensor) -> torch.Tensor:
@@ -653,7 +659,10 @@ def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Se
     (``eat_effect_nothing``, which should stay near 0), the real change (``real_effect``) and the change decoded
     from the posterior that saw the observation after eating (``posterior_effect``: whether the latent holds it).
     ``keys``: the observation keys the new model sees (default: the run's; interoception is needed).
-    ``report(row)`` is called with each measurement."""
+    ``report(row)`` is called with each measurement.  The last row adds ``latent_auc_state``, ``latent_auc_belief``
+    and ``latent_auc_belief_after_eat``: how well a logistic read-out of the trained model's latent on the observation
+    an eat press was made on (and of the deterministic state the eat action leads to) tells a press that ate from a
+    fruitless one, on the held-out rows (:func:`eat_success_readout` does the same from the observation itself)."""
     state, data, num_envs, rows = _run_replay(run_dir)
     cfg = OmegaConf.merge(OmegaConf.create(state["config"]).algo, OmegaConf.from_dotlist(list(overrides)))
     shapes = {k: tuple(v) for k, v in state["obs_shapes"].items()}
@@ -746,6 +755,24 @@ def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Se
         total.backward()
         nn.utils.clip_grad_norm_(model.world_model_parameters(), cfg.world_model.grad_clip)
         optimizer.step()
+    # what the trained latent keeps of "this press will eat": a logistic read-out, fitted on the training rows'
+    # presses and scored on the held-out ones, as eat_success_readout does from the observation itself
+    model.eval()
+    presses = (data["action"][context:] == eat).nonzero()
+    presses[:, 0] += context
+    success = eaten[presses[:, 0], presses[:, 1]]
+    fruitless = presses[~success]
+    presses = torch.cat([presses[success], fruitless[torch.randperm(len(fruitless), generator=gen)[:1500]]])
+    labels = eaten[presses[:, 0], presses[:, 1]]
+    features: dict[str, list[torch.Tensor]] = {"state": [], "belief": [], "belief_after_eat": []}
+    with torch.no_grad():
+        for chunk in presses.split(256):
+            nxt = world_model(model)(sequences(chunk[:, 0] - context, chunk[:, 1], context + 1))["next"]
+            features["state"].append(nxt["state"][:, -2])  # the posterior on the observation pressed on
+            features["belief"].append(nxt["belief"][:, -2])
+            features["belief_after_eat"].append(nxt["belief"][:, -1])  # the eat action taken, its outcome unseen
+    rows_out[-1] |= {f"latent_auc_{name}": logistic_readout_auc(torch.cat(x), labels, presses[:, 0] < split)
+                     for name, x in features.items()}
     return rows_out
 
 
@@ -953,11 +980,32 @@ def vector_reconstruction(posterior: TensorDictBase, keys: Sequence[str], raw: S
     in raw units for the keys in ``raw``, summed over each key's entries, averaged over the replayed steps), summed
     over ``keys``.  With pixels it is a small part of the loss (4 EVs against 12,288 pixel values):
     ``algo.world_model.vector_scale`` weighs it more."""
+    return _vector_error({k: posterior["next", k] for k in keys}, {k: posterior["next", f"reco_{k}"] for k in keys},
+                         raw)
+
+
+def _vector_error(target: Mapping[str, torch.Tensor], predicted: Mapping[str, torch.Tensor],
+                  raw: Sequence[str] = ()) -> torch.Tensor:
     def space(k: str, x: torch.Tensor) -> torch.Tensor:
         return x.float() if k in raw else symlog(x.float())
 
-    return sum(((space(k, posterior["next", k]) - space(k, posterior["next", f"reco_{k}"])) ** 2).sum(-1).mean()
-               for k in keys)
+    return sum(((space(k, target[k]) - space(k, predicted[k])) ** 2).sum(-1).mean() for k in target)
+
+
+def prior_vector_reconstruction(posterior: TensorDictBase, decoder: DreamerDecoder, keys: Sequence[str],
+                                raw: Sequence[str] = (), unimix: float = 0.01) -> torch.Tensor:
+    """The vector keys of each next observation decoded from the *prior* (a straight-through draw of its latent,
+    with the deterministic state the action led to) instead of the posterior that saw it, scored as
+    :func:`vector_reconstruction`: a one-step latent overshooting term (``algo.world_model.prior_vector_scale``)
+    that trains the transition, through the decoder, to predict what an action does to the EVs.  Without it only
+    the dynamics KL teaches the prior, and a meal, under 1 % of the steps, barely moves it (docs/training.md)."""
+    nxt = posterior["next"]
+    probs = torch.softmax(nxt["prior_logits"].float(), dim=-1)
+    probs = (1 - unimix) * probs + unimix / probs.shape[-1]
+    draw = F.one_hot(torch.multinomial(probs.flatten(0, -2), 1).squeeze(-1), probs.shape[-1]).view_as(probs)
+    state = (draw + probs - probs.detach()).flatten(-2)
+    predicted = decoder.vectors(state, nxt["belief"], keys)
+    return _vector_error({k: nxt[k] for k in keys}, predicted, raw)
 
 
 class WorldModelLoss(nn.Module):
@@ -974,6 +1022,11 @@ class WorldModelLoss(nn.Module):
         keys = model.obs_keys
         self.vector_keys = [k for k in keys if k != "pixels"]
         self.vector_extra = float(cfg.world_model.get("vector_scale", 1.0)) - 1.0
+        self.prior_scale = float(cfg.world_model.get("prior_vector_scale", 0.0))
+        if self.prior_scale < 0 or (self.prior_scale and not self.vector_keys):
+            raise ValueError(f"algo.world_model.prior_vector_scale must be >= 0, and 0 without vector observation "
+                             f"keys (this run has {self.vector_keys}), got {self.prior_scale}")
+        self.decoder, self.unimix = model.decoder, float(cfg.model.unimix)
         raw = cfg.world_model.get("raw_keys", ())
         self.raw_keys = (raw,) if isinstance(raw, str) else tuple(raw)  # one key may come as a plain string
         if not set(self.raw_keys) <= set(self.vector_keys):
@@ -986,7 +1039,7 @@ class WorldModelLoss(nn.Module):
             unimix=cfg.model.unimix, lambda_continue=cfg.world_model.continue_scale, reco_loss="l2",
             reco_symlog=symlogged, reward_two_hot=True, num_reward_bins=cfg.model.bins,
             # the vector keys' extra reconstruction term needs the graph; everything else reads the output detached
-            detach_output=not self.vector_extra)
+            detach_output=not (self.vector_extra or self.prior_scale))
         self.loss.set_keys(pixels=list(keys), reco_pixels=[f"reco_{k}" for k in keys])
 
     def forward(self, batch: TensorDictBase) -> tuple[torch.Tensor, TensorDictBase, TensorDictBase,
@@ -994,13 +1047,17 @@ class WorldModelLoss(nn.Module):
         losses, posterior = self.loss(batch)
         total = sum(v for k, v in losses.items() if k.startswith("loss_")).squeeze()
         vector_reco = None
+        if self.prior_scale:
+            total = total + self.prior_scale * prior_vector_reconstruction(posterior, self.decoder, self.vector_keys,
+                                                                           self.raw_keys, self.unimix)
         if self.vector_extra:
             vector_reco = vector_reconstruction(posterior, self.vector_keys, self.raw_keys)
             total = total + self.vector_extra * vector_reco
-            posterior = posterior.detach()
         elif self.vector_keys:  # a metric only
             with torch.no_grad():
                 vector_reco = vector_reconstruction(posterior, self.vector_keys, self.raw_keys)
+        if self.vector_extra or self.prior_scale:
+            posterior = posterior.detach()
         return total, losses, posterior, vector_reco
 
 

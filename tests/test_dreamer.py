@@ -306,6 +306,8 @@ def test_a_fresh_world_model_fits_a_runs_replay_and_measures_what_eating_does(ru
     # with no held-out eating step there is nothing to measure: NaN, not a made-up 0
     assert all(math.isnan(r["eat_effect"]) == (r["held_out_eating_steps"] == 0) for r in rows)
     assert all("eat_effect_trained" in r for r in rows)  # the same on eating steps it trains on
+    # the trained latent's read-out of "this press will eat" comes with the last measurement only
+    assert "latent_auc_belief" in rows[-1] and "latent_auc_belief" not in rows[0]
     blind = dreamer.fit_world_model(runs["whole"], updates=1, every=1, held_out=0.25,
                                     keys=["interoception", "olfaction"])
     assert len(blind) == 2  # without the pixels' encoder and decoder
@@ -319,6 +321,7 @@ def test_a_fresh_world_model_fits_a_runs_replay_and_measures_what_eating_does(ru
     assert fit.main([f"run={runs['whole']}", "updates=2", "every=1", "held_out=0.25", f"out={out}", "threads=1"]) == 0
     printed = capsys.readouterr().out
     assert "eat effect" in printed and "on trained" in printed and "held-out AUC" in printed
+    assert "read-out of the trained latent" in printed
     readout = dreamer.eat_success_readout(runs["whole"])
     assert readout["ate"] <= readout["presses"] and "all of them" in readout["auc"]
     assert [r["updates"] for r in read_csv(out)] == ["0", "1", "2"]

@@ -294,3 +294,31 @@ def test_vector_scale_changes_what_the_world_model_learns(tmp_path):
     assert weighted["model_loss"][0] == pytest.approx(plain["model_loss"][0] + 9 * plain["model_reco_vector"][0],
                                                       rel=1e-4)
     assert weighted["model_grad_norm"][0] != pytest.approx(plain["model_grad_norm"][0], rel=1e-3)
+
+
+def test_the_prior_term_trains_the_transition_to_predict_the_evs_and_a_negative_weight_is_refused():
+    """``algo.world_model.prior_vector_scale``: the vector keys decoded from the prior's latent reach the prior's
+    own head (which the posterior's reconstruction never does), scaled into the loss; < 0 is refused."""
+    with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
+        cfg = compose("config", overrides=["algo=dreamer", "preset=debug"])
+    shapes = {"interoception": (4,), "olfaction": (10,)}
+    torch.manual_seed(0)
+    model = dreamer.make_model(cfg.algo, shapes)
+    batch = TensorDict({"action": torch.randint(5, (2, 6)), "is_init": torch.zeros(2, 6, 1, dtype=torch.bool),
+                        "state": torch.zeros(2, 6, model.state_dim), "belief": torch.zeros(2, 6, model.belief_dim),
+                        "next": {"interoception": torch.randn(2, 6, 4), "olfaction": torch.rand(2, 6, 10)}}, [2, 6])
+    out = dreamer.world_model(model)(batch)
+    head = list(model.prior.rnn_to_prior_projector.parameters())
+
+    def grads(loss: torch.Tensor) -> list[torch.Tensor | None]:
+        return torch.autograd.grad(loss, head, allow_unused=True, retain_graph=True)
+
+    assert all(g is None or not g.any() for g in grads(dreamer.vector_reconstruction(out, list(shapes))))
+    prior = dreamer.prior_vector_reconstruction(out, model.decoder, list(shapes))
+    assert float(prior.detach()) > 0 and any(g is not None and g.abs().sum() > 0 for g in grads(prior))
+    cfg.algo.world_model.prior_vector_scale = 3.0
+    loss = dreamer.WorldModelLoss(cfg.algo, model)
+    assert loss.prior_scale == 3.0 and not loss.loss.detach_output  # the term needs the graph
+    cfg.algo.world_model.prior_vector_scale = -1.0
+    with pytest.raises(ValueError, match="prior_vector_scale must be >= 0"):
+        dreamer.WorldModelLoss(cfg.algo, model)
