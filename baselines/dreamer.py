@@ -659,10 +659,11 @@ def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Se
     (``eat_effect_nothing``, which should stay near 0), the real change (``real_effect``) and the change decoded
     from the posterior that saw the observation after eating (``posterior_effect``: whether the latent holds it).
     ``keys``: the observation keys the new model sees (default: the run's; interoception is needed).
-    ``report(row)`` is called with each measurement.  The last row adds ``latent_auc_state``, ``latent_auc_belief``
-    and ``latent_auc_belief_after_eat``: how well a logistic read-out of the trained model's latent on the observation
-    an eat press was made on (and of the deterministic state the eat action leads to) tells a press that ate from a
-    fruitless one, on the held-out rows (:func:`eat_success_readout` does the same from the observation itself)."""
+    ``report(row)`` is called with each measurement.  The last row adds ``latent_auc_embedding``,
+    ``latent_auc_state``, ``latent_auc_belief`` and ``latent_auc_belief_after_eat``: how well a logistic read-out of
+    the trained encoder's embedding and latent on the observation an eat press was made on (and of the deterministic
+    state the eat action leads to) tells a press that ate from a fruitless one, on the held-out rows
+    (:func:`eat_success_readout` does the same from the observation itself)."""
     state, data, num_envs, rows = _run_replay(run_dir)
     cfg = OmegaConf.merge(OmegaConf.create(state["config"]).algo, OmegaConf.from_dotlist(list(overrides)))
     shapes = {k: tuple(v) for k, v in state["obs_shapes"].items()}
@@ -764,10 +765,11 @@ def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Se
     fruitless = presses[~success]
     presses = torch.cat([presses[success], fruitless[torch.randperm(len(fruitless), generator=gen)[:1500]]])
     labels = eaten[presses[:, 0], presses[:, 1]]
-    features: dict[str, list[torch.Tensor]] = {"state": [], "belief": [], "belief_after_eat": []}
+    features: dict[str, list[torch.Tensor]] = {"embedding": [], "state": [], "belief": [], "belief_after_eat": []}
     with torch.no_grad():
         for chunk in presses.split(256):
             nxt = world_model(model)(sequences(chunk[:, 0] - context, chunk[:, 1], context + 1))["next"]
+            features["embedding"].append(nxt["encoded_latents"][:, -2])  # the encoder's, before the latent
             features["state"].append(nxt["state"][:, -2])  # the posterior on the observation pressed on
             features["belief"].append(nxt["belief"][:, -2])
             features["belief_after_eat"].append(nxt["belief"][:, -1])  # the eat action taken, its outcome unseen

@@ -69,9 +69,9 @@ def main(argv: list[str] | None = None) -> int:
     rows = fit_world_model(cfg.run, cfg.updates, cfg.every, cfg.set, cfg.held_out, cfg.seed, report, cfg.keys)
     last = rows[-1]
     print(f"held-out eating steps: {last['held_out_eating_steps']}; the same read-out of the trained latent on the "
-          f"observation pressed on (held-out AUC): stochastic state {last['latent_auc_state']:.3f}, deterministic "
-          f"state {last['latent_auc_belief']:.3f}, deterministic state after the eat action "
-          f"{last['latent_auc_belief_after_eat']:.3f}")
+          f"observation pressed on (held-out AUC): encoder's embedding {last['latent_auc_embedding']:.3f}, "
+          f"stochastic state {last['latent_auc_state']:.3f}, deterministic state {last['latent_auc_belief']:.3f}, "
+          f"deterministic state after the eat action {last['latent_auc_belief_after_eat']:.3f}")
     if cfg.out:
         Path(cfg.out).parent.mkdir(parents=True, exist_ok=True)
         with open(cfg.out, "w", newline="") as f:
