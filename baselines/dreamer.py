@@ -1004,8 +1004,7 @@ def prior_vector_reconstruction(posterior: TensorDictBase, decoder: DreamerDecod
     nxt = posterior["next"]
     probs = torch.softmax(nxt["prior_logits"].float(), dim=-1)
     probs = (1 - unimix) * probs + unimix / probs.shape[-1]
-    draw = F.one_hot(torch.multinomial(probs.flatten(0, -2), 1).squeeze(-1), probs.shape[-1]).view_as(probs)
-    state = (draw + probs - probs.detach()).flatten(-2)
+    state = torch.distributions.OneHotCategoricalStraightThrough(probs=probs).rsample().flatten(-2)
     predicted = decoder.vectors(state, nxt["belief"], keys)
     return _vector_error({k: nxt[k] for k in keys}, predicted, raw)
 
