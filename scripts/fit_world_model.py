@@ -10,8 +10,8 @@ after eating), the same on up to 64 eating steps it trains on (`on trained`: lea
 ones means too few meals to generalise from) and where eating found nothing (should stay near 0).  First it prints
 how well each observation key tells a successful eat press from a fruitless one (a logistic read-out's AUC):
 whether the data hold what the model should learn; last, the same read-out from the trained latent: whether the
-model keeps it.  No env, actor or critic: world-model settings compared in
-minutes on the same data (docs/training.md, "What was tried on level 1-1").
+model keeps it.  No env, actor or critic: world-model settings compared in minutes on the same data
+(docs/training.md, "What was tried on level 1-1").
 """
 
 from __future__ import annotations
