@@ -794,6 +794,15 @@ class Scheduler:
                             continue
                         if redo or "start_over=true" in commands[0].argv or status(cell, self.lay) == "todo":
                             self.lay.clock(cell.name).unlink(missing_ok=True)  # nothing of it is left: timed anew
+                        if "start_over=true" in commands[0].argv:
+                            # a training from zero makes new models: what was evaluated from the old ones no longer
+                            # describes them (training is not reproducible to the bit), so it is evaluated again
+                            for dep in self._outdated_evaluations(cell):
+                                if dep.name not in selected:
+                                    selected.add(dep.name)
+                                    waiting.append(dep)
+                                    if bar is not None:
+                                        bar.total += 1
                         job = _Job(cell, list(commands), redo=redo)  # commands popped as they start
                         self._start(job)
                         running.append(job)
@@ -827,10 +836,29 @@ class Scheduler:
         if blocked:
             self.echo("not started (a cell they need failed or was not selected, and its files are missing): "
                       + ", ".join(blocked))
-        not_started = len(todo) - len(finished) - len(failed)
+        not_started = len(selected) - len(finished) - len(failed)  # todo and the evaluations made again
         if not_started:
             self.echo(f"{not_started} cell(s) not started (max_minutes); the same command continues")
-        return 0 if len(finished) == len(todo) else 1
+        return 0 if len(finished) == len(selected) else 1
+
+    def _outdated_evaluations(self, train: Cell) -> list[Cell]:
+        """The evaluation cells of ``train`` that have results, their folders moved aside (``<out>.old-<UTC time>``,
+        never deleted) so that they are made again from the models about to be trained."""
+        outdated = []
+        for dep in self.cells:
+            if dep.kind != "eval" or train.name not in dep.needs_cells:
+                continue
+            moved = False
+            for cmd in dep.commands:
+                if cmd.out is not None and cmd.out.exists():
+                    aside = cmd.out.with_name(f"{cmd.out.name}.old-{utc_stamp()}")
+                    cmd.out.rename(aside)
+                    self.echo(f"{train.name} trains from zero: moved its earlier evaluation {cmd.out} to {aside}")
+                    moved = True
+            if moved:
+                self.lay.clock(dep.name).unlink(missing_ok=True)
+                outdated.append(dep)
+        return outdated
 
     def _finish(self, cell: Cell) -> None:
         """Mark ``cell`` done (every kind gets a marker with the wall and CPU seconds its commands took, over every

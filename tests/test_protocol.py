@@ -413,6 +413,45 @@ def test_a_finished_training_whose_models_are_gone_is_trained_again_only_for_eva
     assert train.final_model.is_file() and all(status(c, lay, cells) == "done" for c in cells)
 
 
+def test_a_training_from_zero_has_its_earlier_evaluations_made_again_from_the_new_models(tmp_path):
+    # a curriculum: two stage evaluations of one training, one made before the models were lost, one still to make
+    lay, (train, ev, rep) = _fake(tmp_path)
+    out2 = lay.evals / "b"
+    ev2_code = (f"import pathlib; m=pathlib.Path({str(train.final_model)!r}); assert m.exists(); "
+                f"o=pathlib.Path({str(out2)!r}); o.mkdir(parents=True, exist_ok=True); "
+                "(o/'episodes.csv').write_text('x')")
+    ev2 = Cell("eval/b", "eval", [Command(_py(ev2_code), out2)], 1.0, "e", needs=[train.final_model],
+               needs_cells=["train/a"])
+    rep.needs_cells.append("eval/b")
+    cells = [train, ev, ev2, rep]
+    assert _scheduler(lay, cells).run(cells) == 0
+    first = ev.commands[0].out / "episodes.csv"
+    first.write_text("from the first models")
+    train.final_model.unlink()  # a clone of the committed results
+    (out2 / "episodes.csv").unlink()  # and eval/b still to make: the training runs again, from zero
+    todo = [c for c in cells if status(c, lay, cells) != "done"]
+    assert names(todo) == ["train/a", "eval/b", "report"]  # eval/a looks done before the training restarts
+    messages = []
+    sched = Scheduler(load_protocol("smoke"), cells, lay, progress=False, echo=messages.append)
+    assert sched.run(todo) == 0
+    assert first.read_text() == "x"  # made again from the new model
+    aside = list(lay.evals.glob("a.old-*"))
+    assert len(aside) == 1 and (aside[0] / "episodes.csv").read_text() == "from the first models"  # kept
+    assert any("train/a trains from zero: moved its earlier evaluation" in m for m in messages)
+    assert lay.log("eval/a").read_text().count("\n== ") == 2
+    assert all(status(c, lay, cells) == "done" for c in cells)
+    # continued from its checkpoint (resume=true), a training leaves its evaluations alone
+    lay.marker("train/a").unlink()
+    train.final_model.unlink()
+    (train.run_dir / "checkpoint.pt").write_text("c")
+    first.write_text("kept")
+    todo = [c for c in cells if status(c, lay, cells) != "done"]
+    assert names(todo) == ["train/a", "report"]
+    assert _scheduler(lay, cells).run(todo) == 0
+    assert lay.log("train/a").read_text().split("\n== ")[-1].rstrip().endswith("resume=true")
+    assert first.read_text() == "kept" and len(list(lay.evals.glob("a.old-*"))) == 1
+
+
 def test_commands_name_files_inside_the_repository_relative_to_it(tmp_path):
     from evaaa_baselines.protocol import REPO
     inside = REPO / "runs" / "protocol" / "named-relative"
