@@ -6,7 +6,9 @@ with EVAAA_THREADS and threads set as the protocol says. ``plan=true`` prints ev
 partial, todo), estimated CPU-minutes and command; without it the cells not yet done run, ``jobs`` at a time, each
 once the models it needs exist, with a log per cell under ``root/logs``. Killed, the same command continues where it
 stopped: a started training run continues (resume=true), an unfinished evaluation's folder is moved aside
-(``<out>.partial-<UTC time>``) and the evaluation run again. See docs/reports.md.
+(``<out>.partial-<UTC time>``) and the evaluation run again; a training that has to start from zero (its models
+and checkpoints gone, as on a fresh clone) has the evaluations made of its old models moved aside and made again.
+See docs/reports.md.
 """
 
 from __future__ import annotations
