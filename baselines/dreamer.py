@@ -589,14 +589,24 @@ def _run_replay(run_dir: str | Path) -> tuple[dict, TensorDictBase, int, int]:
     return state, TensorDict.load_memmap(replay["on_disk"])[:rows], num_envs, rows
 
 
-def _probe_replay(run_dir: str | Path, sequences: int) -> tuple[dict, DictConfig, DreamerModel, TensorDictBase]:
-    """A DreamerV3 run's last checkpoint (its state, config and model) and ``sequences`` replayed sequences of 32
-    steps from its memory-mapped replay, around the last eating steps stored (spread over the replay where there
-    are too few), with the zero initial latent the world model starts from: what the probes read."""
+def _probe_replay(run_dir: str | Path, sequences: int, model_file: str | Path | None = None
+                  ) -> tuple[dict, DictConfig, DreamerModel, TensorDictBase, int]:
+    """A DreamerV3 run's last checkpoint (its state, config and model; with ``model_file``, the networks of that file
+    instead, e.g. ``model-best-0-1-1.pt``), ``sequences`` replayed sequences of 32 steps from its memory-mapped
+    replay, around the last eating steps stored (spread over the replay where there are too few), with the zero
+    initial latent the world model starts from, and the env steps the networks had trained for: what the probes
+    read."""
     state, data, num_envs, rows = _run_replay(run_dir)
-    cfg = OmegaConf.create(state["config"])
+    networks, steps = state, int(state["counters"]["steps"])
+    if model_file is not None:
+        networks = load_checkpoint(Path(model_file))
+        if networks.get("algo") != state["algo"] or networks.get("obs_shapes") != state["obs_shapes"]:
+            raise ValueError(f"model={model_file}: not the networks of this run's algorithm and observations "
+                             f"({state['algo']}, {sorted(state['obs_shapes'])})")
+        steps = int(networks.get("env_steps") or networks.get("counters", {}).get("steps", 0))
+    cfg = OmegaConf.create(networks["config"])
     model = make_model(cfg.algo, {k: tuple(v) for k, v in state["obs_shapes"].items()})
-    model.load_state_dict(state["model"])
+    model.load_state_dict(networks["model"])
     model.eval()
     length = min(32, rows)
     eaten = data["next", "consumed"].reshape(rows, num_envs).nonzero()
@@ -606,10 +616,11 @@ def _probe_replay(run_dir: str | Path, sequences: int) -> tuple[dict, DictConfig
     batch = data[start[:, None] + torch.arange(length), anchors[:, 1:2]].clone()
     batch["state"] = torch.zeros(*batch.shape, model.state_dim)
     batch["belief"] = torch.zeros(*batch.shape, model.belief_dim)
-    return state, cfg, model, batch
+    return state, cfg, model, batch, steps
 
 
-def ev_decoding_errors(run_dir: str | Path, sequences: int = 64) -> dict[str, Any]:
+def ev_decoding_errors(run_dir: str | Path, sequences: int = 64, model_file: str | Path | None = None
+                       ) -> dict[str, Any]:
     """How well a DreamerV3 run's world model knows the EVs: the mean absolute error, in raw units, of the
     interoception decoded from the posterior, on the eating steps and on the other steps of ``sequences`` replayed
     sequences of 32 steps around the last eating steps stored (spread over the replay where there are too few),
@@ -617,12 +628,12 @@ def ev_decoding_errors(run_dir: str | Path, sequences: int = 64) -> dict[str, An
     that does not hold them cannot predict it."""
     from evaaa import EV_NAMES
 
-    state, _, model, batch = _probe_replay(run_dir, sequences)
+    _, _, model, batch, steps = _probe_replay(run_dir, sequences, model_file)
     with torch.no_grad():
         out = world_model(model)(batch)
     error = (out["next", "reco_interoception"] - out["next", "interoception"]).abs()
     at = out["next", "consumed"].reshape(batch.shape)
-    result: dict[str, Any] = {"env_steps": state["counters"]["steps"], "sequences": len(batch),
+    result: dict[str, Any] = {"env_steps": steps, "sequences": len(batch),
                               "eating_steps": int(at.sum())}
     for name, mask in (("eating", at), ("other", ~at)):
         per_ev = error[mask].mean(0) if mask.any() else torch.full((len(EV_NAMES),), float("nan"))
@@ -865,7 +876,8 @@ def imagine_each_action(prior: Any, state: torch.Tensor, belief: torch.Tensor, s
 
 
 @torch.no_grad()
-def imagined_action_values(run_dir: str | Path, sequences: int = 64, samples: int = 8) -> dict[str, Any]:
+def imagined_action_values(run_dir: str | Path, sequences: int = 64, samples: int = 8,
+                           model_file: str | Path | None = None) -> dict[str, Any]:
     """What a DreamerV3 run's world model and critic say each action is worth, from the posterior states of
     ``sequences`` replayed sequences (as :func:`ev_decoding_errors` picks them): one imagined step of every action,
     then the critic, ``r + γ·c·v`` (``samples`` draws of the next latent), beside the actor's probabilities and the
@@ -875,7 +887,7 @@ def imagined_action_values(run_dir: str | Path, sequences: int = 64, samples: in
     has nothing to learn from but a bias (docs/training.md, "What was tried on level 1-1")."""
     from evaaa import EV_NAMES
 
-    state, cfg, model, batch = _probe_replay(run_dir, sequences)
+    state, cfg, model, batch, steps = _probe_replay(run_dir, sequences, model_file)
     nxt = world_model(model)(batch)["next"]
     # start from the posterior after each observation; what really followed it is the next row's action and outcome
     shape = (len(batch), batch.shape[1] - 1)
@@ -913,8 +925,7 @@ def imagined_action_values(run_dir: str | Path, sequences: int = 64, samples: in
     eat = ACTION_NAMES.index("eat")
     groups = {"every state": ~fresh, "ate or drank": ate & ~fresh,
               "ate nothing": (action == eat) & ~ate & ~fresh, "1-5 steps before eating": before & ~ate & ~fresh}
-    result: dict[str, Any] = {"env_steps": state["counters"]["steps"], "sequences": len(batch),
-                              "return_scale": scale, "groups": {}}
+    result: dict[str, Any] = {"env_steps": steps, "sequences": len(batch), "return_scale": scale, "groups": {}}
     for name, mask in groups.items():
         if not bool(mask.any()):
             result["groups"][name] = {"states": 0}

@@ -26,15 +26,23 @@ from evaaa_baselines.dreamer import ev_decoding_errors, imagined_action_values
 class ProbeConfig:
     run: str = option("", "a DreamerV3 run directory (its checkpoint.pt and replay/)",
                       check=(lambda v: bool(v), "a run directory"))
+    model: str | None = option(None, "probe these networks instead of the checkpoint's (a model file of the same "
+                                     "run, e.g. its model-best-0-1-1.pt: the peak against the end), on the run's "
+                                     "replay")
     sequences: int = option(64, "replayed sequences of 32 steps", check=(lambda v: v >= 1, ">= 1"))
     samples: int = option(8, "draws of the next latent for each imagined action", check=(lambda v: v >= 1, ">= 1"))
 
 
 def main(argv: list[str] | None = None) -> int:
     cfg = cli.parse(ProbeConfig, argv, prog="probe_dreamer.py", description=__doc__.split("\n\n")[0],
-                    examples=["run=runs/1-1/dreamer_xs/all-drive_reduction/seed0 sequences=32"])
-    result = ev_decoding_errors(cfg.run, cfg.sequences)
-    print(f"{cfg.run}: {result['env_steps']:,} env steps; {result['sequences']} sequences, "
+                    examples=["run=runs/1-1/dreamer_xs/all-drive_reduction/seed0 sequences=32",
+                              "run=runs/1-1/dreamer_xs/all-sparse/seed0 model=runs/1-1/dreamer_xs/all-sparse/seed0/"
+                              "model-best-0-1-1.pt"])
+    try:
+        result = ev_decoding_errors(cfg.run, cfg.sequences, cfg.model)
+    except (ValueError, FileNotFoundError) as err:
+        cli.fail("probe_dreamer.py", str(err))
+    print(f"{cfg.model or cfg.run}: {result['env_steps']:,} env steps; {result['sequences']} sequences, "
           f"{result['eating_steps']} eating steps")
     print("mean absolute error of the decoded EVs (raw units)")
     for name in ("eating", "other"):
@@ -44,9 +52,9 @@ def main(argv: list[str] | None = None) -> int:
               "the share of their variance it explains on the other half (1: all of it; 0: no more than the mean)")
         for name, shares in result["linear_probe"].items():
             print(f"  {name:<21}" + "  ".join(f"{ev} {r2:5.2f}" for ev, r2 in shares.items()))
-    values = imagined_action_values(cfg.run, cfg.sequences, cfg.samples)
+    values = imagined_action_values(cfg.run, cfg.sequences, cfg.samples, cfg.model)
     print(f"one imagined step of each action, then the critic (r + gamma * c * v); the actor divides its advantages "
-          f"by a return scale of {values['return_scale']:.3g}")
+          f"by a return scale of {values['return_scale']:.3g}" + (" (the run's last checkpoint's)" if cfg.model else ""))
     for name, group in values["groups"].items():
         print(f"  {name}: {group['states']:,} states")
         if not group["states"]:

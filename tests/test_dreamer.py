@@ -297,6 +297,31 @@ def test_the_probe_decodes_the_evs_of_a_run_and_says_how_far_off_they_are(runs, 
     assert "one imagined step of each action" in out and "ate nothing" in out
 
 
+def test_the_probe_reads_other_networks_of_the_run_on_its_replay(runs, capsys, tmp_path):
+    # networks whose actor has no preference (its logits head zeroed): the probe must read these, not the checkpoint's
+    state = checkpoint.load_checkpoint(runs["whole"] / "model-0-1-1.pt")
+    for k in ("actor.module.0.module.logits_head.weight", "actor.module.0.module.logits_head.bias"):
+        state["model"][k] = torch.zeros_like(state["model"][k])
+    state["env_steps"] = 12
+    flat = tmp_path / "model-flat.pt"
+    checkpoint.save_checkpoint(state, flat)
+    own = dreamer.imagined_action_values(runs["whole"], sequences=4, samples=2)["groups"]["every state"]["policy"]
+    values = dreamer.imagined_action_values(runs["whole"], sequences=4, samples=2, model_file=flat)
+    assert values["env_steps"] == 12
+    assert list(values["groups"]["every state"]["policy"].values()) == pytest.approx([0.2] * 5)
+    assert list(own.values()) != pytest.approx([0.2] * 5)
+    assert dreamer.ev_decoding_errors(runs["whole"], sequences=4, model_file=flat)["env_steps"] == 12
+    probe = load_script("probe_dreamer")
+    assert probe.main([f"run={runs['whole']}", f"model={flat}", "sequences=4", "samples=2"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith(f"{flat}: 12 env steps") and "(the run's last checkpoint's)" in out
+    other = {**state, "algo": "ppo"}
+    checkpoint.save_checkpoint(other, tmp_path / "ppo.pt")
+    with pytest.raises(SystemExit):
+        probe.main([f"run={runs['whole']}", f"model={tmp_path / 'ppo.pt'}"])
+    assert "not the networks of this run's algorithm and observations (dreamer, " in capsys.readouterr().err
+
+
 def test_a_fresh_world_model_fits_a_runs_replay_and_measures_what_eating_does(runs, capsys, tmp_path):
     seen = []
     rows = dreamer.fit_world_model(runs["whole"], updates=6, every=3, overrides=["consume_share=0.5"],
