@@ -53,8 +53,9 @@ def main(argv: list[str] | None = None) -> int:
         for name, shares in result["linear_probe"].items():
             print(f"  {name:<21}" + "  ".join(f"{ev} {r2:5.2f}" for ev, r2 in shares.items()))
     values = imagined_action_values(cfg.run, cfg.sequences, cfg.samples, cfg.model)
+    whose = " (the run's last checkpoint's)" if cfg.model else ""
     print(f"one imagined step of each action, then the critic (r + gamma * c * v); the actor divides its advantages "
-          f"by a return scale of {values['return_scale']:.3g}" + (" (the run's last checkpoint's)" if cfg.model else ""))
+          f"by a return scale of {values['return_scale']:.3g}{whose}")
     for name, group in values["groups"].items():
         print(f"  {name}: {group['states']:,} states")
         if not group["states"]:
