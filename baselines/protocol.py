@@ -619,6 +619,13 @@ def utc_stamp() -> str:
     return datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
 
 
+def _move_aside(out: Path, why: str) -> Path:
+    """Rename an evaluation's folder to ``<out>.<why>-<UTC time>`` (kept, never deleted); returns the new path."""
+    aside = out.with_name(f"{out.name}.{why}-{utc_stamp()}")
+    out.rename(aside)
+    return aside
+
+
 def select(cells: Sequence[Cell], patterns: Sequence[str]) -> list[Cell]:
     """The cells named by ``patterns`` (names or shell patterns, ``eval/ppo/*``); an unmatched one is an error."""
     chosen: list[Cell] = []
@@ -654,12 +661,10 @@ class Scheduler:
     def _start(self, job: _Job) -> None:
         cmd = job.commands.pop(0)
         if cmd.out is not None and cmd.out.exists() and not (cmd.out / "episodes.csv").exists():
-            aside = cmd.out.with_name(f"{cmd.out.name}.partial-{utc_stamp()}")
-            cmd.out.rename(aside)  # an interrupted evaluation: kept, out of the way
+            aside = _move_aside(cmd.out, "partial")  # an interrupted evaluation: kept, out of the way
             self.echo(f"{job.cell.name}: moved the unfinished evaluation {cmd.out} to {aside}")
         if cmd.out is not None and job.redo and (cmd.out / "episodes.csv").exists():
-            aside = cmd.out.with_name(f"{cmd.out.name}.old-{utc_stamp()}")
-            cmd.out.rename(aside)
+            aside = _move_aside(cmd.out, "old")
             self.echo(f"{job.cell.name}: redo: moved the earlier evaluation {cmd.out} to {aside}")
         if job.cell.kind == "report":
             cmd = self._report_command(cmd)
@@ -851,8 +856,7 @@ class Scheduler:
             moved = False
             for cmd in dep.commands:
                 if cmd.out is not None and cmd.out.exists():
-                    aside = cmd.out.with_name(f"{cmd.out.name}.old-{utc_stamp()}")
-                    cmd.out.rename(aside)
+                    aside = _move_aside(cmd.out, "old")
                     self.echo(f"{train.name} trains from zero: moved its earlier evaluation {cmd.out} to {aside}")
                     moved = True
             if moved:
