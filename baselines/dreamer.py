@@ -338,16 +338,22 @@ class SequenceReplay:
 
     def __init__(self, capacity: int, num_envs: int, sequence_length: int, batch_size: int, *,
                  directory: Path | None = None, device: torch.device | str = "cpu", guard_rows: int = 0,
-                 consume_share: float = 0.0):
+                 consume_share: float = 0.0, terminal_share: float = 0.0):
         if capacity // num_envs < sequence_length:
             raise ValueError(f"algo.buffer_size ({capacity}) holds fewer than algo.sequence_length "
                              f"({sequence_length}) steps of each of the {num_envs} worlds")
         self.num_envs, self.sequence_length, self.batch_size = num_envs, sequence_length, batch_size
         self.directory, self.device, self.guard_rows = directory, torch.device(device), guard_rows
-        if not 0.0 <= consume_share <= 1.0:
-            raise ValueError(f"algo.consume_share must lie in [0, 1], got {consume_share}")
+        for name, share in (("consume_share", consume_share), ("terminal_share", terminal_share)):
+            if not 0.0 <= share <= 1.0:
+                raise ValueError(f"algo.{name} must lie in [0, 1], got {share}")
+        if consume_share + terminal_share > 1.0:
+            raise ValueError(f"algo.consume_share + algo.terminal_share must be at most 1, got {consume_share} + "
+                             f"{terminal_share}")
         #: sequences of each training batch drawn around a step that ate or drank (the rest: uniformly)
         self.consume_sequences = round(consume_share * batch_size)
+        #: sequences of each training batch drawn around a step that ended an episode (``terminated``)
+        self.terminal_sequences = min(round(terminal_share * batch_size), batch_size - self.consume_sequences)
         self._sampled = torch.Generator().manual_seed(0)
         self.capacity = capacity - capacity % num_envs
         if directory is not None:
@@ -388,29 +394,31 @@ class SequenceReplay:
     def sample(self, sequences: int | None = None, length: int | None = None) -> TensorDictBase:
         """``[sequences, length]`` consecutive steps of random worlds (default: the training batch), on the device."""
         if sequences is None and length is None:
-            around = self._around_consumption(self.consume_sequences) if self.consume_sequences else None
-            if around is None:
+            around = [part for key, count in ((("next", "terminated"), self.terminal_sequences),
+                                              (("next", "consumed"), self.consume_sequences))
+                      if count and (part := self._around(key, count)) is not None]
+            if not around:
                 batch = self.buffer.sample()
                 return self._to_device(batch.reshape(self.batch_size, self.sequence_length))
-            uniform = self.batch_size - len(around)
+            uniform = self.batch_size - sum(len(part) for part in around)
             if uniform:
                 index, _ = self.buffer.sampler.sample(self.buffer.storage, uniform * self.sequence_length)
-                batch = self.buffer.storage[index].reshape(uniform, self.sequence_length)
-                around = torch.cat([batch, around], dim=0)
-            return self._to_device(around)
+                around.insert(0, self.buffer.storage[index].reshape(uniform, self.sequence_length))
+            return self._to_device(torch.cat(around, dim=0))
         sampler = SliceSampler(slice_len=length, traj_key="world", truncated_key=None)
         index, _ = sampler.sample(self.buffer.storage, sequences * length)
         return self._to_device(self.buffer.storage[index].reshape(sequences, length))
 
-    def _around_consumption(self, count: int) -> TensorDictBase | None:
-        """``count`` sequences, each holding a stored step that ate or drank at a uniformly drawn position, or None
-        while there is none (or too few rows).  A sequence never runs across the writer's cursor, where the
-        newest rows meet the oldest."""
+    def _around(self, key: tuple[str, str], count: int) -> TensorDictBase | None:
+        """``count`` sequences, each holding a stored step whose ``key`` is set (``("next", "consumed")``: it ate or
+        drank; ``("next", "terminated")``: it ended an episode) at a uniformly drawn position, or None while there is
+        none (or too few rows).  A sequence never runs across the writer's cursor, where the newest rows meet the
+        oldest."""
         rows, length = self.rows, self.sequence_length
         if rows < length:
             return None
         storage = self.buffer.storage
-        eaten = storage._storage["next", "consumed"][:rows].reshape(rows, self.num_envs)
+        eaten = storage._storage[key][:rows].reshape(rows, self.num_envs)
         where = eaten.nonzero()
         if not len(where):
             return None
@@ -1122,14 +1130,15 @@ def make_replay(run: Run, num_envs: int, row_bytes: int) -> SequenceReplay:
                         "%s; lower algo.buffer_size before it fills", f"{cfg.buffer_size:,}", _gb(full), _gb(free),
                         directory)
         return SequenceReplay(cfg.buffer_size, num_envs, cfg.sequence_length, cfg.batch_size, directory=directory,
-                              device=run.device, guard_rows=guard, consume_share=cfg.get("consume_share", 0.0))
+                              device=run.device, guard_rows=guard, consume_share=cfg.get("consume_share", 0.0),
+                              terminal_share=cfg.get("terminal_share", 0.0))
     free = available_memory(run.device)
     if free is not None and full > free:
         raise ValueError(f"algo.buffer_size={cfg.buffer_size:,} transitions need {_gb(full)} when full, but "
                          f"{run.device} has {_gb(free)} available: use algo.buffer_on_disk=true (memory-mapped under "
                          f"the run directory) or algo.buffer_size<={free // row_bytes:,}")
     return SequenceReplay(cfg.buffer_size, num_envs, cfg.sequence_length, cfg.batch_size, device=run.device,
-                          consume_share=cfg.get("consume_share", 0.0))
+                          consume_share=cfg.get("consume_share", 0.0), terminal_share=cfg.get("terminal_share", 0.0))
 
 
 def train(run: Run) -> None:

@@ -227,6 +227,30 @@ def test_a_share_of_the_replayed_sequences_hold_an_eating_step():
     assert len(positions) > 3
 
 
+def test_a_share_of_the_replayed_sequences_hold_a_death_beside_those_around_eating():
+    torch.manual_seed(0)
+    replay = dreamer.SequenceReplay(240, 2, 8, 10, consume_share=0.2, terminal_share=0.3)
+    assert (replay.consume_sequences, replay.terminal_sequences) == (2, 3)
+    for t in range(120):
+        replay.extend(TensorDict({"step": torch.full((2,), t), "next": {
+            "consumed": torch.tensor([(t, w) == (40, 0) for w in range(2)]).unsqueeze(-1),
+            "terminated": torch.tensor([(t, w) in [(70, 1), (100, 0)] for w in range(2)]).unsqueeze(-1)}}, [2]))
+    seen = []
+    for _ in range(20):
+        batch = replay.sample()
+        assert batch.shape == (10, 8)
+        assert ((batch["step"][:, 1:] - batch["step"][:, :-1]) == 1).all()
+        died = batch["next", "terminated"].reshape(10, 8).any(-1)
+        ate = batch["next", "consumed"].reshape(10, 8).any(-1)
+        assert died[5:8].all() and ate[8:].all()  # three around a death, then two around eating
+        seen.append(died[:5].float().mean())
+    assert float(torch.stack(seen).mean()) < 0.5  # the first five are uniform
+    with pytest.raises(ValueError, match=r"algo.terminal_share must lie in \[0, 1\], got -0.1"):
+        dreamer.SequenceReplay(100, 2, 8, 10, terminal_share=-0.1)
+    with pytest.raises(ValueError, match=r"algo.consume_share \+ algo.terminal_share must be at most 1, got 0.6 \+ 0.5"):
+        dreamer.SequenceReplay(100, 2, 8, 10, consume_share=0.6, terminal_share=0.5)
+
+
 def test_the_uniform_replay_is_left_alone_and_a_share_outside_zero_one_is_refused():
     plain = fill_replay(0.0, rows=50, eaten_at=[(10, 0)])
     assert plain.consume_sequences == 0 and plain.sample().shape == (10, 8)
