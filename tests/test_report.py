@@ -419,6 +419,22 @@ def test_missing_partial_and_orphaned_inputs_are_listed(world):
     assert len(runs) == len(world["sim"].runs)
 
 
+def test_an_evaluated_checkpoint_whose_file_is_gone_but_whose_run_is_there_still_counts(tmp_path):
+    sim = Sim(tmp_path / "runs")
+    run = sim.run("ppo", 0, level="1-1", finish=1)
+    rows = sim.evaluate(str(run / "checkpoint.pt"), "y-maze", 4)
+    append_rows(tmp_path / "eval" / "episodes.csv", rows)
+    with_file = build_report([run], [tmp_path / "eval"], tmp_path / "out")
+    (run / "checkpoint.pt").unlink()  # as in a committed record, which keeps no model files
+    without = build_report([run], [tmp_path / "eval"], tmp_path / "out2")
+    text = without.markdown.read_text()
+    assert "1 of the 1 evaluated checkpoints are not on disk here" in text
+    assert "not on disk" not in with_file.markdown.read_text()
+    assert without.problems == with_file.problems == []  # not a problem: a record is meant to be so
+    success = table(text, "## Success per testbed")
+    assert success == table(with_file.markdown.read_text(), "## Success per testbed") and success["y-maze"]
+
+
 def test_a_finished_set_of_runs_reports_nothing_missing(world, tmp_path):
     report = build_report([world["base"] / "runs" / "1-1"], [], tmp_path)
     assert "None: every run finished" in report.markdown.read_text() and report.problems == []

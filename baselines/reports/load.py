@@ -317,6 +317,7 @@ class Evaluations:
     checkpoints: pd.DataFrame  # + columns run (Path), ckpt_stage, ckpt_level, checkpoint
     references: pd.DataFrame
     orphans: list[str]  # problems: checkpoints whose run is gone or unreadable
+    absent: list[str] = field(default_factory=list)  # checkpoints not on disk whose run is: their episodes count
 
 
 def attach(evals: pd.DataFrame, runs: dict[Path, RunRecord]) -> Evaluations:
@@ -325,6 +326,7 @@ def attach(evals: pd.DataFrame, runs: dict[Path, RunRecord]) -> Evaluations:
     is_ref = evals["policy"].isin(REFERENCES) | ~evals["policy"].map(_is_checkpoint_path)
     refs, ckpts = evals[is_ref].copy(), evals[~is_ref].copy()
     orphans: list[str] = []
+    absent: list[str] = []
     info: dict[str, tuple[Path | None, int, str]] = {}
     for policy, part in ckpts.groupby("policy", sort=False):
         where = (f"{len(part)} episodes on {', '.join(dict.fromkeys(part['level']))} "
@@ -351,15 +353,14 @@ def attach(evals: pd.DataFrame, runs: dict[Path, RunRecord]) -> Evaluations:
         else:  # checkpoint.pt (or a renamed file): the latest state, in the stage the run is in
             stage = run.latest_stage
             level = next((lv for i, lv, _ in run.stages if i == stage), run.training)
-        if not path.is_file():
-            orphans.append(f"evaluation of {policy}: the checkpoint file is gone but its run is there; its episodes "
-                           f"are used ({where})")
+        if not path.is_file():  # a committed record keeps no model files: not a problem, its episodes count
+            absent.append(policy)
         info[policy] = (run_dir, stage, level)
     ckpts["run"] = ckpts["policy"].map(lambda p: info[p][0])
     ckpts["ckpt_stage"] = ckpts["policy"].map(lambda p: info[p][1])
     ckpts["ckpt_level"] = ckpts["policy"].map(lambda p: info[p][2])
     ckpts = ckpts[ckpts["run"].notna()]
-    return Evaluations(ckpts, refs, orphans)
+    return Evaluations(ckpts, refs, orphans, absent)
 
 
 def _is_checkpoint_path(policy: str) -> bool:

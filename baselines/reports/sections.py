@@ -191,6 +191,10 @@ def runs_and_problems(doc: Document, inp: Inputs) -> list[str]:
         status = "finished" if r.problem is None else r.problem.split(":")[0]
         doc.md.append(f"| {rel(r.dir)} | {r.algo} | {r.modality} | {r.reward} | {r.training} | "
                       f"{'' if r.seed is None else r.seed} | {r.steps:,} / {r.total:,} | {status} |")
+    if inp.evals.absent:
+        evaluated = inp.evals.checkpoints["policy"].nunique()
+        doc.md += ["", f"{len(inp.evals.absent)} of the {evaluated} evaluated checkpoints are not on disk here, their "
+                   "runs are (a committed record keeps no model files): their recorded episodes are used."]
     problems = [f"{rel(r.dir)}: {r.problem}" for r in inp.run_list if r.problem] + inp.evals.orphans
     problems += [note for r in inp.run_list for note in r.notes] + inp.read_notes
     groups: dict[tuple, list[RunRecord]] = {}
