@@ -327,14 +327,19 @@ class Layout:
         """The wall and CPU seconds the cell's commands have run so far, over every session (JSON)."""
         return self.done / f"{_safe(cell)}.seconds"
 
-    def took(self, cell: str) -> float | None:
-        """CPU seconds a done cell took (its marker), or None where it was not timed."""
+    def took(self, cell: str, key: str = "cpu_seconds") -> float | None:
+        """CPU seconds a done cell took (its marker), or None where it was not timed; ``key="seconds"``: the wall
+        seconds of its commands."""
         marker = self.marker(cell)
         try:
-            seconds = json.loads(marker.read_text()).get("cpu_seconds") if marker.exists() else None
+            seconds = json.loads(marker.read_text()).get(key) if marker.exists() else None
         except (ValueError, AttributeError):
             return None
         return float(seconds) if isinstance(seconds, (int, float)) else None
+
+    def wall(self, cell: str) -> float | None:
+        """Wall seconds a done cell's commands ran (its marker), or None where it was not timed."""
+        return self.took(cell, "seconds")
 
 
 def read_clock(path: Path) -> dict[str, float]:
@@ -614,6 +619,46 @@ def plan_text(p: Protocol, cells: Sequence[Cell], lay: Layout, threads: int) -> 
     return "\n".join(lines)
 
 
+def provenance(p: Protocol, cells: Sequence[Cell], lay: Layout, selects: str | None = None) -> list[str]:
+    """The report's last section: the commands that re-run the protocol or one cell of it (``selects``: the
+    reproduce.py arguments that name this protocol, root and report folder; default ``protocol=<name>``), and the CPU
+    time its done cells took (their markers), per budget line, beside what the protocol file estimates for them."""
+    states = {c.name: status(c, lay, cells) for c in cells}
+    done = [c for c in cells if states[c.name] == "done" and c.kind != "report"]
+    took = {c.name: lay.took(c.name) for c in done}
+    timed = [c for c in done if took[c.name] is not None]
+    selects = selects or f"protocol={p.name}"
+    example = next((c.name for c in cells if c.kind == "train"), cells[0].name)
+    lines = ["## How this report was made", "",
+             f"The protocol `{p.name}`: S = {p.stage_steps:,} env steps per stage (curriculum "
+             f"stage and direct run), seeds {', '.join(map(str, p.seeds))}, checkpoints act {acting(p.evaluation)}; "
+             f"{len(cells)} cells, {len(done)} of them done (the report not counted) when this report was made. From "
+             "the repository root:", "", "```bash",
+             f"python scripts/reproduce.py {selects} plan=true   # every cell: status, command, CPU time",
+             f"python scripts/reproduce.py {selects} jobs=2      # what is not done (killed: the same continues)",
+             f"python scripts/reproduce.py {selects} \"cells=[{example}]\" redo=true   # one cell again",
+             "```", ""]
+    if not timed:
+        return lines + ["No done cell was timed.", ""]
+    lines += ["CPU time each done cell's processes took (their own `rusage`, summed over the sessions that ran them; "
+              "`threads=1`, one core each), per budget line, against the protocol file's estimate for the same cells:",
+              "", "| budget line | timed cells | CPU-hours | estimated | wall hours of its commands |", "|---|---|---|---|---|"]
+    wall = {c.name: lay.wall(c.name) for c in timed}
+    for group in dict.fromkeys(c.group for c in timed):
+        part = [c for c in timed if c.group == group]
+        lines.append(f"| {group} | {len(part)} | {sum(took[c.name] for c in part) / 3600:.2f} | "
+                     f"{sum(c.minutes for c in part) / 60:.2f} | {sum(wall[c.name] or 0.0 for c in part) / 3600:.2f} |")
+    spent = sum(took[c.name] for c in timed) / 3600  # type: ignore[misc]
+    lines.append(f"| **all** | {len(timed)} | **{spent:.2f}** | {sum(c.minutes for c in timed) / 60:.2f} | "
+                 f"{sum(wall[c.name] or 0.0 for c in timed) / 3600:.2f} |")
+    untimed = [c for c in done if took[c.name] is None]
+    if untimed:
+        lines += ["", f"{len(untimed)} done cells were not timed (run before cells were): "
+                  f"{', '.join(c.name for c in untimed)}; the protocol file estimates them at "
+                  f"{sum(c.minutes for c in untimed) / 60:.2f} CPU-hours."]
+    return lines + [""]
+
+
 # ------------------------------------------------------------------------------------------------ running
 def utc_stamp() -> str:
     return datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
@@ -652,8 +697,10 @@ class Scheduler:
 
     def __init__(self, p: Protocol, cells: Sequence[Cell], lay: Layout, *, jobs: int = 1,
                  max_minutes: float | None = None, redo: bool = False, retries: int = 0,
-                 python: str = sys.executable, progress: bool = True, echo: Callable[[str], None] = print):
+                 python: str = sys.executable, progress: bool = True, echo: Callable[[str], None] = print,
+                 selects: str | None = None):
         self.p, self.cells, self.lay, self.jobs, self.retries = p, list(cells), lay, jobs, retries
+        self.selects = selects  # reproduce.py's protocol=, root=, out= as given: the report's commands repeat them
         self.max_minutes, self.redo, self.python, self.progress, self.echo = max_minutes, redo, python, progress, echo
         # exactly what plan=true prints (Command.text): EVAAA_THREADS here, threads= on the command line
         self.env = {**os.environ, "EVAAA_THREADS": str(p.threads), "PYTHONUNBUFFERED": "1"}
@@ -876,6 +923,9 @@ class Scheduler:
         marker.parent.mkdir(parents=True, exist_ok=True)
         marker.write_text(json.dumps({"finished": utc_stamp(), "protocol": self.p.name, **account}) + "\n")
         clock.unlink(missing_ok=True)
+        if cell.kind == "report" and (cell.report_out / "report.md").exists():  # type: ignore[operator]
+            with open(cell.report_out / "report.md", "a") as report:  # type: ignore[operator]
+                report.write("\n" + "\n".join(provenance(self.p, self.cells, self.lay, self.selects)))
         if cell.kind == "train" and not cell.keep_checkpoints:
             for name in CHECKPOINTS:
                 (cell.run_dir / name).unlink(missing_ok=True)  # type: ignore[operator]

@@ -85,7 +85,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"reproduce.py: {len(todo)} of {len(cells)} cells to run under {lay.root}, {cfg.jobs} at a time; logs in "
           f"{lay.logs}", flush=True)
     scheduler = Scheduler(p, cells, lay, jobs=cfg.jobs, max_minutes=cfg.max_minutes, redo=cfg.redo,
-                          retries=cfg.retries, progress=cfg.progress)
+                          retries=cfg.retries, progress=cfg.progress,
+                          selects=" ".join(f"{k}={v}" for k, v in (("protocol", cfg.protocol), ("root", cfg.root),
+                                                                  ("out", cfg.out)) if v))
     try:
         rc = scheduler.run(todo)
     except KeyboardInterrupt:

@@ -14,7 +14,7 @@ import yaml
 from helpers import load_script
 
 from evaaa_baselines.protocol import (Cell, Command, Layout, ProtocolError, Scheduler, build_cells, load_protocol,
-                                      status)
+                                      provenance, status)
 
 reproduce = load_script("reproduce")
 
@@ -304,6 +304,32 @@ evaluation:
   steps_per_second: 300
 report: {out: null}
 """
+
+
+def test_the_report_ends_with_the_commands_that_remake_it_and_the_time_its_cells_took(tmp_path):
+    import json
+    lay, cells = _fake(tmp_path)
+    train = cells[0]
+    train.commands = [Command(_py(f"import pathlib,time; t=time.process_time(); "
+                                  f"exec('while time.process_time() - t < 0.4: pass'); "
+                                  f"d=pathlib.Path({str(train.run_dir)!r}); d.mkdir(parents=True, exist_ok=True); "
+                                  f"(d/'model-0-1-1.pt').write_text('m')"))]
+    assert _scheduler(lay, cells, selects="protocol=smoke root=/some/where").run(cells) == 0
+    text = (tmp_path / "report" / "report.md").read_text()
+    assert text.startswith("r\n## How this report was made")  # appended to what report.py wrote
+    assert "3 cells, 2 of them done (the report not counted)" in text
+    assert "python scripts/reproduce.py protocol=smoke root=/some/where plan=true" in text
+    assert 'python scripts/reproduce.py protocol=smoke root=/some/where "cells=[train/a]" redo=true' in text
+    marker = {c.name: json.loads(lay.marker(c.name).read_text()) for c in cells[:2]}
+    row = re.search(r"^\| a \| 1 \| ([0-9.]+) \| ([0-9.]+) \| ([0-9.]+) \|$", text, re.M)
+    assert row and float(row[1]) == round(marker["train/a"]["cpu_seconds"] / 3600, 2) and float(row[2]) == 0.02
+    total = sum(m["cpu_seconds"] for m in marker.values()) / 3600
+    assert f"| **all** | 2 | **{total:.2f}** | 0.03 |" in text
+    # a done cell without a time (run before cells were timed) is named, with its estimate
+    lay.marker("eval/a").write_text(json.dumps({"finished": "x", "seconds": None, "cpu_seconds": None}))
+    lines = provenance(load_protocol("smoke"), cells, lay)
+    assert "1 done cells were not timed (run before cells were): eval/a; the protocol file estimates them at 0.02" \
+        in "\n".join(lines) and "python scripts/reproduce.py protocol=smoke plan=true" in "\n".join(lines)
 
 
 def test_a_tiny_protocol_runs_end_to_end_and_a_second_run_does_nothing(tmp_path, capsys):
