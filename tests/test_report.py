@@ -419,6 +419,28 @@ def test_missing_partial_and_orphaned_inputs_are_listed(world):
     assert len(runs) == len(world["sim"].runs)
 
 
+def test_the_testbed_figure_shows_the_curriculum_agents_with_every_sense_and_the_table_every_run(world, tmp_path,
+                                                                                                  monkeypatch):
+    from evaaa_baselines.reports import sections
+    drawn, original = {}, sections.plot_bars
+
+    def spy(stats, path, **kw):
+        drawn[path.name] = set(stats["label"])
+        return original(stats, path, **kw)
+
+    monkeypatch.setattr(sections, "plot_bars", spy)
+    report = build_report([world["base"] / "runs"], [world["base"] / "eval"], tmp_path)
+    shown = drawn["fig4b_success_per_testbed.png"]
+    text = report.markdown.read_text()
+    columns = set(next(iter(table(text, "## Success per testbed").values())))
+    assert {"oracle", "random"} <= shown
+    agents = shown - {"oracle", "random"}
+    assert agents and all(label.endswith("curriculum") and "no_vision" not in label for label in agents)
+    assert any("1-1" in c for c in columns) and any("no_vision" in c for c in columns)  # the table keeps them all
+    assert columns - {"testbed"} > shown
+    assert f"The figure shows the {len(agents)} curriculum-trained agents with every sense" in text
+
+
 def test_an_evaluated_checkpoint_whose_file_is_gone_but_whose_run_is_there_still_counts(tmp_path):
     sim = Sim(tmp_path / "runs")
     run = sim.run("ppo", 0, level="1-1", finish=1)
