@@ -441,6 +441,26 @@ def test_the_testbed_figure_shows_the_curriculum_agents_with_every_sense_and_the
     assert f"The figure shows the {len(agents)} curriculum-trained agents with every sense" in text
 
 
+def test_the_ablation_figures_have_a_panel_only_where_several_modality_sets_were_trained(world, tmp_path,
+                                                                                        monkeypatch):
+    from evaaa_baselines.reports import sections
+    drawn, bars, lines = {}, sections.plot_bars, sections.plot_lines
+
+    def spy(original):
+        def draw(stats, path, **kw):
+            drawn[path.name] = set(stats[kw["panel"]]) if kw.get("panel") else set()
+            return original(stats, path, **kw)
+        return draw
+
+    monkeypatch.setattr(sections, "plot_bars", spy(bars))
+    monkeypatch.setattr(sections, "plot_lines", spy(lines))
+    report = build_report([world["base"] / "runs"], [world["base"] / "eval"], tmp_path)
+    # ppo's curriculum has all and no_vision; dqn's curriculum and ppo's direct runs have every sense only
+    assert drawn["fig25_ablation_curves.png"] == drawn["fig26_ablation_success.png"] == {"ppo · curriculum"}
+    text = report.markdown.read_text()
+    assert table(text, "## Modality ablations: training curves")["all"]["dqn · curriculum"] != "–"  # table: all
+
+
 def test_an_evaluated_checkpoint_whose_file_is_gone_but_whose_run_is_there_still_counts(tmp_path):
     sim = Sim(tmp_path / "runs")
     run = sim.run("ppo", 0, level="1-1", finish=1)

@@ -372,8 +372,9 @@ def ablation_curves(doc: Document, inp: Inputs) -> None:
             lambda x: by_dir[x].modality))
         stats = across_seeds(by, ["group", "label", "bin", "steps"], "survival")
         doc.tables["ablation_curves"] = stats
-        figure = plot_lines(stats, doc.out / "fig25_ablation_curves.png", x="steps", panel="group", band=True,
-                            ylabel="survival (decisions)", xlabel="env steps", title="Training curves per modality")
+        figure = plot_lines(_ablations(stats), doc.out / "fig25_ablation_curves.png", x="steps", panel="group",
+                            band=True, ylabel="survival (decisions)", xlabel="env steps",
+                            title="Training curves per modality")
         final = inp.final
         last = final[final["last"]].assign(group=lambda d: d["run"].map(ab_lab),
                                            label=lambda d: d["run"].map(lambda x: by_dir[x].modality))
@@ -385,7 +386,8 @@ def ablation_curves(doc: Document, inp: Inputs) -> None:
                   "bootstrap interval (band). Table: survival at the end of each run (" +
                   ("last evaluation" if inp.survival == "eval" else f"last {inp.window} training episodes") + ").")
     doc.section("Modality ablations: training curves (Fig. 25)",
-                "One panel per algorithm (and training set-up), one line per modality set.", figure, table,
+                "One panel per algorithm (and training set-up) trained with several modality sets, one line per "
+                "modality set; the table has every run.", figure, table,
                 "No finished training episode in the runs given.")
 
 
@@ -401,15 +403,24 @@ def ablation_success(doc: Document, inp: Inputs) -> None:
         stats = stats.sort_values("label", key=lambda s: s.map(_modality_key), kind="stable").sort_values(
             "group", key=lambda s: s.map(order), kind="stable")
         doc.tables["ablation_success"] = stats
-        figure = plot_bars(stats, doc.out / "fig26_ablation_success.png", panel="group", scale=100, top=105,
-                           ylabel="success rate (%)", title="Testbed success per modality")
+        figure = plot_bars(_ablations(stats), doc.out / "fig26_ablation_success.png", panel="group", scale=100,
+                           top=105, ylabel="success rate (%)", title="Testbed success per modality")
         stats = stats.assign(column=stats["group"] + " · " + stats["label"]) if stats["group"].nunique() > 1 \
             else stats.assign(column=stats["label"])
         table = pivot_table(stats, "level", "column", rows=level_sorted(stats["level"]), percent=True,
                             row_title="testbed")
     doc.section("Modality ablations: testbed success (Fig. 26)",
                 "Each run's furthest-trained evaluated checkpoint, evaluated with the observation keys it was trained "
-                "on.", figure, table, "No testbed evaluation of a run's checkpoint given.")
+                "on; the figure has a panel per algorithm (and training set-up) trained with several modality sets, "
+                "the table every run.", figure, table, "No testbed evaluation of a run's checkpoint given.")
+
+
+def _ablations(stats: pd.DataFrame) -> pd.DataFrame:
+    """The groups (algorithm and training set-up) trained with several modality sets, where there are any: an
+    ablation figure's panels (the table keeps every group; a panel per run trained with every sense only would bury
+    them)."""
+    several = stats.groupby("group", sort=False)["label"].transform("nunique") > 1
+    return stats[several] if several.any() else stats
 
 
 def _modality_key(name: str) -> tuple[int, str]:
