@@ -419,7 +419,7 @@ def test_missing_partial_and_orphaned_inputs_are_listed(world):
     assert len(runs) == len(world["sim"].runs)
 
 
-def test_the_testbed_figure_shows_the_curriculum_agents_with_every_sense_and_the_table_every_run(world, tmp_path,
+def test_the_testbed_figures_show_the_curriculum_agents_with_every_sense_and_the_tables_every_run(world, tmp_path,
                                                                                                   monkeypatch):
     from evaaa_baselines.reports import sections
     drawn, original = {}, sections.plot_bars
@@ -428,7 +428,13 @@ def test_the_testbed_figure_shows_the_curriculum_agents_with_every_sense_and_the
         drawn[path.name] = set(stats["label"])
         return original(stats, path, **kw)
 
+    def spy_lines(stats, path, **kw):
+        drawn[path.name] = set(stats["label"])
+        return lines(stats, path, **kw)
+
+    lines = sections.plot_lines
     monkeypatch.setattr(sections, "plot_bars", spy)
+    monkeypatch.setattr(sections, "plot_lines", spy_lines)
     report = build_report([world["base"] / "runs"], [world["base"] / "eval"], tmp_path)
     shown = drawn["fig4b_success_per_testbed.png"]
     text = report.markdown.read_text()
@@ -439,6 +445,8 @@ def test_the_testbed_figure_shows_the_curriculum_agents_with_every_sense_and_the
     assert any("1-1" in c for c in columns) and any("no_vision" in c for c in columns)  # the table keeps them all
     assert columns - {"testbed"} > shown
     assert f"The figure shows the {len(agents)} curriculum-trained agents with every sense" in text
+    assert drawn["fig4b_generalisation.png"] == agents  # the same agents, one line each across their stages
+    assert set(next(iter(table(text, "## Generalisation by training level").values()))) > agents
 
 
 def test_the_ablation_figures_have_a_panel_only_where_several_modality_sets_were_trained(world, tmp_path,

@@ -273,7 +273,7 @@ def success_per_testbed(doc: Document, inp: Inputs) -> None:
         # the figure, as the paper's: the agents trained through the curriculum with every sense, beside the
         # references; every other run (direct, ablations) stays in the table, where dozens of bars are still legible
         agents = set(stats.loc[stats["unit"] == "seeds", "label"])
-        paper = {inp.checkpoint_labels[r.dir] for r in inp.checkpoint_runs if r.curriculum and r.modality == "all"}
+        paper = _curriculum_labels(inp)
         shown = stats[~stats["label"].isin(agents - paper)] if paper and agents - paper else stats
         if len(shown) < len(stats):
             note += (f" The figure shows the {len(agents & paper)} curriculum-trained agents with every sense beside "
@@ -283,6 +283,12 @@ def success_per_testbed(doc: Document, inp: Inputs) -> None:
         table = pivot_table(stats, "level", "label", rows=testbeds, percent=True, row_title="testbed")
     doc.section("Success per testbed (Fig. 4b, left)", note, figure, table,
                 "No testbed evaluation given (`evals=[...]`).")
+
+
+def _curriculum_labels(inp: Inputs) -> set[str]:
+    """The labels of the evaluated runs trained through a curriculum with every sense: the agents the paper's
+    Fig. 4b draws."""
+    return {inp.checkpoint_labels[r.dir] for r in inp.checkpoint_runs if r.curriculum and r.modality == "all"}
 
 
 def generalisation(doc: Document, inp: Inputs) -> None:
@@ -303,7 +309,9 @@ def generalisation(doc: Document, inp: Inputs) -> None:
         order = level_sorted(stats["level"])
         ref_tb = refs[refs["level"].isin(evaaa.TESTBEDS)]
         ref_mean = reference_stats(ref_tb.assign(level="testbeds"), "success") if len(ref_tb) else None
-        figure = plot_lines(stats, doc.out / "fig4b_generalisation.png", x="level", panel=None, order=order,
+        paper = _curriculum_labels(inp)
+        shown = stats[stats["label"].isin(paper)] if paper and set(stats["label"]) - paper else stats
+        figure = plot_lines(shown, doc.out / "fig4b_generalisation.png", x="level", panel=None, order=order,
                             ylabel="mean testbed success (%)", xlabel="trained up to level", scale=100, top=105,
                             band=False, title="Generalisation by training level", hlines=ref_mean)
         tb_names = ", ".join(level_sorted(tests["level"]))
@@ -312,7 +320,8 @@ def generalisation(doc: Document, inp: Inputs) -> None:
     doc.section("Generalisation by training level (Fig. 4b, right)",
                 "Success averaged over the testbeds, for checkpoints trained up to each level "
                 "(`model-<stage>-<level>.pt` of curriculum runs; a direct run's checkpoint at its level); dashed: "
-                "reference agents.", figure, table, "No testbed evaluation of a run's checkpoint given.")
+                "reference agents. Where there are curriculum runs with every sense, the figure draws those (the "
+                "paper's view) and the table every run.", figure, table, "No testbed evaluation of a run's checkpoint given.")
 
 
 def evaluation_survival(doc: Document, inp: Inputs) -> None:
