@@ -642,7 +642,8 @@ def provenance(p: Protocol, cells: Sequence[Cell], lay: Layout, selects: str | N
         return lines + ["No done cell was timed.", ""]
     lines += ["CPU time each done cell's processes took (their own `rusage`, summed over the sessions that ran them; "
               "`threads=1`, one core each), per budget line, against the protocol file's estimate for the same cells:",
-              "", "| budget line | timed cells | CPU-hours | estimated | wall hours of its commands |", "|---|---|---|---|---|"]
+              "", "| budget line | timed cells | CPU-hours | estimated | wall hours of its commands |",
+              "|---|---|---|---|---|"]
     wall = {c.name: lay.wall(c.name) for c in timed}
     for group in dict.fromkeys(c.group for c in timed):
         part = [c for c in timed if c.group == group]

@@ -247,7 +247,8 @@ def test_a_share_of_the_replayed_sequences_hold_a_death_beside_those_around_eati
     assert float(torch.stack(seen).mean()) < 0.5  # the first five are uniform
     with pytest.raises(ValueError, match=r"algo.terminal_share must lie in \[0, 1\], got -0.1"):
         dreamer.SequenceReplay(100, 2, 8, 10, terminal_share=-0.1)
-    with pytest.raises(ValueError, match=r"algo.consume_share \+ algo.terminal_share must be at most 1, got 0.6 \+ 0.5"):
+    with pytest.raises(ValueError,
+                       match=r"algo.consume_share \+ algo.terminal_share must be at most 1, got 0.6 \+ 0.5"):
         dreamer.SequenceReplay(100, 2, 8, 10, consume_share=0.6, terminal_share=0.5)
 
 

@@ -321,7 +321,8 @@ def generalisation(doc: Document, inp: Inputs) -> None:
                 "Success averaged over the testbeds, for checkpoints trained up to each level "
                 "(`model-<stage>-<level>.pt` of curriculum runs; a direct run's checkpoint at its level); dashed: "
                 "reference agents. Where there are curriculum runs with every sense, the figure draws those (the "
-                "paper's view) and the table every run.", figure, table, "No testbed evaluation of a run's checkpoint given.")
+                "paper's view) and the table every run.", figure, table,
+                "No testbed evaluation of a run's checkpoint given.")
 
 
 def evaluation_survival(doc: Document, inp: Inputs) -> None:
