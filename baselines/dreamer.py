@@ -663,8 +663,8 @@ def ev_decoding_errors(run_dir: str | Path, sequences: int = 64, model_file: str
 
 
 def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Sequence[str] = (),
-                    held_out: float = 0.1, seed: int = 0, report: Any = None,
-                    keys: Sequence[str] | None = None) -> list[dict[str, float]]:
+                    held_out: float = 0.1, seed: int = 0, report: Any = None, keys: Sequence[str] | None = None,
+                    device: str | torch.device = "cpu") -> list[dict[str, float]]:
     """How fast a fresh world model learns what eating does, from a DreamerV3 run's stored replay alone: no env,
     no actor, no critic, so world-model settings can be compared in minutes on the same data.
 
@@ -677,7 +677,8 @@ def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Se
     other four actions (``eat_effect``), beside the same on the eat actions that found nothing
     (``eat_effect_nothing``, which should stay near 0), the real change (``real_effect``) and the change decoded
     from the posterior that saw the observation after eating (``posterior_effect``: whether the latent holds it).
-    ``keys``: the observation keys the new model sees (default: the run's; interoception is needed).
+    ``keys``: the observation keys the new model sees (default: the run's; interoception is needed).  ``device``:
+    where the model and its batches live (the replay stays memory-mapped; each batch is copied there).
     ``report(row)`` is called with each measurement.  The last row adds ``latent_auc_embedding``,
     ``latent_auc_state``, ``latent_auc_belief`` and ``latent_auc_belief_after_eat``: how well a logistic read-out of
     the trained encoder's embedding and latent on the observation an eat press was made on (and of the deterministic
@@ -692,33 +693,36 @@ def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Se
                              f"{list(keys)}")
         shapes = {k: v for k, v in shapes.items() if k in keys}
     torch.manual_seed(seed)
-    model = make_model(cfg, shapes)
-    loss = WorldModelLoss(cfg, model)
+    model = make_model(cfg, shapes).to(device)
+    loss = WorldModelLoss(cfg, model).to(device)
     optimizer = torch.optim.Adam(model.world_model_parameters(), lr=cfg.world_model.lr, eps=cfg.world_model.eps)
     length, context = cfg.sequence_length, 16
     split = int(rows * (1 - held_out))
     if split < length or rows - split < context + 1:
         raise ValueError(f"{run_dir}: {rows} rows per world are too few to hold out {held_out} of them")
     eaten = data["next", "consumed"].reshape(rows, num_envs)
+    # an episode's first step was taken on its reset observation, which the replay does not store (the row before
+    # holds the previous episode's last one): such steps are left out of the measurements below
+    first = data["is_init"].reshape(rows, num_envs)
     train_eaten = eaten[:split].nonzero()
     consume = round(float(cfg.get("consume_share", 0.0)) * cfg.batch_size) if len(train_eaten) else 0
     gen = torch.Generator().manual_seed(seed)
 
     def sequences(starts: torch.Tensor, worlds: torch.Tensor, steps: int) -> TensorDictBase:
-        batch = data[starts[:, None] + torch.arange(steps), worlds[:, None]].clone()
-        batch["state"] = torch.zeros(*batch.shape, model.state_dim)
-        batch["belief"] = torch.zeros(*batch.shape, model.belief_dim)
+        batch = data[starts[:, None] + torch.arange(steps), worlds[:, None]].clone().to(device)
+        batch["state"] = torch.zeros(*batch.shape, model.state_dim, device=device)
+        batch["belief"] = torch.zeros(*batch.shape, model.belief_dim, device=device)
         return batch
 
     # held out: the context before each eating step (and each fruitless eat), the step itself last
     eat = ACTION_NAMES.index("eat")
-    test_eaten = eaten[split:].nonzero()
+    test_eaten = (eaten[split:] & ~first[split:]).nonzero()
     test_eaten = test_eaten[test_eaten[:, 0] >= context]
-    pressed = ((data["action"][split:] == eat) & ~eaten[split:]).nonzero()
+    pressed = ((data["action"][split:] == eat) & ~eaten[split:] & ~first[split:]).nonzero()
     pressed = pressed[pressed[:, 0] >= context]
     pressed = pressed[torch.randperm(len(pressed), generator=gen)[:256]]
     # the same measurement on eating steps the model trains on: learnt there but not held out is too few meals
-    seen_eaten = train_eaten[train_eaten[:, 0] >= context]
+    seen_eaten = train_eaten[(train_eaten[:, 0] >= context) & ~first[train_eaten[:, 0], train_eaten[:, 1]]]
     seen_eaten = seen_eaten[torch.randperm(len(seen_eaten), generator=gen)[:64]]
 
     def decoded(latent: Mapping[str, torch.Tensor]) -> torch.Tensor:  # satiation + hydration
@@ -778,7 +782,7 @@ def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Se
     # what the trained latent keeps of "this press will eat": a logistic read-out, fitted on the training rows'
     # presses and scored on the held-out ones, as eat_success_readout does from the observation itself
     model.eval()
-    presses = (data["action"][context:] == eat).nonzero()
+    presses = ((data["action"][context:] == eat) & ~first[context:]).nonzero()
     presses[:, 0] += context
     success = eaten[presses[:, 0], presses[:, 1]]
     fruitless = presses[~success]
@@ -792,7 +796,7 @@ def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Se
             features["state"].append(nxt["state"][:, -2])  # the posterior on the observation pressed on
             features["belief"].append(nxt["belief"][:, -2])
             features["belief_after_eat"].append(nxt["belief"][:, -1])  # the eat action taken, its outcome unseen
-    rows_out[-1] |= {f"latent_auc_{name}": logistic_readout_auc(torch.cat(x), labels, presses[:, 0] < split)
+    rows_out[-1] |= {f"latent_auc_{name}": logistic_readout_auc(torch.cat(x).cpu(), labels, presses[:, 0] < split)
                      for name, x in features.items()}
     return rows_out
 

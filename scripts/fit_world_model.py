@@ -26,6 +26,7 @@ import torch
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
 from evaaa_baselines.dreamer import eat_success_readout, fit_world_model
+from evaaa_baselines.runtime import DeviceError, resolve_device
 
 
 @dataclass
@@ -43,6 +44,8 @@ class FitConfig:
     out: str = option("", "a CSV file for the measurements (empty: print only)")
     threads: int | None = option(None, "torch intra-op threads (null: torch's default), as train.py's threads=",
                                  check=(lambda v: v is None or v >= 1, "null or >= 1"))
+    device: str = option("cpu", "where the new model trains: cpu, cuda, cuda:N or auto (CUDA when available), as "
+                                "train.py's device=")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -50,7 +53,11 @@ def main(argv: list[str] | None = None) -> int:
                     examples=["run=runs/1-1/dreamer_xs/all-squared/seed0 updates=1000 \"set=[consume_share=0.5]\""])
     if cfg.threads is not None:
         torch.set_num_threads(cfg.threads)
-    print(f"{cfg.run}: a new world model, {cfg.updates:,} gradient steps"
+    try:
+        device = resolve_device(cfg.device)
+    except DeviceError as error:
+        cli.fail("fit_world_model.py", str(error))
+    print(f"{cfg.run}: a new world model on {device}, {cfg.updates:,} gradient steps"
           + (f", {' '.join(cfg.set)}" if cfg.set else "")
           + (f", seeing {', '.join(cfg.keys)}" if cfg.keys else ""))
     readout = eat_success_readout(cfg.run, cfg.held_out)
@@ -66,7 +73,8 @@ def main(argv: list[str] | None = None) -> int:
               f"{row['eat_effect_trained']:>11.3f} {row['real_effect']:>7.3f} "
               f"{row['posterior_effect']:>10.3f} {row['eat_effect_nothing']:>19.3f}", flush=True)
 
-    rows = fit_world_model(cfg.run, cfg.updates, cfg.every, cfg.set, cfg.held_out, cfg.seed, report, cfg.keys)
+    rows = fit_world_model(cfg.run, cfg.updates, cfg.every, cfg.set, cfg.held_out, cfg.seed, report, cfg.keys,
+                           device)
     last = rows[-1]
     print(f"held-out eating steps: {last['held_out_eating_steps']}; the same read-out of the trained latent on the "
           f"observation pressed on (held-out AUC): encoder's embedding {last['latent_auc_embedding']:.3f}, "

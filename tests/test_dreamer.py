@@ -352,6 +352,34 @@ def test_a_fresh_world_model_fits_a_runs_replay_and_measures_what_eating_does(ru
     assert [r["updates"] for r in read_csv(out)] == ["0", "1", "2"]
 
 
+def test_the_world_model_fit_leaves_out_steps_taken_on_a_reset_observation_it_never_stored(runs, monkeypatch):
+    # an episode's first step was taken on the reset observation, which the replay does not store: no measurement
+    # may read the previous episode's last observation as the one eaten on
+    state, data, num_envs, rows = dreamer._run_replay(runs["whole"])
+    data = data.clone()  # in memory: the run's own files stay as they are
+    held_out_rows = torch.arange(int(rows * 0.75) + 16, rows)[:3]  # beyond the 16 steps of context before each
+    assert len(held_out_rows) == 3
+    data["next", "consumed"].zero_()
+    data["next", "consumed"][held_out_rows, 0] = True
+    data["is_init"].zero_()
+    monkeypatch.setattr(dreamer, "_run_replay", lambda run_dir: (state, data, num_envs, rows))
+    assert dreamer.fit_world_model(runs["whole"], updates=0, every=1, held_out=0.25)[0]["held_out_eating_steps"] == 3
+    data["is_init"][held_out_rows[:2], 0] = True  # two of the three meals were an episode's first step
+    row = dreamer.fit_world_model(runs["whole"], updates=0, every=1, held_out=0.25)[0]
+    assert row["held_out_eating_steps"] == 1
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="the refusal is for machines without CUDA")
+def test_the_world_model_fit_refuses_a_device_this_machine_lacks_naming_the_key(runs, capsys):
+    fit = load_script("fit_world_model")
+    with pytest.raises(SystemExit):
+        fit.main([f"run={runs['whole']}", "updates=1", "device=cuda"])
+    assert "fit_world_model.py: error: device=cuda: no CUDA device is available here" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        fit.main([f"run={runs['whole']}", "updates=1", "device=tpu"])
+    assert "device=tpu: not a device; allowed: auto, cpu, cuda, cuda:N" in capsys.readouterr().err
+
+
 def test_the_logistic_readout_tells_what_the_features_carry_and_not_what_they_lack():
     gen = torch.Generator().manual_seed(0)
     labels = torch.rand(600, generator=gen) < 0.1  # rare, as eating is
