@@ -71,8 +71,17 @@ def test_group_options_are_the_documented_ones():
     assert options("algo") == sorted([*ALGOS, "dreamer", "dreamer_xs"])  # DreamerV3: tests/test_dreamer.py
     assert options("modality") == sorted(["all", "no_interoception", "no_vision", "no_olfaction", "no_thermoception",
                                           "no_collision"])
-    assert options("reward") == sorted([*evaaa.REWARDS, "original", "dqn"])
+    assert options("reward") == sorted([*evaaa.REWARDS, "original", "dqn", "squared_death"])
     assert options("logger") == ["csv", "tensorboard", "wandb"]
+
+
+
+def test_squared_death_is_squared_with_a_death_of_minus_3000():
+    """DreamerV3-XS's reward option (README, DreamerV3-XS): the level's squared reward, only the death costs -3,000."""
+    squared = evaaa.load_level("1-1", env_overrides(make_cfg("reward=squared"))).reward
+    death = evaaa.load_level("1-1", env_overrides(make_cfg("reward=squared_death"))).reward
+    assert death.name == squared.name == "squared" and squared.terminal_penalty == -100.0
+    assert death.model_dump() == {**squared.model_dump(), "terminal_penalty": -3000.0}
 
 
 def test_every_level_and_testbed_has_a_level_config():
