@@ -608,6 +608,24 @@ def test_how_a_run_was_started_does_not_split_its_group(tmp_path):
     assert runs[0].extras == runs[1].extras == ()
 
 
+def test_a_number_spelled_two_ways_or_another_time_budget_does_not_split_a_group(tmp_path):
+    from evaaa_baselines.reports import describe_extras, load_run
+    from evaaa_baselines.reports.load import labels
+
+    sim = Sim(tmp_path / "runs")
+    dirs = [sim.run("ppo", 0, level="1-1", finish=1, overrides=("algo.value_coef=1", "max_minutes=75")),
+            sim.run("ppo", 1, level="1-1", finish=1, overrides=("algo.value_coef=1.0", "max_minutes=33")),
+            sim.run("ppo", 2, level="1-1", finish=1, overrides=("algo.value_coef=0.25",))]
+    runs = [load_run(d) for d in dirs]
+    assert [r.config["algo"]["value_coef"] for r in runs] == [1, 1.0, 0.25]
+    assert isinstance(runs[0].config["algo"]["value_coef"], int)
+    describe_extras(runs)
+    assert runs[0].extras == runs[1].extras == ("algo.value_coef=1",)  # max_minutes is a budget, not a setting
+    assert runs[2].extras == ("algo.value_coef=0.25",)  # a setting that differs still splits
+    names = labels(runs)
+    assert names[dirs[0]] == names[dirs[1]] != names[dirs[2]]
+
+
 def test_a_row_cut_short_at_the_end_of_a_csv_is_skipped_and_said(world, tmp_path):
     from evaaa_baselines.reports import load_evaluations, load_run
 

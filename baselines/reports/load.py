@@ -34,7 +34,7 @@ BEST_MODEL_FILE = re.compile(r"^model-best-(\d+)-(.+)\.pt$")
 #: Settings that do not change what is trained: runs differing only in these (and the seed) are pooled
 #: (``deterministic`` picks CUDA kernels that repeat; runs made before it existed have no such key).
 BOOKKEEPING = ("seed", "resume", "start_over", "threads", "progress", "progress_window", "log_every", "total_steps",
-               "deterministic", "stages", "run.", "logger.", "checkpoint.", "eval.", "level.", "hydra.")
+               "max_minutes", "deterministic", "stages", "run.", "logger.", "checkpoint.", "eval.", "level.", "hydra.")
 RUN_COLUMNS = ("env_steps", "stage", "level", "steps")
 EVAL_RUN_COLUMNS = ("env_steps", "stage", "level", "survival_mean")
 EVAL_FILE_COLUMNS = ("policy", "level", "steps", "success", "episode")
@@ -208,9 +208,17 @@ def describe_extras(runs: Sequence[RunRecord]) -> None:
         varying = [k for k in keys if not k.startswith(BOOKKEEPING) and k not in ("algo.name", "modality.name",
                                                                                   "reward.name")
                    and not k.startswith("modality.enabled")
-                   and len({repr(flat[id(r)].get(k)) for r in same}) > 1]
+                   and len({_setting(flat[id(r)].get(k)) for r in same}) > 1]
         for r in same:
-            r.extras = tuple(f"{k}={flat[id(r)].get(k)}" for k in varying)
+            r.extras = tuple(f"{k}={_setting(flat[id(r)].get(k))}" for k in varying)
+
+
+def _setting(value: Any) -> str:
+    """A setting's value as labels show and compare it: a whole number without its ``.0`` (``100`` given on the
+    command line and ``100.0`` from a config file are one setting), anything else as written."""
+    if isinstance(value, float) and value.is_integer() and abs(value) < 1e15:
+        return str(int(value))
+    return str(value)
 
 
 def _flatten(node: Any, prefix: str = "") -> dict[str, Any]:
