@@ -75,7 +75,6 @@ def test_group_options_are_the_documented_ones():
     assert options("logger") == ["csv", "tensorboard", "wandb"]
 
 
-
 def test_squared_death_is_squared_with_a_death_of_minus_3000():
     """DreamerV3-XS's reward option (README, DreamerV3-XS): the level's squared reward, only the death costs -3,000."""
     squared = evaaa.load_level("1-1", env_overrides(make_cfg("reward=squared"))).reward
