@@ -26,7 +26,6 @@ from omegaconf import OmegaConf
 import evaaa
 from evaaa_baselines.config import CONF_DIR, observation_keys, register_levels
 from evaaa_baselines.reports import ReportError, build_report
-from evaaa_baselines.runtime import EVAL_COLUMNS
 from evaaa_baselines.reports.stats import interval
 from evaaa.records import TRAINING_EPISODE_FIELDS, append_rows
 
@@ -38,6 +37,10 @@ BUDGET = 100  # env steps per stage
 TESTBEDS = ("two-resource-food", "y-maze")
 FIGURES = ("fig4a_survival_per_level.png", "fig4a_curriculum_vs_direct.png", "fig4b_success_per_testbed.png",
            "fig4b_generalisation.png", "fig_training_curves.png", "fig25_ablation_curves.png", "fig26_ablation_success.png")
+
+# eval.csv as runs wrote it before evaluations were one row per episode (the committed paper-cpu record's format)
+EVAL_COLUMNS = ("env_steps", "stage", "level", "episodes", "survival_mean", "survival_min", "survival_max",
+                "return_mean", "end_types", "wall_time")
 
 
 # ------------------------------------------------------------------------------------------------ inputs

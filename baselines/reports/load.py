@@ -36,7 +36,7 @@ BEST_MODEL_FILE = re.compile(r"^model-best-(\d+)-(.+)\.pt$")
 BOOKKEEPING = ("seed", "resume", "start_over", "threads", "progress", "progress_window", "log_every", "total_steps",
                "max_minutes", "deterministic", "stages", "run.", "logger.", "checkpoint.", "eval.", "level.", "hydra.")
 RUN_COLUMNS = ("env_steps", "stage", "level", "steps")
-EVAL_RUN_COLUMNS = ("env_steps", "stage", "level", "survival_mean")
+EVAL_RUN_COLUMNS = ("env_steps", "stage", "level")
 EVAL_FILE_COLUMNS = ("policy", "level", "steps", "success", "episode")
 LEVEL_ORDER = {name: i for i, name in enumerate((*evaaa.LEVELS, *evaaa.TESTBEDS))}
 
@@ -65,7 +65,10 @@ class RunRecord:
     curriculum: bool = False
     stages: list[tuple[int, str, int]] = field(default_factory=list)  # (index, level, budget)
     episodes: pd.DataFrame | None = None
-    evals: pd.DataFrame | None = None
+    evals: pd.DataFrame | None = None  # one row per evaluation (its mean survival): read, or made from the episodes
+    #: one row per episode of the periodic evaluations (eval.csv since evaluations were written per episode, on
+    #: validation worlds); None where eval.csv holds only each evaluation's mean
+    eval_episodes: pd.DataFrame | None = None
     complete: set[int] = field(default_factory=set)  # indices of finished stages
     steps: int = 0  # env steps reached, summed over stages
     problem: str | None = None  # why the run is missing or partial (None: finished)
@@ -143,6 +146,13 @@ def load_run(run_dir: str | Path) -> RunRecord:
         return run
     run.episodes = _read_run_csv(run.dir / "episodes.csv", RUN_COLUMNS, run.notes)
     run.evals = _read_run_csv(run.dir / "eval.csv", EVAL_RUN_COLUMNS, run.notes)
+    if run.evals is not None and "survival_mean" not in run.evals.columns:
+        if "steps" not in run.evals.columns:
+            raise ReportError(f"{run.dir / 'eval.csv'} is not a training eval.csv (no column survival_mean or steps)")
+        run.eval_episodes = run.evals
+        run.evals = (run.evals.groupby(["env_steps", "stage", "level"], sort=False)["steps"]
+                     .agg(episodes="size", survival_mean="mean", survival_min="min", survival_max="max")
+                     .reset_index())
     for index, level, budget in run.stages:
         later = any(df is not None and (df["stage"] > index).any() for df in (run.episodes, run.evals))
         evaluated_at_end = run.evals is not None and ((run.evals["stage"] == index)
