@@ -47,7 +47,8 @@ import numpy as np
 
 from .physiology import END_TYPES, EV_NAMES
 from .pictures import top_image
-from .records import EPISODE_FIELDS, OPTIONAL_FIELDS, EpisodeTracker, StepLog, append_rows, new_log_path
+from .records import (EPISODE_FIELDS, OPTIONAL_FIELDS, DiskError, EpisodeTracker, StepLog, append_rows,
+                      new_log_path)
 from .sim import ACTION_NAMES, NUM_ACTIONS, Simulator
 from .spec import Level, LevelError, excerpt, level_names, load_level, register_level, registered_levels
 
@@ -254,7 +255,12 @@ class PlaySession:
         self.done = bool(terminated[0] or truncated[0])
         rows = self.tracker.update(reward, info, terminated | truncated, actions=np.array([action]))
         if self.step_log is not None:
-            self.step_log.update(np.array([action]), reward, info, terminated | truncated)
+            try:
+                self.step_log.update(np.array([action]), reward, info, terminated | truncated)
+            except DiskError as exc:  # the game goes on; the page shows that the log stopped
+                self.record_error = f"the step log stopped: {exc}"
+                print(self.record_error, file=sys.stderr, flush=True)
+                self.step_log = None
         ended_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
         rows = [{**row, "session": self.session_id, "ended_at": ended_at} for row in rows]
         if self.done:

@@ -550,8 +550,9 @@ class Level(_Spec):
 
 
 # --------------------------------------------------------------------------------------------------- loading
-#: Largest level file read (bytes).  The packaged levels are 0.5-3.5 KB; a file far beyond this is not a level.
-MAX_FILE_BYTES = 256 * 1024
+#: Largest level file read (bytes).  The packaged levels are 0.5-3.5 KB, and a landmark pattern of 100 x 100 cells
+#: is 30 KB; PyYAML's pure-Python parser reads about 50-200 KB/s, so a file at the limit parses in about a second.
+MAX_FILE_BYTES = 64 * 1024
 #: Deepest nesting of a level file or an override value (the schema nests 7 deep).  Parsing, merging and the
 #: error messages stay far from Python's recursion limit, and libyaml's loader, which crashed the process at
 #: 100,000 levels, is never used.
@@ -564,13 +565,15 @@ _FILE_KEYS = ("extends", "order")
 
 # error messages quote what was given, cut short: a value can be a whole level, or an alias expanded millions of times
 _EXCERPT = reprlib.Repr()
-_EXCERPT.maxlevel, _EXCERPT.maxstring, _EXCERPT.maxother = 3, 80, 80
-_EXCERPT.maxlist = _EXCERPT.maxtuple = _EXCERPT.maxset = _EXCERPT.maxfrozenset = _EXCERPT.maxdict = 6
+_EXCERPT.maxlevel, _EXCERPT.maxstring, _EXCERPT.maxother = 2, 60, 60
+_EXCERPT.maxlist = _EXCERPT.maxtuple = _EXCERPT.maxset = _EXCERPT.maxfrozenset = _EXCERPT.maxdict = 4
+EXCERPT_CHARS = 120
 
 
 def excerpt(value: Any) -> str:
-    """``repr(value)`` cut to at most a few hundred characters (nesting, items and strings elided with ...)."""
-    return _EXCERPT.repr(value)
+    """``repr(value)`` cut to at most :data:`EXCERPT_CHARS` characters (nesting, items and text elided with ...)."""
+    text = _EXCERPT.repr(value)
+    return text if len(text) <= EXCERPT_CHARS else text[:EXCERPT_CHARS - 3] + "..."
 
 
 class _Refused(yaml.YAMLError):
@@ -876,13 +879,15 @@ def _model_at(loc: tuple[Any, ...]) -> type[BaseModel] | None:
 
 def _format_errors(name: str, err: ValidationError) -> str:
     lines = []
+    unknown: dict[tuple[Any, ...], list[str]] = {}  # a section's unknown fields, said on one line
     for e in err.errors():
         loc = tuple(e["loc"])
         where = ".".join(str(p) for p in loc)
         if e["type"] == "extra_forbidden":
-            owner = _model_at(loc[:-1])
-            allowed = ", ".join(owner.model_fields) if owner else "?"
-            lines.append(f"{excerpt(where)[1:-1]}: unknown field; allowed: {allowed}")
+            if loc[:-1] not in unknown:
+                unknown[loc[:-1]] = []
+                lines.append(loc[:-1])  # placeholder, filled in below
+            unknown[loc[:-1]].append(where)
         elif e["type"] == "missing":
             lines.append(f"{where}: required field is missing")
         else:
@@ -891,7 +896,14 @@ def _format_errors(name: str, err: ValidationError) -> str:
             msg = e["msg"].removeprefix("Value error, ")
             # a rule across sections (loc empty) names its fields itself
             lines.append(f"{where}: {msg}{got_text}" if where else msg)
-    shown = lines[:20] + ([f"... and {len(lines) - 20} more"] if len(lines) > 20 else [])
+    for i, line in enumerate(lines):
+        if isinstance(line, tuple):
+            fields, owner = unknown[line], _model_at(line)
+            named = ", ".join(excerpt(f)[1:-1] for f in fields[:5]) + (f" and {len(fields) - 5} more"
+                                                                        if len(fields) > 5 else "")
+            lines[i] = (f"{named}: unknown field{'s' if len(fields) > 1 else ''}; allowed: "
+                        f"{', '.join(owner.model_fields) if owner else '?'}")
+    shown = lines[:10] + ([f"... and {len(lines) - 10} more"] if len(lines) > 10 else [])
     return f"invalid level '{name}':\n  " + "\n  ".join(shown)
 
 
