@@ -277,6 +277,16 @@ class CsvLog:
             raise DiskError(self.path, exc) from None
 
 
+class Counters(dict):
+    """Plain integer counters of an algorithm's loop, checkpointed like any stateful component."""
+
+    def state_dict(self) -> dict:
+        return dict(self)
+
+    def load_state_dict(self, state: Mapping) -> None:
+        self.update(state)
+
+
 # ------------------------------------------------------------------------------------------------ one stage
 class Run:
     """One stage of a training run as an algorithm's loop sees it.

@@ -3,11 +3,10 @@ and, on request, one row per decision.
 
 ``EpisodeTracker`` follows a batch of worlds step by step (from the simulator's or the env's ``info``) and
 returns a row for every episode that ends; ``append_rows`` adds rows to a CSV file, writing the header when the
-file is new and syncing to disk so that a killed run loses nothing it reported.  A disk that refuses a write (full,
-read-only, no permission) raises :class:`DiskError`, one line naming the file and the cause, with the file as it
-was before.  ``StepLog`` writes the per-step
+file is new and syncing to disk so that a killed run loses nothing it reported.  ``StepLog`` writes the per-step
 file the original's recorder wrote beside its per-episode one (pose, action, reward, distance, collision, events),
-one file per run, for the paper's behavioural-event analyses.
+one file per run, for the paper's behavioural-event analyses.  A disk that refuses a write (full, read-only, no
+permission) raises :class:`DiskError`, one line naming the file and the cause, with the file as it was before.
 """
 
 from __future__ import annotations
