@@ -125,9 +125,12 @@ def _atomic(path: Path, write) -> Path:
     try:
         write(tmp)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         tmp.unlink(missing_ok=True)
-        raise
+        error = disk_error(path, exc) if isinstance(exc, OSError) else None
+        if error is None:
+            raise
+        raise error from None
     return path
 
 
@@ -166,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as err:
         if err.errno not in DISK_ERRNOS:
             raise
-        raise SystemExit(f"evaluate.py: {disk_error(out, err)}; episodes.csv is complete: the same command writes "
+        raise SystemExit(f"evaluate.py: {disk_error(err.filename or out, err)}; episodes.csv is complete: the same command writes "
                          "the summary and figures once the disk takes writes") from None
     print(table)
     print("\nwrote " + ", ".join(str(p) for p in written))
