@@ -229,9 +229,10 @@ class _SlowSession:
     """Stands in for the play session: ``state`` waits until the test lets it answer."""
 
     def __init__(self):
-        self.release = threading.Event()
+        self.entered, self.release = threading.Event(), threading.Event()
 
     def state(self):
+        self.entered.set()
         self.release.wait(30)
         return {"step": 0}
 
@@ -271,12 +272,8 @@ def test_requests_beyond_the_bound_are_answered_503(monkeypatch):
         held = []
         holder = threading.Thread(target=lambda: held.append(call(address, "GET", "/api/state", timeout=30)))
         holder.start()
-        deadline = time.monotonic() + 10
-        while session.release.is_set() is False and time.monotonic() < deadline:
-            status, headers, payload = call(address, "POST", "/api/step", b'{"action": 1}', timeout=5)
-            if status == 503:
-                break
-            time.sleep(0.05)
+        assert session.entered.wait(10)  # the one request allowed is being answered
+        status, headers, payload = call(address, "POST", "/api/step", b'{"action": 1}', timeout=5)
         assert status == 503 and headers["Retry-After"] == "1", (status, payload)
         assert "busy" in json.loads(payload)["error"]
         session.release.set()
