@@ -207,7 +207,8 @@ class Physiology(_Spec):
 
 
 # --------------------------------------------------------------------------------------------------- resources
-Extents = Annotated[tuple[Positive, Positive, Positive], Lax, NoSet, Field(description="width (x), depth (y), height (z)")]
+Extents = Annotated[tuple[Positive, Positive, Positive], Lax, NoSet,
+                    Field(description="width (x), depth (y), height (z)")]
 
 
 class ResourceGroup(_Spec):
@@ -658,7 +659,8 @@ def parse_level_text(data: bytes, label: str) -> dict[str, Any]:
     """The mapping in a level file's bytes, parsed within the limits above.  Raises :class:`LevelError`, one line
     naming ``label`` (the file) and what is wrong."""
     if len(data) > MAX_FILE_BYTES:
-        raise LevelError(f"level file '{label}' is larger than {MAX_FILE_BYTES // 1024} KiB (the limit of a level file)")
+        raise LevelError(f"level file '{label}' is larger than {MAX_FILE_BYTES // 1024} KiB (the limit of a level "
+                         "file)")
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as err:

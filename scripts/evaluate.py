@@ -169,8 +169,8 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as err:
         if err.errno not in DISK_ERRNOS:
             raise
-        raise SystemExit(f"evaluate.py: {disk_error(err.filename or out, err)}; episodes.csv is complete: the same command writes "
-                         "the summary and figures once the disk takes writes") from None
+        raise SystemExit(f"evaluate.py: {disk_error(err.filename or out, err)}; episodes.csv is complete: the same "
+                         "command writes the summary and figures once the disk takes writes") from None
     print(table)
     print("\nwrote " + ", ".join(str(p) for p in written))
     return 0

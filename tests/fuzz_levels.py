@@ -259,7 +259,8 @@ def _sizes(rng: random.Random) -> str:
     if kind == 6:
         return _nest("agent.spawn_x", "[" + ", ".join(["1"] * many(300, 20_000, 90_000)) + "]")
     if kind == 7:
-        return rng.choice(["[1, 2]\n", "3\n", "'text'\n", "- a\n- b\n", "? [a, b]\n: 1\n", "{[1]: 2}\n", "a: {[1]: 2}\n"])
+        return rng.choice(["[1, 2]\n", "3\n", "'text'\n", "- a\n- b\n", "? [a, b]\n: 1\n", "{[1]: 2}\n",
+                           "a: {[1]: 2}\n"])
     return "agent: {mass: 5, mass: 6}\n" if rng.random() < 0.5 else "agent: {mass: 5}\nagent: {mass: 6}\n"
 
 

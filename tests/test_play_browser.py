@@ -247,7 +247,8 @@ def test_the_command_line_reads_key_value_arguments():
 
 @pytest.mark.parametrize("args, expected", [
     (["level=no-such-level"], ["level=no-such-level: 'no-such-level' is not allowed", "allowed: 1-1, 1-2"]),
-    (["colour=red"], ["unknown key 'colour'", "keys: level, level_dir, participant, host, port, seed, rate, out, step_log, overrides"]),
+    (["colour=red"], ["unknown key 'colour'",
+                      "keys: level, level_dir, participant, host, port, seed, rate, out, step_log, overrides"]),
     (["level"], ["'level' is not of the form key=value"]),
     (["port=http"], ["port=http: expected an integer"]),
     (["port=70000"], ["port=70000: expected a port in [0, 65535]"]),
