@@ -27,7 +27,7 @@ from evaaa.records import TRAINING_OLD_NAMES
 
 from ..config import stages as config_stages
 
-REFERENCES = ("oracle", "random", "human")
+REFERENCES = ("oracle", "random", "still", "human")
 MODEL_FILE = re.compile(r"^model-(\d+)-(.+)\.pt$")
 #: the network of a stage's best evaluation (runtime.Run.best_model_path)
 BEST_MODEL_FILE = re.compile(r"^model-best-(\d+)-(.+)\.pt$")
