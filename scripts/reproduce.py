@@ -21,8 +21,8 @@ from pathlib import Path
 
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
-from evaaa_baselines.protocol import (REPO, Layout, ProtocolError, Scheduler, build_cells, keep_out_of_git,
-                                      load_protocol, plan_text, select, status)
+from evaaa_baselines.protocol import (EXECUTORS, REPO, Layout, ProtocolError, Runner, build_cells,
+                                      keep_out_of_git, load_protocol, plan_text, select, status)
 
 
 @dataclass
@@ -44,6 +44,21 @@ class ReproduceConfig:
                              "its checkpoint: the renderer crash of docs/training.md)",
                           check=(lambda v: v >= 0, "0 or more"))
     out: str | None = option(None, "the report's folder (default: the protocol's report.out)")
+    executor: str = option("local", "what runs the cells: local (a pool of jobs subprocesses on this machine), ray "
+                                    "(each cell a Ray task with the CPUs and GPUs it needs) or slurm (each cell a "
+                                    "SLURM job through submitit)", choices=EXECUTORS)
+    ray_address: str | None = option(None, "executor=ray: the cluster to join (auto, or ray://<head>:10001); "
+                                           "default: a Ray instance on this machine with jobs CPUs")
+    ray_retries: int = option(3, "executor=ray: times Ray runs a cell again whose worker or node was lost (it "
+                                 "continues from the files the lost one left)", check=(lambda v: v >= 0, "0 or more"))
+    slurm_partition: str | None = option(None, "executor=slurm: the partition of the jobs")
+    slurm_minutes: int = option(2880, "executor=slurm: each job's time limit in minutes",
+                                check=(lambda v: v > 0, "a positive integer"))
+    slurm_parallel: int = option(64, "executor=slurm: jobs of one array running at once",
+                                 check=(lambda v: v > 0, "a positive integer"))
+    submitit_cluster: str = option("slurm", "executor=slurm: slurm, or local (submitit's local executor: the jobs "
+                                            "as subprocesses of this machine, to try a set-up)",
+                                   choices=("slurm", "local"))
     progress: bool = option(True, "a progress bar over the cells")
 
 
@@ -82,14 +97,23 @@ def main(argv: list[str] | None = None) -> int:
     lock.truncate()
     lock.write(str(os.getpid()))
     lock.flush()
-    print(f"reproduce.py: {len(todo)} of {len(cells)} cells to run under {lay.root}, {cfg.jobs} at a time; logs in "
-          f"{lay.logs}", flush=True)
-    scheduler = Scheduler(p, cells, lay, jobs=cfg.jobs, max_minutes=cfg.max_minutes, redo=cfg.redo,
-                          retries=cfg.retries, progress=cfg.progress,
-                          selects=" ".join(f"{k}={v}" for k, v in (("protocol", cfg.protocol), ("root", cfg.root),
-                                                                  ("out", cfg.out)) if v))
+    where = {"local": f"{cfg.jobs} at a time", "ray": f"as Ray tasks on {cfg.ray_address or 'a local Ray instance'}",
+             "slurm": f"as jobs of submitit's {cfg.submitit_cluster} executor"}[cfg.executor]
+    print(f"reproduce.py: {len(todo)} of {len(cells)} cells to run under {lay.root}, {where}; logs in {lay.logs}",
+          flush=True)
+    slurm = {"timeout_min": cfg.slurm_minutes, "slurm_array_parallelism": cfg.slurm_parallel}
+    if cfg.slurm_partition:
+        slurm["slurm_partition"] = cfg.slurm_partition
+    runner = Runner(p, cells, lay, executor=cfg.executor, jobs=cfg.jobs, max_minutes=cfg.max_minutes, redo=cfg.redo,
+                    retries=cfg.retries, progress=cfg.progress, ray_address=cfg.ray_address,
+                    ray_retries=cfg.ray_retries, submitit_cluster=cfg.submitit_cluster,
+                    slurm=slurm if cfg.submitit_cluster == "slurm" else {"timeout_min": cfg.slurm_minutes},
+                    selects=" ".join(f"{k}={v}" for k, v in (("protocol", cfg.protocol), ("root", cfg.root),
+                                                            ("out", cfg.out)) if v))
     try:
-        rc = scheduler.run(todo)
+        rc = runner.run(todo)
+    except ProtocolError as err:
+        cli.fail("reproduce.py", str(err))
     except KeyboardInterrupt:
         print("reproduce.py: stopped; the same command continues where it stopped", file=sys.stderr)
         return 130
