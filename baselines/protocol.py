@@ -1130,7 +1130,7 @@ class RayEngine(_Engine):
             # address=None: a Ray instance on this machine with `jobs` CPUs (so `jobs` cells of one core at once)
             kw: dict[str, Any] = {"address": address} if address else {"num_cpus": jobs * p.threads}
             ray.init(**kw, include_dashboard=False, log_to_driver=False, configure_logging=False)
-        self.remote = ray.remote(run_cell).options(max_retries=retries_on_loss, retry_exceptions=False)
+        self.remote = ray.remote(max_retries=retries_on_loss, retry_exceptions=False)(run_cell)
 
     def submit(self, tasks):
         refs = []
