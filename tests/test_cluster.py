@@ -130,3 +130,21 @@ def test_the_smoke_protocol_end_to_end_on_an_engine(tmp_path, executor, request)
     assert all(status(c, lay, cells) == "done" for c in cells)
     assert all(_runs(lay, c.name) == 1 for c in cells)  # every cell once
     assert "Fig. 4a, left" in (root / "report" / "report.md").read_text()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("launcher", ["slurm_local"])
+def test_train_multirun_through_a_launcher_preset(tmp_path, launcher):
+    # (the default preset, joblib, is tests/test_train.py::test_train_script_multirun_sweeps_seeds)
+    root = Path(__file__).parents[1]
+    cmd = [sys.executable, str(root / "scripts" / "train.py"), "-m", f"hydra/launcher={launcher}", "algo=ppo",
+           "preset=debug", "logger=csv", "progress=false", "total_steps=64", "seed=0,1", f"run.root={tmp_path}",
+           f"hydra.sweep.dir={tmp_path / 'sweep'}"]
+    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "HYDRA_FULL_ERROR": "1"})
+    assert done.returncode == 0, done.stderr[-3000:]
+    for seed in (0, 1):
+        # submitit's launcher puts each job's run directory under the sweep folder
+        run_dir = tmp_path / "sweep" / "1-1" / "ppo" / "all-squared-debug" / f"seed{seed}"
+        assert (run_dir / "model-0-1-1.pt").exists()
+    assert list((tmp_path / "sweep").rglob("*_submitted.pkl"))  # the jobs went through submitit
