@@ -78,8 +78,11 @@ def env_overrides(cfg: DictConfig) -> dict[str, Any]:
     """Level-field overrides for ``evaaa.make_env``: the level option's, the reward's, then ``env.overrides``."""
     # a reward option names a level reward function, or lists the level's reward fields it sets under ``overrides``
     reward = cfg.reward.get("overrides") or {"name": cfg.reward.name}
-    layers = [OmegaConf.to_container(cfg.level.overrides, resolve=True), {"reward": reward},
-              OmegaConf.to_container(cfg.env.overrides, resolve=True)]
+    layers = [
+        OmegaConf.to_container(cfg.level.overrides, resolve=True),
+        {"reward": reward},
+        OmegaConf.to_container(cfg.env.overrides, resolve=True),
+    ]
     return OmegaConf.to_container(OmegaConf.merge(*layers))
 
 
@@ -89,27 +92,42 @@ class ConfigError(ValueError):
 
 
 #: keys whose default is null, and what else they take (a null default says nothing about the type)
-NULLABLE = {"max_minutes": (float, int), "max_cpu_minutes": (float, int), "threads": (int,), "level.stages": (list,), "algo.lstm": (dict,),
-            "algo.sequence_length": (int,)}
+NULLABLE = {
+    "max_minutes": (float, int),
+    "max_cpu_minutes": (float, int),
+    "threads": (int,),
+    "level.stages": (list,),
+    "algo.lstm": (dict,),
+    "algo.sequence_length": (int,),
+}
 #: free-form nodes: any key below them is a level field (checked by evaaa when the env is made)
 FREE_FORM = ("env.overrides", "level.overrides")
 #: meanings of the keys that name a group's option, and of those of the ``level=<name>`` options that
 #: :func:`register_levels` stores
-GROUP_KEYS = {"algo.name": "the algorithm (algo=<name> chooses it)", "modality.name": "the set of observation keys "
-              "(modality=<name> chooses it)", "modality.enabled": "the observation keys the agent sees",
-              "reward.name": "the reward function (reward=<name> chooses it)",
-              "logger.backend": "where training metrics go (logger=<name> chooses it)",
-              "level.name": "the level or testbed trained on (level=<name> chooses it)",
-              "level.file": "the YAML file of your own level (level=file level.file=path/to/my.yaml)",
-              "level.overrides": "level-field changes for this level, e.g. ++level.overrides.episode.max_steps=2000"}
+GROUP_KEYS = {
+    "algo.name": "the algorithm (algo=<name> chooses it)",
+    "modality.name": "the set of observation keys (modality=<name> chooses it)",
+    "modality.enabled": "the observation keys the agent sees",
+    "reward.name": "the reward function (reward=<name> chooses it)",
+    "logger.backend": "where training metrics go (logger=<name> chooses it)",
+    "level.name": "the level or testbed trained on (level=<name> chooses it)",
+    "level.file": "the YAML file of your own level (level=file level.file=path/to/my.yaml)",
+    "level.overrides": "level-field changes for this level, e.g. ++level.overrides.episode.max_steps=2000",
+}
 
 
 def _type_text(types: tuple[type, ...], plural: bool = False) -> str:
     if plural:
         names = {bool: "true/false values", int: "integers", float: "numbers", str: "strings"}
     else:
-        names = {bool: "true or false", int: "an integer", float: "a number", str: "a string", list: "a list [a,b]",
-                 dict: "a mapping {a: 1}"}
+        names = {
+            bool: "true or false",
+            int: "an integer",
+            float: "a number",
+            str: "a string",
+            list: "a list [a,b]",
+            dict: "a mapping {a: 1}",
+        }
     if float in types:  # an integer is a number too
         types = tuple(t for t in types if t is not int)
     return " or ".join(names[t] for t in types)
@@ -182,15 +200,23 @@ def validate(cfg: DictConfig, defaults: DictConfig, path: str = "") -> None:
             types = _allowed_types(default)
         plain = OmegaConf.to_container(value) if OmegaConf.is_config(value) else value
         if not _matches(plain, tuple(list if t is list else dict if t is dict else t for t in types)):
-            raise ConfigError(f"{full}={_show(value)}: expected {_type_text(types)}"
-                              + ("" if default is None else f" (default {_show(default)})"))
-        if OmegaConf.is_list(default) and len(default) and not isinstance(default[0], (list, dict)) and \
-                not OmegaConf.is_config(default[0]):
+            raise ConfigError(
+                f"{full}={_show(value)}: expected {_type_text(types)}"
+                + ("" if default is None else f" (default {_show(default)})")
+            )
+        if (
+            OmegaConf.is_list(default)
+            and len(default)
+            and not isinstance(default[0], (list, dict))
+            and not OmegaConf.is_config(default[0])
+        ):
             item_types = _allowed_types(default[0])
             bad = [v for v in plain if not _matches(v, item_types)]
             if bad:
-                raise ConfigError(f"{full}={_show(value)}: expected a list of {_type_text(item_types, plural=True)} "
-                                  f"(default {_show(default)}), got {_show(bad[0])}")
+                raise ConfigError(
+                    f"{full}={_show(value)}: expected a list of {_type_text(item_types, plural=True)} "
+                    f"(default {_show(default)}), got {_show(bad[0])}"
+                )
 
 
 def _group_of(override: Override, groups: set[str]) -> bool:
@@ -242,11 +268,14 @@ def compose_checked(overrides: list[str]) -> DictConfig:
         if full_key and "not in" in str(cause):
             parent = full_key.rpartition(".")[0]
             node = OmegaConf.select(defaults, parent) if parent else defaults
-            keys = ", ".join(f"{parent + '.' if parent else ''}{k}" for k in (node.keys() if OmegaConf.is_dict(node)
-                                                                               else ()))
+            keys = ", ".join(
+                f"{parent + '.' if parent else ''}{k}" for k in (node.keys() if OmegaConf.is_dict(node) else ())
+            )
             if node is None:
-                raise ConfigError(f"unknown key '{full_key}': {parent} is null with these options; set it whole, "
-                                  f"e.g. {parent}={{{full_key.rpartition('.')[2]}: ...}}") from None
+                raise ConfigError(
+                    f"unknown key '{full_key}': {parent} is null with these options; set it whole, "
+                    f"e.g. {parent}={{{full_key.rpartition('.')[2]}: ...}}"
+                ) from None
             if OmegaConf.is_dict(node) and not len(node):  # an empty mapping (env.overrides) takes new keys
                 line = next((o.input_line for o in parsed if o.key_or_group.startswith(full_key)), full_key)
                 raise ConfigError(f"'{full_key}' is not in {parent} yet: add it with ++{line.lstrip('+')}") from None
@@ -272,20 +301,24 @@ def job_overrides(overrides: list[str], multirun: bool) -> list[list[str]]:
     swept = {i: list(o.sweep_string_iterator()) for i, o in enumerate(parsed) if o.is_sweep_override()}
     if swept and not multirun:
         first = parsed[next(iter(swept))]
-        raise ConfigError(f"{first.input_line}: several values make a sweep: add -m (--multirun); a list is "
-                          f"written {first.key_or_group}=[a,b]")
+        raise ConfigError(
+            f"{first.input_line}: several values make a sweep: add -m (--multirun); a list is "
+            f"written {first.key_or_group}=[a,b]"
+        )
     if not swept:
         return [list(overrides)]
 
     def line(i: int, value: str) -> str:
         return f"{parsed[i].get_key_element()}={value}"
 
-    base = [line(i, values[0]) if i in swept else o.input_line for i, (o, values) in
-            enumerate((o, swept.get(i, [])) for i, o in enumerate(parsed))]
+    base = [
+        line(i, values[0]) if i in swept else o.input_line
+        for i, (o, values) in enumerate((o, swept.get(i, [])) for i, o in enumerate(parsed))
+    ]
     jobs = [base]
     for i, values in swept.items():
         for value in values[1:]:
-            jobs.append([*base[:i], line(i, value), *base[i + 1:]])
+            jobs.append([*base[:i], line(i, value), *base[i + 1 :]])
     return jobs
 
 
@@ -320,8 +353,7 @@ def check_command_line(argv: list[str], doc: str = "") -> None:
 
     register_levels()
     args = get_args_parser().parse_args(argv)  # Hydra's own flags, parsed as Hydra will (a bad flag exits 2 here)
-    if args.hydra_help or args.info or args.shell_completion or args.config_name or args.config_path or \
-            args.config_dir:
+    if args.hydra_help or args.info or args.shell_completion or args.config_name or args.config_path or args.config_dir:
         return  # Hydra's own answers, or another config than conf/config.yaml: Hydra checks it
     with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
         try:
@@ -394,8 +426,9 @@ def _config_files(choices: dict[str, Any]) -> list[tuple[Path, str]]:
         path, package = group.split("@")[0], (group.split("@")[1] if "@" in group else group)
         names = [option]
         while (CONF_DIR / path / f"{names[-1]}.yaml").is_file():  # an option may extend another (ppo_lstm: ppo)
-            base = re.search(r"^defaults:\n\s+-\s+([\w-]+)\s*$", (CONF_DIR / path / f"{names[-1]}.yaml").read_text(),
-                             re.M)
+            base = re.search(
+                r"^defaults:\n\s+-\s+([\w-]+)\s*$", (CONF_DIR / path / f"{names[-1]}.yaml").read_text(), re.M
+            )
             if base is None or base[1] in names:
                 break
             names.append(base[1])
@@ -419,18 +452,29 @@ def help_text(overrides: list[str], prog: str = "train.py", description: str = "
     for path, package in _config_files(choices):
         for key, text in comments(path, package).items():
             meanings.setdefault(key, text)
-    lines = [f"usage: python scripts/{prog} [key=value ...]        (one run)",
-             f"       python scripts/{prog} -m key=a,b ... [key=value ...]   (a sweep: one run per combination)", ""]
+    lines = [
+        f"usage: python scripts/{prog} [key=value ...]        (one run)",
+        f"       python scripts/{prog} -m key=a,b ... [key=value ...]   (a sweep: one run per combination)",
+        "",
+    ]
     if description:
         lines += [*textwrap.wrap(" ".join(description.split()), width=114), ""]
     lines.append("groups (group=option; the config below is composed from the options chosen):")
     for group in sorted(g for g in loader.list_groups("") if g != "hydra"):
         options = loader.get_group_options(group)
-        lines += textwrap.wrap(f"{group}: {', '.join(options)} (now {choices.get(group)})", width=114,
-                               initial_indent="  ", subsequent_indent="      ", break_on_hyphens=False)
+        lines += textwrap.wrap(
+            f"{group}: {', '.join(options)} (now {choices.get(group)})",
+            width=114,
+            initial_indent="  ",
+            subsequent_indent="      ",
+            break_on_hyphens=False,
+        )
     groups = set(loader.list_groups(""))
-    lines += ["", "keys (key=value, nested keys dotted: eval.every=50000; lists key=[a,b]; values read as YAML; "
-              "a key not listed needs ++key=value):"]
+    lines += [
+        "",
+        "keys (key=value, nested keys dotted: eval.every=50000; lists key=[a,b]; values read as YAML; "
+        "a key not listed needs ++key=value):",
+    ]
 
     def walk(node: DictConfig, path: str) -> None:
         for key in node.keys():
@@ -448,19 +492,23 @@ def help_text(overrides: list[str], prog: str = "train.py", description: str = "
                 if OmegaConf.is_dict(value) and len(value) and full not in FREE_FORM:
                     if full in meanings:  # what the keys below have in common
                         lines.append(f"  {full}.*:")
-                        lines.extend(textwrap.wrap(meanings[full], width=114, initial_indent=" " * 6,
-                                                   subsequent_indent=" " * 6))
+                        lines.extend(
+                            textwrap.wrap(meanings[full], width=114, initial_indent=" " * 6, subsequent_indent=" " * 6)
+                        )
                     walk(value, f"{full}.")
                     continue
                 kind = _kind(full, value)
             lines.append(f"  {full}: {kind} = {_show(value)}")
             if full in meanings:
-                lines.extend(textwrap.wrap(meanings[full], width=114, initial_indent=" " * 6,
-                                           subsequent_indent=" " * 6))
+                lines.extend(
+                    textwrap.wrap(meanings[full], width=114, initial_indent=" " * 6, subsequent_indent=" " * 6)
+                )
 
     walk(cfg, "")
-    lines += ["", "Hydra's own flags: --cfg job (print the composed config), --hydra-help, -m/--multirun. See "
-              "docs/training.md."]
+    lines += [
+        "",
+        "Hydra's own flags: --cfg job (print the composed config), --hydra-help, -m/--multirun. See docs/training.md.",
+    ]
     return "\n".join(lines)
 
 

@@ -84,13 +84,19 @@ class DreamerEncoder(nn.Module):
         self.out_features = 0
         if "pixels" in obs_shapes:
             height, width, channels = obs_shapes["pixels"]
-            self.cnn = DreamerV3ImageEncoder(in_channels=channels, depth=cfg.cnn.depth, mults=tuple(cfg.cnn.mults),
-                                             kernel_size=cfg.cnn.kernel, norm_eps=cfg.norm_eps)
+            self.cnn = DreamerV3ImageEncoder(
+                in_channels=channels,
+                depth=cfg.cnn.depth,
+                mults=tuple(cfg.cnn.mults),
+                kernel_size=cfg.cnn.kernel,
+                norm_eps=cfg.norm_eps,
+            )
             self.out_features += self.cnn.output_features((channels, height, width))
         vector_features = sum(shape[-1] for key, shape in obs_shapes.items() if key != "pixels")
         if vector_features:
-            self.mlp = DreamerV3MLP(vector_features, None, depth=cfg.mlp_layers, num_cells=cfg.dense,
-                                    norm_eps=cfg.norm_eps)
+            self.mlp = DreamerV3MLP(
+                vector_features, None, depth=cfg.mlp_layers, num_cells=cfg.dense, norm_eps=cfg.norm_eps
+            )
             self.out_features += cfg.dense
 
     def forward(self, *obs: torch.Tensor) -> torch.Tensor:
@@ -119,9 +125,15 @@ class DreamerDecoder(nn.Module):
         self.keys = tuple(obs_shapes)
         if "pixels" in obs_shapes:
             height, width, channels = obs_shapes["pixels"]
-            self.cnn = DreamerV3ImageDecoder(latent, (channels, height, width), depth=cfg.cnn.depth,
-                                             mults=tuple(cfg.cnn.mults), kernel_size=cfg.cnn.kernel, num_blocks=1,
-                                             norm_eps=cfg.norm_eps)
+            self.cnn = DreamerV3ImageDecoder(
+                latent,
+                (channels, height, width),
+                depth=cfg.cnn.depth,
+                mults=tuple(cfg.cnn.mults),
+                kernel_size=cfg.cnn.kernel,
+                num_blocks=1,
+                norm_eps=cfg.norm_eps,
+            )
         vectors = {key: shape[-1] for key, shape in obs_shapes.items() if key != "pixels"}
         if vectors:
             self.mlp = DreamerV3MLP(latent, None, depth=cfg.mlp_layers, num_cells=cfg.dense, norm_eps=cfg.norm_eps)
@@ -142,8 +154,9 @@ class DreamerDecoder(nn.Module):
         """One vector key's reconstruction alone (raw units), without decoding the pixels."""
         return self.vectors(state, belief, (key,))[key]
 
-    def vectors(self, state: torch.Tensor, belief: torch.Tensor,
-                keys: Sequence[str] | None = None) -> dict[str, torch.Tensor]:
+    def vectors(
+        self, state: torch.Tensor, belief: torch.Tensor, keys: Sequence[str] | None = None
+    ) -> dict[str, torch.Tensor]:
         """The vector keys' reconstructions (raw units; all of them by default), without decoding the pixels."""
         hidden = self.mlp(torch.cat([state, belief], dim=-1))
         return {key: self._symexp(self.heads[key](hidden)) for key in (self.heads if keys is None else keys)}
@@ -166,26 +179,47 @@ class DreamerModel(nn.Module):
         self.belief_dim = m.recurrent
         latent = self.state_dim + self.belief_dim
         self.encoder = DreamerEncoder(obs_shapes, m)
-        self.prior = RSSMPriorV3(action_shape=(NUM_ACTIONS,), action_dim=NUM_ACTIONS, hidden_dim=m.hidden,
-                                 rnn_hidden_dim=m.recurrent, num_categoricals=m.stochastic, num_classes=m.classes,
-                                 recurrent_model=m.recurrent_model, norm_eps=m.norm_eps, unimix=m.unimix)
-        self.posterior = RSSMPosteriorV3(hidden_dim=m.hidden, num_categoricals=m.stochastic, num_classes=m.classes,
-                                         rnn_hidden_dim=m.recurrent, obs_embed_dim=self.encoder.out_features,
-                                         use_rms_norm=True, norm_eps=m.norm_eps, unimix=m.unimix)
+        self.prior = RSSMPriorV3(
+            action_shape=(NUM_ACTIONS,),
+            action_dim=NUM_ACTIONS,
+            hidden_dim=m.hidden,
+            rnn_hidden_dim=m.recurrent,
+            num_categoricals=m.stochastic,
+            num_classes=m.classes,
+            recurrent_model=m.recurrent_model,
+            norm_eps=m.norm_eps,
+            unimix=m.unimix,
+        )
+        self.posterior = RSSMPosteriorV3(
+            hidden_dim=m.hidden,
+            num_categoricals=m.stochastic,
+            num_classes=m.classes,
+            rnn_hidden_dim=m.recurrent,
+            obs_embed_dim=self.encoder.out_features,
+            use_rms_norm=True,
+            norm_eps=m.norm_eps,
+            unimix=m.unimix,
+        )
         self.decoder = DreamerDecoder(obs_shapes, latent, m)
         # reward and critic: two-hot over symexp-spaced bins, zero-initialised outputs (DreamerV3's outscale 0)
-        self.reward = DreamerV3MLP(latent, m.bins, depth=m.mlp_layers, num_cells=m.dense, outscale=0.0,
-                                   norm_eps=m.norm_eps)
+        self.reward = DreamerV3MLP(
+            latent, m.bins, depth=m.mlp_layers, num_cells=m.dense, outscale=0.0, norm_eps=m.norm_eps
+        )
         self.two_hot = SymExpTwoHot(m.bins)
         self.cont = DreamerV3MLP(latent, 1, depth=m.mlp_layers, num_cells=m.dense, norm_eps=m.norm_eps)
-        self.actor = DreamerV3DiscreteActor(latent, NUM_ACTIONS, depth=m.mlp_layers, num_cells=m.dense,
-                                            norm_eps=m.norm_eps, unimix=m.unimix)
-        self.value = DreamerV3MLP(latent, m.bins, depth=m.mlp_layers, num_cells=m.dense, outscale=0.0,
-                                  norm_eps=m.norm_eps)
+        self.actor = DreamerV3DiscreteActor(
+            latent, NUM_ACTIONS, depth=m.mlp_layers, num_cells=m.dense, norm_eps=m.norm_eps, unimix=m.unimix
+        )
+        self.value = DreamerV3MLP(
+            latent, m.bins, depth=m.mlp_layers, num_cells=m.dense, outscale=0.0, norm_eps=m.norm_eps
+        )
 
     def world_model_parameters(self) -> list[nn.Parameter]:
-        return [p for name in ("encoder", "prior", "posterior", "decoder", "reward", "cont")
-                for p in getattr(self, name).parameters()]
+        return [
+            p
+            for name in ("encoder", "prior", "posterior", "decoder", "reward", "cont")
+            for p in getattr(self, name).parameters()
+        ]
 
 
 def make_model(cfg: DictConfig, obs_shapes: Mapping[str, Sequence[int]]) -> DreamerModel:
@@ -208,10 +242,12 @@ def world_model(model: DreamerModel) -> TensorDictSequential:
     ``is_init`` marks an episode's first step (``RSSMRolloutV3``)."""
     keys = model.obs_keys
     rollout = RSSMRolloutV3(
-        TensorDictModule(model.prior, in_keys=["state", "belief", "action_onehot"],
-                         out_keys=_next("prior_logits", "state", "belief")),
-        TensorDictModule(model.posterior, in_keys=_next("belief", "encoded_latents"),
-                         out_keys=_next("posterior_logits", "state")),
+        TensorDictModule(
+            model.prior, in_keys=["state", "belief", "action_onehot"], out_keys=_next("prior_logits", "state", "belief")
+        ),
+        TensorDictModule(
+            model.posterior, in_keys=_next("belief", "encoded_latents"), out_keys=_next("posterior_logits", "state")
+        ),
         reset_key="is_init",
     )
     return TensorDictSequential(
@@ -233,10 +269,17 @@ def imagination_env(model: DreamerModel, device: torch.device | str = "cpu") -> 
         TensorDictModule(model.reward, in_keys=list(LATENT), out_keys=["reward_logits"]),
         TensorDictModule(model.two_hot, in_keys=["reward_logits"], out_keys=["reward"]),
     )
-    env = DreamerEnv(WorldModelWrapper(transition, reward), prior_shape=(model.state_dim,),
-                     belief_shape=(model.belief_dim,), device=device)
-    env.observation_spec = Composite(state=Unbounded(model.state_dim, device=device),
-                                     belief=Unbounded(model.belief_dim, device=device), device=device)
+    env = DreamerEnv(
+        WorldModelWrapper(transition, reward),
+        prior_shape=(model.state_dim,),
+        belief_shape=(model.belief_dim,),
+        device=device,
+    )
+    env.observation_spec = Composite(
+        state=Unbounded(model.state_dim, device=device),
+        belief=Unbounded(model.belief_dim, device=device),
+        device=device,
+    )
     env.state_spec = env.observation_spec.clone()
     env.action_spec = OneHot(NUM_ACTIONS, device=device)
     env.reward_spec = Unbounded((1,), device=device)
@@ -279,8 +322,9 @@ def acting_policy(model: DreamerModel) -> TensorDictSequential:
     next step and zeroes them at a reset."""
     return TensorDictSequential(
         TensorDictModule(model.encoder, in_keys=list(model.obs_keys), out_keys=["embed"]),
-        RSSMStateEstimatorV3(model.prior, model.posterior,
-                             in_keys=[*LATENT, "prev_action", "embed", "is_init"], out_keys=list(LATENT)),
+        RSSMStateEstimatorV3(
+            model.prior, model.posterior, in_keys=[*LATENT, "prev_action", "embed", "is_init"], out_keys=list(LATENT)
+        ),
         model.actor,
         TensorDictModule(_carry, in_keys=["action"], out_keys=["prev_action", "action"]),
     )
@@ -312,9 +356,14 @@ def make_transforms(cfg: DictConfig, obs_keys: Sequence[str], model: DreamerMode
     """Episode-start flags and the carried latent and previous action, zeroed at every reset."""
     return [
         InitTracker(),
-        TensorDictPrimer(random=False, default_value=0.0, expand_specs=True,
-                         state=Unbounded(model.state_dim), belief=Unbounded(model.belief_dim),
-                         prev_action=Unbounded(NUM_ACTIONS)),
+        TensorDictPrimer(
+            random=False,
+            default_value=0.0,
+            expand_specs=True,
+            state=Unbounded(model.state_dim),
+            belief=Unbounded(model.belief_dim),
+            prev_action=Unbounded(NUM_ACTIONS),
+        ),
     ]
 
 
@@ -336,20 +385,33 @@ class SequenceReplay:
     writes have reached the files, resumes on exactly the rows it checkpointed.
     """
 
-    def __init__(self, capacity: int, num_envs: int, sequence_length: int, batch_size: int, *,
-                 directory: Path | None = None, device: torch.device | str = "cpu", guard_rows: int = 0,
-                 consume_share: float = 0.0, terminal_share: float = 0.0):
+    def __init__(
+        self,
+        capacity: int,
+        num_envs: int,
+        sequence_length: int,
+        batch_size: int,
+        *,
+        directory: Path | None = None,
+        device: torch.device | str = "cpu",
+        guard_rows: int = 0,
+        consume_share: float = 0.0,
+        terminal_share: float = 0.0,
+    ):
         if capacity // num_envs < sequence_length:
-            raise ValueError(f"algo.buffer_size ({capacity}) holds fewer than algo.sequence_length "
-                             f"({sequence_length}) steps of each of the {num_envs} worlds")
+            raise ValueError(
+                f"algo.buffer_size ({capacity}) holds fewer than algo.sequence_length "
+                f"({sequence_length}) steps of each of the {num_envs} worlds"
+            )
         self.num_envs, self.sequence_length, self.batch_size = num_envs, sequence_length, batch_size
         self.directory, self.device, self.guard_rows = directory, torch.device(device), guard_rows
         for name, share in (("consume_share", consume_share), ("terminal_share", terminal_share)):
             if not 0.0 <= share <= 1.0:
                 raise ValueError(f"algo.{name} must lie in [0, 1], got {share}")
         if consume_share + terminal_share > 1.0:
-            raise ValueError(f"algo.consume_share + algo.terminal_share must be at most 1, got {consume_share} + "
-                             f"{terminal_share}")
+            raise ValueError(
+                f"algo.consume_share + algo.terminal_share must be at most 1, got {consume_share} + {terminal_share}"
+            )
         #: sequences of each training batch drawn around a step that ate or drank (the rest: uniformly)
         self.consume_sequences = round(consume_share * batch_size)
         #: sequences of each training batch drawn around a step that ended an episode (``terminated``)
@@ -394,9 +456,14 @@ class SequenceReplay:
     def sample(self, sequences: int | None = None, length: int | None = None) -> TensorDictBase:
         """``[sequences, length]`` consecutive steps of random worlds (default: the training batch), on the device."""
         if sequences is None and length is None:
-            around = [part for key, count in ((("next", "terminated"), self.terminal_sequences),
-                                              (("next", "consumed"), self.consume_sequences))
-                      if count and (part := self._around(key, count)) is not None]
+            around = [
+                part
+                for key, count in (
+                    (("next", "terminated"), self.terminal_sequences),
+                    (("next", "consumed"), self.consume_sequences),
+                )
+                if count and (part := self._around(key, count)) is not None
+            ]
             if not around:
                 batch = self.buffer.sample()
                 return self._to_device(batch.reshape(self.batch_size, self.sequence_length))
@@ -452,13 +519,21 @@ class SequenceReplay:
             return {"rows": rows, "writer": writer}
         guard = self._overwritten_next() if self.rows else torch.zeros(0, dtype=torch.long)
         self.flush()
-        return {"on_disk": str(self.directory), "length": len(self.buffer), "writer": writer,
-                "guard_index": guard, "guard_rows": storage._storage[guard].clone() if len(guard) else None}
+        return {
+            "on_disk": str(self.directory),
+            "length": len(self.buffer),
+            "writer": writer,
+            "guard_index": guard,
+            "guard_rows": storage._storage[guard].clone() if len(guard) else None,
+        }
 
     def load_state_dict(self, state: Mapping) -> None:
         if ("on_disk" in state) != (self.directory is not None):
-            raise ValueError("the checkpoint's replay buffer was " + ("on disk" if "on_disk" in state else "in memory")
-                             + f"; this run's is {self.place}: resume with the algo.buffer_on_disk it was made with")
+            raise ValueError(
+                "the checkpoint's replay buffer was "
+                + ("on disk" if "on_disk" in state else "in memory")
+                + f"; this run's is {self.place}: resume with the algo.buffer_on_disk it was made with"
+            )
         self.buffer.empty()
         if self.directory is None:
             if state["rows"] is not None:
@@ -467,8 +542,10 @@ class SequenceReplay:
             return
         if state["length"]:
             if not (self.directory / "meta.json").exists():
-                raise FileNotFoundError(f"the checkpoint's replay buffer is memory-mapped in {self.directory}, which "
-                                        "is missing: this run cannot resume exactly")
+                raise FileNotFoundError(
+                    f"the checkpoint's replay buffer is memory-mapped in {self.directory}, which "
+                    "is missing: this run cannot resume exactly"
+                )
             storage = self.buffer.storage
             storage._storage = TensorDict.load_memmap(self.directory, mode="r+")
             storage.initialized = True
@@ -550,9 +627,9 @@ def openloop_grid(truth: torch.Tensor, predicted: torch.Tensor, context: int) ->
         for r, frames in enumerate((truth, predicted, error)):
             for t in range(length):
                 y, x = top + r * cell_h, t * cell_w
-                grid[y:y + height, x:x + width] = frames[i, t].numpy()
+                grid[y : y + height, x : x + width] = frames[i, t].numpy()
         bar = top + 3 * cell_h
-        grid[bar:bar + gap, : context * cell_w - gap] = 255
+        grid[bar : bar + gap, : context * cell_w - gap] = 255
     return grid
 
 
@@ -597,8 +674,9 @@ def _run_replay(run_dir: str | Path) -> tuple[dict, TensorDictBase, int, int]:
     return state, TensorDict.load_memmap(replay["on_disk"])[:rows], num_envs, rows
 
 
-def _probe_replay(run_dir: str | Path, sequences: int, model_file: str | Path | None = None
-                  ) -> tuple[dict, DictConfig, DreamerModel, TensorDictBase, int]:
+def _probe_replay(
+    run_dir: str | Path, sequences: int, model_file: str | Path | None = None
+) -> tuple[dict, DictConfig, DreamerModel, TensorDictBase, int]:
     """A DreamerV3 run's last checkpoint (its state, config and model; with ``model_file``, the networks of that file
     instead, e.g. ``model-best-0-1-1.pt``), ``sequences`` replayed sequences of 32 steps from its memory-mapped
     replay, around the last eating steps stored (spread over the replay where there are too few), with the zero
@@ -609,8 +687,10 @@ def _probe_replay(run_dir: str | Path, sequences: int, model_file: str | Path | 
     if model_file is not None:
         networks = load_checkpoint(Path(model_file))
         if networks.get("algo") != state["algo"] or networks.get("obs_shapes") != state["obs_shapes"]:
-            raise ValueError(f"model={model_file}: not the networks of this run's algorithm and observations "
-                             f"({state['algo']}, {sorted(state['obs_shapes'])})")
+            raise ValueError(
+                f"model={model_file}: not the networks of this run's algorithm and observations "
+                f"({state['algo']}, {sorted(state['obs_shapes'])})"
+            )
         steps = int(networks.get("env_steps") or networks.get("counters", {}).get("steps", 0))
     cfg = OmegaConf.create(networks["config"])
     model = make_model(cfg.algo, {k: tuple(v) for k, v in state["obs_shapes"].items()})
@@ -627,8 +707,9 @@ def _probe_replay(run_dir: str | Path, sequences: int, model_file: str | Path | 
     return state, cfg, model, batch, steps
 
 
-def ev_decoding_errors(run_dir: str | Path, sequences: int = 64, model_file: str | Path | None = None
-                       ) -> dict[str, Any]:
+def ev_decoding_errors(
+    run_dir: str | Path, sequences: int = 64, model_file: str | Path | None = None
+) -> dict[str, Any]:
     """How well a DreamerV3 run's world model knows the EVs: the mean absolute error, in raw units, of the
     interoception decoded from the posterior, on the eating steps and on the other steps of ``sequences`` replayed
     sequences of 32 steps around the last eating steps stored (spread over the replay where there are too few),
@@ -641,8 +722,7 @@ def ev_decoding_errors(run_dir: str | Path, sequences: int = 64, model_file: str
         out = world_model(model)(batch)
     error = (out["next", "reco_interoception"] - out["next", "interoception"]).abs()
     at = out["next", "consumed"].reshape(batch.shape)
-    result: dict[str, Any] = {"env_steps": steps, "sequences": len(batch),
-                              "eating_steps": int(at.sum())}
+    result: dict[str, Any] = {"env_steps": steps, "sequences": len(batch), "eating_steps": int(at.sum())}
     for name, mask in (("eating", at), ("other", ~at)):
         per_ev = error[mask].mean(0) if mask.any() else torch.full((len(EV_NAMES),), float("nan"))
         result[name] = dict(zip(EV_NAMES, per_ev.tolist()))
@@ -653,18 +733,35 @@ def ev_decoding_errors(run_dir: str | Path, sequences: int = 64, model_file: str
     fit = (torch.arange(len(batch)) % 2 == 0)[:, None].expand(batch.shape).reshape(-1)
     nxt = out["next"]
     # "nothing": a constant feature (the fitted rows' mean, about 0 by construction): the check of the read-out
-    sources = {"nothing": torch.zeros(*batch.shape, 1), "embedding": nxt["encoded_latents"],
-               "stochastic latent": nxt["state"],
-               "deterministic state": nxt["belief"], "latent (both)": torch.cat([nxt["state"], nxt["belief"]], -1)}
-    result["linear_probe"] = {
-        name: dict(zip(EV_NAMES, linear_probe_r2(x.float().reshape(len(target), -1), target, fit).tolist()))
-        for name, x in sources.items()} if bool(fit.any()) and bool((~fit).any()) else {}
+    sources = {
+        "nothing": torch.zeros(*batch.shape, 1),
+        "embedding": nxt["encoded_latents"],
+        "stochastic latent": nxt["state"],
+        "deterministic state": nxt["belief"],
+        "latent (both)": torch.cat([nxt["state"], nxt["belief"]], -1),
+    }
+    result["linear_probe"] = (
+        {
+            name: dict(zip(EV_NAMES, linear_probe_r2(x.float().reshape(len(target), -1), target, fit).tolist()))
+            for name, x in sources.items()
+        }
+        if bool(fit.any()) and bool((~fit).any())
+        else {}
+    )
     return result
 
 
-def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Sequence[str] = (),
-                    held_out: float = 0.1, seed: int = 0, report: Any = None, keys: Sequence[str] | None = None,
-                    device: str | torch.device = "cpu") -> list[dict[str, float]]:
+def fit_world_model(
+    run_dir: str | Path,
+    updates: int,
+    every: int,
+    overrides: Sequence[str] = (),
+    held_out: float = 0.1,
+    seed: int = 0,
+    report: Any = None,
+    keys: Sequence[str] | None = None,
+    device: str | torch.device = "cpu",
+) -> list[dict[str, float]]:
     """How fast a fresh world model learns what eating does, from a DreamerV3 run's stored replay alone: no env,
     no actor, no critic, so world-model settings can be compared in minutes on the same data.
 
@@ -689,8 +786,9 @@ def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Se
     shapes = {k: tuple(v) for k, v in state["obs_shapes"].items()}
     if keys is not None:
         if "interoception" not in keys or not set(keys) <= set(shapes):
-            raise ValueError(f"keys must include interoception and come from the run's {sorted(shapes)}, got "
-                             f"{list(keys)}")
+            raise ValueError(
+                f"keys must include interoception and come from the run's {sorted(shapes)}, got {list(keys)}"
+            )
         shapes = {k: v for k, v in shapes.items() if k in keys}
     torch.manual_seed(seed)
     model = make_model(cfg, shapes).to(device)
@@ -736,13 +834,22 @@ def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Se
         nxt = world_model(model)(batch)["next"]
         # the posterior after the step before the action; the action's own step is the last row
         before = {k: nxt[k][:, -2] for k in LATENT}
-        step = imagine_each_action(model.prior, before["state"], before["belief"], 8,
-                                   ev=lambda st, be: model.decoder.vector("interoception", st, be)[..., :2])
+        step = imagine_each_action(
+            model.prior,
+            before["state"],
+            before["belief"],
+            8,
+            ev=lambda st, be: model.decoder.vector("interoception", st, be)[..., :2],
+        )
         change = step["ev"].sum(-1) - decoded(before)[:, None]
         others = [i for i in range(NUM_ACTIONS) if i != eat]
         effect = float((change[:, eat] - change[:, others].mean(1)).mean())
-        real = float((batch["next", "interoception"][:, -1, :2] - batch["next", "interoception"][:, -2, :2])
-                     .float().sum(-1).mean())
+        real = float(
+            (batch["next", "interoception"][:, -1, :2] - batch["next", "interoception"][:, -2, :2])
+            .float()
+            .sum(-1)
+            .mean()
+        )
         # the same change read from the posteriors, which saw the observation after eating: what the latent holds
         seen = float((decoded({k: nxt[k][:, -1] for k in LATENT}) - decoded(before)).mean())
         return effect, real, seen
@@ -755,11 +862,17 @@ def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Se
             effect, real, seen = eat_effect(test_eaten)
             nothing, _, _ = eat_effect(pressed)
             trained, _, _ = eat_effect(seen_eaten, 0)
-            row = {"updates": update, "seconds": time.perf_counter() - began, "eat_effect": effect,
-                   "eat_effect_nothing": nothing, "eat_effect_trained": trained, "real_effect": real,
-                   "posterior_effect": seen,
-                   "held_out_eating_steps": len(test_eaten),
-                   "world_model_parameters": sum(p.numel() for p in model.world_model_parameters())}
+            row = {
+                "updates": update,
+                "seconds": time.perf_counter() - began,
+                "eat_effect": effect,
+                "eat_effect_nothing": nothing,
+                "eat_effect_trained": trained,
+                "real_effect": real,
+                "posterior_effect": seen,
+                "held_out_eating_steps": len(test_eaten),
+                "world_model_parameters": sum(p.numel() for p in model.world_model_parameters()),
+            }
             rows_out.append(row)
             if report is not None:
                 report(row)
@@ -796,8 +909,10 @@ def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Se
             features["state"].append(nxt["state"][:, -2])  # the posterior on the observation pressed on
             features["belief"].append(nxt["belief"][:, -2])
             features["belief_after_eat"].append(nxt["belief"][:, -1])  # the eat action taken, its outcome unseen
-    rows_out[-1] |= {f"latent_auc_{name}": logistic_readout_auc(torch.cat(x).cpu(), labels, presses[:, 0] < split)
-                     for name, x in features.items()}
+    rows_out[-1] |= {
+        f"latent_auc_{name}": logistic_readout_auc(torch.cat(x).cpu(), labels, presses[:, 0] < split)
+        for name, x in features.items()
+    }
     return rows_out
 
 
@@ -851,8 +966,9 @@ def eat_success_readout(run_dir: str | Path, held_out: float = 0.2) -> dict[str,
     return {"presses": len(where), "ate": int(ate.sum()), "held_out_ate": int(ate[~fit].sum()), "auc": auc}
 
 
-def linear_probe_r2(features: torch.Tensor, target: torch.Tensor, fit: torch.Tensor,
-                    ridge: float = 1e-3) -> torch.Tensor:
+def linear_probe_r2(
+    features: torch.Tensor, target: torch.Tensor, fit: torch.Tensor, ridge: float = 1e-3
+) -> torch.Tensor:
     """Per target column, the share of ``symlog(target)``'s variance (as the model codes the EVs) that a ridge
     regression from ``features`` explains on the rows where ``fit`` is false, fitted on the rows where it is true:
     1 holds it all, 0 nothing beyond the fitted mean (below 0: worse than that mean).  Features are standardised on
@@ -869,8 +985,9 @@ def linear_probe_r2(features: torch.Tensor, target: torch.Tensor, fit: torch.Ten
     return (1 - residual / spread).float()
 
 
-def imagine_each_action(prior: Any, state: torch.Tensor, belief: torch.Tensor, samples: int = 8,
-                        **heads: Any) -> dict[str, torch.Tensor]:
+def imagine_each_action(
+    prior: Any, state: torch.Tensor, belief: torch.Tensor, samples: int = 8, **heads: Any
+) -> dict[str, torch.Tensor]:
     """Every action taken once from each latent ``[N, ...]`` through ``prior`` (``(state, belief, one-hot) ->
     (logits, state, belief)``), the next latent drawn ``samples`` times: each head ``(state, belief) -> [N, ...]``
     read on it, averaged over the draws, as ``[N, actions, ...]``.  What imagination believes one action does."""
@@ -888,8 +1005,9 @@ def imagine_each_action(prior: Any, state: torch.Tensor, belief: torch.Tensor, s
 
 
 @torch.no_grad()
-def imagined_action_values(run_dir: str | Path, sequences: int = 64, samples: int = 8,
-                           model_file: str | Path | None = None) -> dict[str, Any]:
+def imagined_action_values(
+    run_dir: str | Path, sequences: int = 64, samples: int = 8, model_file: str | Path | None = None
+) -> dict[str, Any]:
     """What a DreamerV3 run's world model and critic say each action is worth, from the posterior states of
     ``sequences`` replayed sequences (as :func:`ev_decoding_errors` picks them): one imagined step of every action,
     then the critic, ``r + γ·c·v`` (``samples`` draws of the next latent), beside the actor's probabilities and the
@@ -922,8 +1040,16 @@ def imagined_action_values(run_dir: str | Path, sequences: int = 64, samples: in
     def interoception(s: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
         return model.decoder.vector("interoception", s, b)
 
-    step = imagine_each_action(model.prior, latent["state"], latent["belief"], samples, reward=reward,
-                               value=value, going_on=going_on, interoception=interoception)
+    step = imagine_each_action(
+        model.prior,
+        latent["state"],
+        latent["belief"],
+        samples,
+        reward=reward,
+        value=value,
+        going_on=going_on,
+        interoception=interoception,
+    )
     q = step["reward"] + cfg.algo.gamma * step["going_on"] * step["value"]
     now = interoception(latent["state"], latent["belief"])
     ev_change = step["interoception"] - now[:, None]
@@ -935,8 +1061,12 @@ def imagined_action_values(run_dir: str | Path, sequences: int = 64, samples: in
         before[:, :-d] |= ate[:, d:]
     ate, before = ate.reshape(-1), before.reshape(-1)
     eat = ACTION_NAMES.index("eat")
-    groups = {"every state": ~fresh, "ate or drank": ate & ~fresh,
-              "ate nothing": (action == eat) & ~ate & ~fresh, "1-5 steps before eating": before & ~ate & ~fresh}
+    groups = {
+        "every state": ~fresh,
+        "ate or drank": ate & ~fresh,
+        "ate nothing": (action == eat) & ~ate & ~fresh,
+        "1-5 steps before eating": before & ~ate & ~fresh,
+    }
     result: dict[str, Any] = {"env_steps": steps, "sequences": len(batch), "return_scale": scale, "groups": {}}
     for name, mask in groups.items():
         if not bool(mask.any()):
@@ -946,10 +1076,12 @@ def imagined_action_values(run_dir: str | Path, sequences: int = 64, samples: in
             "states": int(mask.sum()),
             "policy": dict(zip(ACTION_NAMES, probs[mask].mean(0).tolist())),
             "value_over_mean": dict(zip(ACTION_NAMES, (q[mask] - q[mask].mean(1, keepdim=True)).mean(0).tolist())),
-            "best_share": dict(zip(ACTION_NAMES, (torch.bincount(q[mask].argmax(1), minlength=NUM_ACTIONS)
-                                                  / int(mask.sum())).tolist())),
-            "ev_change": {a: dict(zip(EV_NAMES, ev_change[mask][:, i].mean(0).tolist()))
-                          for i, a in enumerate(ACTION_NAMES)},
+            "best_share": dict(
+                zip(ACTION_NAMES, (torch.bincount(q[mask].argmax(1), minlength=NUM_ACTIONS) / int(mask.sum())).tolist())
+            ),
+            "ev_change": {
+                a: dict(zip(EV_NAMES, ev_change[mask][:, i].mean(0).tolist())) for i, a in enumerate(ACTION_NAMES)
+            },
             "real_ev_change": dict(zip(EV_NAMES, real_change[mask].mean(0).tolist())),
         }
     return result
@@ -960,8 +1092,13 @@ def _masked_mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
 
 
 @torch.no_grad()
-def diagnostics(model: DreamerModel, critic: TensorDictSequential, posterior: TensorDictBase,
-                imagined: TensorDictBase, return_scale: torch.Tensor) -> dict[str, torch.Tensor]:
+def diagnostics(
+    model: DreamerModel,
+    critic: TensorDictSequential,
+    posterior: TensorDictBase,
+    imagined: TensorDictBase,
+    return_scale: torch.Tensor,
+) -> dict[str, torch.Tensor]:
     """What tells a collapsing DreamerV3 from a learning one, from one gradient step's replayed batch
     (``posterior``: the world model's outputs) and imagination (``imagined``):
 
@@ -978,9 +1115,13 @@ def diagnostics(model: DreamerModel, critic: TensorDictSequential, posterior: Te
     nxt = posterior["next"]
     error = (nxt["reward"] - nxt["true_reward"]).abs()
     event = nxt["consumed"]
-    out = {"reward_error_consume": _masked_mean(error, event), "reward_error_other": _masked_mean(error, ~event),
-           "reward_true_consume": _masked_mean(nxt["true_reward"], event),
-           "reward_pred_consume": _masked_mean(nxt["reward"], event), "consume_share": event.float().mean()}
+    out = {
+        "reward_error_consume": _masked_mean(error, event),
+        "reward_error_other": _masked_mean(error, ~event),
+        "reward_true_consume": _masked_mean(nxt["true_reward"], event),
+        "reward_pred_consume": _masked_mean(nxt["reward"], event),
+        "consume_share": event.float().mean(),
+    }
     go_on = torch.sigmoid(nxt["continue_pred"].float())
     ended = nxt["terminated"]
     out["continue_terminal"] = _masked_mean(go_on, ended)
@@ -1005,20 +1146,27 @@ def vector_reconstruction(posterior: TensorDictBase, keys: Sequence[str], raw: S
     in raw units for the keys in ``raw``, summed over each key's entries, averaged over the replayed steps), summed
     over ``keys``.  With pixels it is a small part of the loss (4 EVs against 12,288 pixel values):
     ``algo.world_model.vector_scale`` weighs it more."""
-    return _vector_error({k: posterior["next", k] for k in keys}, {k: posterior["next", f"reco_{k}"] for k in keys},
-                         raw)
+    return _vector_error(
+        {k: posterior["next", k] for k in keys}, {k: posterior["next", f"reco_{k}"] for k in keys}, raw
+    )
 
 
-def _vector_error(target: Mapping[str, torch.Tensor], predicted: Mapping[str, torch.Tensor],
-                  raw: Sequence[str] = ()) -> torch.Tensor:
+def _vector_error(
+    target: Mapping[str, torch.Tensor], predicted: Mapping[str, torch.Tensor], raw: Sequence[str] = ()
+) -> torch.Tensor:
     def space(k: str, x: torch.Tensor) -> torch.Tensor:
         return x.float() if k in raw else symlog(x.float())
 
     return sum(((space(k, target[k]) - space(k, predicted[k])) ** 2).sum(-1).mean() for k in target)
 
 
-def prior_vector_reconstruction(posterior: TensorDictBase, decoder: DreamerDecoder, keys: Sequence[str],
-                                raw: Sequence[str] = (), unimix: float = 0.01) -> torch.Tensor:
+def prior_vector_reconstruction(
+    posterior: TensorDictBase,
+    decoder: DreamerDecoder,
+    keys: Sequence[str],
+    raw: Sequence[str] = (),
+    unimix: float = 0.01,
+) -> torch.Tensor:
     """The vector keys of each next observation decoded from the *prior* (a straight-through draw of its latent,
     with the deterministic state the action led to) instead of the posterior that saw it, scored as
     :func:`vector_reconstruction`: a one-step latent overshooting term (``algo.world_model.prior_vector_scale``)
@@ -1048,32 +1196,46 @@ class WorldModelLoss(nn.Module):
         self.vector_extra = float(cfg.world_model.get("vector_scale", 1.0)) - 1.0
         self.prior_scale = float(cfg.world_model.get("prior_vector_scale", 0.0))
         if self.prior_scale < 0 or (self.prior_scale and not self.vector_keys):
-            raise ValueError(f"algo.world_model.prior_vector_scale must be >= 0, and 0 without vector observation "
-                             f"keys (this run has {self.vector_keys}), got {self.prior_scale}")
+            raise ValueError(
+                f"algo.world_model.prior_vector_scale must be >= 0, and 0 without vector observation "
+                f"keys (this run has {self.vector_keys}), got {self.prior_scale}"
+            )
         self.decoder, self.unimix = model.decoder, float(cfg.model.unimix)
         raw = cfg.world_model.get("raw_keys", ())
         self.raw_keys = (raw,) if isinstance(raw, str) else tuple(raw)  # one key may come as a plain string
         if not set(self.raw_keys) <= set(self.vector_keys):
-            raise ValueError(f"algo.world_model.raw_keys must name vector observation keys of this run "
-                             f"({self.vector_keys}), got {list(self.raw_keys)}")
+            raise ValueError(
+                f"algo.world_model.raw_keys must name vector observation keys of this run "
+                f"({self.vector_keys}), got {list(self.raw_keys)}"
+            )
         symlogged = [k != "pixels" and k not in self.raw_keys for k in keys]
         self.loss = DreamerV3ModelLoss(
-            world_model(model), kl_mode="separate", lambda_dynamic=cfg.world_model.kl_dynamic,
-            lambda_representation=cfg.world_model.kl_representation, free_bits=cfg.world_model.free_nats,
-            unimix=cfg.model.unimix, lambda_continue=cfg.world_model.continue_scale, reco_loss="l2",
-            reco_symlog=symlogged, reward_two_hot=True, num_reward_bins=cfg.model.bins,
+            world_model(model),
+            kl_mode="separate",
+            lambda_dynamic=cfg.world_model.kl_dynamic,
+            lambda_representation=cfg.world_model.kl_representation,
+            free_bits=cfg.world_model.free_nats,
+            unimix=cfg.model.unimix,
+            lambda_continue=cfg.world_model.continue_scale,
+            reco_loss="l2",
+            reco_symlog=symlogged,
+            reward_two_hot=True,
+            num_reward_bins=cfg.model.bins,
             # the vector keys' extra reconstruction term needs the graph; everything else reads the output detached
-            detach_output=not (self.vector_extra or self.prior_scale))
+            detach_output=not (self.vector_extra or self.prior_scale),
+        )
         self.loss.set_keys(pixels=list(keys), reco_pixels=[f"reco_{k}" for k in keys])
 
-    def forward(self, batch: TensorDictBase) -> tuple[torch.Tensor, TensorDictBase, TensorDictBase,
-                                                       torch.Tensor | None]:
+    def forward(
+        self, batch: TensorDictBase
+    ) -> tuple[torch.Tensor, TensorDictBase, TensorDictBase, torch.Tensor | None]:
         losses, posterior = self.loss(batch)
         total = sum(v for k, v in losses.items() if k.startswith("loss_")).squeeze()
         vector_reco = None
         if self.prior_scale:
-            total = total + self.prior_scale * prior_vector_reconstruction(posterior, self.decoder, self.vector_keys,
-                                                                           self.raw_keys, self.unimix)
+            total = total + self.prior_scale * prior_vector_reconstruction(
+                posterior, self.decoder, self.vector_keys, self.raw_keys, self.unimix
+            )
         if self.vector_extra:
             vector_reco = vector_reconstruction(posterior, self.vector_keys, self.raw_keys)
             total = total + self.vector_extra * vector_reco
@@ -1085,8 +1247,9 @@ class WorldModelLoss(nn.Module):
         return total, losses, posterior, vector_reco
 
 
-def replay_value_loss(value_loss: DreamerV3ValueLoss, posterior: TensorDictBase, imagined: TensorDictBase,
-                      cfg: DictConfig) -> torch.Tensor:
+def replay_value_loss(
+    value_loss: DreamerV3ValueLoss, posterior: TensorDictBase, imagined: TensorDictBase, cfg: DictConfig
+) -> torch.Tensor:
     """The critic's loss on the replayed sequences themselves (DreamerV3's ``repval``, ``algo.critic.replay_scale``):
     each posterior state's λ-return from the real rewards and episode ends that follow it in the sequence,
     bootstrapped from its first imagined return, so that the critic also learns what really followed — a death
@@ -1130,19 +1293,41 @@ def make_replay(run: Run, num_envs: int, row_bytes: int) -> SequenceReplay:
                 shutil.rmtree(stale)
         free = shutil.disk_usage(directory).free
         if full > free:
-            log.warning("replay: a full buffer (algo.buffer_size=%s, %s) needs more than the %s free on the disk of "
-                        "%s; lower algo.buffer_size before it fills", f"{cfg.buffer_size:,}", _gb(full), _gb(free),
-                        directory)
-        return SequenceReplay(cfg.buffer_size, num_envs, cfg.sequence_length, cfg.batch_size, directory=directory,
-                              device=run.device, guard_rows=guard, consume_share=cfg.get("consume_share", 0.0),
-                              terminal_share=cfg.get("terminal_share", 0.0))
+            log.warning(
+                "replay: a full buffer (algo.buffer_size=%s, %s) needs more than the %s free on the disk of "
+                "%s; lower algo.buffer_size before it fills",
+                f"{cfg.buffer_size:,}",
+                _gb(full),
+                _gb(free),
+                directory,
+            )
+        return SequenceReplay(
+            cfg.buffer_size,
+            num_envs,
+            cfg.sequence_length,
+            cfg.batch_size,
+            directory=directory,
+            device=run.device,
+            guard_rows=guard,
+            consume_share=cfg.get("consume_share", 0.0),
+            terminal_share=cfg.get("terminal_share", 0.0),
+        )
     free = available_memory(run.device)
     if free is not None and full > free:
-        raise ValueError(f"algo.buffer_size={cfg.buffer_size:,} transitions need {_gb(full)} when full, but "
-                         f"{run.device} has {_gb(free)} available: use algo.buffer_on_disk=true (memory-mapped under "
-                         f"the run directory) or algo.buffer_size<={free // row_bytes:,}")
-    return SequenceReplay(cfg.buffer_size, num_envs, cfg.sequence_length, cfg.batch_size, device=run.device,
-                          consume_share=cfg.get("consume_share", 0.0), terminal_share=cfg.get("terminal_share", 0.0))
+        raise ValueError(
+            f"algo.buffer_size={cfg.buffer_size:,} transitions need {_gb(full)} when full, but "
+            f"{run.device} has {_gb(free)} available: use algo.buffer_on_disk=true (memory-mapped under "
+            f"the run directory) or algo.buffer_size<={free // row_bytes:,}"
+        )
+    return SequenceReplay(
+        cfg.buffer_size,
+        num_envs,
+        cfg.sequence_length,
+        cfg.batch_size,
+        device=run.device,
+        consume_share=cfg.get("consume_share", 0.0),
+        terminal_share=cfg.get("terminal_share", 0.0),
+    )
 
 
 def train(run: Run) -> None:
@@ -1160,13 +1345,26 @@ def train(run: Run) -> None:
     model_loss = WorldModelLoss(cfg, model)
     critic = value_model(model)
     actor_loss = DreamerV3ActorLoss(
-        model.actor, critic, imagination_env(model, device), continuation_model=continuation_model(model),
-        imagination_horizon=cfg.horizon, use_reinforce=True, entropy_bonus=cfg.actor.entropy,
-        return_normalization=True, return_normalization_rate=1 - cfg.actor.return_decay,
-        return_normalization_quantiles=tuple(cfg.actor.return_percentiles), return_normalization_min_scale=1.0)
+        model.actor,
+        critic,
+        imagination_env(model, device),
+        continuation_model=continuation_model(model),
+        imagination_horizon=cfg.horizon,
+        use_reinforce=True,
+        entropy_bonus=cfg.actor.entropy,
+        return_normalization=True,
+        return_normalization_rate=1 - cfg.actor.return_decay,
+        return_normalization_quantiles=tuple(cfg.actor.return_percentiles),
+        return_normalization_min_scale=1.0,
+    )
     actor_loss.make_value_estimator(ValueEstimators.TDLambda, gamma=cfg.gamma, lmbda=cfg.lmbda)
-    value_loss = DreamerV3ValueLoss(critic, value_loss="two_hot", num_value_bins=cfg.model.bins,
-                                    actor_loss=actor_loss, slow_critic_regularization=cfg.critic.slow_regularizer)
+    value_loss = DreamerV3ValueLoss(
+        critic,
+        value_loss="two_hot",
+        num_value_bins=cfg.model.bins,
+        actor_loss=actor_loss,
+        slow_critic_regularization=cfg.critic.slow_regularizer,
+    )
     model_loss.to(device), actor_loss.to(device), value_loss.to(device)
     slow_critic = SoftUpdate(value_loss, tau=cfg.critic.tau)
     replay_scale = float(cfg.critic.get("replay_scale", 0.0))
@@ -1175,9 +1373,11 @@ def train(run: Run) -> None:
     def adam(params, section: DictConfig) -> torch.optim.Adam:
         return torch.optim.Adam(params, lr=section.lr, eps=section.eps, fused=True)  # fused: ~5x faster on CPU
 
-    optimizers = {"world_model": adam(model.world_model_parameters(), cfg.world_model),
-                  "actor": adam(model.actor.parameters(), cfg.actor),
-                  "critic": adam(model.value.parameters(), cfg.critic)}
+    optimizers = {
+        "world_model": adam(model.world_model_parameters(), cfg.world_model),
+        "actor": adam(model.actor.parameters(), cfg.actor),
+        "critic": adam(model.value.parameters(), cfg.critic),
+    }
     stored = ["action", "is_init", *_next(*keys, "reward", "done", "terminated", "consumed")]
     row_bytes = transition_bytes(env, stored)
     replay = make_replay(run, num_envs, row_bytes)
@@ -1188,15 +1388,31 @@ def train(run: Run) -> None:
     def world_model_parameters() -> int:
         return sum(p.numel() for p in model.world_model_parameters())
 
-    log.info("DreamerV3 size %s on %s: %s parameters (world model %s, actor %s, critic %s)", cfg.size, device,
-             f"{parameter_count(model):,}", f"{world_model_parameters():,}", f"{parameter_count(model.actor):,}",
-             f"{parameter_count(model.value):,}")
-    log.info("replay: %s transitions (%s when full, %s each), %s", f"{cfg.buffer_size:,}",
-             _gb(cfg.buffer_size * row_bytes), f"{row_bytes / 1e3:.3g} kB", replay.place)
-    log.info("prefill: %s env steps of %s before the first gradient step; then %g gradient steps per env step, "
-             "each on %d sequences of %d steps", f"{start:,}",
-             "random actions" if cfg.prefill_random else "the untrained policy", cfg.replay_ratio, cfg.batch_size,
-             cfg.sequence_length)
+    log.info(
+        "DreamerV3 size %s on %s: %s parameters (world model %s, actor %s, critic %s)",
+        cfg.size,
+        device,
+        f"{parameter_count(model):,}",
+        f"{world_model_parameters():,}",
+        f"{parameter_count(model.actor):,}",
+        f"{parameter_count(model.value):,}",
+    )
+    log.info(
+        "replay: %s transitions (%s when full, %s each), %s",
+        f"{cfg.buffer_size:,}",
+        _gb(cfg.buffer_size * row_bytes),
+        f"{row_bytes / 1e3:.3g} kB",
+        replay.place,
+    )
+    log.info(
+        "prefill: %s env steps of %s before the first gradient step; then %g gradient steps per env step, "
+        "each on %d sequences of %d steps",
+        f"{start:,}",
+        "random actions" if cfg.prefill_random else "the untrained policy",
+        cfg.replay_ratio,
+        cfg.batch_size,
+        cfg.sequence_length,
+    )
 
     def step(name: str, loss: torch.Tensor, params: list[nn.Parameter], clip: float) -> torch.Tensor:
         optimizer = optimizers[name]
@@ -1214,8 +1430,11 @@ def train(run: Run) -> None:
             wm_loss, losses, posterior, vector_reco = model_loss(batch)
         wm_norm = step("world_model", wm_loss, model.world_model_parameters(), cfg.world_model.grad_clip)
         # behaviour learning starts from every posterior latent of the batch, without gradient into the model
-        latents = TensorDict({k: posterior["next", k].reshape(-1, posterior["next", k].shape[-1]).float()
-                              for k in LATENT}, [batch.numel()], device=device)
+        latents = TensorDict(
+            {k: posterior["next", k].reshape(-1, posterior["next", k].shape[-1]).float() for k in LATENT},
+            [batch.numel()],
+            device=device,
+        )
         with run.autocast():
             actor_out, imagined = actor_loss(latents)
         actor_norm = step("actor", actor_out["loss_actor"], list(model.actor.parameters()), cfg.actor.grad_clip)
@@ -1229,26 +1448,43 @@ def train(run: Run) -> None:
         slow_critic.step()
         # tensors, not floats: run.log reads them (a host sync on a GPU) only when a log is due
         metrics = {f"model_{k.removeprefix('loss_model_')}": v.detach() for k, v in losses.items()}
-        metrics |= {"model_loss": wm_loss.detach(), "model_grad_norm": wm_norm,
-                    "actor_loss": actor_out["loss_actor"].detach(), "actor_entropy": actor_out["actor_entropy"],
-                    "return_scale": actor_out["return_scale"], "actor_grad_norm": actor_norm,
-                    "imagined_reward": imagined["next", "reward"].mean(),
-                    "imagined_continuation": actor_out["continuation_mean"],
-                    "critic_loss": critic_loss.detach(), "critic_grad_norm": critic_norm,
-                    "imagined_return": imagined["lambda_target"].mean()}
+        metrics |= {
+            "model_loss": wm_loss.detach(),
+            "model_grad_norm": wm_norm,
+            "actor_loss": actor_out["loss_actor"].detach(),
+            "actor_entropy": actor_out["actor_entropy"],
+            "return_scale": actor_out["return_scale"],
+            "actor_grad_norm": actor_norm,
+            "imagined_reward": imagined["next", "reward"].mean(),
+            "imagined_continuation": actor_out["continuation_mean"],
+            "critic_loss": critic_loss.detach(),
+            "critic_grad_norm": critic_norm,
+            "imagined_return": imagined["lambda_target"].mean(),
+        }
         if replay_scale:
             metrics["critic_replay_loss"] = replay_loss.detach()
         if vector_reco is not None:
             metrics["model_reco_vector"] = vector_reco.detach()
         if "interoception" in keys:  # how well the latent knows the EVs the reward is computed from (raw units)
-            metrics["interoception_error"] = (posterior["next", "reco_interoception"].detach().float()
-                                              - posterior["next", "interoception"].float()).abs().mean()
+            metrics["interoception_error"] = (
+                (posterior["next", "reco_interoception"].detach().float() - posterior["next", "interoception"].float())
+                .abs()
+                .mean()
+            )
         if run.log_due:
             metrics |= diagnostics(model, critic, posterior, imagined, actor_out["return_scale"])
         return metrics
 
-    td = run.start(model, {**{f"optimizer_{k}": v for k, v in optimizers.items()}, "value_loss": value_loss,
-                           "return_norm": actor_loss.retnorm, "replay": replay, "counters": counters})
+    td = run.start(
+        model,
+        {
+            **{f"optimizer_{k}": v for k, v in optimizers.items()},
+            "value_loss": value_loss,
+            "return_norm": actor_loss.retnorm,
+            "replay": replay,
+            "counters": counters,
+        },
+    )
     run.updates = counters["updates"]  # a resumed run's bar counts on from its checkpoint
     first_update = counters["updates"] == 0
     while not run.done:
@@ -1269,11 +1505,19 @@ def train(run: Run) -> None:
             run.updated(1, seconds, counters["updates"], counters["updates"] / max(run.steps - start + 1, 1))
             if first_update:
                 first_update = False
-                log.info("first gradient step at env step %s: %.3g s (%.0f s after the stage began)",
-                         f"{run.steps:,}", seconds, time.perf_counter() - run._session[0])
+                log.info(
+                    "first gradient step at env step %s: %.3g s (%.0f s after the stage began)",
+                    f"{run.steps:,}",
+                    seconds,
+                    time.perf_counter() - run._session[0],
+                )
             if cfg.openloop.every and counters["updates"] % cfg.openloop.every == 0:
-                save_openloop(model, replay, cfg, run.dir / "openloop" /
-                              f"openloop-{run.stage.index}-{run.stage.level}-{run.steps:09d}.png")
+                save_openloop(
+                    model,
+                    replay,
+                    cfg,
+                    run.dir / "openloop" / f"openloop-{run.stage.index}-{run.stage.level}-{run.steps:09d}.png",
+                )
         if metrics is not None:
             run.log(metrics | {"updates": counters["updates"], "replay_steps": len(replay.buffer)})
         run.end_iteration(td)

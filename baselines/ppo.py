@@ -45,8 +45,9 @@ LOGGED = ("entropy", "kl_approx", "clip_fraction")  # the loss's diagnostics wor
 def make_model(cfg: DictConfig, obs_shapes: Mapping[str, Sequence[int]]) -> ActorValueOperator:
     """Trunk (encoder [+ LSTM]) -> ``"hidden"``; actor head -> ``"logits"`` -> action; critic head -> value."""
     keys = list(obs_shapes)
-    encoder = MultimodalEncoder(stacked_shapes(obs_shapes, ["pixels"], cfg.frame_stack), cfg.encoder.cnn,
-                                cfg.encoder.mlp)
+    encoder = MultimodalEncoder(
+        stacked_shapes(obs_shapes, ["pixels"], cfg.frame_stack), cfg.encoder.cnn, cfg.encoder.mlp
+    )
     features = encoder.out_features
     if cfg.lstm:
         trunk = TensorDictSequential(
@@ -57,9 +58,14 @@ def make_model(cfg: DictConfig, obs_shapes: Mapping[str, Sequence[int]]) -> Acto
     else:
         trunk = TensorDictModule(encoder, in_keys=keys, out_keys=["hidden"])
     actor = ProbabilisticActor(
-        TensorDictModule(head(features, cfg.head.units, len(ACTION_NAMES), cfg.head.layer_norm),
-                         in_keys=["hidden"], out_keys=["logits"]),
-        in_keys=["logits"], spec=Categorical(len(ACTION_NAMES)), distribution_class=torch.distributions.Categorical,
+        TensorDictModule(
+            head(features, cfg.head.units, len(ACTION_NAMES), cfg.head.layer_norm),
+            in_keys=["hidden"],
+            out_keys=["logits"],
+        ),
+        in_keys=["logits"],
+        spec=Categorical(len(ACTION_NAMES)),
+        distribution_class=torch.distributions.Categorical,
         return_log_prob=True,
     )
     critic = ValueOperator(head(features, cfg.head.units, 1, cfg.head.layer_norm), in_keys=["hidden"])
@@ -133,8 +139,12 @@ class ReturnScale:
         return batch
 
     def state_dict(self) -> dict:
-        return {"returns": torch.as_tensor(self.returns), "mean": float(self.rms.mean), "var": float(self.rms.var),
-                "count": float(self.rms.count)}
+        return {
+            "returns": torch.as_tensor(self.returns),
+            "mean": float(self.rms.mean),
+            "var": float(self.rms.var),
+            "count": float(self.rms.count),
+        }
 
     def load_state_dict(self, state: Mapping) -> None:
         self.returns = state["returns"].double().numpy().copy()
@@ -151,12 +161,14 @@ def train(run: Run) -> None:
     env = run.train_env(make_transforms(cfg, run.obs_keys, model))
     num_envs = env.batch_size.numel()
     if cfg.frames_per_batch % num_envs:
-        raise ValueError(f"algo.frames_per_batch ({cfg.frames_per_batch}) must be a multiple of env.num_envs "
-                         f"({num_envs})")
+        raise ValueError(
+            f"algo.frames_per_batch ({cfg.frames_per_batch}) must be a multiple of env.num_envs ({num_envs})"
+        )
     rollout = cfg.frames_per_batch // num_envs
     if recurrent and rollout % cfg.sequence_length:
-        raise ValueError(f"each world's rollout ({rollout} steps) must be a multiple of algo.sequence_length "
-                         f"({cfg.sequence_length})")
+        raise ValueError(
+            f"each world's rollout ({rollout} steps) must be a multiple of algo.sequence_length ({cfg.sequence_length})"
+        )
     policy = make_policy(model)
     acting = run.acting(policy)
 
@@ -164,15 +176,28 @@ def train(run: Run) -> None:
     # without vmap, which has no batching rule for the LSTM.  The loss's critic is the value head alone: it reads the
     # trunk features the actor's pass has just written into the same minibatch, so the shared trunk runs once per
     # minibatch and receives the gradients of both losses.
-    advantage = GAE(gamma=cfg.gamma, lmbda=cfg.gae_lambda, value_network=model.get_value_operator(),
-                    average_gae=False, deactivate_vmap=True)
-    loss_fn = ClipPPOLoss(policy, model.get_value_head(), clip_epsilon=cfg.clip, entropy_coeff=cfg.entropy_coef,
-                          critic_coeff=cfg.value_coef, loss_critic_type="l2",
-                          normalize_advantage=cfg.normalize_advantage, clip_value=cfg.clip_value_loss).to(run.device)
+    advantage = GAE(
+        gamma=cfg.gamma,
+        lmbda=cfg.gae_lambda,
+        value_network=model.get_value_operator(),
+        average_gae=False,
+        deactivate_vmap=True,
+    )
+    loss_fn = ClipPPOLoss(
+        policy,
+        model.get_value_head(),
+        clip_epsilon=cfg.clip,
+        entropy_coeff=cfg.entropy_coef,
+        critic_coeff=cfg.value_coef,
+        loss_critic_type="l2",
+        normalize_advantage=cfg.normalize_advantage,
+        clip_value=cfg.clip_value_loss,
+    ).to(run.device)
 
     optimizer_cls = {"adam": torch.optim.Adam, "adamw": torch.optim.AdamW}[cfg.optimizer.name]
-    optimizer = optimizer_cls(model.parameters(), lr=cfg.lr, eps=cfg.optimizer.eps,
-                              weight_decay=cfg.optimizer.weight_decay, fused=True)  # fused: ~5x faster step on CPU
+    optimizer = optimizer_cls(
+        model.parameters(), lr=cfg.lr, eps=cfg.optimizer.eps, weight_decay=cfg.optimizer.weight_decay, fused=True
+    )  # fused: ~5x faster step on CPU
     iterations = -(-run.stage.budget // cfg.frames_per_batch)
 
     def remaining(iteration: int) -> float:  # 1 -> 0 over the stage: the annealing factor
@@ -219,7 +244,13 @@ def train(run: Run) -> None:
         scheduler.step()
         done_updates = -(-run.steps // cfg.frames_per_batch) * updates  # every iteration makes as many
         run.updated(updates, time.perf_counter() - began, done_updates)
-        run.log({**{k: v / updates for k, v in totals.items()}, "lr": optimizer.param_groups[0]["lr"],
-                 "clip": loss_fn.clip_epsilon, "updates": done_updates,
-                 **({"reward_scale": return_scale.scale} if return_scale else {})})
+        run.log(
+            {
+                **{k: v / updates for k, v in totals.items()},
+                "lr": optimizer.param_groups[0]["lr"],
+                "clip": loss_fn.clip_epsilon,
+                "updates": done_updates,
+                **({"reward_scale": return_scale.scale} if return_scale else {}),
+            }
+        )
         run.end_iteration(td)

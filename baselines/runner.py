@@ -93,11 +93,15 @@ def _check_same_run(state: dict, cfg: DictConfig, plan: list) -> list[str]:
     wrong = {k: v for k, v in expected.items() if v[0] != v[1]}
     if wrong:
         detail = "; ".join(f"{k}: checkpoint {a}, now {b}" for k, (a, b) in wrong.items())
-        raise OtherExperiment(f"cannot resume: the checkpoint belongs to another experiment ({detail}); nothing "
-                              "was changed")
+        raise OtherExperiment(
+            f"cannot resume: the checkpoint belongs to another experiment ({detail}); nothing was changed"
+        )
     now, before = flat_hparams(cfg), flat_hparams(OmegaConf.create(saved))
-    return sorted(k for k in now.keys() | before.keys()
-                  if k not in ("resume", "start_over") and not k.startswith("stages") and now.get(k) != before.get(k))
+    return sorted(
+        k
+        for k in now.keys() | before.keys()
+        if k not in ("resume", "start_over") and not k.startswith("stages") and now.get(k) != before.get(k)
+    )
 
 
 # ------------------------------------------------------------------------------------------------ run directory
@@ -142,21 +146,35 @@ def _decide(cfg: DictConfig, run_dir: Path, plan: list) -> tuple[dict | None, li
         raise RunRefused("resume=true and start_over=true contradict each other: choose one")
     contents = run_contents(run_dir)
     has_checkpoint = any(name in contents for name in (CHECKPOINT, PREVIOUS))
-    start_over = ("start_over=true moves it aside (to a hidden folder beside it, which reports skip) and trains from "
-                  "zero; or choose another run.name / run.root")
+    start_over = (
+        "start_over=true moves it aside (to a hidden folder beside it, which reports skip) and trains from "
+        "zero; or choose another run.name / run.root"
+    )
     if cfg.get("start_over"):
         if not contents:
             return None, [(logging.INFO, f"start_over=true: {run_dir} holds no run; starting from zero")], None
         target = _aside(run_dir)
-        return None, [(logging.WARNING, f"start_over=true: the run that was in {run_dir} ({', '.join(contents)}) "
-                                        f"is now in {target}; starting from zero")], target
+        return (
+            None,
+            [
+                (
+                    logging.WARNING,
+                    f"start_over=true: the run that was in {run_dir} ({', '.join(contents)}) "
+                    f"is now in {target}; starting from zero",
+                )
+            ],
+            target,
+        )
     if not cfg.resume:
         if has_checkpoint:
-            raise RunExists(f"{run_dir} already holds a run (checkpoint.pt); nothing was changed. resume=true "
-                            f"continues it; {start_over}")
+            raise RunExists(
+                f"{run_dir} already holds a run (checkpoint.pt); nothing was changed. resume=true "
+                f"continues it; {start_over}"
+            )
         if contents:
-            raise RunExists(f"{run_dir} already holds a run's results ({', '.join(contents)}); nothing was "
-                            f"changed. {start_over}")
+            raise RunExists(
+                f"{run_dir} already holds a run's results ({', '.join(contents)}); nothing was changed. {start_over}"
+            )
         return None, [], None
     if has_checkpoint:
         try:
@@ -168,20 +186,36 @@ def _decide(cfg: DictConfig, run_dir: Path, plan: list) -> tuple[dict | None, li
         changed = _check_same_run(state, cfg, plan)
         notes = [(logging.WARNING, note)] if note else []  # a damaged latest checkpoint: said once the run goes on
         # "resuming ... env step <digits>": scripts/bench_train.py finds a run's sessions by it in train.log
-        notes.append((logging.INFO, f"resuming {run_dir} from {path.name} at stage {state['stage']} "
-                                    f"({state['level']}), env step {state['counters']['steps']}"))
+        notes.append(
+            (
+                logging.INFO,
+                f"resuming {run_dir} from {path.name} at stage {state['stage']} "
+                f"({state['level']}), env step {state['counters']['steps']}",
+            )
+        )
         if changed:
             notes.append((logging.WARNING, "resuming with changed settings in: " + ", ".join(changed)))
         return state, notes, None
     if not contents:
         return None, [(logging.WARNING, f"resume=true: {run_dir} holds no checkpoint yet: starting from zero")], None
     if any(name.startswith("model-") for name in contents):
-        raise RunExists(f"cannot resume {run_dir}: it holds a trained run's results ({', '.join(contents)}) but "
-                        f"no checkpoint (checkpoint.pt was deleted or lost); nothing was changed. {start_over}")
+        raise RunExists(
+            f"cannot resume {run_dir}: it holds a trained run's results ({', '.join(contents)}) but "
+            f"no checkpoint (checkpoint.pt was deleted or lost); nothing was changed. {start_over}"
+        )
     # a run stopped before its first checkpoint: nothing to continue, and nothing finished to keep in place
     target = _aside(run_dir)
-    return None, [(logging.WARNING, f"resume=true: {run_dir} stopped before its first checkpoint, so it starts from "
-                                    f"zero; what it had written ({', '.join(contents)}) is now in {target}")], target
+    return (
+        None,
+        [
+            (
+                logging.WARNING,
+                f"resume=true: {run_dir} stopped before its first checkpoint, so it starts from "
+                f"zero; what it had written ({', '.join(contents)}) is now in {target}",
+            )
+        ],
+        target,
+    )
 
 
 def _write_records(run_dir: Path, records: Mapping[str, Any] | None, resumed: bool) -> None:
@@ -249,10 +283,14 @@ def train(cfg: DictConfig, run_dir: str | Path, *, records: Mapping[str, Any] | 
         except KeyboardInterrupt:
             latest = run_dir / CHECKPOINT
             if latest.exists():
-                raise Interrupted(f"stopped at once: no new checkpoint; the same command with resume=true continues "
-                                  f"from the last one, {latest}") from None
-            raise Interrupted(f"stopped at once, before the first checkpoint: there is no checkpoint to continue "
-                              f"from; the same command with start_over=true starts {run_dir} again from zero") from None
+                raise Interrupted(
+                    f"stopped at once: no new checkpoint; the same command with resume=true continues "
+                    f"from the last one, {latest}"
+                ) from None
+            raise Interrupted(
+                f"stopped at once, before the first checkpoint: there is no checkpoint to continue "
+                f"from; the same command with start_over=true starts {run_dir} again from zero"
+            ) from None
 
 
 def _train(cfg: DictConfig, run_dir: Path, records: Mapping[str, Any] | None, stop: threading.Event) -> Path:
@@ -286,9 +324,18 @@ def _train(cfg: DictConfig, run_dir: Path, records: Mapping[str, Any] | None, st
         if state is None:
             logger.log_hparams(flat_hparams(cfg))
         weights = None
-        for stage in plan[state["stage"] if state else 0:]:
-            run = Run(cfg, run_dir, stage, algo, logger, resume=state, init_weights=weights,
-                      fresh_logs=state is None and stage.index == 0, stop_requested=stop.is_set)
+        for stage in plan[state["stage"] if state else 0 :]:
+            run = Run(
+                cfg,
+                run_dir,
+                stage,
+                algo,
+                logger,
+                resume=state,
+                init_weights=weights,
+                fresh_logs=state is None and stage.index == 0,
+                stop_requested=stop.is_set,
+            )
             try:
                 algo.train(run)
             finally:

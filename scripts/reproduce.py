@@ -21,52 +21,103 @@ from pathlib import Path
 
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
-from evaaa_baselines.protocol import (EXECUTORS, REPO, Layout, ProtocolError, Runner, build_cells,
-                                      keep_out_of_git, load_protocol, plan_text, select, status)
+from evaaa_baselines.protocol import (
+    EXECUTORS,
+    REPO,
+    Layout,
+    ProtocolError,
+    Runner,
+    build_cells,
+    keep_out_of_git,
+    load_protocol,
+    plan_text,
+    select,
+    status,
+)
 
 
 @dataclass
 class ReproduceConfig:
-    protocol: str = option("paper_cpu", "a protocol of conf/protocol/ (paper_cpu, smoke) or the path of a protocol "
-                                        "YAML file")
-    root: str | None = option(None, "folder of the runs, evaluations, logs and done-markers (default: the "
-                                    "protocol's root, else runs/protocol/<protocol name>)")
+    protocol: str = option(
+        "paper_cpu", "a protocol of conf/protocol/ (paper_cpu, smoke) or the path of a protocol YAML file"
+    )
+    root: str | None = option(
+        None,
+        "folder of the runs, evaluations, logs and done-markers (default: the "
+        "protocol's root, else runs/protocol/<protocol name>)",
+    )
     plan: bool = option(False, "print the cells, their status, estimated CPU-minutes and commands; run nothing")
-    jobs: int = option(1, "cells run at once (one core each: threads=1)", check=(lambda v: v >= 1,
-                                                                               "a positive integer"))
-    cells: list[str] = option([], "run only these cells (names as plan=true lists them, or shell patterns such as "
-                                  "eval/ppo/*); default: every cell not done")
-    redo: bool = option(False, "with cells=: run those cells again although done (a training run is moved aside by "
-                               "train.py's start_over=true, an evaluation's folder renamed <out>.old-<UTC time>)")
-    max_minutes: float | None = option(None, "start no new cell after this many minutes (running cells finish)",
-                                       check=(lambda v: v > 0, "a positive number"))
-    retries: int = option(1, "times a failed cell is tried again in the same session (a training continues from "
-                             "its checkpoint: the renderer crash of docs/training.md)",
-                          check=(lambda v: v >= 0, "0 or more"))
+    jobs: int = option(
+        1, "cells run at once (one core each: threads=1)", check=(lambda v: v >= 1, "a positive integer")
+    )
+    cells: list[str] = option(
+        [],
+        "run only these cells (names as plan=true lists them, or shell patterns such as "
+        "eval/ppo/*); default: every cell not done",
+    )
+    redo: bool = option(
+        False,
+        "with cells=: run those cells again although done (a training run is moved aside by "
+        "train.py's start_over=true, an evaluation's folder renamed <out>.old-<UTC time>)",
+    )
+    max_minutes: float | None = option(
+        None,
+        "start no new cell after this many minutes (running cells finish)",
+        check=(lambda v: v > 0, "a positive number"),
+    )
+    retries: int = option(
+        1,
+        "times a failed cell is tried again in the same session (a training continues from "
+        "its checkpoint: the renderer crash of docs/training.md)",
+        check=(lambda v: v >= 0, "0 or more"),
+    )
     out: str | None = option(None, "the report's folder (default: the protocol's report.out)")
-    executor: str = option("local", "what runs the cells: local (a pool of jobs subprocesses on this machine), ray "
-                                    "(each cell a Ray task with the CPUs and GPUs it needs) or slurm (each cell a "
-                                    "SLURM job through submitit)", choices=EXECUTORS)
-    ray_address: str | None = option(None, "executor=ray: the cluster to join (auto, or ray://<head>:10001); "
-                                           "default: a Ray instance on this machine with jobs CPUs")
-    ray_retries: int = option(3, "executor=ray: times Ray runs a cell again whose worker or node was lost (it "
-                                 "continues from the files the lost one left)", check=(lambda v: v >= 0, "0 or more"))
+    executor: str = option(
+        "local",
+        "what runs the cells: local (a pool of jobs subprocesses on this machine), ray "
+        "(each cell a Ray task with the CPUs and GPUs it needs) or slurm (each cell a "
+        "SLURM job through submitit)",
+        choices=EXECUTORS,
+    )
+    ray_address: str | None = option(
+        None,
+        "executor=ray: the cluster to join (auto, or ray://<head>:10001); "
+        "default: a Ray instance on this machine with jobs CPUs",
+    )
+    ray_retries: int = option(
+        3,
+        "executor=ray: times Ray runs a cell again whose worker or node was lost (it "
+        "continues from the files the lost one left)",
+        check=(lambda v: v >= 0, "0 or more"),
+    )
     slurm_partition: str | None = option(None, "executor=slurm: the partition of the jobs")
-    slurm_minutes: int = option(2880, "executor=slurm: each job's time limit in minutes",
-                                check=(lambda v: v > 0, "a positive integer"))
-    slurm_parallel: int = option(64, "executor=slurm: jobs of one array running at once",
-                                 check=(lambda v: v > 0, "a positive integer"))
-    submitit_cluster: str = option("slurm", "executor=slurm: slurm, or local (submitit's local executor: the jobs "
-                                            "as subprocesses of this machine, to try a set-up)",
-                                   choices=("slurm", "local"))
+    slurm_minutes: int = option(
+        2880, "executor=slurm: each job's time limit in minutes", check=(lambda v: v > 0, "a positive integer")
+    )
+    slurm_parallel: int = option(
+        64, "executor=slurm: jobs of one array running at once", check=(lambda v: v > 0, "a positive integer")
+    )
+    submitit_cluster: str = option(
+        "slurm",
+        "executor=slurm: slurm, or local (submitit's local executor: the jobs "
+        "as subprocesses of this machine, to try a set-up)",
+        choices=("slurm", "local"),
+    )
     progress: bool = option(True, "a progress bar over the cells")
 
 
 def main(argv: list[str] | None = None) -> int:
-    cfg = cli.parse(ReproduceConfig, argv, prog="reproduce.py", description=__doc__.split("\n\n")[0],
-                    examples=["protocol=paper_cpu plan=true",
-                              "protocol=paper_cpu jobs=2",
-                              "protocol=paper_cpu cells=[eval/ppo/curriculum/seed0/*]"])
+    cfg = cli.parse(
+        ReproduceConfig,
+        argv,
+        prog="reproduce.py",
+        description=__doc__.split("\n\n")[0],
+        examples=[
+            "protocol=paper_cpu plan=true",
+            "protocol=paper_cpu jobs=2",
+            "protocol=paper_cpu cells=[eval/ppo/curriculum/seed0/*]",
+        ],
+    )
     if cfg.redo and not cfg.cells:
         cli.fail("reproduce.py", "redo=true needs cells=[...]: the cells to run again")
     try:
@@ -81,8 +132,10 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     todo = chosen if cfg.redo else [c for c in chosen if status(c, lay, cells) != "done"]
     if not todo:
-        print(f"reproduce.py: nothing to do: {'the cells asked for are' if cfg.cells else 'every cell is'} done "
-              f"({lay.root})")
+        print(
+            f"reproduce.py: nothing to do: {'the cells asked for are' if cfg.cells else 'every cell is'} done "
+            f"({lay.root})"
+        )
         return 0
     lay.root.mkdir(parents=True, exist_ok=True)
     keep_out_of_git(lay)
@@ -91,25 +144,44 @@ def main(argv: list[str] | None = None) -> int:
         fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
         lock.seek(0)
-        cli.fail("reproduce.py", f"another reproduce.py (pid {lock.read().strip() or '?'}) is running on {lay.root}; "
-                                 "nothing was started")
+        cli.fail(
+            "reproduce.py",
+            f"another reproduce.py (pid {lock.read().strip() or '?'}) is running on {lay.root}; nothing was started",
+        )
     lock.seek(0)
     lock.truncate()
     lock.write(str(os.getpid()))
     lock.flush()
-    where = {"local": f"{cfg.jobs} at a time", "ray": f"as Ray tasks on {cfg.ray_address or 'a local Ray instance'}",
-             "slurm": f"as jobs of submitit's {cfg.submitit_cluster} executor"}[cfg.executor]
-    print(f"reproduce.py: {len(todo)} of {len(cells)} cells to run under {lay.root}, {where}; logs in {lay.logs}",
-          flush=True)
+    where = {
+        "local": f"{cfg.jobs} at a time",
+        "ray": f"as Ray tasks on {cfg.ray_address or 'a local Ray instance'}",
+        "slurm": f"as jobs of submitit's {cfg.submitit_cluster} executor",
+    }[cfg.executor]
+    print(
+        f"reproduce.py: {len(todo)} of {len(cells)} cells to run under {lay.root}, {where}; logs in {lay.logs}",
+        flush=True,
+    )
     slurm = {"timeout_min": cfg.slurm_minutes, "slurm_array_parallelism": cfg.slurm_parallel}
     if cfg.slurm_partition:
         slurm["slurm_partition"] = cfg.slurm_partition
-    runner = Runner(p, cells, lay, executor=cfg.executor, jobs=cfg.jobs, max_minutes=cfg.max_minutes, redo=cfg.redo,
-                    retries=cfg.retries, progress=cfg.progress, ray_address=cfg.ray_address,
-                    ray_retries=cfg.ray_retries, submitit_cluster=cfg.submitit_cluster,
-                    slurm=slurm if cfg.submitit_cluster == "slurm" else {"timeout_min": cfg.slurm_minutes},
-                    selects=" ".join(f"{k}={v}" for k, v in (("protocol", cfg.protocol), ("root", cfg.root),
-                                                            ("out", cfg.out)) if v))
+    runner = Runner(
+        p,
+        cells,
+        lay,
+        executor=cfg.executor,
+        jobs=cfg.jobs,
+        max_minutes=cfg.max_minutes,
+        redo=cfg.redo,
+        retries=cfg.retries,
+        progress=cfg.progress,
+        ray_address=cfg.ray_address,
+        ray_retries=cfg.ray_retries,
+        submitit_cluster=cfg.submitit_cluster,
+        slurm=slurm if cfg.submitit_cluster == "slurm" else {"timeout_min": cfg.slurm_minutes},
+        selects=" ".join(
+            f"{k}={v}" for k, v in (("protocol", cfg.protocol), ("root", cfg.root), ("out", cfg.out)) if v
+        ),
+    )
     try:
         rc = runner.run(todo)
     except ProtocolError as err:
@@ -118,8 +190,10 @@ def main(argv: list[str] | None = None) -> int:
         print("reproduce.py: stopped; the same command continues where it stopped", file=sys.stderr)
         return 130
     left = [c.name for c in cells if status(c, lay, cells) != "done"]
-    print(f"reproduce.py: {len(cells) - len(left)} of {len(cells)} cells done" +
-          (f"; not done: {', '.join(left[:10])}{' ...' if len(left) > 10 else ''}" if left else ""))
+    print(
+        f"reproduce.py: {len(cells) - len(left)} of {len(cells)} cells done"
+        + (f"; not done: {', '.join(left[:10])}{' ...' if len(left) > 10 else ''}" if left else "")
+    )
     return rc
 
 

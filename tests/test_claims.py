@@ -47,8 +47,10 @@ def test_a_falling_but_hard_levels_not_apart_is_not_resolvable():
 
 
 def test_a_claim_of_parts_is_reproduced_only_when_every_part_is():
-    mixed = frame(per_level("ppo", [900, 850, 800, 780, 700, 200, 150, 100])
-                  + per_level("dqn", [100, 150, 200, 250, 300, 800, 850, 900]))
+    mixed = frame(
+        per_level("ppo", [900, 850, 800, 780, 700, 200, 150, 100])
+        + per_level("dqn", [100, 150, 200, 250, 300, 800, 850, 900])
+    )
     assert c.survival_falls(mixed, LEVELS).verdict == c.UNRESOLVED  # one reproduces, one contradicts
     parts = [c.Verdict("x", c.CONTRADICTED, ""), c.Verdict("y", c.UNRESOLVED, "")]
     assert c.combine("z", parts, "").verdict == c.CONTRADICTED
@@ -60,8 +62,7 @@ def cmp_rows(algo, cur, direct, half=10.0):
 
 
 def test_b_curriculum_above_direct_on_most_levels_is_reproduced():
-    v = c.curriculum_beats_direct(frame(cmp_rows("ppo", [500] * 8, [500, 100, 100, 100, 100, 505, 495, 100])),
-                                  LEVELS)
+    v = c.curriculum_beats_direct(frame(cmp_rows("ppo", [500] * 8, [500, 100, 100, 100, 100, 505, 495, 100])), LEVELS)
     assert v.verdict == c.REPRODUCED
     assert "curriculum above on 5 of 7 levels" in v.parts[0].evidence[1]  # 1-1 is the same training: skipped
 
@@ -75,8 +76,7 @@ def test_b_direct_above_curriculum_is_contradicted_and_overlap_is_not_resolvable
 
 
 # ------------------------------------------------------------------------------------------------ (c)
-def survival_c(dreamer=None, dqn=(800, 700, 100, 100, 100, 100, 100, 100), ppo=(300,) * 8,
-               lstm=(100,) * 8):
+def survival_c(dreamer=None, dqn=(800, 700, 100, 100, 100, 100, 100, 100), ppo=(300,) * 8, lstm=(100,) * 8):
     rows = per_level("dqn", dqn) + per_level("ppo", ppo) + per_level("ppo_lstm", lstm)
     if dreamer is not None:
         rows += per_level("dreamer_xs", dreamer)
@@ -151,8 +151,14 @@ def ablation(values, half=10.0):
 
 
 def test_e_reproduced_contradicted_and_not_resolvable():
-    good = {"all": 900, "no_vision": 100, "no_interoception": 100, "no_olfaction": 800, "no_thermoception": 400,
-            "no_collision": 500}
+    good = {
+        "all": 900,
+        "no_vision": 100,
+        "no_interoception": 100,
+        "no_olfaction": 800,
+        "no_thermoception": 400,
+        "no_collision": 500,
+    }
     v = c.ablations(ablation(good), ablation({k: x / 1000 for k, x in good.items()}, 0.01))
     assert v.verdict == c.REPRODUCED, [(p.claim, p.verdict) for p in v.parts]
     bad = dict(good, no_vision=1500, no_olfaction=100)
@@ -173,9 +179,14 @@ def test_markdown_names_every_verdict_rule_and_number():
     assert "Spearman's rho" in text and "4-2: 100 [90, 110]" in text
 
 
-@pytest.mark.parametrize("a, b, expected", [({"low": 5, "high": 6}, {"low": 1, "high": 4}, True),
-                                            ({"low": 4, "high": 6}, {"low": 1, "high": 4}, False),
-                                            ({"low": float("nan"), "high": 6}, {"low": 1, "high": 4}, False)])
+@pytest.mark.parametrize(
+    "a, b, expected",
+    [
+        ({"low": 5, "high": 6}, {"low": 1, "high": 4}, True),
+        ({"low": 4, "high": 6}, {"low": 1, "high": 4}, False),
+        ({"low": float("nan"), "high": 6}, {"low": 1, "high": 4}, False),
+    ],
+)
 def test_above_needs_intervals_apart(a, b, expected):
     assert c.above(a, b) is expected
 
@@ -190,8 +201,7 @@ def test_spearman_p_is_exact_for_few_levels_so_a_perfect_order_of_four_is_not_si
 
 def test_fails_is_not_reproduced_on_levels_without_an_interval():
     nan = float("nan")
-    one_seed = frame([{"algo": "ppo_lstm", "level": lv, "value": 900.0, "low": nan, "high": nan}
-                      for lv in LEVELS[:3]])
+    one_seed = frame([{"algo": "ppo_lstm", "level": lv, "value": 900.0, "low": nan, "high": nan} for lv in LEVELS[:3]])
     v = c._fails("ppo_lstm", LEVELS[:3], one_seed, RANDOM)
     assert v.verdict == c.UNRESOLVED
     assert "no interval on 1-1, 1-2, 2-1" in v.evidence[-1]

@@ -26,9 +26,18 @@ def ray_cluster(tmp_path_factory):
     """A Ray head on 127.0.0.1 with two worker CPUs; its address."""
     temp = tmp_path_factory.mktemp("ray")
     port = 20000 + os.getpid() % 20000
-    cmd = [str(Path(sys.executable).parent / "ray"), "start", "--head", "--node-ip-address=127.0.0.1",
-           f"--port={port}", "--num-cpus=2", "--num-gpus=0", "--include-dashboard=false", f"--temp-dir={temp}",
-           "--disable-usage-stats"]
+    cmd = [
+        str(Path(sys.executable).parent / "ray"),
+        "start",
+        "--head",
+        "--node-ip-address=127.0.0.1",
+        f"--port={port}",
+        "--num-cpus=2",
+        "--num-gpus=0",
+        "--include-dashboard=false",
+        f"--temp-dir={temp}",
+        "--disable-usage-stats",
+    ]
     subprocess.run(cmd, check=True, capture_output=True, timeout=180)
     yield f"127.0.0.1:{port}"
     subprocess.run([str(Path(sys.executable).parent / "ray"), "stop", "--force"], capture_output=True, timeout=120)
@@ -40,16 +49,44 @@ def _cells(tmp_path: Path, train_code: str):
     run_dir = lay.runs / "a"
     model = run_dir / "model-0-1-1.pt"
     out = lay.evals / "a"
-    train = Cell("train/ppo/a", "train", [Command(["-c", train_code])], 1.0, "a", run_dir=run_dir,
-                 final_model=model)
-    ev = Cell("eval/a", "eval", [Command(["-c", f"import pathlib; assert pathlib.Path({str(model)!r}).exists(); "
-                                          f"o=pathlib.Path({str(out)!r}); o.mkdir(parents=True, exist_ok=True); "
-                                          "(o/'episodes.csv').write_text('x')"], out)], 1.0, "e", needs=[model],
-              needs_cells=["train/ppo/a"])
+    train = Cell("train/ppo/a", "train", [Command(["-c", train_code])], 1.0, "a", run_dir=run_dir, final_model=model)
+    ev = Cell(
+        "eval/a",
+        "eval",
+        [
+            Command(
+                [
+                    "-c",
+                    f"import pathlib; assert pathlib.Path({str(model)!r}).exists(); "
+                    f"o=pathlib.Path({str(out)!r}); o.mkdir(parents=True, exist_ok=True); "
+                    "(o/'episodes.csv').write_text('x')",
+                ],
+                out,
+            )
+        ],
+        1.0,
+        "e",
+        needs=[model],
+        needs_cells=["train/ppo/a"],
+    )
     rep_out = tmp_path / "report"
-    rep = Cell("report", "report", [Command(["-c", f"import pathlib; o=pathlib.Path({str(rep_out)!r}); "
-                                             "o.mkdir(exist_ok=True); (o/'report.md').write_text('r')"])], 1.0, "r",
-               needs_cells=["train/ppo/a", "eval/a"], report_out=rep_out)
+    rep = Cell(
+        "report",
+        "report",
+        [
+            Command(
+                [
+                    "-c",
+                    f"import pathlib; o=pathlib.Path({str(rep_out)!r}); "
+                    "o.mkdir(exist_ok=True); (o/'report.md').write_text('r')",
+                ]
+            )
+        ],
+        1.0,
+        "r",
+        needs_cells=["train/ppo/a", "eval/a"],
+        report_out=rep_out,
+    )
     return lay, [train, ev, rep]
 
 
@@ -62,10 +99,12 @@ def test_a_ray_worker_killed_mid_cell_is_resumed_and_no_done_cell_runs_twice(tmp
     # (resume=true, what command_now gives a started run), it writes its model
     pid_file = tmp_path / "worker.pid"
     run_dir = tmp_path / "runs" / "a"
-    code = (f"import os,pathlib,sys,time; d=pathlib.Path({str(run_dir)!r}); d.mkdir(parents=True, exist_ok=True)\n"
-            "if 'resume=true' in sys.argv: (d/'model-0-1-1.pt').write_text('m'); raise SystemExit(0)\n"
-            f"(d/'checkpoint.pt').write_text('c'); pathlib.Path({str(pid_file)!r}).write_text(str(os.getppid()))\n"
-            "time.sleep(120)")
+    code = (
+        f"import os,pathlib,sys,time; d=pathlib.Path({str(run_dir)!r}); d.mkdir(parents=True, exist_ok=True)\n"
+        "if 'resume=true' in sys.argv: (d/'model-0-1-1.pt').write_text('m'); raise SystemExit(0)\n"
+        f"(d/'checkpoint.pt').write_text('c'); pathlib.Path({str(pid_file)!r}).write_text(str(os.getppid()))\n"
+        "time.sleep(120)"
+    )
     lay, cells = _cells(tmp_path, code)
     child = []
 
@@ -79,8 +118,16 @@ def test_a_ray_worker_killed_mid_cell_is_resumed_and_no_done_cell_runs_twice(tmp
 
     killer = threading.Thread(target=kill_worker)
     killer.start()
-    runner = Runner(load_protocol("smoke"), cells, lay, executor="ray", ray_address=ray_cluster, ray_retries=2,
-                    progress=False, echo=lambda s: None)
+    runner = Runner(
+        load_protocol("smoke"),
+        cells,
+        lay,
+        executor="ray",
+        ray_address=ray_cluster,
+        ray_retries=2,
+        progress=False,
+        echo=lambda s: None,
+    )
     assert runner.run(cells) == 0
     killer.join()
     # Ray ran the lost cell again; it continued from the checkpoint the lost one left
@@ -94,20 +141,40 @@ def test_a_ray_worker_killed_mid_cell_is_resumed_and_no_done_cell_runs_twice(tmp
     todo = [c for c in cells if status(c, lay, cells) != "done"]
     assert todo == []
     # a task handed a done cell (a retry whose first try finished) does nothing
-    assert Runner(load_protocol("smoke"), cells, lay, executor="ray", ray_address=ray_cluster, progress=False,
-                  echo=lambda s: None).run(cells) == 0
+    assert (
+        Runner(
+            load_protocol("smoke"),
+            cells,
+            lay,
+            executor="ray",
+            ray_address=ray_cluster,
+            progress=False,
+            echo=lambda s: None,
+        ).run(cells)
+        == 0
+    )
     assert {p: p.stat().st_mtime for p in tmp_path.rglob("*") if p.is_file()} == before
 
 
 def _done_code(run_dir: Path) -> str:
-    return (f"import pathlib; d=pathlib.Path({str(run_dir)!r}); d.mkdir(parents=True, exist_ok=True); "
-            "(d/'model-0-1-1.pt').write_text('m')")
+    return (
+        f"import pathlib; d=pathlib.Path({str(run_dir)!r}); d.mkdir(parents=True, exist_ok=True); "
+        "(d/'model-0-1-1.pt').write_text('m')"
+    )
 
 
 def test_cells_run_through_submitit_s_local_executor(tmp_path):
     lay, cells = _cells(tmp_path, _done_code(tmp_path / "runs" / "a"))
-    runner = Runner(load_protocol("smoke"), cells, lay, executor="slurm", submitit_cluster="local",
-                    slurm={"timeout_min": 5}, progress=False, echo=lambda s: None)
+    runner = Runner(
+        load_protocol("smoke"),
+        cells,
+        lay,
+        executor="slurm",
+        submitit_cluster="local",
+        slurm={"timeout_min": 5},
+        progress=False,
+        echo=lambda s: None,
+    )
     assert runner.run(cells) == 0
     assert all(status(c, lay, cells) == "done" for c in cells)
     assert all(_runs(lay, c.name) == 1 for c in cells)
@@ -125,6 +192,7 @@ def test_the_smoke_protocol_end_to_end_on_an_engine(tmp_path, executor, request)
     assert reproduce.main(args) == 0
     root = tmp_path / "root"
     from evaaa_baselines.protocol import build_cells
+
     cells = build_cells(load_protocol("smoke"), root)
     lay = Layout(root)
     assert all(status(c, lay, cells) == "done" for c in cells)
@@ -137,11 +205,23 @@ def test_the_smoke_protocol_end_to_end_on_an_engine(tmp_path, executor, request)
 def test_train_multirun_through_a_launcher_preset(tmp_path, launcher):
     # (the default preset, joblib, is tests/test_train.py::test_train_script_multirun_sweeps_seeds)
     root = Path(__file__).parents[1]
-    cmd = [sys.executable, str(root / "scripts" / "train.py"), "-m", f"hydra/launcher={launcher}", "algo=ppo",
-           "preset=debug", "logger=csv", "progress=false", "total_steps=64", "seed=0,1", f"run.root={tmp_path}",
-           f"hydra.sweep.dir={tmp_path / 'sweep'}"]
-    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300,
-                          env={**os.environ, "HYDRA_FULL_ERROR": "1"})
+    cmd = [
+        sys.executable,
+        str(root / "scripts" / "train.py"),
+        "-m",
+        f"hydra/launcher={launcher}",
+        "algo=ppo",
+        "preset=debug",
+        "logger=csv",
+        "progress=false",
+        "total_steps=64",
+        "seed=0,1",
+        f"run.root={tmp_path}",
+        f"hydra.sweep.dir={tmp_path / 'sweep'}",
+    ]
+    done = subprocess.run(
+        cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300, env={**os.environ, "HYDRA_FULL_ERROR": "1"}
+    )
     assert done.returncode == 0, done.stderr[-3000:]
     for seed in (0, 1):
         # submitit's launcher puts each job's run directory under the sweep folder

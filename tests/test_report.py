@@ -18,16 +18,16 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from helpers import load_script
 import yaml
+from helpers import load_script
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 import evaaa
+from evaaa.records import TRAINING_EPISODE_FIELDS, append_rows
 from evaaa_baselines.config import CONF_DIR, observation_keys, register_levels
 from evaaa_baselines.reports import ReportError, build_report
 from evaaa_baselines.reports.stats import interval
-from evaaa.records import TRAINING_EPISODE_FIELDS, append_rows
 
 register_levels()
 
@@ -35,12 +35,29 @@ ROOT = Path(__file__).resolve().parents[1]
 STAGES = ("1-1", "1-2")
 BUDGET = 100  # env steps per stage
 TESTBEDS = ("two-resource-food", "y-maze")
-FIGURES = ("fig4a_survival_per_level.png", "fig4a_curriculum_vs_direct.png", "fig4b_success_per_testbed.png",
-           "fig4b_generalisation.png", "fig_training_curves.png", "fig25_ablation_curves.png", "fig26_ablation_success.png")
+FIGURES = (
+    "fig4a_survival_per_level.png",
+    "fig4a_curriculum_vs_direct.png",
+    "fig4b_success_per_testbed.png",
+    "fig4b_generalisation.png",
+    "fig_training_curves.png",
+    "fig25_ablation_curves.png",
+    "fig26_ablation_success.png",
+)
 
 # eval.csv as runs wrote it before evaluations were one row per episode (the committed paper-cpu record's format)
-EVAL_COLUMNS = ("env_steps", "stage", "level", "episodes", "survival_mean", "survival_min", "survival_max",
-                "return_mean", "end_types", "wall_time")
+EVAL_COLUMNS = (
+    "env_steps",
+    "stage",
+    "level",
+    "episodes",
+    "survival_mean",
+    "survival_min",
+    "survival_max",
+    "return_mean",
+    "end_types",
+    "wall_time",
+)
 
 
 # ------------------------------------------------------------------------------------------------ inputs
@@ -64,20 +81,48 @@ class Sim:
         self.root, self.rng = root, np.random.default_rng(seed)
         self.runs: dict[Path, dict] = {}
 
-    def run(self, algo: str, seed: int, *, level: str = "curriculum", modality: str = "all", finish: int = 2,
-            partial_steps: int = 0, files: bool = True, overrides: tuple[str, ...] = ()) -> Path:
+    def run(
+        self,
+        algo: str,
+        seed: int,
+        *,
+        level: str = "curriculum",
+        modality: str = "all",
+        finish: int = 2,
+        partial_steps: int = 0,
+        files: bool = True,
+        overrides: tuple[str, ...] = (),
+    ) -> Path:
         """``finish``: stages finished (a curriculum has two, a direct run one); ``partial_steps``: env steps the
         next, unfinished stage got to; ``files``: False leaves the config alone (a run that never started)."""
-        extra = ([f"level.stage_steps={BUDGET}", f"level.stages=[{','.join(STAGES)}]"] if level == "curriculum"
-                 else [f"total_steps={BUDGET}"])
-        cfg = make_cfg(f"algo={algo}", f"seed={seed}", f"level={level}", f"modality={modality}", "preset=debug",
-                       "logger=csv", *extra, *overrides)
+        extra = (
+            [f"level.stage_steps={BUDGET}", f"level.stages=[{','.join(STAGES)}]"]
+            if level == "curriculum"
+            else [f"total_steps={BUDGET}"]
+        )
+        cfg = make_cfg(
+            f"algo={algo}",
+            f"seed={seed}",
+            f"level={level}",
+            f"modality={modality}",
+            "preset=debug",
+            "logger=csv",
+            *extra,
+            *overrides,
+        )
         run_dir = self.root / OmegaConf.to_container(cfg, resolve=True)["run"]["name"]
         (run_dir / ".hydra").mkdir(parents=True)
         OmegaConf.save(cfg, run_dir / ".hydra" / "config.yaml")  # as Hydra saves it: interpolations kept
         stages = STAGES if level == "curriculum" else (level,)
-        info = {"algo": algo, "seed": seed, "modality": modality, "level": level, "stages": stages,
-                "final": {}, "episodes": []}
+        info = {
+            "algo": algo,
+            "seed": seed,
+            "modality": modality,
+            "level": level,
+            "stages": stages,
+            "final": {},
+            "episodes": [],
+        }
         self.runs[run_dir] = info
         if not files:
             return run_dir
@@ -86,21 +131,44 @@ class Sim:
             if index > finish:
                 break
             end = BUDGET if index < finish else partial_steps
-            for step in np.linspace(end / 5, end, 5).astype(int)[:-1 if index == finish else None]:
+            for step in np.linspace(end / 5, end, 5).astype(int)[: -1 if index == finish else None]:
                 survival = int(self.rng.integers(10, 400))
-                episodes.append({"env_steps": step, "stage": index, "level": name, "episode": len(episodes) + 1,
-                                 "world": 0, "steps": survival, "return": -1.5, "end_type": "FoodOutOfRange",
-                                 "final_satiation": -15.1, "final_hydration": 0.0, "final_temperature": 0.0,
-                                 "final_damage": 0.0,
-                                 "wall_time": "2026-01-01T00:00:00"})
+                episodes.append(
+                    {
+                        "env_steps": step,
+                        "stage": index,
+                        "level": name,
+                        "episode": len(episodes) + 1,
+                        "world": 0,
+                        "steps": survival,
+                        "return": -1.5,
+                        "end_type": "FoodOutOfRange",
+                        "final_satiation": -15.1,
+                        "final_hydration": 0.0,
+                        "final_temperature": 0.0,
+                        "final_damage": 0.0,
+                        "wall_time": "2026-01-01T00:00:00",
+                    }
+                )
                 info["episodes"].append((index * BUDGET + step, survival))
             for step in (end // 2, end):
                 if step == 0:
                     continue
                 value = round(float(self.rng.uniform(20, 300)), 2)
-                evals.append({"env_steps": step, "stage": index, "level": name, "episodes": 2,
-                              "survival_mean": value, "survival_min": 1, "survival_max": 400, "return_mean": -1,
-                              "end_types": "FoodOutOfRange;FoodOutOfRange", "wall_time": "2026-01-01T00:00:00"})
+                evals.append(
+                    {
+                        "env_steps": step,
+                        "stage": index,
+                        "level": name,
+                        "episodes": 2,
+                        "survival_mean": value,
+                        "survival_min": 1,
+                        "survival_max": 400,
+                        "return_mean": -1,
+                        "end_types": "FoodOutOfRange;FoodOutOfRange",
+                        "wall_time": "2026-01-01T00:00:00",
+                    }
+                )
                 if index < finish and step == end:
                     info["final"][name] = value
             if index < finish:
@@ -115,11 +183,28 @@ class Sim:
         rows = []
         for i in range(episodes):
             success = bool(self.rng.random() < 0.5) if level in evaaa.TESTBEDS else ""
-            rows.append({"policy": policy, "participant": participant, "level": level, "episode": i, "seed": 0,
-                         "steps": int(self.rng.integers(5, 300)), "return": -1.0, "end_type": "MaxStepReached",
-                         "success": success, "food_eaten": 0, "water_eaten": 0, "collisions": 0,
-                         "damage_taken": 0.0, "attacks": 0, "final_satiation": 0.0, "final_hydration": 0.0,
-                         "final_temperature": 0.0, "final_damage": 0.0})
+            rows.append(
+                {
+                    "policy": policy,
+                    "participant": participant,
+                    "level": level,
+                    "episode": i,
+                    "seed": 0,
+                    "steps": int(self.rng.integers(5, 300)),
+                    "return": -1.0,
+                    "end_type": "MaxStepReached",
+                    "success": success,
+                    "food_eaten": 0,
+                    "water_eaten": 0,
+                    "collisions": 0,
+                    "damage_taken": 0.0,
+                    "attacks": 0,
+                    "final_satiation": 0.0,
+                    "final_hydration": 0.0,
+                    "final_temperature": 0.0,
+                    "final_damage": 0.0,
+                }
+            )
         return rows
 
 
@@ -162,14 +247,25 @@ def world(tmp_path_factory):
     gone = base / "runs" / "deleted" / "seed0" / "model-0-1-1.pt"
     rows += sim.evaluate(str(gone), "y-maze", 3)
     append_rows(base / "eval" / "episodes.csv", rows)
-    human = (sim.evaluate("human", "two-resource-food", 3, participant="p01")
-             + sim.evaluate("human", "two-resource-food", 2, participant="p02"))
+    human = sim.evaluate("human", "two-resource-food", 3, participant="p01") + sim.evaluate(
+        "human", "two-resource-food", 2, participant="p02"
+    )
     append_rows(base / "human.csv", human)
 
     report = build_report([base / "runs"], [base / "eval", base / "human.csv"], base / "out", bins=4)
     text = report.markdown.read_text()
-    return {"sim": sim, "base": base, "report": report, "text": text, "partial": partial, "missing": missing,
-            "evaluated": evaluated, "eval_rows": rows, "human": human, "gone": gone}
+    return {
+        "sim": sim,
+        "base": base,
+        "report": report,
+        "text": text,
+        "partial": partial,
+        "missing": missing,
+        "evaluated": evaluated,
+        "eval_rows": rows,
+        "human": human,
+        "gone": gone,
+    }
 
 
 def stats(values) -> tuple[float, float, int]:
@@ -182,7 +278,7 @@ def hand_iqm(values) -> float:
     """Interquartile mean by its definition: sort, drop a quarter (rounded down) at each end, average the rest."""
     v = np.sort(np.asarray(values, dtype=float))
     cut = len(v) // 4
-    return float(v[cut:len(v) - cut].mean())
+    return float(v[cut : len(v) - cut].mean())
 
 
 def wilson(k: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
@@ -227,11 +323,11 @@ def expect_rate(samples, unit: str = "seeds") -> str:
 
 def table(text: str, heading: str) -> dict[str, dict[str, str]]:
     """The first Markdown table after ``heading`` as {row: {column: cell}}."""
-    lines = text[text.index(heading):].splitlines()
+    lines = text[text.index(heading) :].splitlines()
     start = next(i for i, line in enumerate(lines) if line.startswith("|"))
     header = [c.strip() for c in lines[start].strip("|").split("|")]
     out = {}
-    for line in lines[start + 2:]:
+    for line in lines[start + 2 :]:
         if not line.startswith("|"):
             break
         cells = [c.strip() for c in line.strip("|").split("|")]
@@ -240,8 +336,11 @@ def table(text: str, heading: str) -> dict[str, dict[str, str]]:
 
 
 def runs_of(world, **match):
-    return [(d, info) for d, info in world["sim"].runs.items()
-            if all(info[k] == v for k, v in match.items()) and d != world["missing"]]
+    return [
+        (d, info)
+        for d, info in world["sim"].runs.items()
+        if all(info[k] == v for k, v in match.items()) and d != world["missing"]
+    ]
 
 
 # ------------------------------------------------------------------------------------------------ figures
@@ -257,11 +356,17 @@ def test_every_figure_is_written_as_a_png_and_linked(world):
 # ------------------------------------------------------------------------------------------------ Fig. 4a
 def test_survival_per_level_is_the_mean_and_se_across_seeds_of_each_stage_final_evaluation(world):
     got = table(world["text"], "## Survival per training level")
-    for label, algo, modality in (("ppo · all", "ppo", "all"), ("dqn · all", "dqn", "all"),
-                                  ("ppo · no_vision", "ppo", "no_vision")):
+    for label, algo, modality in (
+        ("ppo · all", "ppo", "all"),
+        ("dqn · all", "dqn", "all"),
+        ("ppo · no_vision", "ppo", "no_vision"),
+    ):
         for level in STAGES:
-            values = [[info["final"][level]] for _, info in runs_of(world, algo=algo, modality=modality,
-                                                                    level="curriculum") if level in info["final"]]
+            values = [
+                [info["final"][level]]
+                for _, info in runs_of(world, algo=algo, modality=modality, level="curriculum")
+                if level in info["final"]
+            ]
             assert got[level][label] == expect(values, per_seed=2), (label, level)
     # the run killed in stage 2 counts for the level it finished, not for the one it did not
     assert "(n=4 seeds × 2 ep.)" in got["1-1"]["dqn · all"] and "(n=3 seeds × 2 ep.)" in got["1-2"]["dqn · all"]
@@ -301,11 +406,13 @@ def test_survival_from_training_episodes_on_request(world, tmp_path):
 # ------------------------------------------------------------------------------------------------ Fig. 4b
 def success_labels():
     """(algo, modality, level) of the runs -> their label: what differs among the evaluated runs is named."""
-    return {("ppo", "all", "curriculum"): "ppo · all · curriculum",
-            ("dqn", "all", "curriculum"): "dqn · all · curriculum",
-            ("ppo", "no_vision", "curriculum"): "ppo · no_vision · curriculum",
-            ("ppo", "all", "1-1"): "ppo · all · trained on 1-1",
-            ("ppo", "all", "1-2"): "ppo · all · trained on 1-2"}
+    return {
+        ("ppo", "all", "curriculum"): "ppo · all · curriculum",
+        ("dqn", "all", "curriculum"): "dqn · all · curriculum",
+        ("ppo", "no_vision", "curriculum"): "ppo · no_vision · curriculum",
+        ("ppo", "all", "1-1"): "ppo · all · trained on 1-1",
+        ("ppo", "all", "1-2"): "ppo · all · trained on 1-2",
+    }
 
 
 def test_success_per_testbed_uses_each_run_final_checkpoint_and_the_references(world):
@@ -335,9 +442,11 @@ def test_generalisation_averages_testbeds_per_checkpoint_then_seeds(world):
     ev = world["evaluated"]
     for (algo, modality, level), label in success_labels().items():
         for trained_to in STAGES:
-            values = [[x for tb in TESTBEDS for x in ev[(d, trained_to, tb)]]
-                      for d, _ in runs_of(world, algo=algo, modality=modality, level=level)
-                      if (d, trained_to, TESTBEDS[0]) in ev]
+            values = [
+                [x for tb in TESTBEDS for x in ev[(d, trained_to, tb)]]
+                for d, _ in runs_of(world, algo=algo, modality=modality, level=level)
+                if (d, trained_to, TESTBEDS[0]) in ev
+            ]
             expected = expect_rate(values) if values else "–"
             assert got[trained_to][label] == expected, (label, trained_to)
 
@@ -381,13 +490,17 @@ def test_training_curves_have_a_line_per_algorithm_and_settings_per_training_set
     curves = pd.read_csv(world["base"] / "out" / "data" / "training_curves.csv")
     ablation = pd.read_csv(world["base"] / "out" / "data" / "ablation_curves.csv")
     # the curriculum PPO runs with all modalities are the same binned means in both figures
-    mine = curves[(curves["group"] == "trained on curriculum") & (curves["label"].str.startswith("ppo"))
-                  & ~curves["label"].str.contains("no_vision")].set_index("bin")
+    mine = curves[
+        (curves["group"] == "trained on curriculum")
+        & (curves["label"].str.startswith("ppo"))
+        & ~curves["label"].str.contains("no_vision")
+    ].set_index("bin")
     theirs = ablation[(ablation["group"] == "ppo · curriculum") & (ablation["label"] == "all")].set_index("bin")
     assert len(mine) and list(mine.index) == list(theirs.index)
     assert np.allclose(mine["mean"], theirs["mean"]) and (mine["n"] == theirs["n"]).all()
-    assert set(curves["group"]) == {f"trained on {info['level']}" for d, info in world["sim"].runs.items()
-                                    if d != world["missing"]}
+    assert set(curves["group"]) == {
+        f"trained on {info['level']}" for d, info in world["sim"].runs.items() if d != world["missing"]
+    }
     assert "## Training curves" in world["text"] and "fig_training_curves.png" in world["text"]
 
 
@@ -404,15 +517,16 @@ def test_ablation_success_per_modality(world):
     ev = world["evaluated"]
     for modality in ("all", "no_vision"):
         for testbed in TESTBEDS:
-            outcomes = [ev[(d, "1-2", testbed)] for d, _ in runs_of(world, algo="ppo", modality=modality,
-                                                                    level="curriculum")]
+            outcomes = [
+                ev[(d, "1-2", testbed)] for d, _ in runs_of(world, algo="ppo", modality=modality, level="curriculum")
+            ]
             assert got[testbed][f"ppo · curriculum · {modality}"] == expect_rate(outcomes)
 
 
 # ------------------------------------------------------------------------------------------------ what is missing
 def test_missing_partial_and_orphaned_inputs_are_listed(world):
-    section = world["text"][world["text"].index("## Missing and partial runs"):]
-    section = section[:section.index("\n## ", 5)]
+    section = world["text"][world["text"].index("## Missing and partial runs") :]
+    section = section[: section.index("\n## ", 5)]
     rel = lambda p: str(Path(p).resolve())  # noqa: E731  (tmp paths are outside the current directory)
     assert f"{rel(world['missing'])}: missing: no episodes.csv" in section
     assert f"{rel(world['partial'])}: partial: 140 of 200 env steps (unfinished: 1-2)" in section
@@ -422,9 +536,11 @@ def test_missing_partial_and_orphaned_inputs_are_listed(world):
     assert len(runs) == len(world["sim"].runs)
 
 
-def test_the_testbed_figures_show_the_curriculum_agents_with_every_sense_and_the_tables_every_run(world, tmp_path,
-                                                                                                  monkeypatch):
+def test_the_testbed_figures_show_the_curriculum_agents_with_every_sense_and_the_tables_every_run(
+    world, tmp_path, monkeypatch
+):
     from evaaa_baselines.reports import sections
+
     drawn, original = {}, sections.plot_bars
 
     def spy(stats, path, **kw):
@@ -452,15 +568,16 @@ def test_the_testbed_figures_show_the_curriculum_agents_with_every_sense_and_the
     assert set(next(iter(table(text, "## Generalisation by training level").values()))) > agents
 
 
-def test_the_ablation_figures_have_a_panel_only_where_several_modality_sets_were_trained(world, tmp_path,
-                                                                                        monkeypatch):
+def test_the_ablation_figures_have_a_panel_only_where_several_modality_sets_were_trained(world, tmp_path, monkeypatch):
     from evaaa_baselines.reports import sections
+
     drawn, bars, lines = {}, sections.plot_bars, sections.plot_lines
 
     def spy(original):
         def draw(stats, path, **kw):
             drawn[path.name] = set(stats[kw["panel"]]) if kw.get("panel") else set()
             return original(stats, path, **kw)
+
         return draw
 
     monkeypatch.setattr(sections, "plot_bars", spy(bars))
@@ -518,8 +635,11 @@ def test_a_checkpoint_evaluated_in_two_ways_is_reported_one_way_at_a_time(world,
     append_rows(tmp_path / "random.csv", sim.evaluate("random", "1-1", 4))
     evals = [tmp_path / "greedy", tmp_path / "sampled", tmp_path / "random.csv"]
     # pooled, the numbers would describe neither way of acting
-    with pytest.raises(ReportError, match=r"evaluated in 2 ways \('mode', 'sample'\); choose one with "
-                                          r"acting=<mode\|sample>"):
+    with pytest.raises(
+        ReportError,
+        match=r"evaluated in 2 ways \('mode', 'sample'\); choose one with "
+        r"acting=<mode\|sample>",
+    ):
         build_report([run], evals, tmp_path / "out")
     with pytest.raises(ReportError, match=r"no checkpoint was evaluated acting 'greedy'"):
         build_report([run], evals, tmp_path / "out", acting="greedy")
@@ -541,8 +661,10 @@ def test_a_stage_best_model_is_tied_to_its_stage_and_the_final_model_is_preferre
     best, final = str(run / f"model-best-{stage}-{level}.pt"), str(run / f"model-{stage}-{level}.pt")
     rows = pd.DataFrame(sim.evaluate(best, "1-1", 2) + sim.evaluate(final, "1-1", 2)).assign(file="episodes.csv")
     ckpts = attach(rows, {run.resolve(): load_run(run)}).checkpoints
-    assert set(zip(ckpts["policy"], ckpts["ckpt_stage"], ckpts["ckpt_level"])) == {(best, stage, level),
-                                                                                  (final, stage, level)}
+    assert set(zip(ckpts["policy"], ckpts["ckpt_stage"], ckpts["ckpt_level"])) == {
+        (best, stage, level),
+        (final, stage, level),
+    }
     assert set(final_checkpoints(ckpts)["policy"]) == {final}
     only_best = ckpts[ckpts["policy"] == best]
     assert set(final_checkpoints(only_best)["policy"]) == {best}
@@ -563,23 +685,30 @@ def load_report():
 def test_command_line_writes_the_report(world, tmp_path, capsys):
     script = load_report()
     out = tmp_path / "cli"
-    assert script.main([f"runs=[{world['base'] / 'runs'}]", f"evals={world['base'] / 'eval'}", f"out={out}",
-                        "title=Sweep"]) == 0
+    assert (
+        script.main(
+            [f"runs=[{world['base'] / 'runs'}]", f"evals={world['base'] / 'eval'}", f"out={out}", "title=Sweep"]
+        )
+        == 0
+    )
     assert (out / "report.md").read_text().startswith("# Sweep\n")
     printed = capsys.readouterr().out
     assert "note: " in printed and "fig26_ablation_success.png" in printed
 
 
-@pytest.mark.parametrize("args, message", [
-    ([], "nothing to report"),
-    (["runs=[/no/such/dir]"], "is not a directory"),
-    (["colour=red"], "unknown key 'colour'; keys: runs, evals, out"),
-    (["runs"], "'runs' is not of the form key=value"),
-    (["bins=many"], "bins=many: expected an integer"),
-    (["survival=best", "evals=[EVAL]"], "survival=best: 'best' is not allowed; allowed: eval, train"),
-    (["evals=[RUN_CSV]"], "is not an episode file"),
-    (["runs=[EMPTY]"], "no run directory"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        ([], "nothing to report"),
+        (["runs=[/no/such/dir]"], "is not a directory"),
+        (["colour=red"], "unknown key 'colour'; keys: runs, evals, out"),
+        (["runs"], "'runs' is not of the form key=value"),
+        (["bins=many"], "bins=many: expected an integer"),
+        (["survival=best", "evals=[EVAL]"], "survival=best: 'best' is not allowed; allowed: eval, train"),
+        (["evals=[RUN_CSV]"], "is not an episode file"),
+        (["runs=[EMPTY]"], "no run directory"),
+    ],
+)
 def test_command_line_rejects_bad_input(world, tmp_path, args, message, capsys):
     script = load_report()
     (tmp_path / "empty").mkdir()
@@ -599,11 +728,13 @@ def test_how_a_run_was_started_does_not_split_its_group(tmp_path):
     sim = Sim(tmp_path / "runs")
     dirs = [sim.run("ppo", 0, level="1-1", finish=1), sim.run("ppo", 1, level="1-1", finish=1)]
     config = dirs[1] / ".hydra" / "config.yaml"
-    config.write_text(config.read_text().replace("start_over: false", "start_over: true")
-                      .replace("resume: false", "resume: true"))
+    config.write_text(
+        config.read_text().replace("start_over: false", "start_over: true").replace("resume: false", "resume: true")
+    )
     older = dirs[0] / ".hydra" / "config.yaml"  # a run made before the deterministic key existed
-    older.write_text("".join(line for line in older.read_text().splitlines(keepends=True)
-                             if not line.startswith("deterministic:")))
+    older.write_text(
+        "".join(line for line in older.read_text().splitlines(keepends=True) if not line.startswith("deterministic:"))
+    )
     runs = [load_run(d) for d in dirs]
     assert runs[1].config["start_over"] and runs[1].config["resume"]
     assert runs[1].config["deterministic"] and "deterministic" not in runs[0].config  # a run made before the key
@@ -616,9 +747,11 @@ def test_a_number_spelled_two_ways_or_another_time_budget_does_not_split_a_group
     from evaaa_baselines.reports.load import labels
 
     sim = Sim(tmp_path / "runs")
-    dirs = [sim.run("ppo", 0, level="1-1", finish=1, overrides=("algo.value_coef=1", "max_minutes=75")),
-            sim.run("ppo", 1, level="1-1", finish=1, overrides=("algo.value_coef=1.0", "max_minutes=33")),
-            sim.run("ppo", 2, level="1-1", finish=1, overrides=("algo.value_coef=0.25",))]
+    dirs = [
+        sim.run("ppo", 0, level="1-1", finish=1, overrides=("algo.value_coef=1", "max_minutes=75")),
+        sim.run("ppo", 1, level="1-1", finish=1, overrides=("algo.value_coef=1.0", "max_minutes=33")),
+        sim.run("ppo", 2, level="1-1", finish=1, overrides=("algo.value_coef=0.25",)),
+    ]
     runs = [load_run(d) for d in dirs]
     assert [r.config["algo"]["value_coef"] for r in runs] == [1, 1.0, 0.25]
     assert isinstance(runs[0].config["algo"]["value_coef"], int)
@@ -693,10 +826,18 @@ def test_launcher_presets_compose_with_hydra_config():
 
 
 def test_train_script_prints_the_launcher_config(tmp_path):
-    cmd = [sys.executable, str(ROOT / "scripts" / "train.py"), "hydra.launcher.n_jobs=3",
-           "--cfg", "hydra", "--package", "hydra.launcher"]
-    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=120,
-                          env={**os.environ, "HYDRA_FULL_ERROR": "1"})
+    cmd = [
+        sys.executable,
+        str(ROOT / "scripts" / "train.py"),
+        "hydra.launcher.n_jobs=3",
+        "--cfg",
+        "hydra",
+        "--package",
+        "hydra.launcher",
+    ]
+    done = subprocess.run(
+        cmd, cwd=tmp_path, capture_output=True, text=True, timeout=120, env={**os.environ, "HYDRA_FULL_ERROR": "1"}
+    )
     assert done.returncode == 0, done.stderr[-2000:]
     printed = yaml.safe_load(done.stdout.split("\n", 1)[1])  # after the "# @package hydra.launcher" line
     assert printed["_target_"].endswith("JoblibLauncher") and printed["n_jobs"] == 3
@@ -738,17 +879,51 @@ def test_known_scores_give_their_iqm_and_old_training_files_still_read(tmp_path)
     episode fields (survival_steps, satiation, ...): the IQM of 10, 20, 30, 1000 (seed 0) and 40, 50, 60, 70 (seed 1)
     is the mean of 30, 40, 50, 60 = 45; the seeds' means are 265 and 55: 160 ± 105."""
     sim = Sim(tmp_path / "runs")
-    old = ["env_steps", "stage", "level", "episode", "world", "survival_steps", "return", "end_type", "satiation",
-           "hydration", "temperature", "damage", "wall_time"]
+    old = [
+        "env_steps",
+        "stage",
+        "level",
+        "episode",
+        "world",
+        "survival_steps",
+        "return",
+        "end_type",
+        "satiation",
+        "hydration",
+        "temperature",
+        "damage",
+        "wall_time",
+    ]
     for seed, scores in ((0, (10, 20, 30, 1000)), (1, (40, 50, 60, 70))):
         run_dir = sim.run("ppo", seed, level="1-1", finish=1)
-        rows = [dict(zip(old, (10 * (i + 1), 0, "1-1", i + 1, 0, v, -1.0, "FoodOutOfRange", -15.0, 0, 0, 0,
-                               "2026-01-01T00:00:00"))) for i, v in enumerate(scores)]
+        rows = [
+            dict(
+                zip(
+                    old,
+                    (
+                        10 * (i + 1),
+                        0,
+                        "1-1",
+                        i + 1,
+                        0,
+                        v,
+                        -1.0,
+                        "FoodOutOfRange",
+                        -15.0,
+                        0,
+                        0,
+                        0,
+                        "2026-01-01T00:00:00",
+                    ),
+                )
+            )
+            for i, v in enumerate(scores)
+        ]
         write_csv(run_dir / "episodes.csv", old, rows)
     report = build_report([tmp_path / "runs"], [], tmp_path / "out", survival="train", window=4)
     got = table(report.markdown.read_text(), "## Survival per training level")["1-1"]["ppo"]
     assert got.startswith("45.0 [") and got.endswith("; 160.0 ± 105.0 (n=2 seeds × 4 ep.)"), got
-    low, high = map(float, got[len("45.0 ["):got.index("]")].split(", "))
+    low, high = map(float, got[len("45.0 [") : got.index("]")].split(", "))
     assert 10 <= low <= 45 <= high <= 1000 and high > low
     data = pd.read_csv(tmp_path / "out" / "data" / "survival_per_level.csv")
     assert data.loc[0, "value"] == pytest.approx(45.0) and data.loc[0, "episodes"] == 8
@@ -772,11 +947,15 @@ def test_the_claims_are_judged_on_the_numbers_of_the_report(world):
     from evaaa_baselines.reports.sections import claim_verdicts, read_inputs
 
     text = world["text"]
-    claims = text[text.index("## The paper's claims"):]
+    claims = text[text.index("## The paper's claims") :]
     for letter in "abcde":
         assert f"- **({letter}) " in claims
-    verdicts = {v.claim[:3]: v for v in claim_verdicts(read_inputs([world["base"] / "runs"],
-                                                                   [world["base"] / "eval", world["base"] / "human.csv"]))}
+    verdicts = {
+        v.claim[:3]: v
+        for v in claim_verdicts(
+            read_inputs([world["base"] / "runs"], [world["base"] / "eval", world["base"] / "human.csv"])
+        )
+    }
     tables = world["report"].tables
 
     def fmt(frame, **match):
@@ -786,8 +965,10 @@ def test_the_claims_are_judged_on_the_numbers_of_the_report(world):
     # (b) compares exactly the cells of Fig. 4a right, on the levels after the first
     cmp = tables["curriculum_vs_direct"]
     (ppo,) = [p for p in verdicts["(b)"].parts if p.claim == "ppo"]
-    assert ppo.evidence[0] == (f"1-2: curriculum {fmt(cmp, label='ppo · curriculum', level='1-2')} vs direct "
-                               f"{fmt(cmp, label='ppo · direct', level='1-2')}")
+    assert ppo.evidence[0] == (
+        f"1-2: curriculum {fmt(cmp, label='ppo · curriculum', level='1-2')} vs direct "
+        f"{fmt(cmp, label='ppo · direct', level='1-2')}"
+    )
     # (d) finds the human records
     assert verdicts["(d)"].parts[0].claim == "humans ≈ ceiling (the oracle)"
     # (e) compares each modality set with `all` among runs of one algorithm and set-up (here ppo's curricula)
@@ -795,5 +976,7 @@ def test_the_claims_are_judged_on_the_numbers_of_the_report(world):
     assert ablation.claim.endswith("(ppo, trained on curriculum)")
     final = tables["ablation_final_survival"]
     part = next(p for p in ablation.parts if p.claim == "no_vision fails (survival)")
-    assert part.evidence == [f"no_vision {fmt(final, label='no_vision', group='ppo · curriculum')} vs all "
-                             f"{fmt(final, label='all', group='ppo · curriculum')}"]
+    assert part.evidence == [
+        f"no_vision {fmt(final, label='no_vision', group='ppo · curriculum')} vs all "
+        f"{fmt(final, label='all', group='ppo · curriculum')}"
+    ]

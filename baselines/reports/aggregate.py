@@ -59,8 +59,18 @@ def final_survival(runs: Sequence[RunRecord], source: str = "eval", window: int 
                 if len(eps):
                     scores = tuple(float(v) for v in eps["steps"].iloc[-window:])
                     value, used, episodes = float(np.mean(scores)), "train", len(scores)
-            rows.append({"run": r.dir, "stage": index, "level": level, "survival": value, "source": used,
-                         "last": index == r.stages[-1][0], "scores": scores, "episodes": episodes})
+            rows.append(
+                {
+                    "run": r.dir,
+                    "stage": index,
+                    "level": level,
+                    "survival": value,
+                    "source": used,
+                    "last": index == r.stages[-1][0],
+                    "scores": scores,
+                    "episodes": episodes,
+                }
+            )
     return pd.DataFrame(rows, columns=["run", "stage", "level", "survival", "source", "last", "scores", "episodes"])
 
 
@@ -79,8 +89,16 @@ def curves(runs: Sequence[RunRecord], bins: int = 20) -> pd.DataFrame:
         survival = r.episodes["steps"].to_numpy(dtype=float)
         for i in np.unique(b):
             scores = tuple(survival[b == i].tolist())
-            rows.append({"run": r.dir, "bin": int(i), "steps": (i + 0.5) * width, "survival": float(np.mean(scores)),
-                         "scores": scores, "episodes": len(scores)})
+            rows.append(
+                {
+                    "run": r.dir,
+                    "bin": int(i),
+                    "steps": (i + 0.5) * width,
+                    "survival": float(np.mean(scores)),
+                    "scores": scores,
+                    "episodes": len(scores),
+                }
+            )
     return pd.DataFrame(rows, columns=["run", "bin", "steps", "survival", "scores", "episodes"])
 
 
@@ -92,8 +110,9 @@ def curves(runs: Sequence[RunRecord], bins: int = 20) -> pd.DataFrame:
 STAT_COLUMNS = ("value", "low", "high", "statistic", "mean", "se", "n", "episodes", "unit")
 
 
-def estimate(samples: Sequence[Sequence[float]], success: bool = False, seed: int = 0,
-             episodes: int | None = None) -> dict[str, Any]:
+def estimate(
+    samples: Sequence[Sequence[float]], success: bool = False, seed: int = 0, episodes: int | None = None
+) -> dict[str, Any]:
     """The statistics of one table cell from ``samples``: one sequence of episode scores per unit (seed,
     participant; a success is 1.0, a failure 0.0).  Units that gave one number each (a seed's evaluation mean) are
     bootstrapped as one stratum: there is nothing to redraw within a unit.  ``episodes``: the episodes behind the
@@ -105,16 +124,33 @@ def estimate(samples: Sequence[Sequence[float]], success: bool = False, seed: in
     m, se, n = mean_se(s.mean() for s in samples)
     if success:
         est = binomial_interval(int(round(sum(s.sum() for s in samples))), scored)
-        return {"value": est.value, "low": est.low, "high": est.high, "statistic": "rate", "mean": m, "se": se,
-                "n": n, "episodes": episodes}
+        return {
+            "value": est.value,
+            "low": est.low,
+            "high": est.high,
+            "statistic": "rate",
+            "mean": m,
+            "se": se,
+            "n": n,
+            "episodes": episodes,
+        }
     strata = [np.concatenate(samples)] if samples and all(s.size == 1 for s in samples) else samples
     est = interval(strata, "iqm", seed=seed)
-    return {"value": est.value, "low": est.low, "high": est.high, "statistic": "iqm", "mean": m, "se": se, "n": n,
-            "episodes": episodes}
+    return {
+        "value": est.value,
+        "low": est.low,
+        "high": est.high,
+        "statistic": "iqm",
+        "mean": m,
+        "se": se,
+        "n": n,
+        "episodes": episodes,
+    }
 
 
-def across_seeds(values: pd.DataFrame, by: Sequence[str], value: str, *, success: bool = False,
-                 unit: str = "seeds") -> pd.DataFrame:
+def across_seeds(
+    values: pd.DataFrame, by: Sequence[str], value: str, *, success: bool = False, unit: str = "seeds"
+) -> pd.DataFrame:
     """Per group of ``by``: the statistics of :data:`STAT_COLUMNS` over the group's rows (one row per seed, its
     episodes' scores in a ``scores`` column, or ``value`` alone where there is none)."""
     out = []
@@ -126,7 +162,6 @@ def across_seeds(values: pd.DataFrame, by: Sequence[str], value: str, *, success
         est = estimate(samples, success, episodes=int(part["episodes"].sum()) if "episodes" in part else None)
         out.append({**dict(zip(by, key if isinstance(key, tuple) else (key,))), **est, "unit": unit})
     return pd.DataFrame(out, columns=[*by, *STAT_COLUMNS])
-
 
 
 def per_run(ckpts: pd.DataFrame, value: str, by: Sequence[str] = ("run", "level")) -> pd.DataFrame:
@@ -142,8 +177,11 @@ def reference_stats(refs: pd.DataFrame, value: str) -> pd.DataFrame:
     out = []
     for (policy, level), part in refs.groupby(["policy", "level"], sort=False):
         vals, unit, samples = part[value].astype(float), "episodes", None
-        if "participant" in part and part["participant"].astype(str).str.len().gt(0).all() \
-                and part["participant"].nunique() > 1:
+        if (
+            "participant" in part
+            and part["participant"].astype(str).str.len().gt(0).all()
+            and part["participant"].nunique() > 1
+        ):
             unit = "participants"
             samples = [tuple(v.dropna()) for _, v in part.assign(_v=vals).groupby("participant")["_v"]]
         est = estimate(samples if samples is not None else [tuple(vals.dropna())], success=value == "success")

@@ -49,6 +49,7 @@ def short_labels(names: Sequence[str]) -> tuple[dict[str, str], str]:
     ``dqn``), how it acted (`` [sample]``) kept; other names (oracle, random, human) unchanged.  Also returns a note
     that says what the labels stand for (``checkpoints: runs/1-1/<label>/all-squared/seed0/model-0-1-1.pt``), or
     ``""`` when nothing was shortened.  Full paths made legends wider than the plot and pushed labels off the image."""
+
     def split(name: str) -> tuple[str, str]:
         base, bracket, rest = name.partition(" [")
         return base, bracket + rest
@@ -70,10 +71,10 @@ def short_labels(names: Sequence[str]) -> tuple[dict[str, str], str]:
         tail = 0
         while tail < shortest - head - 1 and len({p[len(p) - 1 - tail] for p in parts}) == 1:
             tail += 1
-        labels = {p: "/".join(q[head:len(q) - tail]) for p, q in zip(paths, parts)}
+        labels = {p: "/".join(q[head : len(q) - tail]) for p, q in zip(paths, parts)}
         if len(set(labels.values())) == len(labels) and all(labels.values()):
             short = labels
-            note = "checkpoints: " + "/".join([*parts[0][:head], "<label>", *parts[0][len(parts[0]) - tail:]])
+            note = "checkpoints: " + "/".join([*parts[0][:head], "<label>", *parts[0][len(parts[0]) - tail :]])
     out = {}
     for name in names:
         base, acting = split(name)
@@ -124,9 +125,19 @@ def interval_note(stats: pd.DataFrame, drawn: str = "whiskers") -> str:
     return "; ".join(parts)
 
 
-def plot_bars(stats: pd.DataFrame, path: Path, *, ylabel: str, title: str, panel: str | None = None,
-              scale: float = 1.0, levels: Sequence[str] | None = None, top: float | None = None,
-              note: str = "", panel_height: float = 3.4) -> Path:
+def plot_bars(
+    stats: pd.DataFrame,
+    path: Path,
+    *,
+    ylabel: str,
+    title: str,
+    panel: str | None = None,
+    scale: float = 1.0,
+    levels: Sequence[str] | None = None,
+    top: float | None = None,
+    note: str = "",
+    panel_height: float = 3.4,
+) -> Path:
     """Grouped bars — one group per ``level``, one bar per ``label`` (``value``, its interval as whiskers) — in one
     panel per ``panel`` value (or a single panel); the y axis starts at 0 and ends at ``top`` if given.  ``stats``
     has the columns of :data:`.aggregate.STAT_COLUMNS` (``statistic`` says what the whiskers are, for the title);
@@ -134,8 +145,12 @@ def plot_bars(stats: pd.DataFrame, path: Path, *, ylabel: str, title: str, panel
     plt = _plt()
     panels = list(dict.fromkeys(stats[panel])) if panel else [None]
     n_levels = stats["level"].nunique()
-    fig, axes = plt.subplots(len(panels), 1, figsize=(max(4.5, 0.55 * len(stats) / len(panels) + 2.5, 1.2 * n_levels),
-                                                      panel_height * len(panels)), squeeze=False)
+    fig, axes = plt.subplots(
+        len(panels),
+        1,
+        figsize=(max(4.5, 0.55 * len(stats) / len(panels) + 2.5, 1.2 * n_levels), panel_height * len(panels)),
+        squeeze=False,
+    )
     for ax, name in zip(axes[:, 0], panels):
         part = stats if name is None else stats[stats[panel] == name]
         order = [lv for lv in (levels or level_sorted(part["level"])) if lv in set(part["level"])]
@@ -144,10 +159,17 @@ def plot_bars(stats: pd.DataFrame, path: Path, *, ylabel: str, title: str, panel
         for i, label in enumerate(names):
             one = part[part["label"] == label].set_index("level").reindex(order)
             heights, yerr = whiskers(one, scale)
-            ax.bar(np.arange(len(order)) + (i - (len(names) - 1) / 2) * width, heights, width, yerr=yerr, capsize=3,
-                   label=label)
-        ax.set_xticks(range(len(order)), order, rotation=30 if len(order) > 2 else 0,
-                      ha="right" if len(order) > 2 else "center")
+            ax.bar(
+                np.arange(len(order)) + (i - (len(names) - 1) / 2) * width,
+                heights,
+                width,
+                yerr=yerr,
+                capsize=3,
+                label=label,
+            )
+        ax.set_xticks(
+            range(len(order)), order, rotation=30 if len(order) > 2 else 0, ha="right" if len(order) > 2 else "center"
+        )
         ax.set_ylabel(ylabel)
         ax.set_ylim(0, top)
         if name is not None:
@@ -155,9 +177,21 @@ def plot_bars(stats: pd.DataFrame, path: Path, *, ylabel: str, title: str, panel
     return _finish(fig, axes[:, 0], path, f"{title}\n({interval_note(stats)})" + (f"\n{note}" if note else ""))
 
 
-def plot_lines(stats: pd.DataFrame, path: Path, *, x: str, panel: str | None, ylabel: str, xlabel: str,
-               title: str, band: bool, scale: float = 1.0, order: Sequence[str] | None = None,
-               hlines: pd.DataFrame | None = None, top: float | None = None) -> Path:
+def plot_lines(
+    stats: pd.DataFrame,
+    path: Path,
+    *,
+    x: str,
+    panel: str | None,
+    ylabel: str,
+    xlabel: str,
+    title: str,
+    band: bool,
+    scale: float = 1.0,
+    order: Sequence[str] | None = None,
+    hlines: pd.DataFrame | None = None,
+    top: float | None = None,
+) -> Path:
     """Lines of ``value`` per ``label`` (one panel per ``panel`` value), with its interval as a band or whiskers;
     ``order``: categorical x values in this order (labels drawn side by side, slightly apart, so that equal values
     stay visible); ``hlines``: (label, value) rows drawn as dashed lines; the y axis starts at 0, ends at ``top``."""
@@ -166,7 +200,7 @@ def plot_lines(stats: pd.DataFrame, path: Path, *, x: str, panel: str | None, yl
     cols = min(len(panels), 2)
     nrows = -(-len(panels) // cols)
     fig, axes = plt.subplots(nrows, cols, figsize=(6.5 * cols, 3.6 * nrows), squeeze=False)
-    for ax in axes.flat[len(panels):]:
+    for ax in axes.flat[len(panels) :]:
         ax.set_visible(False)
     for ax, name in zip(axes.flat, panels):
         part = stats if name is None else stats[stats[panel] == name]
@@ -184,8 +218,9 @@ def plot_lines(stats: pd.DataFrame, path: Path, *, x: str, panel: str | None, yl
                 ax.fill_between(xs, m - yerr[0], m + yerr[1], alpha=0.25, color=drawn.get_color(), linewidth=0)
             else:
                 ax.errorbar(xs, m, yerr=yerr, marker="o", capsize=3, label=label)
-        for style, (_, ref) in zip(("--", ":", "-.", (0, (5, 1))), (hlines if hlines is not None else
-                                                                    pd.DataFrame()).iterrows()):
+        for style, (_, ref) in zip(
+            ("--", ":", "-.", (0, (5, 1))), (hlines if hlines is not None else pd.DataFrame()).iterrows()
+        ):
             ax.axhline(scale * ref["value"], linestyle=style, linewidth=1, color="0.35", label=ref["label"])
         if order is not None:
             ax.set_xticks(range(len(order)), order)
@@ -200,7 +235,7 @@ def plot_lines(stats: pd.DataFrame, path: Path, *, x: str, panel: str | None, yl
         if name is not None:
             ax.set_title(str(name), fontsize=9)
     note = interval_note(stats, "band" if band else "whiskers")
-    return _finish(fig, list(axes.flat[:len(panels)]), path, f"{title}\n({note})")
+    return _finish(fig, list(axes.flat[: len(panels)]), path, f"{title}\n({note})")
 
 
 def plot_summary(summary: pd.DataFrame, path: str | Path, *, success: bool, title: str) -> Path:
@@ -209,13 +244,27 @@ def plot_summary(summary: pd.DataFrame, path: str | Path, *, success: bool, titl
     checkpoint paths shortened to the parts in which they differ (the title's last line says how)."""
     names, note = short_labels(list(dict.fromkeys(summary["policy"])))
     kind = "success" if success else "survival"
-    stats = pd.DataFrame({"label": summary["policy"].map(names), "level": summary["level"],
-                          "value": summary["success_rate" if success else "survival_iqm"],
-                          "low": summary[f"{kind}_low"], "high": summary[f"{kind}_high"],
-                          "statistic": "rate" if success else "iqm"})
-    return plot_bars(stats, Path(path), levels=list(dict.fromkeys(summary["level"])), scale=100 if success else 1.0,
-                     top=105 if success else None, ylabel="success rate (%)" if success else "survival (decisions)",
-                     title=title, note=note, panel_height=4.2)
+    stats = pd.DataFrame(
+        {
+            "label": summary["policy"].map(names),
+            "level": summary["level"],
+            "value": summary["success_rate" if success else "survival_iqm"],
+            "low": summary[f"{kind}_low"],
+            "high": summary[f"{kind}_high"],
+            "statistic": "rate" if success else "iqm",
+        }
+    )
+    return plot_bars(
+        stats,
+        Path(path),
+        levels=list(dict.fromkeys(summary["level"])),
+        scale=100 if success else 1.0,
+        top=105 if success else None,
+        ylabel="success rate (%)" if success else "survival (decisions)",
+        title=title,
+        note=note,
+        panel_height=4.2,
+    )
 
 
 def plot_outcomes(rows: pd.DataFrame, path: str | Path, *, title: str = "What happened in each episode") -> Path:
@@ -230,16 +279,25 @@ def plot_outcomes(rows: pd.DataFrame, path: str | Path, *, title: str = "What ha
     policies = list(dict.fromkeys(rows["policy"]))
     cols = min(len(levels), 5)
     nrows = -(-len(levels) // cols)
-    fig, axes = plt.subplots(nrows, cols, figsize=(1.0 + cols * max(1.6, 0.65 * len(policies)), 3.2 * nrows + 0.9),
-                             sharey=True, squeeze=False)
-    for ax in axes.flat[len(levels):]:
+    fig, axes = plt.subplots(
+        nrows,
+        cols,
+        figsize=(1.0 + cols * max(1.6, 0.65 * len(policies)), 3.2 * nrows + 0.9),
+        sharey=True,
+        squeeze=False,
+    )
+    for ax in axes.flat[len(levels) :]:
         ax.set_visible(False)
     for ax, level in zip(axes.flat, levels):
         part = rows[rows["level"] == level]
         bottom = np.zeros(len(policies))
         for name, colour in zip(OUTCOMES, OUTCOME_COLOURS):
-            share = np.array([(part[part["policy"] == p]["outcome"] == name).mean() if (part["policy"] == p).any()
-                              else 0.0 for p in policies])
+            share = np.array(
+                [
+                    (part[part["policy"] == p]["outcome"] == name).mean() if (part["policy"] == p).any() else 0.0
+                    for p in policies
+                ]
+            )
             ax.bar(range(len(policies)), share, bottom=bottom, color=colour, label=name)
             bottom += share
         for i, p in enumerate(policies):

@@ -33,8 +33,25 @@ MODEL_FILE = re.compile(r"^model-(\d+)-(.+)\.pt$")
 BEST_MODEL_FILE = re.compile(r"^model-best-(\d+)-(.+)\.pt$")
 #: Settings that do not change what is trained: runs differing only in these (and the seed) are pooled
 #: (``deterministic`` picks CUDA kernels that repeat; runs made before it existed have no such key).
-BOOKKEEPING = ("seed", "resume", "start_over", "threads", "progress", "progress_window", "log_every", "total_steps",
-               "max_minutes", "deterministic", "stages", "run.", "logger.", "checkpoint.", "eval.", "level.", "hydra.")
+BOOKKEEPING = (
+    "seed",
+    "resume",
+    "start_over",
+    "threads",
+    "progress",
+    "progress_window",
+    "log_every",
+    "total_steps",
+    "max_minutes",
+    "deterministic",
+    "stages",
+    "run.",
+    "logger.",
+    "checkpoint.",
+    "eval.",
+    "level.",
+    "hydra.",
+)
 RUN_COLUMNS = ("env_steps", "stage", "level", "steps")
 EVAL_RUN_COLUMNS = ("env_steps", "stage", "level")
 EVAL_FILE_COLUMNS = ("policy", "level", "steps", "success", "episode")
@@ -150,13 +167,16 @@ def load_run(run_dir: str | Path) -> RunRecord:
         if "steps" not in run.evals.columns:
             raise ReportError(f"{run.dir / 'eval.csv'} is not a training eval.csv (no column survival_mean or steps)")
         run.eval_episodes = run.evals
-        run.evals = (run.evals.groupby(["env_steps", "stage", "level"], sort=False)["steps"]
-                     .agg(episodes="size", survival_mean="mean", survival_min="min", survival_max="max")
-                     .reset_index())
+        run.evals = (
+            run.evals.groupby(["env_steps", "stage", "level"], sort=False)["steps"]
+            .agg(episodes="size", survival_mean="mean", survival_min="min", survival_max="max")
+            .reset_index()
+        )
     for index, level, budget in run.stages:
         later = any(df is not None and (df["stage"] > index).any() for df in (run.episodes, run.evals))
-        evaluated_at_end = run.evals is not None and ((run.evals["stage"] == index)
-                                                      & (run.evals["env_steps"] >= budget)).any()
+        evaluated_at_end = (
+            run.evals is not None and ((run.evals["stage"] == index) & (run.evals["env_steps"] >= budget)).any()
+        )
         if (run.dir / f"model-{index}-{level}.pt").is_file() or later or evaluated_at_end:
             run.complete.add(index)
     # env steps reached: the furthest logged step (a stage ended by `max_minutes` is complete short of its budget);
@@ -172,8 +192,10 @@ def load_run(run_dir: str | Path) -> RunRecord:
         run.problem, run.usable = "missing: no episodes.csv (the run never started, or its files are gone)", False
     elif len(run.complete) < len(run.stages):
         unfinished = [level for i, level, _ in run.stages if i not in run.complete]
-        run.problem = (f"partial: {run.steps:,} of {run.total:,} env steps (unfinished: {', '.join(unfinished)}); "
-                       "its curves are drawn, its unfinished stages are left out of the final-survival tables")
+        run.problem = (
+            f"partial: {run.steps:,} of {run.total:,} env steps (unfinished: {', '.join(unfinished)}); "
+            "its curves are drawn, its unfinished stages are left out of the final-survival tables"
+        )
     if run.episodes is not None and not len(run.episodes) and run.problem is None:
         run.problem = "no finished training episode (the budget is shorter than an episode)"
     return run
@@ -190,8 +212,10 @@ def csv_text(path: Path, notes: list[str]) -> io.StringIO:
     text = data.decode("utf-8", errors="replace")
     if not text.endswith("\n") and "\n" in text.rstrip("\r"):
         text = text[: text.rindex("\n") + 1]
-        notes.append(f"{path}: its last row was cut short (the file was being written when its process stopped); "
-                     "that row is skipped")
+        notes.append(
+            f"{path}: its last row was cut short (the file was being written when its process stopped); "
+            "that row is skipped"
+        )
     return io.StringIO(text)
 
 
@@ -215,10 +239,14 @@ def describe_extras(runs: Sequence[RunRecord]) -> None:
         by_algo.setdefault(r.algo, []).append(r)
     for same in by_algo.values():
         keys = sorted({k for r in same for k in flat[id(r)]})
-        varying = [k for k in keys if not k.startswith(BOOKKEEPING) and k not in ("algo.name", "modality.name",
-                                                                                  "reward.name")
-                   and not k.startswith("modality.enabled")
-                   and len({_setting(flat[id(r)].get(k)) for r in same}) > 1]
+        varying = [
+            k
+            for k in keys
+            if not k.startswith(BOOKKEEPING)
+            and k not in ("algo.name", "modality.name", "reward.name")
+            and not k.startswith("modality.enabled")
+            and len({_setting(flat[id(r)].get(k)) for r in same}) > 1
+        ]
         for r in same:
             r.extras = tuple(f"{k}={_setting(flat[id(r)].get(k))}" for k in varying)
 
@@ -240,10 +268,12 @@ def _flatten(node: Any, prefix: str = "") -> dict[str, Any]:
     return {prefix[:-1]: node}
 
 
-def labels(runs: Sequence[RunRecord], parts: Sequence[str] = ("algo", "modality", "reward", "extras", "condition")
-           ) -> dict[Path, str]:
+def labels(
+    runs: Sequence[RunRecord], parts: Sequence[str] = ("algo", "modality", "reward", "extras", "condition")
+) -> dict[Path, str]:
     """A label per run naming the algorithm and whichever of ``parts`` differ among ``runs`` (so runs that differ
     only in their seed share a label).  ``condition``: curriculum or direct; ``training``: curriculum or the level."""
+
     def part(r: RunRecord, name: str) -> str:
         if name == "condition":
             return "curriculum" if r.curriculum else "direct"
@@ -255,7 +285,6 @@ def labels(runs: Sequence[RunRecord], parts: Sequence[str] = ("algo", "modality"
 
     shown = [p for p in parts if p == "algo" or len({part(r, p) for r in runs}) > 1]
     return {r.dir: " · ".join(x for x in (part(r, p) for p in shown) if x) for r in runs}
-
 
 
 # ------------------------------------------------------------------------------------------------ episode files
@@ -295,8 +324,10 @@ def load_evaluations(paths: Iterable[str | Path], notes: list[str] | None = None
         columns = set(pd.read_csv(text, nrows=0).columns)
         missing = [c for c in EVAL_FILE_COLUMNS if c not in columns]
         if missing:
-            raise ReportError(f"evals: {file} is not an episode file of scripts/evaluate.py or scripts/play.py "
-                              f"(no column {', '.join(missing)})")
+            raise ReportError(
+                f"evals: {file} is not an episode file of scripts/evaluate.py or scripts/play.py "
+                f"(no column {', '.join(missing)})"
+            )
         text.seek(0)
         rows = read_episodes([text])
         frames.append(rows.assign(file=str(file)))
@@ -317,14 +348,18 @@ def select_acting(evals: pd.DataFrame, acting: str | None) -> pd.DataFrame:
     modes = evals.loc[is_ckpt, "acting"].astype(str)
     if acting is not None:
         if not (modes == acting).any() and is_ckpt.any():
-            raise ReportError(f"acting: no checkpoint was evaluated acting {acting!r}; the evaluations hold "
-                              f"{', '.join(repr(m) for m in dict.fromkeys(modes))}")
+            raise ReportError(
+                f"acting: no checkpoint was evaluated acting {acting!r}; the evaluations hold "
+                f"{', '.join(repr(m) for m in dict.fromkeys(modes))}"
+            )
         return evals[~is_ckpt | (evals["acting"].astype(str) == acting)]
     for policy, part in evals[is_ckpt].groupby("policy", sort=False):
         ways = list(dict.fromkeys(part["acting"].astype(str)))
         if len(ways) > 1:
-            raise ReportError(f"evals: {policy} was evaluated in {len(ways)} ways ({', '.join(map(repr, ways))}); "
-                              f"choose one with acting=<{'|'.join(w or 'unknown' for w in ways)}>")
+            raise ReportError(
+                f"evals: {policy} was evaluated in {len(ways)} ways ({', '.join(map(repr, ways))}); "
+                f"choose one with acting=<{'|'.join(w or 'unknown' for w in ways)}>"
+            )
     return evals
 
 
@@ -347,8 +382,10 @@ def attach(evals: pd.DataFrame, runs: dict[Path, RunRecord]) -> Evaluations:
     absent: list[str] = []
     info: dict[str, tuple[Path | None, int, str]] = {}
     for policy, part in ckpts.groupby("policy", sort=False):
-        where = (f"{len(part)} episodes on {', '.join(dict.fromkeys(part['level']))} "
-                 f"in {', '.join(dict.fromkeys(part['file']))}")
+        where = (
+            f"{len(part)} episodes on {', '.join(dict.fromkeys(part['level']))} "
+            f"in {', '.join(dict.fromkeys(part['file']))}"
+        )
         path = Path(policy)
         run_dir = path.parent.resolve()
         if run_dir not in runs:
@@ -361,8 +398,9 @@ def attach(evals: pd.DataFrame, runs: dict[Path, RunRecord]) -> Evaluations:
                 continue
         run = runs[run_dir]
         if not run.config:
-            orphans.append(f"evaluation of {policy}: its run's settings are unknown ({run.problem}); left out "
-                           f"({where})")
+            orphans.append(
+                f"evaluation of {policy}: its run's settings are unknown ({run.problem}); left out ({where})"
+            )
             info[policy] = (None, -1, "")
             continue
         match = MODEL_FILE.match(path.name) or BEST_MODEL_FILE.match(path.name)
@@ -391,5 +429,5 @@ def final_checkpoints(ckpts: pd.DataFrame) -> pd.DataFrame:
     if not len(ckpts):
         return ckpts
     ckpts = ckpts.assign(_model=ckpts["policy"].map(lambda p: bool(MODEL_FILE.match(Path(p).name))))
-    best = (ckpts.sort_values(["ckpt_stage", "_model"], kind="stable").groupby("run", sort=False)["policy"].last())
+    best = ckpts.sort_values(["ckpt_stage", "_model"], kind="stable").groupby("run", sort=False)["policy"].last()
     return ckpts[ckpts["policy"].isin(set(best))].drop(columns="_model")

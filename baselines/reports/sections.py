@@ -17,8 +17,21 @@ import evaaa
 from . import claims as rules
 from .aggregate import STAT_COLUMNS, across_seeds, curves, final_survival, per_run, reference_stats
 from .figures import plot_bars, plot_lines
-from .load import (MODEL_FILE, Evaluations, ReportError, RunRecord, attach, describe_extras, final_checkpoints,
-                   find_run_dirs, labels, level_sorted, load_evaluations, load_run, select_acting)
+from .load import (
+    MODEL_FILE,
+    Evaluations,
+    ReportError,
+    RunRecord,
+    attach,
+    describe_extras,
+    final_checkpoints,
+    find_run_dirs,
+    labels,
+    level_sorted,
+    load_evaluations,
+    load_run,
+    select_acting,
+)
 from .tables import pivot_table
 
 
@@ -95,10 +108,13 @@ class Inputs:
         fallback = int((self.final["source"] == "train").sum()) if self.survival == "eval" else 0
         modes = {bool((r.config.get("eval") or {}).get("sample", False)) for r in self.usable}
         how = {frozenset({False}): "deterministic episodes", frozenset({True}): "episodes sampled from the policy"}.get(
-            frozenset(modes), "deterministic episodes, or sampled ones where a run set `eval.sample`")
-        note = (f"Survival: the last evaluation of each finished stage (`eval.csv`, {how})"
-                if self.survival == "eval" else f"Survival: the mean of each finished stage's last {self.window} "
-                "training episodes")
+            frozenset(modes), "deterministic episodes, or sampled ones where a run set `eval.sample`"
+        )
+        note = (
+            f"Survival: the last evaluation of each finished stage (`eval.csv`, {how})"
+            if self.survival == "eval"
+            else f"Survival: the mean of each finished stage's last {self.window} training episodes"
+        )
         if fallback:
             note += f"; {fallback} value(s) from the last {self.window} training episodes (stages without evaluation)"
         return note + "."
@@ -138,16 +154,24 @@ class Inputs:
             return str(p)
 
 
-def read_inputs(run_paths: Sequence[str | Path], eval_paths: Sequence[str | Path], *, survival: str = "eval",
-                window: int = 20, bins: int = 20, acting: str | None = None) -> Inputs:
+def read_inputs(
+    run_paths: Sequence[str | Path],
+    eval_paths: Sequence[str | Path],
+    *,
+    survival: str = "eval",
+    window: int = 20,
+    bins: int = 20,
+    acting: str | None = None,
+) -> Inputs:
     """Check the arguments, read the runs and evaluations and tie the evaluated checkpoints to their runs."""
     if survival not in ("eval", "train"):
         raise ReportError(f"survival must be eval or train, not {survival!r}")
     if window < 1 or bins < 1:
         raise ReportError("window and bins must be positive")
     if not run_paths and not eval_paths:
-        raise ReportError("nothing to report: give runs=[...] (run directories) and/or evals=[...] "
-                          "(evaluate.py outputs)")
+        raise ReportError(
+            "nothing to report: give runs=[...] (run directories) and/or evals=[...] (evaluate.py outputs)"
+        )
     runs = {d: load_run(d) for d in find_run_dirs(run_paths)}
     # attach may add the runs of evaluated checkpoints
     read_notes: list[str] = []
@@ -162,49 +186,73 @@ def introduction(doc: Document, inp: Inputs, title: str) -> None:
     """Title, what was read, how to read the cells, how the checkpoints acted."""
     evals = inp.evals
     n_policies = evals.checkpoints["policy"].nunique() + evals.references["policy"].nunique()
-    doc.md += [f"# {title}", "",
-               f"{len(inp.run_list)} run directories; {n_policies} evaluated policies "
-               f"({len(evals.checkpoints) + len(evals.references)} evaluation episodes).", "",
-               "**Statistics.** Survival cells: `IQM [low, high]; mean ± se (n=…)` — the interquartile mean (mean of "
-               "the middle 50 %) of the episodes with its 95 % percentile bootstrap interval (2000 resamples; "
-               "episodes redrawn within each seed, seeds as strata; where a seed gives one number, its last "
-               "evaluation's mean, the seeds' numbers are redrawn), then the mean over seeds of each seed's value ± "
-               "the standard error across seeds (none with one seed). Success cells: `rate [low, high] (n=…)` — the "
-               "share of successful episodes of all seeds pooled, with its 95 % Wilson score interval (not "
-               "degenerate at 0 % or 100 %). n: seeds × episodes per seed (`2 seeds, 37 ep.` when seeds have "
-               "unequal episodes). Reference agents (oracle, random): over episodes; human: participants as the "
-               "units when there are several. Figures: bars and lines show the IQM or rate, whiskers and bands its "
-               "95 % interval. Runs that differ only in their seed are pooled; labels name what else differs.", ""]
+    doc.md += [
+        f"# {title}",
+        "",
+        f"{len(inp.run_list)} run directories; {n_policies} evaluated policies "
+        f"({len(evals.checkpoints) + len(evals.references)} evaluation episodes).",
+        "",
+        "**Statistics.** Survival cells: `IQM [low, high]; mean ± se (n=…)` — the interquartile mean (mean of "
+        "the middle 50 %) of the episodes with its 95 % percentile bootstrap interval (2000 resamples; "
+        "episodes redrawn within each seed, seeds as strata; where a seed gives one number, its last "
+        "evaluation's mean, the seeds' numbers are redrawn), then the mean over seeds of each seed's value ± "
+        "the standard error across seeds (none with one seed). Success cells: `rate [low, high] (n=…)` — the "
+        "share of successful episodes of all seeds pooled, with its 95 % Wilson score interval (not "
+        "degenerate at 0 % or 100 %). n: seeds × episodes per seed (`2 seeds, 37 ep.` when seeds have "
+        "unequal episodes). Reference agents (oracle, random): over episodes; human: participants as the "
+        "units when there are several. Figures: bars and lines show the IQM or rate, whiskers and bands its "
+        "95 % interval. Runs that differ only in their seed are pooled; labels name what else differs.",
+        "",
+    ]
     ways = list(dict.fromkeys(evals.checkpoints["acting"].astype(str))) if len(evals.checkpoints) else []
     if ways:
-        doc.md += ["Checkpoints acted: " + ", ".join(f"`{w}`" if w else "not recorded" for w in ways)
-                   + " (evaluate.py: `mode` the most likely action, `sample` drawn from the policy, `+epsilon=e` a "
-                   "random action with chance e).", ""]
+        doc.md += [
+            "Checkpoints acted: "
+            + ", ".join(f"`{w}`" if w else "not recorded" for w in ways)
+            + " (evaluate.py: `mode` the most likely action, `sample` drawn from the policy, `+epsilon=e` a "
+            "random action with chance e).",
+            "",
+        ]
 
 
 def runs_and_problems(doc: Document, inp: Inputs) -> list[str]:
     """The table of runs and the list of what is missing, partial or doubtful; returns that list."""
     rel = inp.rel
-    doc.md += ["## Runs", "", "| run | algo | modality | reward | training | seed | env steps | status |",
-               "|---|---|---|---|---|---|---|---|"]
+    doc.md += [
+        "## Runs",
+        "",
+        "| run | algo | modality | reward | training | seed | env steps | status |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for r in inp.run_list:
         status = "finished" if r.problem is None else r.problem.split(":")[0]
-        doc.md.append(f"| {rel(r.dir)} | {r.algo} | {r.modality} | {r.reward} | {r.training} | "
-                      f"{'' if r.seed is None else r.seed} | {r.steps:,} / {r.total:,} | {status} |")
+        doc.md.append(
+            f"| {rel(r.dir)} | {r.algo} | {r.modality} | {r.reward} | {r.training} | "
+            f"{'' if r.seed is None else r.seed} | {r.steps:,} / {r.total:,} | {status} |"
+        )
     if inp.evals.absent:
         evaluated = inp.evals.checkpoints["policy"].nunique()
-        doc.md += ["", f"{len(inp.evals.absent)} of the {evaluated} evaluated checkpoints are not on disk here, their "
-                   "runs are (a committed record keeps no model files): their recorded episodes are used."]
+        doc.md += [
+            "",
+            f"{len(inp.evals.absent)} of the {evaluated} evaluated checkpoints are not on disk here, their "
+            "runs are (a committed record keeps no model files): their recorded episodes are used.",
+        ]
     problems = [f"{rel(r.dir)}: {r.problem}" for r in inp.run_list if r.problem] + inp.evals.orphans
     problems += [note for r in inp.run_list for note in r.notes] + inp.read_notes
     groups: dict[tuple, list[RunRecord]] = {}
     for r in inp.usable:
         groups.setdefault((r.algo, r.modality, r.reward, r.extras, r.training, r.seed), []).append(r)
-    problems += [f"{', '.join(rel(r.dir) for r in same)}: same settings and seed; all are counted as seeds"
-                 for same in groups.values() if len(same) > 1]
+    problems += [
+        f"{', '.join(rel(r.dir) for r in same)}: same settings and seed; all are counted as seeds"
+        for same in groups.values()
+        if len(same) > 1
+    ]
     doc.md += ["", "## Missing and partial runs", ""]
-    doc.md += [f"- {p}" for p in problems] if problems else ["None: every run finished and every evaluated "
-                                                             "checkpoint belongs to a run given here."]
+    doc.md += (
+        [f"- {p}" for p in problems]
+        if problems
+        else ["None: every run finished and every evaluated checkpoint belongs to a run given here."]
+    )
     doc.md.append("")
     return problems
 
@@ -213,8 +261,9 @@ def survival_per_level(doc: Document, inp: Inputs) -> None:
     """Fig. 4a, left: the survival each training level ended with, per algorithm (curriculum runs where an
     algorithm has them, else its direct runs)."""
     final = inp.final
-    left_runs = [r for r in inp.usable
-                 if r.curriculum or (r.algo, r.modality, r.reward, r.extras) not in inp.curriculum_algos]
+    left_runs = [
+        r for r in inp.usable if r.curriculum or (r.algo, r.modality, r.reward, r.extras) not in inp.curriculum_algos
+    ]
     table = figure = None
     if len(final):
         lab = labels(left_runs)
@@ -222,38 +271,62 @@ def survival_per_level(doc: Document, inp: Inputs) -> None:
         stats = across_seeds(f, ["label", "level"], "survival")
         doc.tables["survival_per_level"] = stats
         levels = level_sorted(stats["level"])
-        figure = plot_bars(stats, doc.out / "fig4a_survival_per_level.png", levels=levels,
-                           ylabel="survival (decisions)", title="Survival per training level")
+        figure = plot_bars(
+            stats,
+            doc.out / "fig4a_survival_per_level.png",
+            levels=levels,
+            ylabel="survival (decisions)",
+            title="Survival per training level",
+        )
         table = pivot_table(stats, "level", "label", rows=levels)
-    doc.section("Survival per training level (Fig. 4a, left)",
-                inp.source_note + " Curriculum runs where an algorithm has them, else its direct runs.", figure, table,
-                "No finished stage in the runs given.")
+    doc.section(
+        "Survival per training level (Fig. 4a, left)",
+        inp.source_note + " Curriculum runs where an algorithm has them, else its direct runs.",
+        figure,
+        table,
+        "No finished stage in the runs given.",
+    )
 
 
 def curriculum_vs_direct(doc: Document, inp: Inputs) -> None:
     """Fig. 4a, right: per level, curriculum runs' stage of that level beside runs trained on that level alone."""
     usable, final = inp.usable, inp.final
-    both = {k for k in inp.curriculum_algos
-            if any(not r.curriculum and (r.algo, r.modality, r.reward, r.extras) == k for r in usable)}
+    both = {
+        k
+        for k in inp.curriculum_algos
+        if any(not r.curriculum and (r.algo, r.modality, r.reward, r.extras) == k for r in usable)
+    }
     cmp_runs = [r for r in usable if (r.algo, r.modality, r.reward, r.extras) in both]
     table = figure = None
     if cmp_runs and len(final):
-        lab = {d: f"{v} · {'curriculum' if inp.by_dir[d].curriculum else 'direct'}"
-               for d, v in labels(cmp_runs, ("algo", "modality", "reward", "extras")).items()}
+        lab = {
+            d: f"{v} · {'curriculum' if inp.by_dir[d].curriculum else 'direct'}"
+            for d, v in labels(cmp_runs, ("algo", "modality", "reward", "extras")).items()
+        }
         f = final[final["run"].isin(list(lab))].assign(label=lambda d: d["run"].map(lab))
         f = f[f["level"].isin(set(f[f["label"].str.endswith("direct")]["level"]))]  # levels with direct runs
         stats = across_seeds(f, ["label", "level"], "survival").sort_values(
-            "label", key=lambda s: s.str.endswith("direct"), kind="stable")
+            "label", key=lambda s: s.str.endswith("direct"), kind="stable"
+        )
         doc.tables["curriculum_vs_direct"] = stats
         levels = level_sorted(stats["level"])
         if len(stats):
-            figure = plot_bars(stats, doc.out / "fig4a_curriculum_vs_direct.png", levels=levels,
-                               ylabel="survival (decisions)", title="With and without curriculum")
+            figure = plot_bars(
+                stats,
+                doc.out / "fig4a_curriculum_vs_direct.png",
+                levels=levels,
+                ylabel="survival (decisions)",
+                title="With and without curriculum",
+            )
             table = pivot_table(stats, "level", "label", rows=levels)
-    doc.section("With and without curriculum (Fig. 4a, right)",
-                inp.source_note + " Curriculum: the stage of that level after the levels before it; direct: a run "
-                "trained on that level alone.", figure, table,
-                "No algorithm has both curriculum runs (`level=curriculum`) and direct runs (`level=<level>`) here.")
+    doc.section(
+        "With and without curriculum (Fig. 4a, right)",
+        inp.source_note + " Curriculum: the stage of that level after the levels before it; direct: a run "
+        "trained on that level alone.",
+        figure,
+        table,
+        "No algorithm has both curriculum runs (`level=curriculum`) and direct runs (`level=<level>`) here.",
+    )
 
 
 def success_per_testbed(doc: Document, inp: Inputs) -> None:
@@ -262,11 +335,21 @@ def success_per_testbed(doc: Document, inp: Inputs) -> None:
     refs = inp.evals.references
     ref_tests = reference_stats(refs[refs["level"].isin(evaaa.TESTBEDS)], "success")
     table = figure = None
-    note = ("Each run's furthest-trained evaluated checkpoint; its episodes pooled over seeds (Wilson interval); n: "
-            "seeds × episodes for trained agents, episodes (or human participants) for the others.")
+    note = (
+        "Each run's furthest-trained evaluated checkpoint; its episodes pooled over seeds (Wilson interval); n: "
+        "seeds × episodes for trained agents, episodes (or human participants) for the others."
+    )
     if len(inp.best) or len(ref_tests):
-        stats = across_seeds(per_run(inp.best, "success").assign(label=lambda d: d["run"].map(inp.checkpoint_labels)),
-                             ["label", "level"], "success", success=True) if len(inp.best) else ref_tests.iloc[:0]
+        stats = (
+            across_seeds(
+                per_run(inp.best, "success").assign(label=lambda d: d["run"].map(inp.checkpoint_labels)),
+                ["label", "level"],
+                "success",
+                success=True,
+            )
+            if len(inp.best)
+            else ref_tests.iloc[:0]
+        )
         stats = pd.concat([stats.assign(unit="seeds"), ref_tests], ignore_index=True)
         doc.tables["success_per_testbed"] = stats
         testbeds = level_sorted(stats["level"])
@@ -276,13 +359,23 @@ def success_per_testbed(doc: Document, inp: Inputs) -> None:
         paper = _curriculum_labels(inp)
         shown = stats[~stats["label"].isin(agents - paper)] if paper and agents - paper else stats
         if len(shown) < len(stats):
-            note += (f" The figure shows the {len(agents & paper)} curriculum-trained agents with every sense beside "
-                     "the references; the table has every run.")
-        figure = plot_bars(shown, doc.out / "fig4b_success_per_testbed.png", levels=testbeds, scale=100, top=105,
-                           ylabel="success rate (%)", title="Success per testbed")
+            note += (
+                f" The figure shows the {len(agents & paper)} curriculum-trained agents with every sense beside "
+                "the references; the table has every run."
+            )
+        figure = plot_bars(
+            shown,
+            doc.out / "fig4b_success_per_testbed.png",
+            levels=testbeds,
+            scale=100,
+            top=105,
+            ylabel="success rate (%)",
+            title="Success per testbed",
+        )
         table = pivot_table(stats, "level", "label", rows=testbeds, percent=True, row_title="testbed")
-    doc.section("Success per testbed (Fig. 4b, left)", note, figure, table,
-                "No testbed evaluation given (`evals=[...]`).")
+    doc.section(
+        "Success per testbed (Fig. 4b, left)", note, figure, table, "No testbed evaluation given (`evals=[...]`)."
+    )
 
 
 def _curriculum_labels(inp: Inputs) -> set[str]:
@@ -298,31 +391,57 @@ def generalisation(doc: Document, inp: Inputs) -> None:
     table = figure = None
     if len(tests):
         per_ckpt = per_run(tests, "success", ("run", "policy", "ckpt_stage", "ckpt_level", "level"))
-        mean_tb = per_ckpt.groupby(["run", "policy", "ckpt_stage", "ckpt_level"], sort=False).agg(
-            success=("success", "mean"), testbeds=("success", "size"),
-            scores=("scores", lambda s: tuple(x for one in s for x in one))).reset_index()
-        mean_tb = mean_tb.sort_values("policy", key=lambda p: p.map(lambda s: not MODEL_FILE.match(Path(s).name)),
-                                      kind="stable").drop_duplicates(["run", "ckpt_stage"])
-        stats = across_seeds(mean_tb.assign(label=lambda d: d["run"].map(inp.checkpoint_labels)),
-                             ["label", "ckpt_level"], "success", success=True).rename(columns={"ckpt_level": "level"})
+        mean_tb = (
+            per_ckpt.groupby(["run", "policy", "ckpt_stage", "ckpt_level"], sort=False)
+            .agg(
+                success=("success", "mean"),
+                testbeds=("success", "size"),
+                scores=("scores", lambda s: tuple(x for one in s for x in one)),
+            )
+            .reset_index()
+        )
+        mean_tb = mean_tb.sort_values(
+            "policy", key=lambda p: p.map(lambda s: not MODEL_FILE.match(Path(s).name)), kind="stable"
+        ).drop_duplicates(["run", "ckpt_stage"])
+        stats = across_seeds(
+            mean_tb.assign(label=lambda d: d["run"].map(inp.checkpoint_labels)),
+            ["label", "ckpt_level"],
+            "success",
+            success=True,
+        ).rename(columns={"ckpt_level": "level"})
         doc.tables["generalisation"] = stats
         order = level_sorted(stats["level"])
         ref_tb = refs[refs["level"].isin(evaaa.TESTBEDS)]
         ref_mean = reference_stats(ref_tb.assign(level="testbeds"), "success") if len(ref_tb) else None
         paper = _curriculum_labels(inp)
         shown = stats[stats["label"].isin(paper)] if paper and set(stats["label"]) - paper else stats
-        figure = plot_lines(shown, doc.out / "fig4b_generalisation.png", x="level", panel=None, order=order,
-                            ylabel="mean testbed success (%)", xlabel="trained up to level", scale=100, top=105,
-                            band=False, title="Generalisation by training level", hlines=ref_mean)
+        figure = plot_lines(
+            shown,
+            doc.out / "fig4b_generalisation.png",
+            x="level",
+            panel=None,
+            order=order,
+            ylabel="mean testbed success (%)",
+            xlabel="trained up to level",
+            scale=100,
+            top=105,
+            band=False,
+            title="Generalisation by training level",
+            hlines=ref_mean,
+        )
         tb_names = ", ".join(level_sorted(tests["level"]))
         table = pivot_table(stats, "level", "label", rows=order, percent=True, row_title="trained up to")
         table += f"\n\nTestbeds averaged: {tb_names} (each checkpoint over the testbeds it was evaluated on)."
-    doc.section("Generalisation by training level (Fig. 4b, right)",
-                "Success averaged over the testbeds, for checkpoints trained up to each level "
-                "(`model-<stage>-<level>.pt` of curriculum runs; a direct run's checkpoint at its level); dashed: "
-                "reference agents. Where there are curriculum runs with every sense, the figure draws those (the "
-                "paper's view) and the table every run.", figure, table,
-                "No testbed evaluation of a run's checkpoint given.")
+    doc.section(
+        "Generalisation by training level (Fig. 4b, right)",
+        "Success averaged over the testbeds, for checkpoints trained up to each level "
+        "(`model-<stage>-<level>.pt` of curriculum runs; a direct run's checkpoint at its level); dashed: "
+        "reference agents. Where there are curriculum runs with every sense, the figure draws those (the "
+        "paper's view) and the table every run.",
+        figure,
+        table,
+        "No testbed evaluation of a run's checkpoint given.",
+    )
 
 
 def evaluation_survival(doc: Document, inp: Inputs) -> None:
@@ -332,13 +451,25 @@ def evaluation_survival(doc: Document, inp: Inputs) -> None:
     ref_train = inp.reference_training
     if not (len(train_ck) or len(ref_train)):
         return
-    stats = across_seeds(per_run(train_ck, "steps").assign(label=lambda d: d["run"].map(inp.checkpoint_labels)),
-                         ["label", "level"], "steps") if len(train_ck) else ref_train.iloc[:0]
+    stats = (
+        across_seeds(
+            per_run(train_ck, "steps").assign(label=lambda d: d["run"].map(inp.checkpoint_labels)),
+            ["label", "level"],
+            "steps",
+        )
+        if len(train_ck)
+        else ref_train.iloc[:0]
+    )
     stats = pd.concat([stats.assign(unit="seeds"), ref_train], ignore_index=True)
     doc.tables["evaluation_survival"] = stats
-    doc.md += ["## Evaluation on training levels", "", "Survival (decisions) in evaluate.py's episodes (cells as "
-               "described under Statistics); checkpoints as above.", "",
-               pivot_table(stats, "level", "label", rows=level_sorted(stats["level"])), ""]
+    doc.md += [
+        "## Evaluation on training levels",
+        "",
+        "Survival (decisions) in evaluate.py's episodes (cells as described under Statistics); checkpoints as above.",
+        "",
+        pivot_table(stats, "level", "label", rows=level_sorted(stats["level"])),
+        "",
+    ]
 
 
 def training_curves(doc: Document, inp: Inputs) -> None:
@@ -348,8 +479,10 @@ def training_curves(doc: Document, inp: Inputs) -> None:
     table = figure = None
     if len(all_curves):
         lab = labels(inp.usable, ("algo", "modality", "reward", "extras"))
-        by = all_curves.assign(group=lambda d: d["run"].map(lambda x: f"trained on {by_dir[x].training}"),
-                               label=lambda d: d["run"].map(lab))
+        by = all_curves.assign(
+            group=lambda d: d["run"].map(lambda x: f"trained on {by_dir[x].training}"),
+            label=lambda d: d["run"].map(lab),
+        )
         stats = across_seeds(by, ["group", "label", "bin", "steps"], "survival")
         doc.tables["training_curves"] = stats
         trained_on = {by_dir[d].training for d in by["run"]}
@@ -357,17 +490,31 @@ def training_curves(doc: Document, inp: Inputs) -> None:
         if len(trained_on) == 1 and len(ref_train):
             hl = ref_train[ref_train["level"] == next(iter(trained_on))]
             hl = hl.assign(label=hl["label"] + " (evaluation)") if len(hl) else None
-        figure = plot_lines(stats, doc.out / "fig_training_curves.png", x="steps", panel="group", band=True,
-                            ylabel="survival (decisions)", xlabel="env steps", title="Training curves",
-                            hlines=hl)
+        figure = plot_lines(
+            stats,
+            doc.out / "fig_training_curves.png",
+            x="steps",
+            panel="group",
+            band=True,
+            ylabel="survival (decisions)",
+            xlabel="env steps",
+            title="Training curves",
+            hlines=hl,
+        )
         ends = stats.sort_values("bin").groupby(["group", "label"], sort=False).tail(1)
         table = pivot_table(ends.rename(columns={"group": "level"}), "level", "label", row_title="training")
-        table += (f"\n\nCurves: survival of the training episodes (exploring policy) in {inp.bins} bins of env "
-                  "steps, IQM of the bin's episodes with its 95 % bootstrap interval (band); table: the last bin. "
-                  "Dashed/dotted: reference agents' IQM survival in evaluate.py's episodes on that level, when given.")
-    doc.section("Training curves",
-                "One panel per training set-up, one line per algorithm and settings.", figure, table,
-                "No finished training episode in the runs given.")
+        table += (
+            f"\n\nCurves: survival of the training episodes (exploring policy) in {inp.bins} bins of env "
+            "steps, IQM of the bin's episodes with its 95 % bootstrap interval (band); table: the last bin. "
+            "Dashed/dotted: reference agents' IQM survival in evaluate.py's episodes on that level, when given."
+        )
+    doc.section(
+        "Training curves",
+        "One panel per training set-up, one line per algorithm and settings.",
+        figure,
+        table,
+        "No finished training episode in the runs given.",
+    )
 
 
 def ablation_curves(doc: Document, inp: Inputs) -> None:
@@ -378,27 +525,52 @@ def ablation_curves(doc: Document, inp: Inputs) -> None:
     table = figure = None
     if len(curve_rows):
         # one bin grid per group: a group's runs share a budget (steps per stage is part of the group)
-        by = curve_rows.assign(group=lambda d: d["run"].map(ab_lab), label=lambda d: d["run"].map(
-            lambda x: by_dir[x].modality))
+        by = curve_rows.assign(
+            group=lambda d: d["run"].map(ab_lab), label=lambda d: d["run"].map(lambda x: by_dir[x].modality)
+        )
         stats = across_seeds(by, ["group", "label", "bin", "steps"], "survival")
         doc.tables["ablation_curves"] = stats
-        figure = plot_lines(_ablations(stats), doc.out / "fig25_ablation_curves.png", x="steps", panel="group",
-                            band=True, ylabel="survival (decisions)", xlabel="env steps",
-                            title="Training curves per modality")
+        figure = plot_lines(
+            _ablations(stats),
+            doc.out / "fig25_ablation_curves.png",
+            x="steps",
+            panel="group",
+            band=True,
+            ylabel="survival (decisions)",
+            xlabel="env steps",
+            title="Training curves per modality",
+        )
         final = inp.final
-        last = final[final["last"]].assign(group=lambda d: d["run"].map(ab_lab),
-                                           label=lambda d: d["run"].map(lambda x: by_dir[x].modality))
+        last = final[final["last"]].assign(
+            group=lambda d: d["run"].map(ab_lab), label=lambda d: d["run"].map(lambda x: by_dir[x].modality)
+        )
         fstats = across_seeds(last, ["group", "label"], "survival")
         doc.tables["ablation_final_survival"] = fstats
-        table = pivot_table(fstats, "label", "group", row_title="modality",
-                            rows=sorted(dict.fromkeys(fstats["label"]), key=_modality_key)) if len(fstats) else ""
-        table += (f"\n\nCurves: survival of training episodes in {inp.bins} bins of env steps, IQM with its 95 % "
-                  "bootstrap interval (band). Table: survival at the end of each run (" +
-                  ("last evaluation" if inp.survival == "eval" else f"last {inp.window} training episodes") + ").")
-    doc.section("Modality ablations: training curves (Fig. 25)",
-                "One panel per algorithm (and training set-up) trained with several modality sets, one line per "
-                "modality set; the table has every run.", figure, table,
-                "No finished training episode in the runs given.")
+        table = (
+            pivot_table(
+                fstats,
+                "label",
+                "group",
+                row_title="modality",
+                rows=sorted(dict.fromkeys(fstats["label"]), key=_modality_key),
+            )
+            if len(fstats)
+            else ""
+        )
+        table += (
+            f"\n\nCurves: survival of training episodes in {inp.bins} bins of env steps, IQM with its 95 % "
+            "bootstrap interval (band). Table: survival at the end of each run ("
+            + ("last evaluation" if inp.survival == "eval" else f"last {inp.window} training episodes")
+            + ")."
+        )
+    doc.section(
+        "Modality ablations: training curves (Fig. 25)",
+        "One panel per algorithm (and training set-up) trained with several modality sets, one line per "
+        "modality set; the table has every run.",
+        figure,
+        table,
+        "No finished training episode in the runs given.",
+    )
 
 
 def ablation_success(doc: Document, inp: Inputs) -> None:
@@ -406,23 +578,45 @@ def ablation_success(doc: Document, inp: Inputs) -> None:
     table = figure = None
     if len(inp.best):
         ab_ck = labels(inp.checkpoint_runs, ("algo", "reward", "extras", "training"))
-        stats = across_seeds(per_run(inp.best, "success").assign(
-            group=lambda d: d["run"].map(ab_ck), label=lambda d: d["run"].map(lambda x: inp.runs[x].modality)),
-            ["group", "label", "level"], "success", success=True)
+        stats = across_seeds(
+            per_run(inp.best, "success").assign(
+                group=lambda d: d["run"].map(ab_ck), label=lambda d: d["run"].map(lambda x: inp.runs[x].modality)
+            ),
+            ["group", "label", "level"],
+            "success",
+            success=True,
+        )
         order = {g: i for i, g in enumerate(dict.fromkeys(stats["group"]))}
         stats = stats.sort_values("label", key=lambda s: s.map(_modality_key), kind="stable").sort_values(
-            "group", key=lambda s: s.map(order), kind="stable")
+            "group", key=lambda s: s.map(order), kind="stable"
+        )
         doc.tables["ablation_success"] = stats
-        figure = plot_bars(_ablations(stats), doc.out / "fig26_ablation_success.png", panel="group", scale=100,
-                           top=105, ylabel="success rate (%)", title="Testbed success per modality")
-        stats = stats.assign(column=stats["group"] + " · " + stats["label"]) if stats["group"].nunique() > 1 \
+        figure = plot_bars(
+            _ablations(stats),
+            doc.out / "fig26_ablation_success.png",
+            panel="group",
+            scale=100,
+            top=105,
+            ylabel="success rate (%)",
+            title="Testbed success per modality",
+        )
+        stats = (
+            stats.assign(column=stats["group"] + " · " + stats["label"])
+            if stats["group"].nunique() > 1
             else stats.assign(column=stats["label"])
-        table = pivot_table(stats, "level", "column", rows=level_sorted(stats["level"]), percent=True,
-                            row_title="testbed")
-    doc.section("Modality ablations: testbed success (Fig. 26)",
-                "Each run's furthest-trained evaluated checkpoint, evaluated with the observation keys it was trained "
-                "on; the figure has a panel per algorithm (and training set-up) trained with several modality sets, "
-                "the table every run.", figure, table, "No testbed evaluation of a run's checkpoint given.")
+        )
+        table = pivot_table(
+            stats, "level", "column", rows=level_sorted(stats["level"]), percent=True, row_title="testbed"
+        )
+    doc.section(
+        "Modality ablations: testbed success (Fig. 26)",
+        "Each run's furthest-trained evaluated checkpoint, evaluated with the observation keys it was trained "
+        "on; the figure has a panel per algorithm (and training set-up) trained with several modality sets, "
+        "the table every run.",
+        figure,
+        table,
+        "No testbed evaluation of a run's checkpoint given.",
+    )
 
 
 def _ablations(stats: pd.DataFrame) -> pd.DataFrame:
@@ -454,8 +648,10 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
     final = inp.final
     full = final[final["run"].map(lambda d: runs[d].modality == "all")] if len(final) else final
     if len(full):
-        full = full.assign(algo=full["run"].map(lambda d: runs[d].algo),
-                           setup=full["run"].map(lambda d: "curriculum" if runs[d].curriculum else "direct"))
+        full = full.assign(
+            algo=full["run"].map(lambda d: runs[d].algo),
+            setup=full["run"].map(lambda d: "curriculum" if runs[d].curriculum else "direct"),
+        )
         by_setup = across_seeds(full, ["algo", "setup", "level"], "survival")
     else:
         by_setup = empty
@@ -472,42 +668,82 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
     best = best[best["run"].map(lambda d: inp.runs[d].modality == "all")] if len(best) else best
     if len(best):
         best = best[best["run"].map(lambda d: inp.runs[d].curriculum or inp.runs[d].algo not in with_cur)]
-    success = across_seeds(per_run(best, "success").assign(agent=lambda d: d["run"].map(agent)),
-                           ["agent", "level"], "success", success=True) if len(best) else \
-        pd.DataFrame(columns=["agent", "level", *STAT_COLUMNS])
+    success = (
+        across_seeds(
+            per_run(best, "success").assign(agent=lambda d: d["run"].map(agent)),
+            ["agent", "level"],
+            "success",
+            success=True,
+        )
+        if len(best)
+        else pd.DataFrame(columns=["agent", "level", *STAT_COLUMNS])
+    )
     refs = inp.evals.references
-    ref_tests = reference_stats(refs[refs["level"].isin(evaaa.TESTBEDS)], "success").rename(
-        columns={"label": "agent"}) if len(refs) else pd.DataFrame(columns=["agent", "level", *STAT_COLUMNS])
+    ref_tests = (
+        reference_stats(refs[refs["level"].isin(evaaa.TESTBEDS)], "success").rename(columns={"label": "agent"})
+        if len(refs)
+        else pd.DataFrame(columns=["agent", "level", *STAT_COLUMNS])
+    )
 
     tests = inp.testbed_episodes
-    tests = tests[tests["run"].map(lambda d: inp.runs[d].curriculum and inp.runs[d].modality == "all")
-                  & tests["policy"].map(lambda p: bool(MODEL_FILE.match(Path(p).name)))] if len(tests) else tests
-    gen = across_seeds(_pooled_success(tests, ["run", "ckpt_level"]).assign(
-        agent=lambda d: d["run"].map(lambda x: inp.runs[x].algo)), ["agent", "ckpt_level"], "success",
-        success=True).rename(columns={"ckpt_level": "level"}) if len(tests) else \
-        pd.DataFrame(columns=["agent", "level", *STAT_COLUMNS])
+    tests = (
+        tests[
+            tests["run"].map(lambda d: inp.runs[d].curriculum and inp.runs[d].modality == "all")
+            & tests["policy"].map(lambda p: bool(MODEL_FILE.match(Path(p).name)))
+        ]
+        if len(tests)
+        else tests
+    )
+    gen = (
+        across_seeds(
+            _pooled_success(tests, ["run", "ckpt_level"]).assign(
+                agent=lambda d: d["run"].map(lambda x: inp.runs[x].algo)
+            ),
+            ["agent", "ckpt_level"],
+            "success",
+            success=True,
+        ).rename(columns={"ckpt_level": "level"})
+        if len(tests)
+        else pd.DataFrame(columns=["agent", "level", *STAT_COLUMNS])
+    )
 
-    verdicts = [rules.survival_falls(survival, order),
-                rules.curriculum_beats_direct(by_setup, order),
-                rules.algorithm_ordering(survival, random, order),
-                rules.testbeds_below_ceiling(success, ref_tests, gen, order)]
+    verdicts = [
+        rules.survival_falls(survival, order),
+        rules.curriculum_beats_direct(by_setup, order),
+        rules.algorithm_ordering(survival, random, order),
+        rules.testbeds_below_ceiling(success, ref_tests, gen, order),
+    ]
     # ablations: runs of one algorithm and training set-up (a level, or the curriculum) with several modality sets
     groups: dict[tuple, list[RunRecord]] = {}
     for r in inp.usable:
         groups.setdefault((r.algo, r.training), []).append(r)
     groups = {k: v for k, v in groups.items() if len({r.modality for r in v}) > 1}
     if not groups:
-        verdicts.append(rules.missing(rules.ablations(pd.DataFrame(), pd.DataFrame()).claim,
-                                      "no runs of one algorithm and level with several modality sets"))
+        verdicts.append(
+            rules.missing(
+                rules.ablations(pd.DataFrame(), pd.DataFrame()).claim,
+                "no runs of one algorithm and level with several modality sets",
+            )
+        )
     for (algo, level), members in groups.items():
         dirs = {r.dir: r.modality for r in members}
         last = final[final["run"].isin(list(dirs)) & final["last"]] if len(final) else final
-        surv = across_seeds(last.assign(modality=last["run"].map(dirs)), ["modality"], "survival") if len(last) \
+        surv = (
+            across_seeds(last.assign(modality=last["run"].map(dirs)), ["modality"], "survival")
+            if len(last)
             else pd.DataFrame(columns=["modality", *STAT_COLUMNS])
+        )
         ab_best = inp.best[inp.best["run"].isin(list(dirs))] if len(inp.best) else inp.best
-        succ = across_seeds(_pooled_success(ab_best, ["run"]).assign(modality=lambda d: d["run"].map(dirs)),
-                            ["modality"], "success", success=True) if len(ab_best) else \
-            pd.DataFrame(columns=["modality", *STAT_COLUMNS])
+        succ = (
+            across_seeds(
+                _pooled_success(ab_best, ["run"]).assign(modality=lambda d: d["run"].map(dirs)),
+                ["modality"],
+                "success",
+                success=True,
+            )
+            if len(ab_best)
+            else pd.DataFrame(columns=["modality", *STAT_COLUMNS])
+        )
         v = rules.ablations(surv, succ)
         v.claim += f" ({algo}, trained on {level})"
         verdicts.append(v)
@@ -518,27 +754,50 @@ def claims(doc: Document, inp: Inputs) -> None:
     """The paper's claims (a)–(e), one by one: reproduced, contradicted or not resolvable at this scale, with the
     rule and the numbers (:mod:`.claims`)."""
     acting = list(dict.fromkeys(inp.evals.checkpoints["acting"].astype(str))) if len(inp.evals.checkpoints) else []
-    doc.md += ["## The paper's claims", "",
-               "Each claim of the EVAAA paper judged against the numbers above by a fixed rule: two cells differ only "
-               "where their 95 % intervals do not overlap, and overlapping intervals never decide a claim (not "
-               "resolvable at this scale). A claim of several parts is reproduced when every part is, contradicted "
-               "when some part is and none is reproduced. Survival per level: "
-               + inp.source_note[len("Survival: "):].rstrip(".") + " (runs with every sense; curriculum runs where an "
-               "algorithm has them). Testbed success: each run's furthest-trained evaluated checkpoint"
-               + (f", acting {', '.join(f'`{a}`' for a in acting)}" if acting else "") + ".", ""]
+    doc.md += [
+        "## The paper's claims",
+        "",
+        "Each claim of the EVAAA paper judged against the numbers above by a fixed rule: two cells differ only "
+        "where their 95 % intervals do not overlap, and overlapping intervals never decide a claim (not "
+        "resolvable at this scale). A claim of several parts is reproduced when every part is, contradicted "
+        "when some part is and none is reproduced. Survival per level: "
+        + inp.source_note[len("Survival: ") :].rstrip(".")
+        + " (runs with every sense; curriculum runs where an "
+        "algorithm has them). Testbed success: each run's furthest-trained evaluated checkpoint"
+        + (f", acting {', '.join(f'`{a}`' for a in acting)}" if acting else "")
+        + ".",
+        "",
+    ]
     doc.md += rules.markdown(claim_verdicts(inp))
     doc.md.append("")
 
 
 #: The sections after the runs, in the order the report shows them.
-SECTIONS = (survival_per_level, curriculum_vs_direct, success_per_testbed, generalisation, evaluation_survival,
-            training_curves, ablation_curves, ablation_success, claims)
+SECTIONS = (
+    survival_per_level,
+    curriculum_vs_direct,
+    success_per_testbed,
+    generalisation,
+    evaluation_survival,
+    training_curves,
+    ablation_curves,
+    ablation_success,
+    claims,
+)
 
 
 # ------------------------------------------------------------------------------------------------ the report
-def build_report(run_paths: Sequence[str | Path], eval_paths: Sequence[str | Path], out: str | Path, *,
-                 survival: str = "eval", window: int = 20, bins: int = 20, title: str = "evaaa report",
-                 acting: str | None = None) -> Report:
+def build_report(
+    run_paths: Sequence[str | Path],
+    eval_paths: Sequence[str | Path],
+    out: str | Path,
+    *,
+    survival: str = "eval",
+    window: int = 20,
+    bins: int = 20,
+    title: str = "evaaa report",
+    acting: str | None = None,
+) -> Report:
     """Read runs and evaluations, write ``out/report.md``, its PNG figures and ``out/data/*.csv`` (the tables'
     numbers); returns what was written.  ``acting``: which of the checkpoints' evaluation modes to report
     (:func:`.load.select_acting`)."""

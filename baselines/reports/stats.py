@@ -53,8 +53,14 @@ class Estimate:
         return f"{self.value:.4g} [{self.low:.4g}, {self.high:.4g}]"
 
 
-def interval(samples: Sequence[Sequence[float]], statistic: str = "iqm", *, confidence: float = 0.95,
-             resamples: int = 2000, seed: int = 0) -> Estimate:
+def interval(
+    samples: Sequence[Sequence[float]],
+    statistic: str = "iqm",
+    *,
+    confidence: float = 0.95,
+    resamples: int = 2000,
+    seed: int = 0,
+) -> Estimate:
     """``statistic`` (``"iqm"`` or ``"mean"``) of all values of ``samples`` pooled, with a percentile bootstrap
     interval stratified by sample: ``samples`` holds one sequence per seed (its episodes' scores), and every
     bootstrap replicate redraws each seed's episodes from that seed alone.  Seeded, so a report is reproducible."""
@@ -72,8 +78,9 @@ def interval(samples: Sequence[Sequence[float]], statistic: str = "iqm", *, conf
     fn = STATISTICS[statistic]
     value = float(fn(pooled))
     if pooled.size < 2 or np.ptp(pooled) == 0:  # nothing to resample: every replicate is the point itself
-        return Estimate(value, value if pooled.size > 1 else math.nan, value if pooled.size > 1 else math.nan,
-                        int(pooled.size))
+        return Estimate(
+            value, value if pooled.size > 1 else math.nan, value if pooled.size > 1 else math.nan, int(pooled.size)
+        )
 
     # a seed with one episode has nothing to redraw: its score is in every replicate as it is (scipy's bootstrap
     # refuses samples of one value)
@@ -87,8 +94,16 @@ def interval(samples: Sequence[Sequence[float]], statistic: str = "iqm", *, conf
             parts = (*parts, np.broadcast_to(fixed, (*parts[0].shape[:-1], fixed.size)))
         return fn(np.concatenate(parts, axis=axis), axis=axis)
 
-    result = sps.bootstrap(tuple(varied), pooled_statistic, n_resamples=resamples, confidence_level=confidence,
-                           method="percentile", paired=False, vectorized=True, rng=np.random.default_rng(seed))
+    result = sps.bootstrap(
+        tuple(varied),
+        pooled_statistic,
+        n_resamples=resamples,
+        confidence_level=confidence,
+        method="percentile",
+        paired=False,
+        vectorized=True,
+        rng=np.random.default_rng(seed),
+    )
     ci = result.confidence_interval
     return Estimate(value, float(ci.low), float(ci.high), int(pooled.size))
 

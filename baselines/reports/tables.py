@@ -14,6 +14,7 @@ import pandas as pd
 from .aggregate import estimate, mean_se
 from .load import LEVEL_ORDER, display_names
 
+
 def sample_size(n: int, episodes: int, unit: str = "seeds") -> str:
     """``2 seeds × 20 ep.`` (or ``2 seeds, 37 ep.`` when the seeds have unequal numbers of episodes); reference
     agents: ``20 ep.``, or ``3 participants, 30 ep.``."""
@@ -37,8 +38,16 @@ def cell(row: Mapping[str, Any], percent: bool = False) -> str:
     return f"{text} (n={sample_size(int(row['n']), int(row['episodes']), row.get('unit', 'seeds'))})"
 
 
-def pivot_table(stats: pd.DataFrame, row: str, col: str, *, percent: bool = False, row_title: str = "level",
-                rows: Sequence[str] | None = None, cols: Sequence[str] | None = None) -> str:
+def pivot_table(
+    stats: pd.DataFrame,
+    row: str,
+    col: str,
+    *,
+    percent: bool = False,
+    row_title: str = "level",
+    rows: Sequence[str] | None = None,
+    cols: Sequence[str] | None = None,
+) -> str:
     """A Markdown table of ``stats`` (:data:`STAT_COLUMNS`) with one row per ``row`` value and one column per
     ``col`` value (cells: :func:`cell`)."""
     rows = list(rows if rows is not None else dict.fromkeys(stats[row]))
@@ -55,11 +64,13 @@ def pivot_table(stats: pd.DataFrame, row: str, col: str, *, percent: bool = Fals
 
 # ------------------------------------------------------------------------------------------------ evaluate.py
 #: What evaluate.py's summary table shows, for the text above it.
-SUMMARY_NOTE = ("Testbeds: success rate `rate [low, high]`, the share of successful episodes with its 95 % Wilson "
-                "score interval. Training levels: survival (decisions) `IQM [low, high]; mean ± se`, the "
-                "interquartile mean of the episodes with its 95 % percentile bootstrap interval (2000 resamples, "
-                "episodes redrawn within each seed; human play: within each participant), then the mean ± standard "
-                "error over episodes. n: episodes (and participants or seeds where there are several).")
+SUMMARY_NOTE = (
+    "Testbeds: success rate `rate [low, high]`, the share of successful episodes with its 95 % Wilson "
+    "score interval. Training levels: survival (decisions) `IQM [low, high]; mean ± se`, the "
+    "interquartile mean of the episodes with its 95 % percentile bootstrap interval (2000 resamples, "
+    "episodes redrawn within each seed; human play: within each participant), then the mean ± standard "
+    "error over episodes. n: episodes (and participants or seeds where there are several)."
+)
 
 
 def summarize(rows: pd.DataFrame) -> pd.DataFrame:
@@ -72,23 +83,50 @@ def summarize(rows: pd.DataFrame) -> pd.DataFrame:
     rows = rows.assign(policy=display_names(rows))
     out = []
     for (level, policy), part in rows.groupby(["level", "policy"], sort=False):
-        unit = "participants" if "participant" in part and part["participant"].astype(str).str.len().gt(0).all() \
-            and part["participant"].nunique() > 1 else "seeds"
+        unit = (
+            "participants"
+            if "participant" in part
+            and part["participant"].astype(str).str.len().gt(0).all()
+            and part["participant"].nunique() > 1
+            else "seeds"
+        )
         key = "participant" if unit == "participants" else ("seed" if "seed" in part else None)
         strata = [g for _, g in part.groupby(key, sort=False)] if key else [part]
         steps = [tuple(g["steps"].astype(float)) for g in strata]
         surv = estimate(steps)
         mean, se, _ = mean_se(part["steps"].astype(float))
         judged = part["success"].notna()
-        success = estimate([tuple(g.loc[judged.loc[g.index], "success"].astype(float)) for g in strata],
-                           success=True) if judged.any() else {"value": np.nan, "low": np.nan, "high": np.nan}
-        out.append({"level": level, "policy": policy, "episodes": len(part), "units": len(strata), "unit": unit,
-                    "success_rate": success["value"], "success_low": success["low"], "success_high": success["high"],
-                    "survival_iqm": surv["value"], "survival_low": surv["low"], "survival_high": surv["high"],
-                    "survival_mean": mean, "survival_se": se, "collisions": float(part["collisions"].mean())})
+        success = (
+            estimate([tuple(g.loc[judged.loc[g.index], "success"].astype(float)) for g in strata], success=True)
+            if judged.any()
+            else {"value": np.nan, "low": np.nan, "high": np.nan}
+        )
+        out.append(
+            {
+                "level": level,
+                "policy": policy,
+                "episodes": len(part),
+                "units": len(strata),
+                "unit": unit,
+                "success_rate": success["value"],
+                "success_low": success["low"],
+                "success_high": success["high"],
+                "survival_iqm": surv["value"],
+                "survival_low": surv["low"],
+                "survival_high": surv["high"],
+                "survival_mean": mean,
+                "survival_se": se,
+                "collisions": float(part["collisions"].mean()),
+            }
+        )
     table = pd.DataFrame(out)
-    return table.sort_values(by="level", key=lambda c: c.map(lambda n: LEVEL_ORDER.get(n, len(LEVEL_ORDER))),
-                             kind="stable") if len(table) else table
+    return (
+        table.sort_values(
+            by="level", key=lambda c: c.map(lambda n: LEVEL_ORDER.get(n, len(LEVEL_ORDER))), kind="stable"
+        )
+        if len(table)
+        else table
+    )
 
 
 def markdown_table(summary: pd.DataFrame) -> str:
@@ -104,14 +142,27 @@ def markdown_table(summary: pd.DataFrame) -> str:
                 cells.append("–")
                 continue
             r = hit.iloc[0]
-            n = f"{r['episodes']} ep." if r["units"] < 2 else sample_size(int(r["units"]), int(r["episodes"]),
-                                                                          r["unit"])
+            n = (
+                f"{r['episodes']} ep."
+                if r["units"] < 2
+                else sample_size(int(r["units"]), int(r["episodes"]), r["unit"])
+            )
             judged = not np.isnan(r["success_rate"])
-            cells.append(cell({"value": r["success_rate"] if judged else r["survival_iqm"],
-                               "low": r["success_low"] if judged else r["survival_low"],
-                               "high": r["success_high"] if judged else r["survival_high"],
-                               "statistic": "rate" if judged else "iqm", "mean": r["survival_mean"],
-                               "se": r["survival_se"], "n": r["episodes"], "episodes": r["episodes"]},
-                              percent=judged).rsplit(" (n=", 1)[0] + f" (n={n})")
+            cells.append(
+                cell(
+                    {
+                        "value": r["success_rate"] if judged else r["survival_iqm"],
+                        "low": r["success_low"] if judged else r["survival_low"],
+                        "high": r["success_high"] if judged else r["survival_high"],
+                        "statistic": "rate" if judged else "iqm",
+                        "mean": r["survival_mean"],
+                        "se": r["survival_se"],
+                        "n": r["episodes"],
+                        "episodes": r["episodes"],
+                    },
+                    percent=judged,
+                ).rsplit(" (n=", 1)[0]
+                + f" (n={n})"
+            )
         lines.append(f"| {level} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
