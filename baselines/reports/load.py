@@ -27,7 +27,7 @@ from evaaa.records import TRAINING_OLD_NAMES
 
 from ..config import stages as config_stages
 
-REFERENCES = ("oracle", "random", "human")
+REFERENCES = ("oracle", "random", "still", "human")
 MODEL_FILE = re.compile(r"^model-(\d+)-(.+)\.pt$")
 #: the network of a stage's best evaluation (runtime.Run.best_model_path)
 BEST_MODEL_FILE = re.compile(r"^model-best-(\d+)-(.+)\.pt$")
@@ -36,7 +36,14 @@ BEST_MODEL_FILE = re.compile(r"^model-best-(\d+)-(.+)\.pt$")
 BOOKKEEPING = ("seed", "resume", "start_over", "threads", "progress", "progress_window", "log_every", "total_steps",
                "max_minutes", "deterministic", "stages", "run.", "logger.", "checkpoint.", "eval.", "level.", "hydra.")
 RUN_COLUMNS = ("env_steps", "stage", "level", "steps")
-EVAL_RUN_COLUMNS = ("env_steps", "stage", "level", "survival_mean")
+#: eval.csv: one row per episode (``steps``), or, in files written before, one row per evaluation (its mean)
+EVAL_RUN_COLUMNS = ("env_steps", "stage", "level", "steps")
+EVAL_RUN_MEAN_COLUMNS = ("env_steps", "stage", "level", "survival_mean")
+#: worlds of evaluate.py episodes written before the ``worlds`` column: ``make_env(seed=s)``'s, the worlds a seed-s
+#: training run starts on
+OLD_WORLDS = "seed-{} worlds, not held out"
+#: worlds of in-training evaluations written before the ``worlds`` column (the run's seed + ``eval.seed_offset``)
+OLD_EVAL_WORLDS = "in-training evaluation worlds (run seed + {:,}), not held out"
 EVAL_FILE_COLUMNS = ("policy", "level", "steps", "success", "episode")
 LEVEL_ORDER = {name: i for i, name in enumerate((*evaaa.LEVELS, *evaaa.TESTBEDS))}
 
@@ -71,6 +78,9 @@ class RunRecord:
     problem: str | None = None  # why the run is missing or partial (None: finished)
     usable: bool = True  # False: nothing of it can be reported (no config or no episodes file)
     extras: tuple = ()  # other settings that tell this run's group apart (filled by describe_extras)
+    eval_means_only: bool = False  # eval.csv of the format before per-episode rows: one mean per evaluation
+    eval_acting: str = ""  # how its in-training evaluations acted, where eval.csv does not say
+    eval_worlds: str = ""  # on which worlds, where eval.csv does not say
     notes: list[str] = field(default_factory=list)  # what was skipped while reading its files
 
     @property
@@ -142,7 +152,15 @@ def load_run(run_dir: str | Path) -> RunRecord:
         run.problem, run.usable = f"unreadable .hydra/config.yaml ({err}); left out", False
         return run
     run.episodes = _read_run_csv(run.dir / "episodes.csv", RUN_COLUMNS, run.notes)
-    run.evals = _read_run_csv(run.dir / "eval.csv", EVAL_RUN_COLUMNS, run.notes)
+    run.evals = _read_run_csv(run.dir / "eval.csv", EVAL_RUN_COLUMNS, run.notes, EVAL_RUN_MEAN_COLUMNS)
+    if run.evals is not None:
+        run.eval_means_only = "steps" not in run.evals.columns
+        ev = run.config.get("eval") or {}
+        # DQN has no action distribution: its in-training evaluations took the greedy action whatever eval.sample
+        run.eval_acting = "sample" if ev.get("sample") and run.algo != "dqn" else "mode"
+        run.eval_worlds = OLD_EVAL_WORLDS.format(int(ev.get("seed_offset", 0)))
+        for column, default in (("acting", run.eval_acting), ("worlds", run.eval_worlds)):
+            run.evals[column] = run.evals[column].fillna(default) if column in run.evals else default
     for index, level, budget in run.stages:
         later = any(df is not None and (df["stage"] > index).any() for df in (run.episodes, run.evals))
         evaluated_at_end = run.evals is not None and ((run.evals["stage"] == index)
@@ -185,12 +203,16 @@ def csv_text(path: Path, notes: list[str]) -> io.StringIO:
     return io.StringIO(text)
 
 
-def _read_run_csv(path: Path, needed: Sequence[str], notes: list[str]) -> pd.DataFrame | None:
+def _read_run_csv(path: Path, needed: Sequence[str], notes: list[str],
+                  older: Sequence[str] = ()) -> pd.DataFrame | None:
+    """A training CSV with the columns ``needed`` (or, for files of an older format, ``older``)."""
     if not path.is_file():
         return None
     df = pd.read_csv(csv_text(path, notes))
     df = df.rename(columns={k: v for k, v in TRAINING_OLD_NAMES.items() if v not in df.columns})  # older runs
     missing = [c for c in needed if c not in df.columns]
+    if missing and older and all(c in df.columns for c in older):
+        return df
     if missing:
         raise ReportError(f"{path} is not a training {path.name} (no column {', '.join(missing)})")
     return df
@@ -258,6 +280,11 @@ def read_episodes(paths: Sequence[str | Path | io.StringIO]) -> pd.DataFrame:
     # files written before the acting column existed: how their checkpoints acted is not known
     rows["acting"] = rows["acting"].fillna("") if "acting" in rows else ""
     rows["success"] = rows["success"].map({"True": True, "False": False, True: True, False: False, "": np.nan})
+    # files written before the worlds column: evaluate.py built make_env(seed=s)'s worlds, a seed-s run's own
+    old = rows["seed"].fillna("").astype(str).map(lambda s: OLD_WORLDS.format(s or "?")) if "seed" in rows \
+        else OLD_WORLDS.format("?")
+    worlds = rows["worlds"].fillna("").astype(str) if "worlds" in rows else pd.Series("", index=rows.index)
+    rows["worlds"] = worlds.where(worlds != "", old)
     return rows
 
 
@@ -297,25 +324,19 @@ def load_evaluations(paths: Iterable[str | Path], notes: list[str] | None = None
 
 def select_acting(evals: pd.DataFrame, acting: str | None) -> pd.DataFrame:
     """Keep the checkpoints' episodes made acting ``acting`` (evaluate.py's ``acting`` column: ``mode``,
-    ``sample``, ``mode+epsilon=0.05`` ...); reference agents' are always kept.  Without ``acting``, a checkpoint
-    evaluated in more than one way is an error: pooling its greedy and sampled episodes would describe neither."""
-    if not len(evals):
+    ``sample``, ``mode+epsilon=0.05`` ...); reference agents' are always kept.  Without ``acting`` every way is
+    kept: the report labels each checkpoint's cells with how it acted, so that greedy and sampled episodes are never
+    pooled."""
+    if not len(evals) or acting is None:
         return evals
     if acting == "unknown":  # episodes written before evaluate.py recorded how checkpoints acted
         acting = ""
     is_ckpt = ~evals["policy"].isin(REFERENCES) & evals["policy"].map(_is_checkpoint_path)
     modes = evals.loc[is_ckpt, "acting"].astype(str)
-    if acting is not None:
-        if not (modes == acting).any() and is_ckpt.any():
-            raise ReportError(f"acting: no checkpoint was evaluated acting {acting!r}; the evaluations hold "
-                              f"{', '.join(repr(m) for m in dict.fromkeys(modes))}")
-        return evals[~is_ckpt | (evals["acting"].astype(str) == acting)]
-    for policy, part in evals[is_ckpt].groupby("policy", sort=False):
-        ways = list(dict.fromkeys(part["acting"].astype(str)))
-        if len(ways) > 1:
-            raise ReportError(f"evals: {policy} was evaluated in {len(ways)} ways ({', '.join(map(repr, ways))}); "
-                              f"choose one with acting=<{'|'.join(w or 'unknown' for w in ways)}>")
-    return evals
+    if not (modes == acting).any() and is_ckpt.any():
+        raise ReportError(f"acting: no checkpoint was evaluated acting {acting!r}; the evaluations hold "
+                          f"{', '.join(repr(m) for m in dict.fromkeys(modes))}")
+    return evals[~is_ckpt | (evals["acting"].astype(str) == acting)]
 
 
 @dataclass
@@ -364,6 +385,9 @@ def attach(evals: pd.DataFrame, runs: dict[Path, RunRecord]) -> Evaluations:
         if not path.is_file():  # a committed record keeps no model files: not a problem, its episodes count
             absent.append(policy)
         info[policy] = (run_dir, stage, level)
+        if run.algo == "dqn":  # no action distribution: evaluate.py's `sample` took the greedy action all the same
+            relabel = (ckpts["policy"] == policy) & ckpts["acting"].astype(str).str.startswith("sample")
+            ckpts.loc[relabel, "acting"] = "mode" + ckpts.loc[relabel, "acting"].astype(str).str[len("sample"):]
     ckpts["run"] = ckpts["policy"].map(lambda p: info[p][0])
     ckpts["ckpt_stage"] = ckpts["policy"].map(lambda p: info[p][1])
     ckpts["ckpt_level"] = ckpts["policy"].map(lambda p: info[p][2])
