@@ -489,6 +489,8 @@ def learned_table(inp: Inputs) -> pd.DataFrame:
     if not len(table):
         return table
     ref = table[table["label"].isin(LEARNED_REFERENCES)]
+    compared = {lv: " and ".join("stand-still" if p == "still" else p for p in part["label"])
+                for lv, part in ref.groupby("level")}
     better = ref.sort_values("survival").groupby("level").tail(1).set_index("level")
     most_eaten = (ref.assign(eaten=ref["food"] + ref["water"]).groupby("level")["eaten"].max())
     learned, vs = [], []
@@ -502,9 +504,10 @@ def learned_table(inp: Inputs) -> pd.DataFrame:
         vs.append(f"{ratio:.2f}× {b['label']}")
         eats = row.food + row.water > most_eaten.get(row.level, np.inf)
         lives = ratio > 1
-        learned.append("eats more than both references" + (" and survives longer" if lives else "")
-                       if eats else "survives longer, eats no more than the references" if lives
-                       else "neither eats more nor survives longer than the references")
+        than = compared[row.level]
+        learned.append(f"eats more than {than}" + (" and survives longer" if lives else "")
+                       if eats else f"survives longer than {than}, eats no more" if lives
+                       else f"neither eats more nor survives longer than {than}")
     return table.assign(vs_reference=vs, learned=learned)
 
 
@@ -535,12 +538,14 @@ def learned_paragraph(inp: Inputs) -> str:
                                   "no_collision")):
             continue
         eats = part[part["learned"].str.startswith("eats more")]
+        than = " and ".join("stand-still" if r == "still" else r for r in LEARNED_REFERENCES
+                            if r in set(refs["label"]))
         lives = part[part["learned"].str.contains("survives longer")]
         sentences.append(
-            f"{key} ate more food and water per episode than both references on {len(eats)} of {len(part)} levels"
-            + (f" ({', '.join(f'{r.level}: {r.food + r.water:.2f}' for r in eats.itertuples())})" if len(eats)
-               else "") + f" (food per episode {part['food'].min():.2f}–{part['food'].max():.2f}) and survived "
-            f"longer than the better of random and stand-still on {len(lives)} of {len(part)}")
+            f"{key} ate more food and water per episode than {than} on {len(eats)} of {len(part)} levels"
+            + (f" ({', '.join(f'{r.level}: {r.food + r.water:.1f}' for r in eats.itertuples())})" if len(eats)
+               else "") + f" and survived longer than {'the better of ' if ' and ' in than else ''}{than} on "
+            f"{len(lives)} of {len(part)}")
     out.append("; ".join(sentences) + ".")
     if len(refs):
         still = refs[refs["label"] == "still"]

@@ -53,17 +53,18 @@ def cell(row: Mapping[str, Any], percent: bool = False) -> str:
 
 
 def _named(stats: pd.DataFrame, column: str, col: str | None) -> str:
-    """What ``stats`` says in ``column`` (acting, worlds), with the columns it applies to where it differs."""
+    """What ``stats`` says in ``column`` (acting, worlds), with the algorithms (the first part of the ``col``
+    labels) it applies to where it differs."""
     if column not in stats:
         return "not recorded"
     part = stats[stats[column].fillna("").astype(str) != ""]
     ways = list(dict.fromkeys(part[column].astype(str)))
     if not ways:
         return "not recorded"
-    if len(ways) == 1 or col is None:
+    if len(ways) == 1 or col is None or col not in part:
         return " / ".join(f"`{w}`" if column == "acting" else w for w in ways)
-    return "; ".join(f"`{w}` ({', '.join(dict.fromkeys(part.loc[part[column] == w, col].astype(str)))})"
-                     if column == "acting" else f"{w} ({', '.join(dict.fromkeys(part.loc[part[column] == w, col]))})"
+    algo = part[col].astype(str).str.split(" · ").str[0].str.split(" [", regex=False).str[0]
+    return "; ".join((f"`{w}`" if column == "acting" else w) + f" ({', '.join(dict.fromkeys(algo[part[column] == w]))})"
                      for w in ways)
 
 
