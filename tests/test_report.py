@@ -26,8 +26,7 @@ from omegaconf import OmegaConf
 import evaaa
 from evaaa_baselines.config import CONF_DIR, observation_keys, register_levels
 from evaaa_baselines.reports import ReportError, build_report
-from evaaa_baselines.runtime import EVAL_COLUMNS
-from evaaa_baselines.reports.stats import interval
+from evaaa_baselines.reports.stats import binomial_interval, clustered_rate, interval
 from evaaa.records import TRAINING_EPISODE_FIELDS, append_rows
 
 register_levels()
@@ -36,6 +35,9 @@ ROOT = Path(__file__).resolve().parents[1]
 STAGES = ("1-1", "1-2")
 BUDGET = 100  # env steps per stage
 TESTBEDS = ("two-resource-food", "y-maze")
+#: eval.csv as training runs wrote it before evaluations kept one row per episode: one mean per evaluation
+OLD_EVAL_COLUMNS = ("env_steps", "stage", "level", "episodes", "survival_mean", "survival_min", "survival_max",
+                    "return_mean", "end_types", "wall_time")
 FIGURES = ("fig4a_survival_per_level.png", "fig4a_curriculum_vs_direct.png", "fig4b_success_per_testbed.png",
            "fig4b_generalisation.png", "fig_training_curves.png", "fig25_ablation_curves.png", "fig26_ablation_success.png")
 
@@ -103,7 +105,7 @@ class Sim:
             if index < finish:
                 (run_dir / f"model-{index}-{name}.pt").touch()
         write_csv(run_dir / "episodes.csv", TRAINING_EPISODE_FIELDS, episodes)
-        write_csv(run_dir / "eval.csv", EVAL_COLUMNS, evals)
+        write_csv(run_dir / "eval.csv", OLD_EVAL_COLUMNS, evals)
         (run_dir / "checkpoint.pt").touch()
         return run_dir
 
@@ -189,37 +191,50 @@ def wilson(k: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
     return centre - half, centre + half
 
 
-def size(samples, unit: str) -> str:
+def size(samples, unit: str, means_of: int | None = None) -> str:
     n, episodes = len(samples), sum(len(s) for s in samples)
     if unit == "episodes":
         return f"{episodes} ep."
     word = unit if n != 1 else unit[:-1]
+    if means_of:
+        return f"{n} {word} × mean of {means_of} ep."
     return f"{n} {word} × {episodes // n} ep." if episodes % n == 0 else f"{n} {word}, {episodes} ep."
 
 
 def expect(samples, unit: str = "seeds", *, per_seed: int | None = None) -> str:
     """The survival cell for ``samples`` (one list of episode survivals per seed, or per participant; ``unit``
-    ``episodes``: one list, a reference agent's episodes): ``IQM [95 % bootstrap]; mean ± se (n=…)``.
-    ``per_seed``: each seed gave one number (an evaluation's mean) over this many episodes."""
+    ``episodes``: one list, a reference agent's episodes, each its own unit): ``IQM [95 % bootstrap]; mean ± se
+    (n=…)`` from three units on, ``IQM; seeds a, b (n=…)`` under three.  ``per_seed``: each seed gave one number
+    (an evaluation's mean) over this many episodes."""
     samples = [list(map(float, s)) for s in samples]
     pooled = [v for s in samples for v in s]
-    strata = [pooled] if all(len(s) == 1 for s in samples) else samples
-    est = interval(strata, "iqm")
+    units = [[v] for v in pooled] if unit == "episodes" else samples
     text = f"{hand_iqm(pooled):.1f}"
-    if len(pooled) > 1:
-        text += f" [{est.low:.1f}, {est.high:.1f}]"
-    m, se, _ = stats(pooled if unit == "episodes" else [np.mean(s) for s in samples])
-    text += f"; {m:.1f}" + ("" if np.isnan(se) else f" ± {se:.1f}")
-    shown = [[0.0] * per_seed for _ in samples] if per_seed else samples
-    return f"{text} (n={size(shown, unit)})"
+    if len(units) >= 3:
+        est = interval(units, "iqm")
+        m, se, _ = stats([np.mean(s) for s in units])
+        text += f" [{est.low:.1f}, {est.high:.1f}]; {m:.1f} ± {se:.1f}"
+    else:
+        text += f"; {unit} " + ", ".join(f"{np.mean(s):.1f}" for s in units)
+    return f"{text} (n={size(samples, unit, per_seed)})"
 
 
 def expect_rate(samples, unit: str = "seeds") -> str:
     """The success cell for ``samples`` (one list of outcomes per seed or participant; ``unit`` ``episodes``: one
-    list): the pooled share with its Wilson interval, ``rate% [low, high] (n=…)``."""
-    pooled = [float(v) for s in samples for v in s]
-    low, high = wilson(int(sum(pooled)), len(pooled))
-    return f"{100 * np.mean(pooled):.1f}% [{100 * low:.1f}, {100 * high:.1f}] (n={size(samples, unit)})"
+    list): the pooled share with its interval — Wilson's for a reference agent's episodes, seed-clustered Wilson
+    (tested in test_stats.py) from three seeds on, none under three (the seeds' rates instead)."""
+    samples = [list(map(float, s)) for s in samples]
+    pooled = [v for s in samples for v in s]
+    text = f"{100 * np.mean(pooled):.1f}%"
+    if unit == "episodes":
+        low, high = wilson(int(sum(pooled)), len(pooled))
+        text += f" [{100 * low:.1f}, {100 * high:.1f}]"
+    elif len(samples) >= 3:
+        est = clustered_rate(samples)
+        text += f" [{100 * est.low:.1f}, {100 * est.high:.1f}]"
+    else:
+        text += f"; {unit} " + ", ".join(f"{100 * np.mean(s):.1f}%" for s in samples)
+    return f"{text} (n={size(samples, unit)})"
 
 
 def table(text: str, heading: str) -> dict[str, dict[str, str]]:

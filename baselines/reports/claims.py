@@ -293,7 +293,7 @@ def drops(per_seed: pd.DataFrame, order: Sequence[str], alpha: float = 0.05) -> 
             d = (wide[a] - wide[b]).dropna().to_numpy()
             if len(d) < MIN_SEEDS:
                 continue
-            if np.ptp(d) == 0:  # every seed the same difference: no spread to test against
+            if np.allclose(d, d[0]):  # every seed the same difference: no spread to test against
                 p = 0.0 if d[0] > 0 else 1.0
             else:
                 p = float(sps.ttest_1samp(d, 0.0, alternative="greater").pvalue)
