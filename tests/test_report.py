@@ -64,11 +64,12 @@ class Sim:
         self.runs: dict[Path, dict] = {}
 
     def run(self, algo: str, seed: int, *, level: str = "curriculum", modality: str = "all", finish: int = 2,
-            partial_steps: int = 0, files: bool = True, overrides: tuple[str, ...] = ()) -> Path:
+            partial_steps: int = 0, files: bool = True, overrides: tuple[str, ...] = (), budget: int = BUDGET) -> Path:
         """``finish``: stages finished (a curriculum has two, a direct run one); ``partial_steps``: env steps the
-        next, unfinished stage got to; ``files``: False leaves the config alone (a run that never started)."""
+        next, unfinished stage got to; ``files``: False leaves the config alone (a run that never started);
+        ``budget``: a direct run's env steps."""
         extra = ([f"level.stage_steps={BUDGET}", f"level.stages=[{','.join(STAGES)}]"] if level == "curriculum"
-                 else [f"total_steps={BUDGET}"])
+                 else [f"total_steps={budget}"])
         cfg = make_cfg(f"algo={algo}", f"seed={seed}", f"level={level}", f"modality={modality}", "preset=debug",
                        "logger=csv", *extra, *overrides)
         run_dir = self.root / OmegaConf.to_container(cfg, resolve=True)["run"]["name"]
@@ -84,7 +85,7 @@ class Sim:
         for index, name in enumerate(stages):
             if index > finish:
                 break
-            end = BUDGET if index < finish else partial_steps
+            end = (BUDGET if level == "curriculum" else budget) if index < finish else partial_steps
             for step in np.linspace(end / 5, end, 5).astype(int)[:-1 if index == finish else None]:
                 survival = int(self.rng.integers(10, 400))
                 episodes.append({"env_steps": step, "stage": index, "level": name, "episode": len(episodes) + 1,
@@ -276,19 +277,27 @@ def test_survival_per_level_is_the_mean_and_se_across_seeds_of_each_stage_final_
                                                                     level="curriculum") if level in info["final"]]
             assert got[level][label] == expect(values, per_seed=2), (label, level)
     # the run killed in stage 2 counts for the level it finished, not for the one it did not
-    assert "(n=4 seeds × 2 ep.)" in got["1-1"]["dqn · all"] and "(n=3 seeds × 2 ep.)" in got["1-2"]["dqn · all"]
+    assert "(n=4 seeds × mean of 2 ep.)" in got["1-1"]["dqn · all"]
+    assert "(n=3 seeds × mean of 2 ep.)" in got["1-2"]["dqn · all"]
+    section = world["text"][world["text"].index("## Survival per training level"):]
+    assert "means only" in section[:section.index("| level |")]  # eval.csv of the older format: said so
     assert set(got["1-1"]) == {"ppo · all", "dqn · all", "ppo · no_vision"}  # direct ppo runs are in 4a right
 
 
-def test_the_survival_note_says_how_the_in_training_evaluations_acted(world, tmp_path):
-    assert "(`eval.csv`, deterministic episodes)" in world["text"]
+def test_the_tables_say_how_the_in_training_evaluations_acted(world, tmp_path):
+    def title(text: str) -> str:
+        section = text[text.index("## Survival per training level"):]
+        return section[:section.index("| level |")]
+
+    assert "Acting: `mode`" in title(world["text"])  # eval.sample is false by default: the greedy action
     sim = Sim(tmp_path / "runs")
     sim.run("ppo", 0, level="1-1", finish=1, overrides=("eval.sample=true",))
     sampled = build_report([tmp_path / "runs"], [], tmp_path / "out").markdown.read_text()
-    assert "(`eval.csv`, episodes sampled from the policy)" in sampled
-    sim.run("ppo", 1, level="1-1", finish=1)
+    assert "Acting: `sample`" in title(sampled)
+    sim.run("dqn", 0, level="1-1", finish=1, overrides=("eval.sample=true",))
     mixed = build_report([tmp_path / "runs"], [], tmp_path / "out2").markdown.read_text()
-    assert "deterministic episodes, or sampled ones where a run set `eval.sample`" in mixed
+    # DQN has no action distribution: greedy whatever eval.sample says; two modes in one table are said to be so
+    assert "`mode` (dqn); `sample` (ppo)" in title(mixed) and "Not one acting mode" in title(mixed)
 
 
 def test_curriculum_vs_direct_compares_the_same_level(world):
@@ -519,7 +528,7 @@ def test_a_run_ended_by_its_wall_clock_budget_reports_the_steps_it_reached(tmp_p
     assert report.problems == []
 
 
-def test_a_checkpoint_evaluated_in_two_ways_is_reported_one_way_at_a_time(world, tmp_path):
+def test_a_checkpoint_evaluated_in_two_ways_is_reported_both_ways_labelled_never_pooled(world, tmp_path):
     sim = world["sim"]
     run = next(d for d, info in sim.runs.items() if info["level"] == "1-1" and info["seed"] == 0)
     ckpt = str(run / "checkpoint.pt")
@@ -529,10 +538,11 @@ def test_a_checkpoint_evaluated_in_two_ways_is_reported_one_way_at_a_time(world,
     append_rows(tmp_path / "sampled" / "episodes.csv", sampled)
     append_rows(tmp_path / "random.csv", sim.evaluate("random", "1-1", 4))
     evals = [tmp_path / "greedy", tmp_path / "sampled", tmp_path / "random.csv"]
-    # pooled, the numbers would describe neither way of acting
-    with pytest.raises(ReportError, match=r"evaluated in 2 ways \('mode', 'sample'\); choose one with "
-                                          r"acting=<mode\|sample>"):
-        build_report([run], evals, tmp_path / "out")
+    both = table(build_report([run], evals, tmp_path / "both").markdown.read_text(),
+                 "## Evaluation on training levels")["1-1"]
+    label = next(k for k in both if k.endswith("[mode]")).removesuffix(" [mode]")
+    assert both[f"{label} [mode]"] == expect([[r["steps"] for r in greedy]])
+    assert both[f"{label} [sample]"] == expect([[r["steps"] for r in sampled]])
     with pytest.raises(ReportError, match=r"no checkpoint was evaluated acting 'greedy'"):
         build_report([run], evals, tmp_path / "out", acting="greedy")
     for acting, rows in (("sample", sampled), ("mode", greedy)):
@@ -759,11 +769,10 @@ def test_known_scores_give_their_iqm_and_old_training_files_still_read(tmp_path)
         write_csv(run_dir / "episodes.csv", old, rows)
     report = build_report([tmp_path / "runs"], [], tmp_path / "out", survival="train", window=4)
     got = table(report.markdown.read_text(), "## Survival per training level")["1-1"]["ppo"]
-    assert got.startswith("45.0 [") and got.endswith("; 160.0 ± 105.0 (n=2 seeds × 4 ep.)"), got
-    low, high = map(float, got[len("45.0 ["):got.index("]")].split(", "))
-    assert 10 <= low <= 45 <= high <= 1000 and high > low
+    assert got == "45.0; seeds 265.0, 55.0 (n=2 seeds × 4 ep.)"  # two seeds: their values, no interval
     data = pd.read_csv(tmp_path / "out" / "data" / "survival_per_level.csv")
     assert data.loc[0, "value"] == pytest.approx(45.0) and data.loc[0, "episodes"] == 8
+    assert np.isnan(data.loc[0, "low"]) and data.loc[0, "acting"] == "exploring (training)"
 
 
 def test_training_writes_the_episode_fields_of_evaluations():
@@ -809,3 +818,174 @@ def test_the_claims_are_judged_on_the_numbers_of_the_report(world):
     part = next(p for p in ablation.parts if p.claim == "no_vision fails (survival)")
     assert part.evidence == [f"no_vision {fmt(final, label='no_vision', group='ppo · curriculum')} vs all "
                              f"{fmt(final, label='all', group='ppo · curriculum')}"]
+
+
+# ------------------------------------------------------------------------------------------------ issue 42
+def test_survival_cells_come_from_per_episode_evaluations_where_there_are_any(tmp_path):
+    # three direct runs whose final models were evaluated on their level: the cell is over those episodes (seeds
+    # redrawn, then episodes within seeds), not over the means of eval.csv
+    sim = Sim(tmp_path / "runs")
+    per_seed, rows = [], []
+    for seed in (0, 1, 2):
+        run = sim.run("ppo", seed, level="1-1", finish=1)
+        part = [r | {"acting": "mode", "worlds": "test"} for r in sim.evaluate(str(run / "model-0-1-1.pt"), "1-1", 4)]
+        per_seed.append([r["steps"] for r in part])
+        rows += part
+    append_rows(tmp_path / "eval" / "episodes.csv", rows)
+    text = build_report([tmp_path / "runs"], [tmp_path / "eval"], tmp_path / "out").markdown.read_text()
+    assert table(text, "## Survival per training level")["1-1"]["ppo"] == expect(per_seed)
+    section = text[text.index("## Survival per training level"):]
+    assert "**Survival per training level (decisions).** Acting: `mode`. Worlds: test." in section
+    assert "evaluated by evaluate.py on its level" in section.split("\n\n")[1]
+
+
+def markdown_tables(text: str) -> list[tuple[str, str]]:
+    """(title line, header line) of every Markdown table of ``text``: the title is the last non-empty line
+    before it."""
+    lines = text.splitlines()
+    out = []
+    for i, line in enumerate(lines):
+        if line.startswith("|") and (i == 0 or not lines[i - 1].startswith("|")):
+            out.append((next((x for x in reversed(lines[:i]) if x.strip()), ""), line))
+    return out
+
+
+def test_every_table_of_a_report_names_its_acting_mode_and_worlds(world):
+    found = markdown_tables(world["text"])
+    assert len(found) >= 10
+    for title, header in found:
+        assert "Acting:" in title and "Worlds:" in title, (header, title)
+    assert "Worlds: seed-0 worlds, not held out." in world["text"]  # evaluations of files without a worlds column
+    for path in (world["base"] / "out" / "data").glob("*.csv"):
+        columns = set(pd.read_csv(path, nrows=0).columns)
+        assert {"acting", "worlds"} <= columns, path.name
+
+
+def png_width(path: Path) -> int:
+    from PIL import Image
+
+    with Image.open(path) as image:
+        return image.size[0]
+
+
+def test_figures_fit_a_page_width(world, tmp_path):
+    from evaaa_baselines.reports import plot_bars, plot_lines, plot_outcomes
+
+    for name in FIGURES:
+        assert png_width(world["base"] / "out" / name) <= 1600, name
+    # many agents on every level, many panels, many policies: wrapped into rows, never wider
+    levels = list(evaaa.LEVELS)
+    many = pd.DataFrame([{"label": f"ppo · setting {i} · a long label", "level": lv, "value": 100.0 + i,
+                          "low": 90.0, "high": 120.0 + i, "statistic": "iqm", "n": 3, "unit": "seeds"}
+                         for i in range(30) for lv in levels])
+    assert png_width(plot_bars(many, tmp_path / "bars.png", ylabel="survival", title="t")) <= 1600
+    panels = many.assign(panel=many["label"].str[:14], steps=many["level"].map(levels.index) * 100.0)
+    assert png_width(plot_lines(panels, tmp_path / "lines.png", x="steps", panel="panel", ylabel="y", xlabel="x",
+                                title="t", band=True)) <= 1600
+    rows = pd.DataFrame([{"policy": f"runs/{i}/seed0/model-0-1-1.pt", "acting": "mode", "level": lv,
+                          "success": np.nan, "end_type": "FoodOutOfRange", "food_eaten": 0, "collisions": 1}
+                         for i in range(12) for lv in (*levels, *evaaa.TESTBEDS)])
+    assert png_width(plot_outcomes(rows, tmp_path / "outcomes.png")) <= 1600
+
+
+def test_one_colour_per_algorithm_and_per_modality_across_figures(world, tmp_path, monkeypatch):
+    from matplotlib.axes import Axes
+
+    from evaaa_baselines.reports.figures import styles
+
+    drawn: list[tuple[str, str, object]] = []  # (figure kind, label, colour)
+    bar, plot = Axes.bar, Axes.plot
+
+    def spy_bar(self, *a, **kw):
+        drawn.append(("bar", kw.get("label"), kw.get("color")))
+        return bar(self, *a, **kw)
+
+    def spy_plot(self, *a, **kw):
+        drawn.append(("line", kw.get("label"), kw.get("color")))
+        return plot(self, *a, **kw)
+
+    monkeypatch.setattr(Axes, "bar", spy_bar)
+    monkeypatch.setattr(Axes, "plot", spy_plot)
+    build_report([world["base"] / "runs"], [world["base"] / "eval"], tmp_path)
+    algos, modalities = {}, {}
+    for _, label, colour in drawn:
+        if not label or label.startswith("_"):
+            continue
+        if label in ("all", "no_vision"):  # Figs. 25 (lines) and 26 (bars) label their lines and bars by modality
+            modalities.setdefault(label, set()).add(colour)
+        else:
+            algos.setdefault(label.split(" · ")[0], set()).add(colour)
+    assert {"ppo", "dqn", "oracle", "random"} <= set(algos) and set(modalities) == {"all", "no_vision"}
+    assert all(len(c) == 1 for c in (*algos.values(), *modalities.values())), (algos, modalities)
+    assert len({next(iter(c)) for c in algos.values()}) == len(algos)  # and different algorithms differ
+    assert modalities["all"] != modalities["no_vision"]
+    # whatever else a figure shows, and in whatever order
+    assert styles(["dqn · x", "ppo · y"])["ppo · y"][0] == styles(["ppo · z"])["ppo · z"][0]
+
+
+def learned_rows(text: str) -> list[dict[str, str]]:
+    lines = text[text.index("## What each agent learned"):].splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("| level"))
+    header = [c.strip() for c in lines[start].strip("|").split("|")]
+    rows = []
+    for line in lines[start + 2:]:
+        if not line.startswith("|"):
+            break
+        rows.append(dict(zip(header, (c.strip() for c in line.strip("|").split("|")))))
+    return rows
+
+
+def test_what_it_learned_sets_every_agent_beside_random_and_stand_still(tmp_path):
+    # ppo stands still (never eats, survives a little longer than stand-still); dqn eats two items an episode
+    sim = Sim(tmp_path / "runs")
+    rows = []
+    for algo, steps, food in (("ppo", 1200, 0), ("dqn", 900, 2)):
+        for seed in (0, 1, 2):
+            run = sim.run(algo, seed, level="1-1", finish=1)
+            rows += [r | {"acting": "mode", "worlds": "test", "steps": steps + seed, "food_eaten": food,
+                          "end_type": "FoodOutOfRange"} for r in sim.evaluate(str(run / "model-0-1-1.pt"), "1-1", 4)]
+    rows += [r | {"worlds": "test", "steps": 1112, "end_type": "FoodOutOfRange"} for r in sim.evaluate("still", "1-1", 5)]
+    rows += [r | {"worlds": "test", "steps": 300, "food_eaten": 1, "collisions": 28, "end_type": "DamageTooHigh"}
+             for r in sim.evaluate("random", "1-1", 5)]
+    append_rows(tmp_path / "eval" / "episodes.csv", rows)
+    text = build_report([tmp_path / "runs"], [tmp_path / "eval"], tmp_path / "out").markdown.read_text()
+    got = {r["agent"]: r for r in learned_rows(text)}
+    assert set(got) == {"ppo", "dqn", "still", "random"}
+    assert got["ppo"]["food / ep."] == "0.00" and got["ppo"]["vs better of random, stand-still"] == "1.08× still"
+    assert got["ppo"]["reading"] == "survives longer than random and stand-still, eats no more"
+    assert got["dqn"]["reading"] == "eats more than random and stand-still"  # 901 < 1112: not longer
+    assert got["random"]["ends"] == "damaged 100 %" and got["random"]["collisions / ep."] == "28.0"
+    assert got["dqn"]["n"] == "3 seeds × 4 ep."
+    top = text.split("\n\n")[1]
+    assert top.startswith("**What the agents learned**")
+    assert "ppo ate more food and water per episode than random and stand-still on 0 of 1 levels" in top
+    assert "dqn ate more food and water per episode than random and stand-still on 1 of 1 levels (1-1: 2.0)" in top
+    assert "Stand-still survives 1112 decisions on 1-1" in top
+
+
+def test_curriculum_and_direct_are_shown_with_the_env_steps_each_has_seen(world, tmp_path):
+    section = world["text"][world["text"].index("## With and without curriculum"):]
+    section = section[:section.index("\n## ")]
+    assert f"1-2: curriculum {2 * BUDGET:,}; direct {BUDGET:,}" in section  # stage 2 has seen both stages
+    assert f"no direct run here has as many env steps as the curriculum stage on 1-2 ({2 * BUDGET:,})" in section
+    # direct runs of the curriculum stage's total on 1-2: the matched view, and claim (b) on it
+    sim = Sim(tmp_path / "runs")
+    cur = [sim.run("ppo", seed) for seed in (0, 1, 2)]
+    direct = [sim.run("ppo", seed, level="1-2", finish=1, budget=2 * BUDGET) for seed in (0, 1, 2)]
+    other = Sim(tmp_path / "runs" / "short", seed=1)  # run directories are named without their budget
+    short = [other.run("ppo", seed, level="1-2", finish=1) for seed in (0, 1, 2)]
+    text = build_report([tmp_path / "runs"], [], tmp_path / "out").markdown.read_text()
+    matched = table(text, "Curriculum vs direct at matched total env steps")
+    want = [[sim.runs[d]["final"]["1-2"]] for d in direct]
+    assert matched["1-2"]["ppo · direct"] == expect(want, per_seed=2)
+    assert matched["1-2"]["ppo · curriculum"] == expect([[sim.runs[d]["final"]["1-2"]] for d in cur], per_seed=2)
+    equal = table(text, "Curriculum vs direct at equal env steps per stage")
+    assert equal["1-2"]["ppo · direct"] == expect([[sim.runs[d]["final"]["1-2"]] for d in direct]
+                                                   + [[other.runs[d]["final"]["1-2"]] for d in short], per_seed=2)
+    from evaaa_baselines.reports import claims as rules
+    from evaaa_baselines.reports.sections import claim_verdicts, read_inputs
+
+    (b,) = [v for v in claim_verdicts(read_inputs([tmp_path / "runs"], [])) if v.claim.startswith("(b)")]
+    matched_stats = pd.read_csv(tmp_path / "out" / "data" / "curriculum_vs_direct_matched.csv")
+    row = matched_stats[(matched_stats["label"] == "ppo · direct") & (matched_stats["level"] == "1-2")].iloc[0]
+    assert f"vs direct {rules._fmt(row)}" in b.parts[0].evidence[0]

@@ -227,8 +227,8 @@ def _run_caption(inp: Inputs) -> str:
     acting = "; ".join(f"`{w}` ({', '.join(a)})" for w, a in ways.items()) or "no in-training evaluations"
     worlds = " / ".join(dict.fromkeys(w for r in inp.usable if r.evals is not None
                                       for w in r.evals["worlds"].astype(str))) or "none"
-    return (f"**Runs.** Training episodes: exploring policy, training worlds. In-training evaluations: acting "
-            f"{acting}. Worlds: {worlds}.")
+    return (f"**Runs.** Acting: training episodes explore; in-training evaluations {acting}. Worlds: training "
+            f"worlds (training episodes); {worlds} (in-training evaluations).")
 
 
 def runs_and_problems(doc: Document, inp: Inputs) -> list[str]:
@@ -292,13 +292,19 @@ def curriculum_vs_direct(doc: Document, inp: Inputs) -> None:
     at equal env steps per stage (the paper's view: the curriculum stage has seen more in total), and at matched
     total env steps where direct runs of that total exist."""
     usable, final = inp.usable, inp.final
-    both = {k for k in inp.curriculum_algos
-            if any(not r.curriculum and (r.algo, r.modality, r.reward, r.extras) == k for r in usable)}
-    cmp_runs = [r for r in usable if (r.algo, r.modality, r.reward, r.extras) in both]
+
+    def key(r: RunRecord) -> tuple:
+        # a direct run's budget is what this comparison varies (equal per stage, or the stage's total): not a group
+        return (r.algo, r.modality, r.reward, tuple(e for e in r.extras if not e.startswith("steps_per_stage=")))
+
+    both = {key(r) for r in usable if r.curriculum} & {key(r) for r in usable if not r.curriculum}
+    cmp_runs = [r for r in usable if key(r) in both]
     table = figure = None
     matched_md: list[str] = []
     if cmp_runs and len(final):
-        base = labels(cmp_runs, ("algo", "modality", "reward", "extras"))
+        keys = {r.dir: key(r) for r in cmp_runs}
+        varies = [i for i in range(1, 4) if len({k[i] for k in keys.values()}) > 1]
+        base = {d: " · ".join([k[0], *(", ".join(k[i]) if i == 3 else k[i] for i in varies)]) for d, k in keys.items()}
         lab = {d: f"{v} · {'curriculum' if inp.by_dir[d].curriculum else 'direct'}" for d, v in base.items()}
         f = inp.labelled(final[final["run"].isin(list(lab))], lab)
         f = f.assign(seen=_seen(inp, f) if len(f) else pd.Series(dtype=int),
@@ -333,10 +339,13 @@ def curriculum_vs_direct(doc: Document, inp: Inputs) -> None:
             matched_md = ["", pivot_table(mstats, "level", "label", rows=level_sorted(mstats["level"]),
                                           title="Curriculum vs direct at matched total env steps (survival, "
                                                 "decisions)")]
-        else:
-            matched_md = ["", "**At matched total env steps:** no direct run here has as many env steps as a "
-                          "curriculum stage after the first (stage k needs a direct run of (k+1) × its stage "
-                          "budget on level k); only the view above, at unequal totals, can be shown."]
+        unmatched = cur[~cur.set_index(["level", "seen"]).index.isin(pairs.set_index(["level", "seen"]).index)]
+        if len(unmatched):
+            needs = unmatched.groupby("level")["seen"].max()
+            matched_md += ["", "**At matched total env steps:** no direct run here has as many env steps as the "
+                           "curriculum stage on " + ", ".join(f"{lv} ({needs[lv]:,})" for lv in
+                                                               level_sorted(needs.index))
+                           + "; there only the view at equal env steps per stage can be shown."]
     doc.section("With and without curriculum (Fig. 4a, right)",
                 inp.source_note + " Curriculum: the stage of that level after the levels before it (it has seen "
                 "their env steps too); direct: a run trained on that level alone.", figure,
@@ -489,8 +498,8 @@ def learned_table(inp: Inputs) -> pd.DataFrame:
     if not len(table):
         return table
     ref = table[table["label"].isin(LEARNED_REFERENCES)]
-    compared = {lv: " and ".join("stand-still" if p == "still" else p for p in part["label"])
-                for lv, part in ref.groupby("level")}
+    compared = {lv: " and ".join("stand-still" if p == "still" else p for p in LEARNED_REFERENCES
+                                 if p in set(part["label"])) for lv, part in ref.groupby("level")}
     better = ref.sort_values("survival").groupby("level").tail(1).set_index("level")
     most_eaten = (ref.assign(eaten=ref["food"] + ref["water"]).groupby("level")["eaten"].max())
     learned, vs = [], []
