@@ -989,3 +989,15 @@ def test_curriculum_and_direct_are_shown_with_the_env_steps_each_has_seen(world,
     matched_stats = pd.read_csv(tmp_path / "out" / "data" / "curriculum_vs_direct_matched.csv")
     row = matched_stats[(matched_stats["label"] == "ppo · direct") & (matched_stats["level"] == "1-2")].iloc[0]
     assert f"vs direct {rules._fmt(row)}" in b.parts[0].evidence[0]
+
+
+def test_a_dqn_checkpoint_evaluated_with_sample_is_shown_acting_greedily(tmp_path):
+    # DQN has no action distribution: older evaluate.py files label its epsilon-greedy episodes `sample+epsilon`
+    sim = Sim(tmp_path / "runs")
+    run = sim.run("dqn", 0, level="1-1", finish=1)
+    rows = [r | {"acting": "sample+epsilon=0.05"} for r in sim.evaluate(str(run / "model-0-1-1.pt"), "1-1", 3)]
+    append_rows(tmp_path / "eval" / "episodes.csv", rows)
+    for acting in (None, "sample+epsilon=0.05", "mode+epsilon=0.05"):  # what was asked for, or what it did
+        text = build_report([run], [tmp_path / "eval"], tmp_path / str(acting), acting=acting).markdown.read_text()
+        assert "Checkpoints acted: `mode+epsilon=0.05`" in text
+        assert "Acting: `mode+epsilon=0.05`" in text and "Acting: `sample" not in text

@@ -333,10 +333,13 @@ def select_acting(evals: pd.DataFrame, acting: str | None) -> pd.DataFrame:
         acting = ""
     is_ckpt = ~evals["policy"].isin(REFERENCES) & evals["policy"].map(_is_checkpoint_path)
     modes = evals.loc[is_ckpt, "acting"].astype(str)
-    if not (modes == acting).any() and is_ckpt.any():
+    # what the evaluation was asked for also selects (a DQN checkpoint's `sample` episodes, shown as `mode`)
+    asked = evals["acting_recorded"].fillna(evals["acting"]).astype(str) if "acting_recorded" in evals else modes
+    chosen = (evals["acting"].astype(str) == acting) | (asked.reindex(evals.index).astype(str) == acting)
+    if not chosen[is_ckpt].any() and is_ckpt.any():
         raise ReportError(f"acting: no checkpoint was evaluated acting {acting!r}; the evaluations hold "
                           f"{', '.join(repr(m) for m in dict.fromkeys(modes))}")
-    return evals[~is_ckpt | (evals["acting"].astype(str) == acting)]
+    return evals[~is_ckpt | chosen]
 
 
 @dataclass
@@ -387,8 +390,11 @@ def attach(evals: pd.DataFrame, runs: dict[Path, RunRecord]) -> Evaluations:
         info[policy] = (run_dir, stage, level)
         if run.algo == "dqn":  # no action distribution: evaluate.py's `sample` took the greedy action all the same
             relabel = (ckpts["policy"] == policy) & ckpts["acting"].astype(str).str.startswith("sample")
+            ckpts.loc[relabel, "acting_recorded"] = ckpts.loc[relabel, "acting"]
             ckpts.loc[relabel, "acting"] = "mode" + ckpts.loc[relabel, "acting"].astype(str).str[len("sample"):]
     ckpts["run"] = ckpts["policy"].map(lambda p: info[p][0])
+    if "acting_recorded" in ckpts:
+        ckpts["acting_recorded"] = ckpts["acting_recorded"].fillna(ckpts["acting"])
     ckpts["ckpt_stage"] = ckpts["policy"].map(lambda p: info[p][1])
     ckpts["ckpt_level"] = ckpts["policy"].map(lambda p: info[p][2])
     ckpts = ckpts[ckpts["run"].notna()]
