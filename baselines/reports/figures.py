@@ -189,8 +189,10 @@ def how_measured(stats: pd.DataFrame) -> str:
 
 
 def _chunks(items: Sequence, size: int) -> list[list]:
-    size = max(1, size)
-    return [list(items[i:i + size]) for i in range(0, len(items), size)]
+    """``items`` in rows of at most ``size``, as even as they go (8 levels by 6: two rows of 4, not 6 and 2)."""
+    rows = -(-len(items) // max(1, size)) if len(items) else 1
+    even = -(-len(items) // rows) if len(items) else 1
+    return [list(items[i:i + even]) for i in range(0, len(items), even)] or [[]]
 
 
 def plot_bars(stats: pd.DataFrame, path: Path, *, ylabel: str, title: str, panel: str | None = None,
@@ -213,6 +215,7 @@ def plot_bars(stats: pd.DataFrame, path: Path, *, ylabel: str, title: str, panel
         rows += [(name, chunk, names) for chunk in _chunks(order, per_row)]
     widest = max(len(r[1]) * (0.2 * len(r[2]) + 0.35) + 1.2 for r in rows)
     width = min(MAX_WIDTH_IN, max(5.0, widest))
+    slots = max(len(r[1]) for r in rows)  # every row as wide as the widest, so that bars keep one width
     fig, axes = plt.subplots(len(rows), 1, figsize=(width, panel_height * len(rows) + 0.6), squeeze=False)
     for ax, (name, order, names) in zip(axes[:, 0], rows):
         part = stats if name is None else stats[stats[panel] == name]
@@ -230,6 +233,7 @@ def plot_bars(stats: pd.DataFrame, path: Path, *, ylabel: str, title: str, panel
                         ax.plot([x] * len(pts), [scale * p for p in pts], "o", ms=2.5, color="0.15", zorder=3)
         ax.set_xticks(range(len(order)), order, rotation=30 if len(order) > 2 else 0,
                       ha="right" if len(order) > 2 else "center", fontsize=8)
+        ax.set_xlim(-0.5, slots - 0.5)
         ax.set_ylabel(ylabel, fontsize=8)
         ax.set_ylim(0, top)
         if name is not None:

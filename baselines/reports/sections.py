@@ -115,13 +115,15 @@ class Inputs:
     def checkpoint_labels(self) -> dict[Path, str]:
         return labels(self.checkpoint_runs, ("algo", "modality", "reward", "extras", "training"))
 
-    def labelled(self, frame: pd.DataFrame, labels: dict[Path, str], column: str = "label") -> pd.DataFrame:
+    def labelled(self, frame: pd.DataFrame, labels: dict[Path, str], column: str = "label",
+                 within: Sequence[str] = ()) -> pd.DataFrame:
         """``frame`` (rows with ``run`` and ``acting``) with ``column`` = the run's label, and the acting mode in
-        brackets wherever one label holds rows of several modes (both shown, labelled, never pooled)."""
+        brackets wherever one label (within one value of each of ``within``: a figure's panel) holds rows of several
+        modes (both shown, labelled, never pooled)."""
         if not len(frame):
             return frame.assign(**{column: pd.Series(dtype=str)})
         out = frame.assign(**{column: frame["run"].map(labels)})
-        ways = out.groupby(column)["acting"].transform("nunique")
+        ways = out.groupby([*within, column])["acting"].transform("nunique")
         return out.assign(**{column: out[column].where(ways < 2, out[column] + " [" + out["acting"] + "]")})
 
     @cached_property
@@ -650,8 +652,8 @@ def ablation_curves(doc: Document, inp: Inputs) -> None:
                             band=True, ylabel="survival (decisions)", xlabel="env steps",
                             title="Training curves per modality", colour_by="modality")
         final = inp.final
-        last = inp.labelled(final[final["last"]], {d: by_dir[d].modality for d in by_dir}).assign(
-            group=lambda d: d["run"].map(ab_lab))
+        last = inp.labelled(final[final["last"]].assign(group=lambda d: d["run"].map(ab_lab)),
+                            {d: by_dir[d].modality for d in by_dir}, within=("group",))
         fstats = across_seeds(last, ["group", "label"], "survival")
         doc.tables["ablation_final_survival"] = fstats
         table = pivot_table(fstats, "label", "group", row_title="modality",
@@ -672,8 +674,8 @@ def ablation_success(doc: Document, inp: Inputs) -> None:
     table = figure = None
     if len(inp.best):
         ab_ck = labels(inp.checkpoint_runs, ("algo", "reward", "extras", "training"))
-        stats = across_seeds(inp.labelled(per_run(inp.best, "success"), {d: inp.runs[d].modality for d in ab_ck})
-                             .assign(group=lambda d: d["run"].map(ab_ck)),
+        stats = across_seeds(inp.labelled(per_run(inp.best, "success").assign(group=lambda d: d["run"].map(ab_ck)),
+                                          {d: inp.runs[d].modality for d in ab_ck}, within=("group",)),
                              ["group", "label", "level"], "success", success=True)
         order = {g: i for i, g in enumerate(dict.fromkeys(stats["group"]))}
         stats = stats.sort_values("label", key=lambda s: s.map(_modality_key), kind="stable").sort_values(
