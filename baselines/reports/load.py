@@ -3,7 +3,9 @@
 Inputs are what the other tools write: run directories of ``scripts/train.py`` (``.hydra/config.yaml``,
 ``episodes.csv``, ``eval.csv``, ``model-<stage>-<level>.pt``, ``checkpoint.pt``) and episode files of
 ``scripts/evaluate.py`` and ``scripts/play.py`` (one row per episode in the format of :mod:`evaaa.records`;
-``policy`` is a checkpoint path, ``oracle``, ``random`` or ``human``).  An evaluated checkpoint is tied to its run
+``policy`` is a checkpoint path, ``oracle``, ``random``, ``still`` or ``human``; ``acting`` how a checkpoint acted,
+``worlds`` on which worlds — files without that column were measured on ``make_env(seed=s)``'s worlds, a seed-s
+training run's own, and are labelled not held out).  An evaluated checkpoint is tied to its run
 through the run directory it lies in, whose ``.hydra/config.yaml`` says what was trained (algorithm, modality,
 reward, level or curriculum, seed, ...).  Nothing is dropped silently: what cannot be used says why.
 """
