@@ -39,7 +39,8 @@ TESTBEDS = ("two-resource-food", "y-maze")
 OLD_EVAL_COLUMNS = ("env_steps", "stage", "level", "episodes", "survival_mean", "survival_min", "survival_max",
                     "return_mean", "end_types", "wall_time")
 FIGURES = ("fig4a_survival_per_level.png", "fig4a_curriculum_vs_direct.png", "fig4b_success_per_testbed.png",
-           "fig4b_generalisation.png", "fig_training_curves.png", "fig25_ablation_curves.png", "fig26_ablation_success.png")
+           "fig4b_generalisation.png", "fig_training_curves.png", "fig_evaluation_curves.png", "fig25_ablation_curves.png",
+           "fig26_ablation_success.png")
 
 
 # ------------------------------------------------------------------------------------------------ inputs
@@ -1001,3 +1002,32 @@ def test_a_dqn_checkpoint_evaluated_with_sample_is_shown_acting_greedily(tmp_pat
         text = build_report([run], [tmp_path / "eval"], tmp_path / str(acting), acting=acting).markdown.read_text()
         assert "Checkpoints acted: `mode+epsilon=0.05`" in text
         assert "Acting: `mode+epsilon=0.05`" in text and "Acting: `sample" not in text
+
+
+#: eval.csv as training runs write it now: one row per episode of each periodic evaluation
+EVAL_EPISODE_COLUMNS = ("env_steps", "stage", "level", "worlds", "acting", "episode", "steps", "return", "end_type",
+                        "food_eaten", "water_eaten", "collisions", "damage_taken", "wall_time")
+
+
+def test_per_episode_in_training_evaluations_give_cells_and_curves_over_episodes(tmp_path):
+    # three runs whose eval.csv has one row per episode (validation worlds): the stage's last evaluation is a
+    # survival cell over those episodes, and each evaluation a point of the curve over the seeds' episodes
+    sim = Sim(tmp_path / "runs")
+    last, first = [], []
+    for seed in (0, 1, 2):
+        run = sim.run("ppo", seed, level="1-1", finish=1)
+        rows = []
+        for steps in (BUDGET // 2, BUDGET):
+            survival = [int(v) for v in sim.rng.integers(10, 400, 4)]
+            (last if steps == BUDGET else first).append(survival)
+            rows += [dict(zip(EVAL_EPISODE_COLUMNS, (steps, 0, "1-1", "validation", "mode", i, v, -1.0,
+                                                     "FoodOutOfRange", 0, 0, 0, 0.0, "2026-01-01T00:00:00")))
+                     for i, v in enumerate(survival)]
+        write_csv(run / "eval.csv", EVAL_EPISODE_COLUMNS, rows)
+    text = build_report([tmp_path / "runs"], [], tmp_path / "out").markdown.read_text()
+    assert table(text, "## Survival per training level")["1-1"]["ppo"] == expect(last)
+    assert "Acting: `mode`. Worlds: validation." in text and "Means only:" not in text
+    curve = pd.read_csv(tmp_path / "out" / "data" / "evaluation_curves.csv").set_index("steps")
+    assert curve.loc[BUDGET // 2, "value"] == pytest.approx(hand_iqm([v for s in first for v in s]))
+    assert curve.loc[BUDGET // 2, "n"] == 3 and curve.loc[BUDGET // 2, "episodes"] == 12
+    assert table(text, "## In-training evaluations")["trained on 1-1"]["ppo"] == expect(last)

@@ -129,6 +129,28 @@ def curves(runs: Sequence[RunRecord], bins: int = 20) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["run", "bin", "steps", "survival", "scores", "episodes", "acting", "worlds"])
 
 
+def evaluation_points(runs: Sequence[RunRecord]) -> pd.DataFrame:
+    """Every in-training evaluation of every run (``eval.csv``): its env steps summed over stages, the survival of
+    its episodes in ``scores`` (one row per episode), or of ``eval.csv`` files of the older format its mean alone
+    (``means_only``), with its acting mode and worlds."""
+    rows = []
+    for r in runs:
+        if not r.usable or r.evals is None or not len(r.evals):
+            continue
+        for (stage, steps, acting), part in r.evals.groupby(["stage", "env_steps", "acting"], sort=True):
+            x = r.offset(int(stage)) + int(steps)
+            if r.eval_means_only:
+                scores = tuple(float(v) for v in part["survival_mean"])
+                n = int(part["episodes"].sum()) if "episodes" in part else len(scores)
+            else:
+                scores, n = tuple(part["steps"].astype(float)), len(part)
+            rows.append({"run": r.dir, "stage": int(stage), "steps": x, "survival": float(np.mean(scores)),
+                         "scores": scores, "episodes": n, "means_only": r.eval_means_only, "acting": acting,
+                         "worlds": " / ".join(dict.fromkeys(part["worlds"].astype(str))), "source": "eval.csv"})
+    return pd.DataFrame(rows, columns=["run", "stage", "steps", "survival", "scores", "episodes", "means_only",
+                                       "acting", "worlds", "source"])
+
+
 #: Columns of the statistics frames (:func:`across_seeds`), after the grouping columns.  ``statistic`` says what
 #: ``value`` and its interval ``low``..``high`` are: ``iqm`` (survival: interquartile mean, 95 % two-stage bootstrap
 #: interval) or ``rate`` (success: pooled share of episodes, 95 % seed-clustered Wilson interval); ``mean`` ± ``se``:

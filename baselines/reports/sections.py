@@ -19,7 +19,8 @@ import evaaa
 from . import claims as rules
 import numpy as np
 
-from .aggregate import STAT_COLUMNS, across_seeds, curves, final_survival, per_run, reference_stats
+from .aggregate import (STAT_COLUMNS, across_seeds, curves, evaluation_points, final_survival, per_run,
+                        reference_stats)
 from .figures import plot_bars, plot_lines
 from .load import (MODEL_FILE, Evaluations, ReportError, RunRecord, attach, describe_extras, final_checkpoints,
                    find_run_dirs, labels, level_sorted, load_evaluations, load_run, select_acting)
@@ -636,6 +637,31 @@ def training_curves(doc: Document, inp: Inputs) -> None:
                 "No finished training episode in the runs given.")
 
 
+def evaluation_curves(doc: Document, inp: Inputs) -> None:
+    """The in-training evaluations (``eval.csv``: validation worlds in runs that record them) against env steps:
+    one panel per training set-up, one line per algorithm and settings; each point over the seeds' episodes of that
+    evaluation, or over their means where ``eval.csv`` kept only means (said so)."""
+    points = evaluation_points(inp.usable)
+    table = figure = None
+    if len(points):
+        lab = labels(inp.usable, ("algo", "modality", "reward", "extras"))
+        by = inp.labelled(points, lab).assign(group=lambda d: d["run"].map(
+            lambda x: f"trained on {inp.by_dir[x].training}"))
+        stats = across_seeds(by, ["group", "label", "steps"], "survival")
+        doc.tables["evaluation_curves"] = stats
+        figure = plot_lines(stats, doc.out / "fig_evaluation_curves.png", x="steps", panel="group", band=True,
+                            ylabel="survival (decisions)", xlabel="env steps",
+                            title="In-training evaluations" + (" (means only)" if stats["means_only"].any() else ""))
+        ends = stats.sort_values("steps").groupby(["group", "label"], sort=False).tail(1)
+        table = pivot_table(ends.rename(columns={"group": "level"}), "level", "label", row_title="training",
+                            title="Last in-training evaluation (survival, decisions)")
+    doc.section("In-training evaluations",
+                "Survival in the periodic evaluations during training against env steps (summed over a "
+                "curriculum's stages): the worlds of model selection and tuning, never a published number. Where "
+                "`eval.csv` kept one mean per evaluation (its older format) the points are over those means: means "
+                "only.", figure, table, "No in-training evaluation in the runs given.")
+
+
 def ablation_curves(doc: Document, inp: Inputs) -> None:
     """Fig. 25: training curves per modality set, one panel per algorithm (and training set-up), and each
     modality's survival at the end of the run."""
@@ -831,7 +857,7 @@ def claims(doc: Document, inp: Inputs) -> None:
 
 #: The sections after the runs, in the order the report shows them.
 SECTIONS = (survival_per_level, curriculum_vs_direct, success_per_testbed, generalisation, evaluation_survival,
-            what_it_learned, training_curves, ablation_curves, ablation_success, claims)
+            what_it_learned, training_curves, evaluation_curves, ablation_curves, ablation_success, claims)
 
 
 # ------------------------------------------------------------------------------------------------ the report
