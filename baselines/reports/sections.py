@@ -494,7 +494,7 @@ def learned_table(inp: Inputs) -> pd.DataFrame:
     for (policy, level), part in refs.groupby(["policy", "level"], sort=False):
         rows.append(describe(policy, level, part, "episodes", None))
     if len(own):
-        own = inp.labelled(own.assign(run=own["run"]), inp.checkpoint_labels)
+        own = inp.labelled(own, inp.checkpoint_labels)
         for (label, level), part in own.groupby(["label", "level"], sort=False):
             rows.append(describe(label, level, part, "seeds", "run"))
     table = pd.DataFrame(rows)
