@@ -87,7 +87,7 @@ class ConfigError(ValueError):
 
 
 #: keys whose default is null, and what else they take (a null default says nothing about the type)
-NULLABLE = {"max_minutes": (float, int), "threads": (int,), "level.stages": (list,), "algo.lstm": (dict,),
+NULLABLE = {"max_minutes": (float, int), "max_cpu_minutes": (float, int), "threads": (int,), "level.stages": (list,), "algo.lstm": (dict,),
             "algo.sequence_length": (int,)}
 #: free-form nodes: any key below them is a level field (checked by evaaa when the env is made)
 FREE_FORM = ("env.overrides", "level.overrides")

@@ -30,6 +30,10 @@ from evaaa import ACTION_NAMES
 from .nets import MultimodalEncoder, compile_networks, head, stacked_shapes
 from .runtime import Counters, Run
 
+#: Q-values are no distribution to sample from: asked to sample, the policy still acts greedily, and evaluations
+#: say so (``mode``)
+SAMPLES_ACTIONS = False
+
 
 # ------------------------------------------------------------------------------------------------ networks
 def make_model(cfg: DictConfig, obs_shapes: Mapping[str, Sequence[int]]) -> QValueActor:

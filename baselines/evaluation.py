@@ -25,8 +25,8 @@ from torchrl.envs import Compose, EnvBase, RewardSum, Transform, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 import evaaa
-from evaaa import END_TYPES
-from evaaa.agents import OracleAgent, RandomAgent
+from evaaa import EV_NAMES
+from evaaa.agents import OracleAgent, RandomAgent, StillAgent
 from evaaa.records import EpisodeTracker, StepLog
 from evaaa.sensors import resolve_modalities
 
@@ -40,16 +40,39 @@ def wrap_env(env: EnvBase, transforms: Sequence[Transform]) -> TransformedEnv:
 
 
 #: the diagnostics :func:`evaluate` reads: the env it steps must emit them (``evaaa.make_env(info=...)``)
-EVALUATION_INFO = ("step_count", "end_type")
+EVALUATION_INFO = ("step_count", "end_type", *EV_NAMES, "food_eaten", "water_eaten", "collision", "damage_taken",
+                   "success")
+
+
+def acting_mode(algo: str | None, sample: bool, epsilon: float = 0.0) -> str:
+    """How a checkpoint of ``algo`` acts, as every evaluation row records it: ``mode`` (the most likely action:
+    greedy Q-values, the mode of the action distribution) or ``sample`` (drawn from the distribution; an algorithm
+    without one, such as DQN, acts by ``mode`` whatever is asked), with ``+epsilon=<e>`` when a uniformly random
+    action replaces it with chance ``epsilon``.  ``algo=None``: a reference agent, which has no mode (``""``)."""
+    if algo is None:
+        return ""
+    samples = sample and getattr(algorithm(algo), "SAMPLES_ACTIONS", True)
+    return ("sample" if samples else "mode") + (f"+epsilon={epsilon:g}" if epsilon else "")
 
 
 @dataclass(frozen=True)
 class EvalResult:
-    """The first episode of every world: survival steps, return and how it ended."""
+    """The first episode of every world, one row each (:class:`evaaa.records.EpisodeTracker`'s columns: ``steps``
+    survived, ``return``, ``end_type``, food and water eaten, collisions ...), in the order of the worlds."""
 
-    survival: list[int]
-    returns: list[float]
-    end_types: list[str]
+    rows: list[dict]
+
+    @property
+    def survival(self) -> list[int]:
+        return [r["steps"] for r in self.rows]
+
+    @property
+    def returns(self) -> list[float]:
+        return [r["return"] for r in self.rows]
+
+    @property
+    def end_types(self) -> list[str]:
+        return [r["end_type"] for r in self.rows]
 
     @property
     def survival_mean(self) -> float:
@@ -76,20 +99,21 @@ def evaluate(env: EnvBase, policy: TensorDictModuleBase, *, sample: bool = False
         raise ValueError(f"evaluate reads info fields {list(EVALUATION_INFO)} the env does not emit ({missing}): "
                          f"make it with evaaa.make_env(..., info={list(EVALUATION_INFO)}) or info=True")
     n = env.batch_size.numel()
-    survival = torch.full((n,), -1, dtype=torch.int64)
-    returns = torch.zeros(n)
-    end_types = torch.zeros(n, dtype=torch.int64)
+    level = getattr(env, "base_env", env).level
+    tracker = EpisodeTracker(n, level.name, "", judged=level.episode.success.rule != "none")
+    rows: list[dict | None] = [None] * n
     acting = ExplorationType.RANDOM if sample else ExplorationType.DETERMINISTIC
     with torch.no_grad(), set_exploration_type(acting):
         td = env.reset()
-        while (survival < 0).any():
+        while any(r is None for r in rows):
             out, td = env.step_and_maybe_reset(policy(td))
-            running = survival < 0
-            returns += torch.where(running, out["next", "reward"].reshape(n), 0.0)
-            ended = out["next", "done"].reshape(n) & running
-            survival[ended] = out["next", "info", "step_count"].reshape(n)[ended]
-            end_types[ended] = out["next", "info", "end_type"].reshape(n)[ended]
-    return EvalResult(survival.tolist(), returns.tolist(), [END_TYPES[i] for i in end_types.tolist()])
+            nxt = out["next"]
+            done = nxt["done"].reshape(n).numpy()
+            finished = tracker.update(nxt["reward"].reshape(n).numpy(), nxt["info"], done, actions=out["action"])
+            for w, row in zip(np.flatnonzero(done), finished):
+                if rows[w] is None:  # a world's later episodes are not counted
+                    rows[w] = row
+    return EvalResult([row | {"episode": w} for w, row in enumerate(rows)])
 
 
 @dataclass
@@ -131,15 +155,16 @@ class LoadedPolicy:
         return wrap_env(env, self.transforms())
 
     def make_env(self, level: str | None = None, *, num_envs: int = 1, seed: int | None = None,
-                 overrides: Mapping[str, Any] | None = None) -> TransformedEnv:
-        """An env of ``level`` (default: the one trained on) with this policy's observation keys and transforms.
+                 overrides: Mapping[str, Any] | None = None, worlds: str = "test") -> TransformedEnv:
+        """An env of ``level`` (default: the one trained on) with this policy's observation keys and transforms,
+        on the seed's ``worlds`` (:mod:`evaaa.worlds`; default the test worlds, which no training run steps).
 
         ``overrides`` default to the training run's level overrides (reward, episode length, ...); pass ``{}`` for
         the level as it is.
         """
         overrides = self.env_overrides if overrides is None else overrides
         env = evaaa.make_env(level or self.level, num_envs=num_envs, seed=seed, modalities=self.obs_keys,
-                             info=True, **overrides)
+                             info=True, worlds=worlds, **overrides)
         return self.wrap(env)
 
 
@@ -187,8 +212,10 @@ def load_policy(path: str | Path, *, modalities: Iterable[str] | str | None = No
 
 
 # ------------------------------------------------------------------------------------------------ evaluate.py
-#: the policies of an evaluation that are not checkpoints
-REFERENCE_AGENTS = ("oracle", "random")
+#: the policies of an evaluation that are not checkpoints (evaaa.agents): the privileged oracle, uniformly random
+#: actions, and standing still
+REFERENCE_AGENTS = ("oracle", "random", "still")
+_REFERENCE = {"oracle": lambda seed: OracleAgent(), "random": RandomAgent, "still": lambda seed: StillAgent()}
 
 
 class EvaluationError(ValueError):
@@ -196,8 +223,8 @@ class EvaluationError(ValueError):
 
 
 class EvaluatedPolicy:
-    """One policy of an evaluation — ``oracle``, ``random`` or a checkpoint file — that builds the env of a level
-    and picks actions for a batch of worlds.
+    """One policy of an evaluation — ``oracle``, ``random``, ``still`` or a checkpoint file — that builds the env of
+    a level and picks actions for a batch of worlds.
 
     ``sample``: a checkpoint draws its actions from its distribution instead of taking the most likely one;
     ``epsilon``: the chance of a uniformly random action instead, at each step (drawn from a generator seeded with
@@ -215,7 +242,7 @@ class EvaluatedPolicy:
         if spec not in REFERENCE_AGENTS:
             path = Path(spec)
             if not path.is_file():
-                raise EvaluationError(f"policy {spec!r} is neither oracle, random nor a checkpoint file")
+                raise EvaluationError(f"policy {spec!r} is neither {', '.join(REFERENCE_AGENTS)} nor a checkpoint file")
             try:
                 self.loaded = load_policy(path, modalities=modalities, device=device)
             except ValueError as err:  # e.g. modalities= names keys the checkpoint was not trained on
@@ -223,19 +250,21 @@ class EvaluatedPolicy:
         # a checkpoint is named by its path: reports look the run's configuration up from it
         self.name = spec if self.loaded is None else str(path)
         # how it acts, recorded with every episode so that evaluations made in different ways stay apart
-        self.acting = "" if self.loaded is None else (
-            "sample" if sample else "mode") + (f"+epsilon={epsilon:g}" if epsilon else "")
+        self.acting = acting_mode(None if self.loaded is None else self.loaded.algo, sample, epsilon)
 
-    def make_env(self, level: str, num_envs: int, seed: int) -> EnvBase:
-        """The worlds of ``level`` this policy acts in (a reference agent reads the simulator; the env gives it the
-        EVs only)."""
+    def make_env(self, level: str, num_envs: int, seed: int, worlds: str = "test") -> EnvBase:
+        """The ``worlds`` (``test`` or ``validation``: :mod:`evaaa.worlds`) of ``level`` this policy acts in (a
+        reference agent reads the simulator; the env gives it the EVs only)."""
+        if worlds not in ("test", "validation"):  # published numbers never come from a training world
+            raise EvaluationError(f"worlds must be test or validation, got {worlds!r}")
         if self.loaded is not None:
             try:
-                return self.loaded.make_env(level, num_envs=num_envs, seed=seed, overrides={})
+                return self.loaded.make_env(level, num_envs=num_envs, seed=seed, overrides={}, worlds=worlds)
             except ValueError as err:
                 raise EvaluationError(str(err)) from None
-        self.agent = OracleAgent() if self.spec == "oracle" else RandomAgent(seed)
-        return evaaa.make_env(level, num_envs=num_envs, seed=seed, modalities=["interoception"], info=True)
+        self.agent = _REFERENCE[self.spec](seed)
+        return evaaa.make_env(level, num_envs=num_envs, seed=seed, modalities=["interoception"], info=True,
+                              worlds=worlds)
 
     def act(self, env: EnvBase, td: TensorDictBase) -> torch.Tensor:
         if self.loaded is not None:
@@ -250,15 +279,17 @@ class EvaluatedPolicy:
 
 
 def episode_records(policy: EvaluatedPolicy, level: str, *, episodes: int, num_envs: int, seed: int,
-                    step_log: StepLog | None = None, on_episode: Callable[[], None] | None = None) -> list[dict]:
-    """``episodes`` episodes of ``policy`` on ``level`` in ``num_envs`` worlds seeded with ``seed``, as episode rows
-    (:class:`evaaa.records.EpisodeTracker`; ``episode`` numbered from 0 in the order they ended).  Each world runs
-    its share of the episodes; ``step_log`` gets every decision; ``on_episode`` is called per counted episode."""
-    env = policy.make_env(level, num_envs, seed)
+                    worlds: str = "test", step_log: StepLog | None = None,
+                    on_episode: Callable[[], None] | None = None) -> list[dict]:
+    """``episodes`` episodes of ``policy`` on ``level`` in ``num_envs`` of the ``worlds`` (``test`` or ``validation``)
+    of ``seed``, as episode rows (:class:`evaaa.records.EpisodeTracker`, with a ``worlds`` column; ``episode``
+    numbered from 0 in the order they ended).  Each world runs its share of the episodes; ``step_log`` gets every
+    decision; ``on_episode`` is called per counted episode."""
+    env = policy.make_env(level, num_envs, seed, worlds)
     torch.manual_seed(seed)  # sampled actions (sample=true) repeat from run to run
     n = num_envs
     quota = np.full(n, episodes // n) + (np.arange(n) < episodes % n)  # episodes each world runs
-    tracker = EpisodeTracker(n, level, policy.name, seed=seed, acting=policy.acting)
+    tracker = EpisodeTracker(n, level, policy.name, seed=seed, acting=policy.acting, worlds=worlds)
     rows: list[dict] = []
     td = env.reset()
     if step_log is not None:

@@ -134,11 +134,11 @@ class EvaluationSpec(_Strict):
 
 
 class ReferenceSpec(_Strict):
-    policies: list[Literal["oracle", "random"]] = ["oracle", "random"]
+    policies: list[Literal["oracle", "random", "still"]] = ["oracle", "random", "still"]
     levels: list[str] = ["all"]
     # a policy's own levels where they differ from `levels` (the oracle survives every training level to its step
     # limit: hours of CPU for a number known in advance)
-    levels_of: dict[Literal["oracle", "random"], list[str]] = {}
+    levels_of: dict[Literal["oracle", "random", "still"], list[str]] = {}
     episodes: int = Field(default=20, ge=1)
     num_envs: int = Field(default=10, ge=1)
     steps_per_second: float = Field(gt=0)

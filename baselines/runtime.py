@@ -53,15 +53,18 @@ from evaaa.records import TRAINING_EPISODE_FIELDS
 
 from .checkpoint import CHECKPOINT, CHECKPOINT_FORMAT, rng_state, save_checkpoint, set_rng_state
 from .config import Stage, env_overrides, observation_keys
-from .evaluation import EVALUATION_INFO, evaluate, wrap_env
+from .evaluation import EVALUATION_INFO, acting_mode, evaluate, wrap_env
 
 log = logging.getLogger(__name__)
 
 #: the diagnostics the training env emits (``make_env(info=...)``): episode logging reads the first six, the
 #: DreamerV3 replay's consumed flag the last two; the rest would cost every step and be read by no one
 TRAINING_INFO = ("step_count", "end_type", *EV_NAMES, "food_eaten", "water_eaten")
-EVAL_COLUMNS = ("env_steps", "stage", "level", "episodes", "survival_mean", "survival_min", "survival_max",
-                "return_mean", "end_types", "wall_time")
+#: Columns of ``eval.csv``: one row per episode of every periodic evaluation, on the run's validation worlds
+#: (``worlds``), acting as ``acting`` says (:func:`~.evaluation.acting_mode`).  Files written before held one row per
+#: evaluation (``episodes, survival_mean, survival_min, survival_max, return_mean, end_types``): reports read both.
+EVAL_COLUMNS = ("env_steps", "stage", "level", "worlds", "acting", "episode", "steps", "return", "end_type",
+                "food_eaten", "water_eaten", "collisions", "damage_taken", "wall_time")
 
 
 class Interrupted(KeyboardInterrupt):
@@ -249,6 +252,17 @@ class CsvLog:
         self._file.close()
 
 
+def _refuse_old_eval_csv(path: Path) -> None:
+    """A run begun before evaluations were written one row per episode cannot go on in the same file."""
+    if path.is_file():
+        with open(path, newline="") as f:
+            header = next(csv.reader(f), [])
+        if header and tuple(header) != EVAL_COLUMNS:
+            raise ValueError(f"{path} holds one row per evaluation (written by an earlier evaaa), and this version "
+                             f"writes one row per episode on validation worlds: finish that run with the version "
+                             f"that began it, or train it again (start_over=true keeps the old run aside)")
+
+
 class Counters(dict):
     """Plain integer counters of an algorithm's loop, checkpointed like any stateful component."""
 
@@ -294,12 +308,16 @@ class Run:
         #: per-world shapes of the enabled observation keys, before any frame stacking
         self.obs_shapes = {k: tuple(self.base_env.observation_spec[k].shape[1:]) for k in self.obs_keys}
         self.counters = Counters(steps=0, episodes=0, logged=0, last_end=0)
+        #: wall-clock and CPU seconds of the stage's earlier sessions (a resumed checkpoint's ``time``)
+        self._spent_before = (0.0, 0.0)
         self.recent: deque[int] = deque(maxlen=cfg.progress_window)
         self.last_eval: float | None = None
         self.best_eval: float | None = None
         offsets = resume["logs"] if resume else {}
         self.episodes_csv = CsvLog(self.dir / "episodes.csv", TRAINING_EPISODE_FIELDS,
                                    0 if fresh_logs else offsets.get("episodes_csv"))
+        if not fresh_logs:
+            _refuse_old_eval_csv(self.dir / "eval.csv")
         self.eval_csv = CsvLog(self.dir / "eval.csv", EVAL_COLUMNS, 0 if fresh_logs else offsets.get("eval_csv"))
         self.env: TransformedEnv | None = None
         self.model: nn.Module | None = None
@@ -322,12 +340,22 @@ class Run:
 
     @property
     def done(self) -> bool:
-        """The stage's env-step budget is spent, or its wall-clock budget (``max_minutes``, if set) is."""
+        """The stage's env-step budget is spent, or its time budget is: ``max_minutes`` of wall-clock time or
+        ``max_cpu_minutes`` of this process's CPU time (every thread), each summed over the stage's sessions."""
         if self.steps >= self.stage.budget:
             return True
-        limit = self.cfg.get("max_minutes")
-        session = getattr(self, "_session", None)
-        return limit is not None and session is not None and time.perf_counter() - session[0] >= 60.0 * limit
+        # a session ends the stage only through end_iteration (final evaluation and model): one resumed with its
+        # time already spent makes one iteration first
+        if getattr(self, "_session", None) is None or self.steps == self._session[1]:
+            return False
+        spent = self.seconds_spent()
+        limits = (self.cfg.get("max_minutes"), self.cfg.get("max_cpu_minutes"))
+        return any(limit is not None and used >= 60.0 * limit for limit, used in zip(limits, spent))
+
+    def seconds_spent(self) -> tuple[float, float]:
+        """Wall-clock and CPU seconds of this stage so far, earlier sessions included (kept in the checkpoint)."""
+        (wall, cpu), (wall0, cpu0) = self._spent_before, self._clock_start
+        return wall + time.perf_counter() - wall0, cpu + time.process_time() - cpu0
 
     def train_env(self, transforms: Sequence[Transform]) -> TransformedEnv:
         """The stage's worlds wrapped in the algorithm's transforms."""
@@ -358,6 +386,7 @@ class Run:
                              desc=self._desc(), disable=not self.cfg.progress,
                              bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]")
         self._session = (time.perf_counter(), self.steps)
+        self._clock_start = (self._session[0], time.process_time())
         self.meter = Progress(self.cfg.get("progress_seconds", 60), self.steps, now=self._session[0])
         return td
 
@@ -472,7 +501,8 @@ class Run:
         if crossed(self.cfg.eval.every) or (self.done and self.cfg.eval.every > 0):
             self.evaluate()
         if self.done:
-            save_checkpoint(self._identity() | {"model": self.model.state_dict(), "env_steps": now}, self.model_path)
+            save_checkpoint(self._identity() | {"model": self.model.state_dict(), "env_steps": now,
+                                                "time": self._time()}, self.model_path)
         stop = self.stop_requested()
         if crossed(self.cfg.checkpoint.every) or self.done or stop:
             self._checkpoint(td)
@@ -490,13 +520,14 @@ class Run:
         return self.dir / f"model-best-{self.stage.index}-{self.stage.level}.pt"
 
     def evaluate(self) -> None:
-        """A few episodes (deterministic, or sampled with ``eval.sample``) on worlds seeded the same way every time;
-        one row of ``eval.csv``, and ``model-best-*.pt`` when it is the best so far."""
+        """A few episodes (deterministic, or sampled with ``eval.sample``) on the run's validation worlds, the same
+        worlds every time (:mod:`evaaa.worlds`: never a training world, never a test world); one row per episode in
+        ``eval.csv``, and ``model-best-*.pt`` when their mean survival is the best so far."""
         if self._eval_env is None:
             base = evaaa.make_env(self.stage.level, num_envs=self.cfg.eval.episodes, modalities=self.obs_keys,
-                                  info=EVALUATION_INFO, **self.overrides)
+                                  info=EVALUATION_INFO, worlds="validation", **self.overrides)
             self._eval_env = wrap_env(base, self.algo.make_transforms(self.cfg.algo, self.obs_keys, self.model))
-        seed = self.cfg.seed + self.cfg.eval.seed_offset
+        seed = self.cfg.seed
         self._eval_env.set_seed(seed, static_seed=True)
         sample = bool(self.cfg.eval.get("sample", False))
         # a sampling policy draws from torch's RNG: a forked, freshly seeded one leaves the training stream as it was
@@ -508,12 +539,10 @@ class Run:
             self.best_eval = result.survival_mean
             save_checkpoint(self._identity() | {"model": self.model.state_dict(), "env_steps": self.steps,
                                             "eval_survival_mean": result.survival_mean}, self.best_model_path)
-        row = {"env_steps": self.steps, "stage": self.stage.index, "level": self.stage.level,
-               "episodes": len(result.survival), "survival_mean": result.survival_mean,
-               "survival_min": min(result.survival), "survival_max": max(result.survival),
-               "return_mean": result.return_mean, "end_types": ";".join(result.end_types),
-               "wall_time": _now()}
-        self.eval_csv.write(row)
+        common = {"env_steps": self.steps, "stage": self.stage.index, "level": self.stage.level,
+                  "worlds": "validation", "acting": acting_mode(self.cfg.algo.name, sample), "wall_time": _now()}
+        for row in result.rows:
+            self.eval_csv.write({k: row[k] for k in EVAL_COLUMNS if k in row} | common)
         self.logger.log_metrics({"eval/survival_mean": result.survival_mean, "eval/return_mean": result.return_mean},
                                 step=self.steps)
         self._show(force=True)
@@ -564,6 +593,10 @@ class Run:
             "env_overrides": self.overrides,
         }
 
+    def _time(self) -> dict[str, float]:
+        seconds, cpu_seconds = self.seconds_spent()
+        return {"seconds": seconds, "cpu_seconds": cpu_seconds}
+
     def _checkpoint(self, td: TensorDictBase) -> None:
         state = self._identity() | {
             "num_envs": self.base_env.num_envs,
@@ -571,6 +604,7 @@ class Run:
             "components": {name: c.state_dict() for name, c in self.components.items()},
             "env": {"snapshot": self.base_env.snapshot(), "transforms": self.env.transform.state_dict(), "td": td},
             "counters": self.counters.state_dict(),
+            "time": self._time(),
             "rng": rng_state(),
             "logs": {"episodes_csv": self.episodes_csv.size(), "eval_csv": self.eval_csv.size(),
                      "logger": self.logger.state_dict(), "recent": list(self.recent), "last_eval": self.last_eval,
@@ -591,6 +625,8 @@ class Run:
         self.base_env.restore(state["env"]["snapshot"])
         self.env.transform.load_state_dict(state["env"]["transforms"])
         self.counters.load_state_dict(state["counters"])
+        spent = state.get("time", {})  # checkpoints made before time was kept: the earlier sessions count as none
+        self._spent_before = (float(spent.get("seconds", 0.0)), float(spent.get("cpu_seconds", 0.0)))
         self.recent.extend(state["logs"]["recent"])
         self.last_eval = state["logs"]["last_eval"]
         self.best_eval = state["logs"].get("best_eval")

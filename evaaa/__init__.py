@@ -25,6 +25,7 @@ from .physiology import END_TYPES, EV_NAMES, REWARDS  # noqa: E402
 from .sensors import MODALITIES  # noqa: E402
 from .sim import ACTION_NAMES  # noqa: E402
 from .spec import LEVELS, TESTBEDS, Level, LevelError, load_level, register_level  # noqa: E402
+from .worlds import WORLD_SETS  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -39,6 +40,7 @@ __all__ = [
     "MODALITIES",
     "REWARDS",
     "TESTBEDS",
+    "WORLD_SETS",
     "load_level",
     "make_env",
     "register_level",

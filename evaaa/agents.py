@@ -1,4 +1,8 @@
-"""Reference agents for evaluations: a random agent and a privileged scripted oracle.
+"""Reference agents for evaluations: a random agent, one that stands still, and a privileged scripted oracle.
+
+Random and stand-still bracket what "survived longer than random" can mean: random dies of damage (it walks into
+walls), while standing still survives until an EV runs out, with no foraging at all; an agent that learned must beat
+the better of the two.
 
 The oracle reads the simulator's true state through the world's queries (:class:`evaaa.sensors.World`: positions
 of items, obstacles, fires, predators, the EVs, the floor's temperature, the night) and shows that a task is
@@ -44,6 +48,15 @@ class RandomAgent:
 
     def act(self, sim: World) -> np.ndarray:
         return self.rng.integers(0, NUM_ACTIONS, size=sim.n)
+
+
+class StillAgent:
+    """Stands still: the "none" action every decision (no moving, no eating)."""
+
+    name = "still"
+
+    def act(self, sim: World) -> np.ndarray:
+        return np.full(sim.n, NONE, dtype=np.int64)
 
 
 class MotionPlanner:

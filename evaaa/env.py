@@ -50,6 +50,8 @@ class EvaaaEnv(EnvBase):
             :func:`evaaa.load_level`) or a loaded :class:`~evaaa.spec.Level`.
         num_envs: independent worlds stepped together in this process (the env's batch size).
         seed: seed for the worlds' generators; same seed and actions give the same trajectories.
+        worlds: which of the seed's three disjoint sets of worlds to step (:mod:`evaaa.worlds`): ``train`` (the
+            default), ``validation`` (periodic evaluations and anything tuned) or ``test`` (published numbers).
         modalities: observation keys to emit (default all): ``pixels``, ``interoception``, ``olfaction``,
             ``thermoception``, ``collision``.  A dropped modality's key is absent, not zeroed.
         device: where the returned tensors live.
@@ -78,12 +80,13 @@ class EvaaaEnv(EnvBase):
         overrides: Mapping[str, Any] | None = None,
         threads: int | None = None,
         info: bool | Iterable[str] = False,
+        worlds: str = "train",
     ):
         self._info_keys = _info_keys(info)
         spec = level if isinstance(level, Level) else load_level(level, overrides)
         if isinstance(level, Level) and overrides:
             spec = load_level(level.name, overrides)
-        self.sim = Simulator(spec, num_envs, modalities, seed=seed, threads=threads)
+        self.sim = Simulator(spec, num_envs, modalities, seed=seed, threads=threads, worlds=worlds)
         super().__init__(batch_size=torch.Size([num_envs]), device=device)
         self.level = spec
         self.num_envs = num_envs
@@ -166,7 +169,8 @@ class EvaaaEnv(EnvBase):
         # what repr(env) shows between the parentheses (EnvBase is an nn.Module)
         info = "all" if len(self._info_keys) == len(INFO_FIELDS) else list(self._info_keys) or False
         return (f"level={self.level.name!r}, num_envs={self.num_envs}, modalities={list(self.sim.modalities)}, "
-                f"info={info}, device={self.device}, seed={self._seed_value}, threads={self.sim.threads}")
+                f"info={info}, device={self.device}, seed={self._seed_value}, worlds={self.worlds}, "
+                f"threads={self.sim.threads}")
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         self._check_open()
@@ -191,6 +195,11 @@ class EvaaaEnv(EnvBase):
             "terminated": term,
             "truncated": trunc,
         })
+
+    @property
+    def worlds(self) -> str:
+        """The set of worlds this env steps (``train``, ``validation`` or ``test``; see :mod:`evaaa.worlds`)."""
+        return self.sim.worlds
 
     def snapshot(self) -> dict:
         """The full state of every world (physics, EVs, layout, generators): restore it to continue exactly."""
@@ -220,16 +229,18 @@ def make_env(
     device: str | torch.device = "cpu",
     threads: int | None = None,
     info: bool | Iterable[str] = False,
+    worlds: str = "train",
     **overrides: Any,
 ) -> EvaaaEnv:
     """Build the TorchRL env of a level or testbed.
 
     Overrides reach any level field by dotted path, e.g.
     ``make_env("1-1", **{"agent.move_speed": 10, "episode.max_steps": 1000})``, or as nested dicts,
-    ``make_env("1-1", episode={"max_steps": 1000})``.  ``threads``, ``info``: see :class:`EvaaaEnv`.
+    ``make_env("1-1", episode={"max_steps": 1000})``.  ``threads``, ``info``, ``worlds``: see :class:`EvaaaEnv`;
+    ``make_env("1-1", seed=0, worlds="test")`` gives held-out worlds that no training run of any seed steps.
     """
     return EvaaaEnv(name, num_envs=num_envs, seed=seed, modalities=modalities, device=device, overrides=overrides,
-                    threads=threads, info=info)
+                    threads=threads, info=info, worlds=worlds)
 
 
 def _info_keys(info: bool | Iterable[str]) -> tuple[str, ...]:

@@ -62,8 +62,12 @@ EVENT_FIELDS: dict[str, str] = {"trigger_crossed": "trigger_crossed", "steps_nea
 REWARD_FIELDS: tuple[str, ...] = ("mean_reward", "max_reward", "min_reward")
 #: Per-episode share of each action in percent (the original's None% ... Eat%), when the actions are given.
 ACTION_FIELDS: tuple[str, ...] = tuple(f"{name}_pct" for name in ACTION_NAMES)
+#: Which of a seed's sets of worlds (evaaa.worlds: ``validation`` or ``test``) an evaluation's episode was played in;
+#: absent in files written before the sets existed, whose evaluations played the worlds ``make_env(seed=s)`` gives
+#: (the training worlds of seed ``s``).
+WORLD_FIELDS: tuple[str, ...] = ("worlds",)
 #: Columns a row may carry after :data:`EPISODE_FIELDS`, in this order.
-OPTIONAL_FIELDS: tuple[str, ...] = (*EVENT_FIELDS, *REWARD_FIELDS, *ACTION_FIELDS)
+OPTIONAL_FIELDS: tuple[str, ...] = (*EVENT_FIELDS, *REWARD_FIELDS, *ACTION_FIELDS, *WORLD_FIELDS)
 
 
 def _scalar(value) -> Any:
@@ -75,12 +79,13 @@ class EpisodeTracker:
     """Accumulates per-world episode statistics and emits a row when a world's episode ends."""
 
     def __init__(self, num_worlds: int, level: str, policy: str, participant: str = "", seed: int | None = None,
-                 judged: bool | None = None, acting: str = ""):
+                 judged: bool | None = None, acting: str = "", worlds: str | None = None):
         """``judged``: whether the level has a success rule (default: looked up from the level's name);
-        ``acting``: how a checkpoint picks its actions (see :data:`EPISODE_FIELDS`)."""
+        ``acting``: how a checkpoint picks its actions (see :data:`EPISODE_FIELDS`); ``worlds``: the set of worlds
+        played (:data:`WORLD_FIELDS`), a column of every row when given."""
         self.n = num_worlds
         self.level, self.policy, self.participant, self.seed = level, policy, participant, seed
-        self.acting = acting
+        self.acting, self.worlds = acting, worlds
         if judged is None:
             from .spec import load_level
 
@@ -154,6 +159,8 @@ class EpisodeTracker:
             for column, key in EVENT_FIELDS.items():
                 if key in info:
                     row[column] = int(sums[column][w])
+            if self.worlds is not None:
+                row["worlds"] = self.worlds
             decisions = max(sums["decisions"][w], 1.0)
             row["mean_reward"] = float(sums["return"][w] / decisions)
             row["max_reward"] = float(self._max_reward[w])

@@ -46,6 +46,7 @@ from .state import StepEvents, WorldState
 from .thermal import FieldSampler, build_field, hotspot_cells
 from .triggers import Triggers
 from .workers import Workers
+from .worlds import check_worlds, world_seeds
 from .worldgen import (
     AGENT_HALF,
     ObstaclePool,
@@ -103,6 +104,8 @@ class Simulator:
         num_worlds: worlds stepped together.
         modalities: observation keys to produce (None: all).
         seed: seed of the per-world generators (None: fresh entropy).
+        worlds: which of the seed's disjoint sets of worlds (:mod:`evaaa.worlds`): ``train``, ``validation`` or
+            ``test``.
         threads: how many threads work at once.  A batch is split into that many shares (at most one per world):
             the physics of each share on a thread (the calling one and helpers) and the frames of each on a render
             thread.  A single world with ``threads`` >= 2 (and vision on) draws its frame on the calling thread
@@ -112,9 +115,10 @@ class Simulator:
     """
 
     def __init__(self, level: Level, num_worlds: int = 1, modalities=None, seed: int | None = None,
-                 threads: int | None = None):
+                 threads: int | None = None, worlds: str = "train"):
         if not isinstance(num_worlds, int) or isinstance(num_worlds, bool) or num_worlds < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_worlds!r}")
+        self.worlds = check_worlds(worlds)
         self.level = level
         self.n = n = num_worlds
         self.modalities = resolve_modalities(modalities)
@@ -172,9 +176,9 @@ class Simulator:
                                            adjust=adjust)
 
     def seed(self, seed: int | None) -> None:
-        """Give every world its own generator, derived from ``seed`` (None: fresh entropy)."""
-        children = np.random.SeedSequence(seed).spawn(self.n)
-        self.rngs = [np.random.default_rng(s) for s in children]
+        """Give every world its own generator, derived from ``seed`` (None: fresh entropy) within this simulator's
+        set of worlds (:mod:`evaaa.worlds`)."""
+        self.rngs = [np.random.default_rng(s) for s in world_seeds(seed, self.worlds, self.n)]
 
     @property
     def observation_shapes(self) -> dict[str, tuple[tuple[int, ...], np.dtype]]:

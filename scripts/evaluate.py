@@ -1,7 +1,11 @@
 """Evaluate policies on testbeds and training levels: episode records, a table and figures.
 
-    python scripts/evaluate.py policy=[oracle,random] levels=testbeds episodes=20
+    python scripts/evaluate.py policy=[oracle,random,still] levels=testbeds episodes=20
     python scripts/evaluate.py policy=runs/ppo-1-1/checkpoint.pt levels=[1-1,two-resource-food] episodes=20
+
+Episodes are played on the test worlds of ``seed`` (evaaa/worlds.py: no training run of any seed steps them, and the
+periodic evaluations during training use other worlds again, the validation worlds); ``worlds=validation`` plays
+those instead, for choosing settings.  Published numbers come from test worlds.
 
 Arguments are ``key=value`` (lists as ``[a,b]``), the keys of :class:`EvalConfig`; ``--help`` lists them with their
 types, defaults and meanings.
@@ -45,14 +49,18 @@ def _policy_ok(spec: str) -> bool:
 
 @dataclass
 class EvalConfig:
-    policy: list[str] = option(["oracle", "random"], "oracle, random, or a checkpoint file of a baseline; a list "
-                               "evaluates each", check=(_policy_ok, "oracle, random or an existing checkpoint file"))
+    policy: list[str] = option(["oracle", "random", "still"], "oracle, random, still (stands still), or a checkpoint "
+                               "file of a baseline; a list evaluates each",
+                               check=(_policy_ok, "oracle, random, still or an existing checkpoint file"))
     levels: list[str] = option(["testbeds"], "level and testbed names, or the groups testbeds, training, all",
                                choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS, *GROUPS])
     episodes: int = option(20, "episodes per level and policy", check=(lambda v: v >= 1, "a positive integer"))
     num_envs: int = option(4, "worlds run together", check=(lambda v: v >= 1, "a positive integer"))
     seed: int = option(0, "seed of the envs (and the random agent); the same for every policy, so they face the "
                           "same draws")
+    worlds: str = option("test", "which of the seed's worlds: test (held out: every published number) or validation "
+                                 "(the ones to choose settings on); never training worlds (evaaa/worlds.py)",
+                         choices=lambda: ["test", "validation"])
     out: str = option("outputs/eval", "output directory")
     include: list[str] = option([], "episode CSV files to add to the report (e.g. human play records of "
                                     "scripts/play.py)", check=(lambda p: Path(p).is_file(), "existing files"))
@@ -119,7 +127,8 @@ def main(argv: list[str] | None = None) -> int:
                 bar.set_postfix_str(f"{policy.name} on {level}")
                 try:
                     rows = episode_records(policy, level, episodes=cfg.episodes, num_envs=cfg.num_envs,
-                                           seed=cfg.seed, step_log=step_log, on_episode=lambda: bar.update(1))
+                                           seed=cfg.seed, worlds=cfg.worlds, step_log=step_log,
+                                           on_episode=lambda: bar.update(1))
                 except EvaluationError as err:
                     raise SystemExit(f"evaluate.py: {err}") from None
                 append_rows(partial, rows)
@@ -132,8 +141,8 @@ def main(argv: list[str] | None = None) -> int:
     summary = summarize(rows)
     table = markdown_table(summary)
     (out / "summary.md").write_text(
-        f"# Evaluation ({cfg.episodes} episodes per level and policy, seed {cfg.seed}"
-        + ("; checkpoints sample their actions" if cfg.sample else "")
+        f"# Evaluation ({cfg.episodes} episodes per level and policy, {cfg.worlds} worlds of seed {cfg.seed}"
+        + ("; checkpoints sample their actions (DQN's act greedily: it has no distribution)" if cfg.sample else "")
         + (f"; checkpoints act epsilon-greedily, epsilon {cfg.epsilon:g}" if cfg.epsilon else "") + ")\n\n"
         + SUMMARY_NOTE + "\n\n"
         + table + "\n")

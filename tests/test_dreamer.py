@@ -153,7 +153,7 @@ def test_smoke_run_trains_logs_finite_losses_and_checkpoints_the_buffer(runs):
                  "actor_loss", "actor_entropy", "critic_loss", "return_scale"):
         assert scalars.get(name), f"{name} is not logged"
         assert all(math.isfinite(float(v)) for v in scalars[name].values()), name
-    assert [int(r["env_steps"]) for r in read_csv(run_dir / "eval.csv")] == [128, 256]
+    assert [int(r["env_steps"]) for r in read_csv(run_dir / "eval.csv")] == [128, 128, 256, 256]  # 2 episodes each
     assert len(read_csv(run_dir / "episodes.csv")) >= 2
 
 

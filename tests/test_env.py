@@ -868,7 +868,7 @@ def test_stepping_a_closed_env_is_an_error_and_rebuilds_nothing():
 def test_repr_says_what_the_env_is():
     env = evaaa.make_env("2-1", num_envs=3, seed=4, modalities=["olfaction", "pixels"], threads=1)
     assert repr(env) == ("EvaaaEnv(level='2-1', num_envs=3, modalities=['pixels', 'olfaction'], info=False, device=cpu, "
-                         "seed=4, threads=1)")
+                         "seed=4, worlds=train, threads=1)")
     env.close()
 
 

@@ -181,9 +181,21 @@ def test_evaluate_writes_records_table_and_figures(tmp_path):
         assert (out / name).stat().st_size > 1000
 
 
+def test_evaluate_plays_test_worlds_and_stand_still_never_moves(tmp_path):
+    out = tmp_path / "eval"
+    assert load_evaluate().main(["policy=[still]", "levels=[1-1]", "episodes=2", "num_envs=2", f"out={out}"]) == 0
+    rows = read_rows(out / "episodes.csv")
+    assert [r["worlds"] for r in rows] == ["test", "test"] and all(r["policy"] == "still" for r in rows)
+    assert all(float(r["none_pct"]) == 100.0 and r["food_eaten"] == "0" and r["collisions"] == "0" for r in rows)
+    # it dies of hunger or thirst, not of damage: it never moved
+    assert {r["end_type"] for r in rows} <= {"FoodOutOfRange", "WaterOutOfRange"}
+    assert "test worlds of seed 0" in (out / "summary.md").read_text()
+
+
 @pytest.mark.parametrize("args,message", [
+    (["worlds=train"], "worlds=train: 'train' is not allowed; allowed: test, validation"),
     (["levels=[no-such-testbed]"], "levels=[no-such-testbed]: 'no-such-testbed' is not allowed; allowed: 1-1"),
-    (["policy=missing/checkpoint.pt"], "policy=missing/checkpoint.pt: expected oracle, random or an existing"),
+    (["policy=missing/checkpoint.pt"], "policy=missing/checkpoint.pt: expected oracle, random, still or an existing"),
     (["episodes=0"], "episodes=0: expected a positive integer"),
     (["episodes=abc"], "episodes=abc: expected an integer"),
     (["colour=red"], "unknown key 'colour'; keys: policy, levels, episodes"),

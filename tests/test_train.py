@@ -171,12 +171,16 @@ def test_smoke_run_writes_checkpoint_csvs_and_final_model(runs, algo):
         assert 0 < int(row["steps"]) <= 48
         assert (int(row["steps"]) == 48) == (row["end_type"] == "MaxStepReached")
     evaluations = read_csv(run_dir / "eval.csv")
-    assert [int(r["env_steps"]) for r in evaluations] == [128, 256]  # every eval.every, and at the end
-    assert all(0 < float(r["survival_mean"]) <= 48 for r in evaluations)
+    # one row per episode (eval.episodes=2) of every evaluation: every eval.every, and at the end
+    assert [(int(r["env_steps"]), r["episode"]) for r in evaluations] == [(128, "0"), (128, "1"), (256, "0"),
+                                                                          (256, "1")]
+    assert {(r["worlds"], r["acting"]) for r in evaluations} == {("validation", "mode")}
+    assert all(0 < int(r["steps"]) <= 48 and r["end_type"] in evaaa.END_TYPES[1:] for r in evaluations)
+    assert all(int(r["food_eaten"]) >= 0 and int(r["collisions"]) >= 0 for r in evaluations)
     best = checkpoint.load_checkpoint(run_dir / "model-best-0-1-1.pt")
-    means = [float(r["survival_mean"]) for r in evaluations]
+    means = [(int(evaluations[i]["steps"]) + int(evaluations[i + 1]["steps"])) / 2 for i in (0, 2)]
     assert best["eval_survival_mean"] == max(means)
-    assert best["env_steps"] == int(evaluations[means.index(max(means))]["env_steps"])  # the first of equal bests
+    assert best["env_steps"] == (128, 256)[means.index(max(means))]  # the first of equal bests
     assert train_scalars(run_dir), "training metrics reach the logger"
 
 
@@ -188,7 +192,8 @@ def test_sampling_evaluation_leaves_training_unchanged(runs, tmp_path):
     for name, value in whole["model"].items():
         assert torch.equal(value, sampled["model"][name]), name
     assert read_csv(runs("ppo")["whole"] / "episodes.csv") == read_csv(tmp_path / "run" / "episodes.csv")
-    assert len(read_csv(tmp_path / "run" / "eval.csv")) == 2
+    evaluations = read_csv(tmp_path / "run" / "eval.csv")
+    assert len(evaluations) == 4 and {r["acting"] for r in evaluations} == {"sample"}
 
 
 @pytest.mark.parametrize("algo", ALGOS)
@@ -264,8 +269,8 @@ def test_evaluation_samples_from_the_policy_on_request(runs):
 
 
 def test_a_dqn_checkpoint_asked_to_sample_takes_its_greedy_action(runs):
-    """The protocol's acting rule (sample=true, epsilon 0.05 for every agent) relies on it: DQN's policy is its
-    greedy action, so sample=true leaves it as it is."""
+    """DQN's policy is its greedy action, so sample=true leaves it as it is, and its rows say so (``mode``): a
+    comparison of sampling agents shows that DQN's episodes were not sampled."""
     path = str(runs("dqn")["whole"] / "model-0-1-1.pt")
     policy = EvaluatedPolicy(path, seed=0, sample=True)
     env = policy.make_env("1-1", num_envs=2, seed=0)
@@ -275,7 +280,8 @@ def test_a_dqn_checkpoint_asked_to_sample_takes_its_greedy_action(runs):
         acts = torch.stack([policy.act(env, td.clone()) for _ in range(100)])
     finally:
         env.close()
-    assert policy.acting == "sample" and bool((acts == greedy).all())
+    assert policy.acting == "mode" and bool((acts == greedy).all())
+    assert EvaluatedPolicy(path, seed=0, sample=True, epsilon=0.05).acting == "mode+epsilon=0.05"
 
 
 def test_loader_gives_a_policy_and_refuses_other_observation_keys(runs):
@@ -436,6 +442,21 @@ def test_a_wall_clock_budget_ends_the_stage_early(tmp_path):
     rows = list(csv.DictReader(open(tmp_path / "run" / "eval.csv")))
     assert rows and int(rows[-1]["env_steps"]) < 10 * TOTAL
     assert (tmp_path / "run" / "model-0-1-1.pt").exists()
+
+
+def test_time_budgets_count_every_session_of_a_stage(tmp_path, monkeypatch):
+    # a first session checkpoints and is killed; the resumed one is given a CPU budget the first has already spent
+    cfg = debug_cfg("ppo", "eval.every=100000", "checkpoint.every=64", total_steps=10 * TOTAL)
+    run_killed(cfg, tmp_path / "run", 3 * 64, monkeypatch)
+    first = checkpoint.load_checkpoint(tmp_path / "run" / checkpoint.CHECKPOINT)["time"]
+    assert first["seconds"] > 0 and first["cpu_seconds"] > 0
+    budget = first["cpu_seconds"] / 60 / 2
+    train(debug_cfg("ppo", "eval.every=100000", "checkpoint.every=64", "resume=true", f"max_cpu_minutes={budget}",
+                    total_steps=10 * TOTAL), tmp_path / "run")
+    final = checkpoint.load_checkpoint(tmp_path / "run" / "model-0-1-1.pt")
+    # one iteration of the resumed session, then the stage ends: its earlier session counted
+    assert final["env_steps"] < 10 * TOTAL
+    assert final["time"]["cpu_seconds"] > first["cpu_seconds"] and final["time"]["seconds"] > first["seconds"]
 
 
 # ------------------------------------------------------------------------------------------------ devices

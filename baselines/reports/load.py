@@ -74,7 +74,10 @@ class RunRecord:
     curriculum: bool = False
     stages: list[tuple[int, str, int]] = field(default_factory=list)  # (index, level, budget)
     episodes: pd.DataFrame | None = None
+    #: eval.csv as written: one row per episode of the periodic evaluations (on validation worlds), or, in files of
+    #: the older format (``eval_means_only``), one row per evaluation with its mean survival
     evals: pd.DataFrame | None = None
+    eval_episodes: pd.DataFrame | None = None  # ``evals`` where it has one row per episode, else None
     complete: set[int] = field(default_factory=set)  # indices of finished stages
     steps: int = 0  # env steps reached, summed over stages
     problem: str | None = None  # why the run is missing or partial (None: finished)
@@ -163,6 +166,7 @@ def load_run(run_dir: str | Path) -> RunRecord:
         run.eval_worlds = OLD_EVAL_WORLDS.format(int(ev.get("seed_offset", 0)))
         for column, default in (("acting", run.eval_acting), ("worlds", run.eval_worlds)):
             run.evals[column] = run.evals[column].fillna(default) if column in run.evals else default
+        run.eval_episodes = None if run.eval_means_only else run.evals
     for index, level, budget in run.stages:
         later = any(df is not None and (df["stage"] > index).any() for df in (run.episodes, run.evals))
         evaluated_at_end = run.evals is not None and ((run.evals["stage"] == index)
