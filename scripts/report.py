@@ -32,9 +32,9 @@ from evaaa_baselines.reports import ReportError, build_report  # noqa: E402
 class ReportConfig:
     runs: list[str] = option([], "run directories of scripts/train.py, or folders holding them (searched "
                                  "recursively)")
-    evals: list[str] = option([], "evaluate.py output directories or episode CSV files (incl. human play records of "
-                                  "scripts/play.py); a checkpoint evaluated there is tied to its run through the run "
-                                  "directory it lies in")
+    evals: list[str] = option([], "evaluate.py output directories (or folders of them, searched recursively) or "
+                                  "episode CSV files (incl. human play records of scripts/play.py); a checkpoint "
+                                  "evaluated there is tied to its run through the run directory it lies in")
     out: str = option("outputs/report", "output directory")
     survival: str = option("eval", "eval: a stage's survival is its last evaluation (eval.csv); train: the mean of "
                                    "its last `window` training episodes (also the fallback for stages without "

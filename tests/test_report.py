@@ -1031,3 +1031,20 @@ def test_per_episode_in_training_evaluations_give_cells_and_curves_over_episodes
     assert curve.loc[BUDGET // 2, "value"] == pytest.approx(hand_iqm([v for s in first for v in s]))
     assert curve.loc[BUDGET // 2, "n"] == 3 and curve.loc[BUDGET // 2, "episodes"] == 12
     assert table(text, "## In-training evaluations")["trained on 1-1"]["ppo"] == expect(last)
+
+
+def test_a_folder_of_evaluations_is_searched_for_their_episode_files(world, tmp_path):
+    # a protocol's evals folder: one evaluate.py output per cell, an evaluation moved aside that must not count
+    rows = pd.read_csv(world["base"] / "eval" / "episodes.csv", dtype=str, keep_default_na=False)
+    half = len(rows) // 2
+    for name, part in (("a/testbeds", rows.iloc[:half]), ("b/level", rows.iloc[half:]),
+                       ("b/level.old-20260101T000000Z", rows.iloc[:3])):
+        (tmp_path / "evals" / name).mkdir(parents=True)
+        part.to_csv(tmp_path / "evals" / name / "episodes.csv", index=False)
+    whole = build_report([world["base"] / "runs"], [world["base"] / "eval"], tmp_path / "one")
+    found = build_report([world["base"] / "runs"], [tmp_path / "evals"], tmp_path / "many")
+    assert table(found.markdown.read_text(), "## Success per testbed") == table(whole.markdown.read_text(),
+                                                                               "## Success per testbed")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ReportError, match="holds no episodes.csv"):
+        build_report([], [tmp_path / "empty"], tmp_path / "none")

@@ -304,16 +304,37 @@ def display_names(rows: pd.DataFrame) -> pd.Series:
 
 
 # ------------------------------------------------------------------------------------------------ evaluations
+def _episode_files(paths: Iterable[str | Path]) -> list[Path]:
+    """The episode CSVs of ``paths``: a file itself; a directory's ``episodes.csv``; or, for a directory without
+    one (a protocol's ``evals`` folder), every ``episodes.csv`` below it — hidden folders and evaluations moved
+    aside (``.partial-``, ``.old-``) skipped, as they hold no finished evaluation of the models reported."""
+    files: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_file():
+            files.append(p)
+        elif (p / "episodes.csv").is_file():
+            files.append(p / "episodes.csv")
+        elif p.is_dir():
+            found = []
+            for here, dirs, names in os.walk(p):
+                dirs[:] = sorted(d for d in dirs if not d.startswith(".") and ".partial-" not in d
+                                 and ".old-" not in d)
+                found += [Path(here) / "episodes.csv"] if "episodes.csv" in names else []
+            if not found:
+                raise ReportError(f"evals: {p} holds no episodes.csv, neither itself nor in a folder below it")
+            files += found
+        else:
+            raise ReportError(f"evals: {p} is neither an episode CSV nor a directory holding episodes.csv")
+    return files
+
+
 def load_evaluations(paths: Iterable[str | Path], notes: list[str] | None = None) -> pd.DataFrame:
-    """Episode rows of evaluation outputs (an ``out`` directory of evaluate.py or an episode CSV, e.g. human
-    play records), in one frame with a ``file`` column.  ``notes`` gets a line per skipped (cut short) row."""
+    """Episode rows of evaluation outputs (an ``out`` directory of evaluate.py, a folder of such directories
+    searched recursively, or an episode CSV, e.g. human play records), in one frame with a ``file`` column.
+    ``notes`` gets a line per skipped (cut short) row."""
     notes = [] if notes is None else notes
     frames = []
-    for p in paths:
-        p = Path(p)
-        file = p / "episodes.csv" if p.is_dir() else p
-        if not file.is_file():
-            raise ReportError(f"evals: {p} is neither an episode CSV nor a directory holding episodes.csv")
+    for file in _episode_files(paths):
         text = csv_text(file, notes)
         columns = set(pd.read_csv(text, nrows=0).columns)
         missing = [c for c in EVAL_FILE_COLUMNS if c not in columns]
