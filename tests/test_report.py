@@ -940,7 +940,7 @@ def test_what_it_learned_sets_every_agent_beside_random_and_stand_still(tmp_path
     # ppo stands still (never eats, survives a little longer than stand-still); dqn eats two items an episode
     sim = Sim(tmp_path / "runs")
     rows = []
-    for algo, steps, food in (("ppo", 1200, 0), ("dqn", 900, 2)):
+    for algo, steps, food in (("ppo", 1200, 0), ("dqn", 900, 2), ("ppo_lstm", 500, 0)):
         for seed in (0, 1, 2):
             run = sim.run(algo, seed, level="1-1", finish=1)
             rows += [r | {"acting": "mode", "worlds": "test", "steps": steps + seed, "food_eaten": food,
@@ -951,7 +951,8 @@ def test_what_it_learned_sets_every_agent_beside_random_and_stand_still(tmp_path
     append_rows(tmp_path / "eval" / "episodes.csv", rows)
     text = build_report([tmp_path / "runs"], [tmp_path / "eval"], tmp_path / "out").markdown.read_text()
     got = {r["agent"]: r for r in learned_rows(text)}
-    assert set(got) == {"ppo", "dqn", "still", "random"}
+    assert set(got) == {"ppo", "dqn", "ppo_lstm", "still", "random"}
+    assert got["ppo_lstm"]["reading"] == "neither eats more nor survives longer than random and stand-still"
     assert got["ppo"]["food / ep."] == "0.00" and got["ppo"]["vs better of random, stand-still"] == "1.08× still"
     assert got["ppo"]["reading"] == "survives longer than random and stand-still, eats no more"
     assert got["dqn"]["reading"] == "eats more than random and stand-still"  # 901 < 1112: not longer
@@ -959,8 +960,12 @@ def test_what_it_learned_sets_every_agent_beside_random_and_stand_still(tmp_path
     assert got["dqn"]["n"] == "3 seeds × 4 ep."
     top = text.split("\n\n")[1]
     assert top.startswith("**What the agents learned**")
-    assert "ppo ate more food and water per episode than random and stand-still on 0 of 1 levels" in top
-    assert "dqn ate more food and water per episode than random and stand-still on 1 of 1 levels (1-1: 2.0)" in top
+    assert ("ppo ate more food and water per episode than random and stand-still on 0 of 1 levels and survived "
+            "longer than the better of random and stand-still on 1 of 1") in top
+    assert ("dqn ate more food and water per episode than random and stand-still on 1 of 1 levels (1-1: 2.0) and "
+            "survived longer than the better of random and stand-still on 0 of 1") in top
+    assert "ppo_lstm ate more food and water per episode than random and stand-still on 0 of 1 levels and " \
+           "survived longer than the better of random and stand-still on 0 of 1" in top
     assert "Stand-still survives 1112 decisions on 1-1" in top
 
 

@@ -505,22 +505,26 @@ def learned_table(inp: Inputs) -> pd.DataFrame:
                                  if p in set(part["label"])) for lv, part in ref.groupby("level")}
     better = ref.sort_values("survival").groupby("level").tail(1).set_index("level")
     most_eaten = (ref.assign(eaten=ref["food"] + ref["water"]).groupby("level")["eaten"].max())
-    learned, vs = [], []
+    learned, vs, eats_more, lives_longer = [], [], [], []
     for row in table.itertuples():
         if row.label in (*LEARNED_REFERENCES, "oracle") or row.level not in better.index:
             learned.append("")
             vs.append("")
+            eats_more.append(False)
+            lives_longer.append(False)
             continue
         b = better.loc[row.level]
         ratio = row.survival / b["survival"] if b["survival"] else float("nan")
         vs.append(f"{ratio:.2f}× {b['label']}")
         eats = row.food + row.water > most_eaten.get(row.level, np.inf)
         lives = ratio > 1
+        eats_more.append(bool(eats))
+        lives_longer.append(bool(lives))
         than = compared[row.level]
         learned.append(f"eats more than {than}" + (" and survives longer" if lives else "")
                        if eats else f"survives longer than {than}, eats no more" if lives
                        else f"neither eats more nor survives longer than {than}")
-    return table.assign(vs_reference=vs, learned=learned)
+    return table.assign(vs_reference=vs, learned=learned, eats_more=eats_more, lives_longer=lives_longer)
 
 
 def learned_paragraph(inp: Inputs) -> str:
@@ -537,8 +541,10 @@ def learned_paragraph(inp: Inputs) -> str:
     acting = ", ".join(f"`{a}`" for a in dict.fromkeys(agents["acting"]))
     worlds = ", ".join(dict.fromkeys(agents["worlds"]))
     budget = sorted({b for r in inp.usable for _, _, b in r.stages})
+    ref_worlds = ", ".join(dict.fromkeys(refs["worlds"])) if len(refs) else ""
     out = [f"**What the agents learned** ({', '.join(f'{b:,}' for b in budget)} env steps per stage; every stage's "
-           f"network on its own level, acting {acting}, on {worlds}):"]
+           f"network on its own level, acting {acting}, on {worlds}"
+           + (f"; references on {ref_worlds}" if ref_worlds and ref_worlds != worlds else "") + "):"]
     groups: dict[str, pd.DataFrame] = {}
     for label, part in agents.groupby("label", sort=False):
         key = label.split(" [")[0]
@@ -549,10 +555,10 @@ def learned_paragraph(inp: Inputs) -> str:
         if any(m in key for m in ("no_vision", "no_interoception", "no_olfaction", "no_thermoception",
                                   "no_collision")):
             continue
-        eats = part[part["learned"].str.startswith("eats more")]
+        eats = part[part["eats_more"]]
         than = " and ".join("stand-still" if r == "still" else r for r in LEARNED_REFERENCES
                             if r in set(refs["label"]))
-        lives = part[part["learned"].str.contains("survives longer")]
+        lives = part[part["lives_longer"]]
         sentences.append(
             f"{key} ate more food and water per episode than {than} on {len(eats)} of {len(part)} levels"
             + (f" ({', '.join(f'{r.level}: {r.food + r.water:.1f}' for r in eats.itertuples())})" if len(eats)
