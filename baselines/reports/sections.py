@@ -541,10 +541,16 @@ def learned_paragraph(inp: Inputs) -> str:
     acting = ", ".join(f"`{a}`" for a in dict.fromkeys(agents["acting"]))
     worlds = ", ".join(dict.fromkeys(agents["worlds"]))
     budget = sorted({b for r in inp.usable for _, _, b in r.stages})
-    ref_worlds = ", ".join(dict.fromkeys(refs["worlds"])) if len(refs) else ""
+    def said(w: str) -> str:  # "test" -> "test worlds"; the older labels say "worlds" already
+        return w if "worlds" in w else f"{w} worlds"
+
+    worlds = ", ".join(said(w) for w in dict.fromkeys(agents["worlds"]))
+    ref_worlds = {("stand-still" if r == "still" else r): ", ".join(said(w) for w in dict.fromkeys(part["worlds"]))
+                  for r, part in refs.groupby("label", sort=False)}
+    differ = any(w != worlds for w in ref_worlds.values())
     out = [f"**What the agents learned** ({', '.join(f'{b:,}' for b in budget)} env steps per stage; every stage's "
            f"network on its own level, acting {acting}, on {worlds}"
-           + (f"; references on {ref_worlds}" if ref_worlds and ref_worlds != worlds else "") + "):"]
+           + ("; " + "; ".join(f"{r} on {w}" for r, w in ref_worlds.items()) if differ else "") + "):"]
     groups: dict[str, pd.DataFrame] = {}
     for label, part in agents.groupby("label", sort=False):
         key = label.split(" [")[0]
