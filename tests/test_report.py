@@ -39,8 +39,8 @@ TESTBEDS = ("two-resource-food", "y-maze")
 OLD_EVAL_COLUMNS = ("env_steps", "stage", "level", "episodes", "survival_mean", "survival_min", "survival_max",
                     "return_mean", "end_types", "wall_time")
 FIGURES = ("fig4a_survival_per_level.png", "fig4a_curriculum_vs_direct.png", "fig4b_success_per_testbed.png",
-           "fig4b_generalisation.png", "fig_training_curves.png", "fig_evaluation_curves.png", "fig25_ablation_curves.png",
-           "fig26_ablation_success.png")
+           "fig4b_generalisation.png", "fig_training_curves.png", "fig_evaluation_curves.png",
+           "fig25_ablation_curves.png", "fig26_ablation_success.png")
 
 
 # ------------------------------------------------------------------------------------------------ inputs
@@ -945,7 +945,8 @@ def test_what_it_learned_sets_every_agent_beside_random_and_stand_still(tmp_path
             run = sim.run(algo, seed, level="1-1", finish=1)
             rows += [r | {"acting": "mode", "worlds": "test", "steps": steps + seed, "food_eaten": food,
                           "end_type": "FoodOutOfRange"} for r in sim.evaluate(str(run / "model-0-1-1.pt"), "1-1", 4)]
-    rows += [r | {"worlds": "test", "steps": 1112, "end_type": "FoodOutOfRange"} for r in sim.evaluate("still", "1-1", 5)]
+    rows += [r | {"worlds": "test", "steps": 1112, "end_type": "FoodOutOfRange"}
+             for r in sim.evaluate("still", "1-1", 5)]
     rows += [r | {"worlds": "test", "steps": 300, "food_eaten": 1, "collisions": 28, "end_type": "DamageTooHigh"}
              for r in sim.evaluate("random", "1-1", 5)]
     append_rows(tmp_path / "eval" / "episodes.csv", rows)
