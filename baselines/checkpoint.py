@@ -31,6 +31,8 @@ import torch
 from omegaconf import DictConfig, ListConfig, OmegaConf
 from tensordict import TensorDict, TensorDictBase, is_non_tensor
 
+from evaaa.records import disk_error
+
 CHECKPOINT = "checkpoint.pt"
 #: the checkpoint before the latest, kept so that a damaged latest one costs one checkpoint interval, not the run
 PREVIOUS = "checkpoint-previous.pt"
@@ -154,31 +156,44 @@ def checksum(plain: Any) -> str:
 # ------------------------------------------------------------------------------------------------ files
 def save_checkpoint(state: Mapping, path: str | Path, *, keep_previous: bool = False) -> None:
     """Write ``state`` to ``path`` so that no crash leaves a half-written file there: a temporary file in the same
-    directory, fsync, rename.  With ``keep_previous``, the file being replaced stays as :data:`PREVIOUS`."""
+    directory, fsync, rename.  With ``keep_previous``, the file being replaced stays as :data:`PREVIOUS`.
+
+    A disk that refuses the write (full, read-only, no permission) raises :class:`~evaaa.records.DiskError` naming
+    ``path`` and the cause; the files already there are left as they were and no temporary file stays behind."""
     path = Path(path)
     plain = to_plain(dict(state))
     envelope = {"evaaa_checkpoint": FILE_FORMAT, "checksum": checksum(plain), "state": plain}
     tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "wb") as f:
-        torch.save(envelope, f)
-        f.flush()
-        os.fsync(f.fileno())
-    if keep_previous and path.exists():
-        previous = path.with_name(PREVIOUS)
-        # a second name for the current file, so that at every moment of the swap a complete checkpoint is on disk
-        spare = path.with_name(f".{PREVIOUS}.tmp")
-        spare.unlink(missing_ok=True)
-        try:
-            os.link(path, spare)
-        except OSError:  # a file system without hard links
-            shutil.copyfile(path, spare)
-        os.replace(spare, previous)
-    os.replace(tmp, path)
-    dir_fd = os.open(path.parent, os.O_RDONLY)  # make the renames themselves durable
+    # a second name for the current file, so that at every moment of the swap a complete checkpoint is on disk
+    spare = path.with_name(f".{PREVIOUS}.tmp")
     try:
-        os.fsync(dir_fd)
-    finally:
-        os.close(dir_fd)
+        with open(tmp, "wb") as f:
+            torch.save(envelope, f)
+            f.flush()
+            os.fsync(f.fileno())
+        if keep_previous and path.exists():
+            spare.unlink(missing_ok=True)
+            try:
+                os.link(path, spare)
+            except OSError:  # a file system without hard links
+                shutil.copyfile(path, spare)
+            os.replace(spare, path.with_name(PREVIOUS))
+        os.replace(tmp, path)
+        dir_fd = os.open(path.parent, os.O_RDONLY)  # make the renames themselves durable
+        try:
+            os.fsync(dir_fd)
+        finally:
+            os.close(dir_fd)
+    except BaseException as exc:
+        for leftover in (tmp, spare):
+            try:
+                leftover.unlink(missing_ok=True)
+            except OSError:
+                pass  # a read-only disk, where it could not have been written either
+        error = disk_error(path, exc) if isinstance(exc, (OSError, RuntimeError)) else None
+        if error is None:
+            raise
+        raise error from None
 
 
 def load_checkpoint(path: str | Path, map_location: str | torch.device | None = "cpu") -> dict:

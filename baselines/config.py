@@ -12,6 +12,7 @@ from __future__ import annotations
 import copy
 import re
 import sys
+import tempfile
 import textwrap
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +24,7 @@ from hydra.core.override_parser.types import Override
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 import evaaa
+from evaaa.records import DiskError
 from evaaa.sensors import SENSORS, resolve_modalities
 
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
@@ -330,6 +332,25 @@ def check_command_line(argv: list[str], doc: str = "") -> None:
         except ConfigError as err:
             print(f"train.py: error: {err}", file=sys.stderr)
             raise SystemExit(2) from None
+    root = Path(str(OmegaConf.select(_LAST[0], "run.root", default="runs")))
+    try:
+        check_writable(root)
+    except DiskError as err:  # Hydra would make the run folder and end in a traceback
+        print(f"train.py: {err}; nothing was written", file=sys.stderr)
+        raise SystemExit(1) from None
+
+
+def check_writable(folder: Path) -> None:
+    """Raise :class:`~evaaa.records.DiskError` where ``folder`` (or, while it does not exist, the folder it would
+    be made in) cannot take files: a real write, since root passes every permission check on a read-only disk."""
+    existing = folder
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    try:
+        with tempfile.TemporaryDirectory(dir=existing, prefix=".write-test-"):
+            pass
+    except OSError as exc:
+        raise DiskError(folder, exc) from None
 
 
 # ------------------------------------------------------------------------------------------------- --help

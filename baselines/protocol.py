@@ -43,6 +43,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 import evaaa
 
+from .algos import algorithm
 from .algos import names as algorithm_names
 from .config import CONF_DIR
 
@@ -87,6 +88,31 @@ class TrainingSpec(_Strict):
     overrides: list[str] = []  # train.py overrides of every training run
     curriculum: bool = True  # one run through all `levels` per algorithm and seed
     direct: bool = True  # one run per level per algorithm and seed
+    algorithms: list[str] | None = None  # the algorithms of the curriculum and direct runs (null: every enabled one)
+    direct_levels: list[str] | None = None  # the levels of the direct runs (null: every level of `levels`)
+    # env steps of the direct run on the k-th level of `levels` (k from 0): `stage` gives every one S; `matched`
+    # gives (k + 1) * S, what the curriculum had seen by the end of that stage (curriculum vs direct at equal steps)
+    direct_steps: Literal["stage", "matched"] = "stage"
+
+    @field_validator("direct_levels")
+    @classmethod
+    def _direct_levels(cls, v: list[str] | None) -> list[str] | None:
+        return None if v is None else _check_levels(v, evaaa.LEVELS, "a training level")
+
+
+class MatchedSpec(_Strict):
+    """Every algorithm on one level for the same CPU minutes (``max_cpu_minutes``), whatever env steps that buys."""
+
+    level: str
+    cpu_minutes: float = Field(gt=0)
+    algorithms: list[str] | None = None  # null: every enabled algorithm
+    seeds: list[int] | None = None  # null: the protocol's seeds
+    overrides: dict[str, list[str]] = {}  # per algorithm: train.py overrides of its matched runs (evaluation rate)
+
+    @field_validator("level")
+    @classmethod
+    def _level(cls, v: str) -> str:
+        return _check_levels([v], [*evaaa.LEVELS, *evaaa.TESTBEDS], "a level or testbed")[0]
 
 
 class AblationSpec(_Strict):
@@ -128,6 +154,10 @@ class EvaluationSpec(_Strict):
     seed: int = 0
     epsilon: float = Field(default=0.05, ge=0, le=1)
     sample: bool = False
+    # several acting modes: every model is evaluated in each (its folders get a `-<mode>` suffix; an algorithm with no
+    # action distribution, DQN, only in `mode`), and the report compares them in the first; null: as `sample` says
+    modes: list[Literal["mode", "sample"]] | None = Field(default=None, min_length=1)
+    worlds: Literal["test", "validation"] = "test"  # the evaluations' worlds (evaaa/worlds.py): published: test
     testbeds: EvalPart | None = None  # every evaluated model on these levels (null: none)
     own_level: OwnLevelPart | None = None  # every evaluated model on the level it was trained up to (null: none)
     steps_per_second: float = Field(gt=0, description="measured world steps/s of evaluate.py (estimates)")
@@ -170,6 +200,10 @@ class Protocol(_Strict):
     ablations: AblationSpec | None = None
     evaluation: EvaluationSpec
     references: ReferenceSpec | None = None
+    matched: MatchedSpec | None = None  # the compute-matched comparison on one level
+    # the order of the parts' cells, and so of the scheduler's work: the first ones answer something on their own
+    order: list[Literal["references", "matched", "ablations", "curriculum", "direct"]] = \
+        ["references", "curriculum", "direct", "ablations", "matched"]
     report: ReportSpec
     # where the runs, evaluations, logs and done-markers go (reproduce.py's root= overrides it); relative paths: to
     # the repository root. A folder inside the repository can be committed (its .gitignore keeps the checkpoints
@@ -189,6 +223,20 @@ class Protocol(_Strict):
         if not any(a.enabled for a in v.values()):
             raise ValueError("no algorithm is enabled")
         return v
+
+    @model_validator(mode="after")
+    def _part_algorithms(self) -> Protocol:
+        enabled = [n for n, a in self.algorithms.items() if a.enabled]
+        for where, names in (("training.algorithms", self.training.algorithms),
+                             ("matched.algorithms", self.matched.algorithms if self.matched else None),
+                             ("matched.overrides", list(self.matched.overrides) if self.matched else None)):
+            bad = [n for n in names or () if n not in enabled]
+            if bad:
+                raise ValueError(f"{where}: {bad[0]!r} is not an enabled algorithm of this protocol; allowed: "
+                                 f"{', '.join(enabled)}")
+        if sorted(self.order) != sorted(set(self.order)) or len(set(self.order)) != 5:
+            raise ValueError("order: name each of references, matched, ablations, curriculum, direct once")
+        return self
 
     @model_validator(mode="after")
     def _ablation_algorithm(self) -> Protocol:
@@ -394,31 +442,39 @@ def keep_out_of_git(lay: Layout) -> Path | None:
 
 
 def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list[Cell]:
-    """Every cell of ``p`` with its files under ``root``, in the order the scheduler prefers: references, then per
-    algorithm each training run followed by the evaluations of its models, then the report."""
+    """Every cell of ``p`` with its files under ``root``, in the order the scheduler prefers: the parts in
+    ``p.order`` (within a part, per algorithm each training run followed by the evaluations of its models; the
+    matched comparison seed by seed), then the report."""
     lay = Layout(root)
     S, levels, th = p.stage_steps, p.stage_levels, p.threads
     ev = p.evaluation
-    cells: list[Cell] = []
+    parts: dict[str, list[Cell]] = {part: [] for part in p.order}
     eval_outs: list[Path] = []
+    modes = eval_modes(ev)
 
     def eval_cell(name: str, model: Path, own: str, train_cell: str, sps: float, algo: str) -> Cell:
         cmds, seconds = [], 0.0
-        common = [f"seed={ev.seed}", f"epsilon={ev.epsilon:g}", f"sample={str(ev.sample).lower()}",
-                  f"threads={th}", f"policy=[{arg(model)}]"]
-        if ev.testbeds is not None:
-            out = lay.evals / _safe(name.removeprefix("eval/")) / "testbeds"
-            tb = expand_levels(ev.testbeds.levels)
-            cmds.append(Command(["scripts/evaluate.py", *common, f"levels=[{','.join(ev.testbeds.levels)}]",
-                                 f"episodes={ev.testbeds.episodes}", f"num_envs={ev.testbeds.num_envs}",
-                                 f"out={arg(out)}"], out))
-            seconds += STARTUP_SECONDS + ev.testbeds.episodes * sum(max_steps(t) for t in tb) / sps
-        if ev.own_level is not None:
-            out = lay.evals / _safe(name.removeprefix("eval/")) / "level"
-            cmds.append(Command(["scripts/evaluate.py", *common, f"levels=[{own}]",
-                                 f"episodes={ev.own_level.episodes}", f"num_envs={ev.own_level.num_envs}",
-                                 f"out={arg(out)}"], out))
-            seconds += STARTUP_SECONDS + ev.own_level.episodes * max_steps(own) / sps
+        # an algorithm without an action distribution acts the same when asked to sample: evaluated once
+        own_modes = [m for m in modes if m == "mode" or getattr(algorithm(algo), "SAMPLES_ACTIONS", True)] or modes
+        for mode in own_modes:
+            suffix = "" if len(modes) == 1 else f"-{mode}"
+            common = [f"seed={ev.seed}", f"epsilon={ev.epsilon:g}", f"sample={str(mode == 'sample').lower()}",
+                      f"threads={th}", f"policy=[{arg(model)}]"]
+            if ev.worlds != "test":
+                common.append(f"worlds={ev.worlds}")
+            if ev.testbeds is not None:
+                out = lay.evals / _safe(name.removeprefix("eval/")) / f"testbeds{suffix}"
+                tb = expand_levels(ev.testbeds.levels)
+                cmds.append(Command(["scripts/evaluate.py", *common, f"levels=[{','.join(ev.testbeds.levels)}]",
+                                     f"episodes={ev.testbeds.episodes}", f"num_envs={ev.testbeds.num_envs}",
+                                     f"out={arg(out)}"], out))
+                seconds += STARTUP_SECONDS + ev.testbeds.episodes * sum(max_steps(t) for t in tb) / sps
+            if ev.own_level is not None:
+                out = lay.evals / _safe(name.removeprefix("eval/")) / f"level{suffix}"
+                cmds.append(Command(["scripts/evaluate.py", *common, f"levels=[{own}]",
+                                     f"episodes={ev.own_level.episodes}", f"num_envs={ev.own_level.num_envs}",
+                                     f"out={arg(out)}"], out))
+                seconds += STARTUP_SECONDS + ev.own_level.episodes * max_steps(own) / sps
         eval_outs.extend(c.out for c in cmds if c.out is not None)
         return Cell(name, "eval", cmds, seconds / 60, f"{algo} evaluation", needs=[model], needs_cells=[train_cell])
 
@@ -430,21 +486,24 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
             out = lay.evals / "ref" / policy
             cmd = Command(["scripts/evaluate.py", f"policy=[{policy}]", f"levels=[{','.join(names)}]",
                            f"episodes={ref.episodes}", f"num_envs={ref.num_envs}", f"seed={ev.seed}",
-                           f"threads={th}", f"out={arg(out)}"], out)
+                           f"threads={th}", *([f"worlds={ev.worlds}"] if ev.worlds != "test" else []),
+                           f"out={arg(out)}"], out)
             seconds = STARTUP_SECONDS + ref.episodes * sum(max_steps(lv) for lv in ref_levels) / ref.steps_per_second
-            cells.append(Cell(f"ref/{policy}", "ref", [cmd], seconds / 60, "references"))
+            parts["references"].append(Cell(f"ref/{policy}", "ref", [cmd], seconds / 60, "references"))
             eval_outs.append(out)
 
-    def train_cell(algo: str, spec: AlgorithmSpec, setup: str, seed: int, level_args: list[str],
-                   stages: list[str], group: str, extra: Sequence[str] = ()) -> None:
+    def train_cell(part: str, algo: str, spec: AlgorithmSpec, setup: str, seed: int, level_args: list[str],
+                   stages: list[str], group: str, extra: Sequence[str] = (), steps: int | None = None,
+                   minutes: float | None = None) -> None:
         name = f"train/{algo}/{setup}/seed{seed}"
         run_name = f"{algo}/{setup}/seed{seed}"
         run_dir = lay.runs / _safe(run_name)
         argv = ["scripts/train.py", f"algo={algo}", *level_args, f"seed={seed}", f"threads={th}",
                 *p.training.overrides, *spec.overrides, *extra, f"run.root={arg(lay.runs)}", f"run.name={run_name}"]
-        steps = S * len(stages)
-        minutes = (STARTUP_SECONDS + steps / spec.steps_per_second) / 60
+        if minutes is None:
+            minutes = (STARTUP_SECONDS + (steps or S * len(stages)) / spec.steps_per_second) / 60
         final = run_dir / f"model-{len(stages) - 1}-{stages[-1]}.pt"
+        cells = parts[part]
         cells.append(Cell(name, "train", [Command(argv)], minutes, f"{algo} {group}", run_dir=run_dir,
                           final_model=final, keep_checkpoints=spec.keep_checkpoints))
         if len(stages) > 1:
@@ -455,30 +514,48 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
             cells.append(eval_cell(f"eval/{algo}/{setup}/seed{seed}", final, stages[0], name, ev.steps_per_second,
                                    algo))
 
+    enabled = [a for a, spec in p.algorithms.items() if spec.enabled]
+    trained = p.training.algorithms if p.training.algorithms is not None else enabled
     ab = p.ablations if p.ablations is not None and p.ablations.enabled else None
-    for algo, spec in p.algorithms.items():
-        if not spec.enabled:
-            continue
-        for seed in p.seeds:
-            if p.training.curriculum:
-                train_cell(algo, spec, "curriculum", seed, ["level=curriculum", f"level.stages=[{','.join(levels)}]",
-                                                            f"level.stage_steps={S}"], levels, "curriculum")
-        direct_levels = list(levels) if p.training.direct else []
-        if ab is not None and ab.algorithm == algo and "all" in ab.modalities and ab.level not in direct_levels:
-            direct_levels.append(ab.level)  # the ablation's `all` condition is this direct run
-        for lv in direct_levels:
-            seeds = p.seeds if lv in levels and p.training.direct else (ab.seeds or p.seeds)
-            if ab is not None and ab.algorithm == algo and lv == ab.level and "all" in ab.modalities:
+    for algo in enabled:
+        spec = p.algorithms[algo]
+        if algo in trained and p.training.curriculum:
+            for seed in p.seeds:
+                train_cell("curriculum", algo, spec, "curriculum", seed,
+                           ["level=curriculum", f"level.stages=[{','.join(levels)}]", f"level.stage_steps={S}"],
+                           levels, "curriculum")
+        direct_levels = list(p.training.direct_levels or levels) if p.training.direct and algo in trained else []
+        shares_all = ab is not None and ab.algorithm == algo and "all" in ab.modalities
+        for lv in dict.fromkeys([*direct_levels, *([ab.level] if shares_all else [])]):
+            # the ablation's `all` condition is the direct run on its level, trained once
+            ablation_only = lv not in direct_levels
+            seeds = (ab.seeds or p.seeds) if ablation_only else p.seeds
+            if shares_all and lv == ab.level:
                 seeds = list(dict.fromkeys([*seeds, *(ab.seeds or p.seeds)]))
+            k = levels.index(lv) if lv in levels else 0
+            steps = S * (k + 1) if p.training.direct_steps == "matched" and not ablation_only else S
+            part = "ablations" if ablation_only or (shares_all and lv == ab.level and k == 0) else "direct"
             for seed in seeds:
-                train_cell(algo, spec, f"direct-{lv}", seed, [f"level={lv}", f"total_steps={S}"], [lv], "direct")
+                train_cell(part, algo, spec, f"direct-{lv}", seed, [f"level={lv}", f"total_steps={steps}"], [lv],
+                           "direct", steps=steps)
         if ab is not None and ab.algorithm == algo:
             for mod in ab.modalities:
                 if mod == "all":
                     continue
                 for seed in ab.seeds or p.seeds:
-                    train_cell(algo, spec, f"ablation-{mod}", seed, [f"level={ab.level}", f"total_steps={S}"],
-                               [ab.level], "ablations", extra=[f"modality={mod}"])
+                    train_cell("ablations", algo, spec, f"ablation-{mod}", seed,
+                               [f"level={ab.level}", f"total_steps={S}"], [ab.level], "ablations",
+                               extra=[f"modality={mod}"])
+    if p.matched is not None:
+        m = p.matched
+        for seed in m.seeds or p.seeds:
+            for algo in m.algorithms or enabled:
+                # a step budget no run reaches: the CPU minutes end every run
+                train_cell("matched", algo, p.algorithms[algo], f"matched-{m.level}", seed,
+                           [f"level={m.level}", f"total_steps={MATCHED_STEPS}", f"max_cpu_minutes={m.cpu_minutes:g}"],
+                           [m.level], "matched", extra=m.overrides.get(algo, []),
+                           minutes=m.cpu_minutes + STARTUP_SECONDS / 60)
+    cells = [c for part in p.order for c in parts[part]]
 
     out = Path(report_out) if report_out is not None else lay.root / "report" if p.report.out is None \
         else REPO / p.report.out
@@ -493,9 +570,19 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
     return cells
 
 
+#: the env-step budget of a compute-matched run: more than any run reaches in its CPU minutes
+MATCHED_STEPS = 1_000_000_000
+
+
+def eval_modes(ev: EvaluationSpec) -> list[str]:
+    """The acting modes every model is evaluated in, the report's first."""
+    return list(ev.modes) if ev.modes is not None else ["sample" if ev.sample else "mode"]
+
+
 def acting(ev: EvaluationSpec) -> str:
-    """How evaluate.py names the acting mode of the protocol's checkpoint evaluations (its ``acting`` column)."""
-    return ("sample" if ev.sample else "mode") + (f"+epsilon={ev.epsilon:g}" if ev.epsilon else "")
+    """How evaluate.py names the acting mode of the protocol's checkpoint evaluations the report compares (its
+    ``acting`` column; the first of several modes)."""
+    return eval_modes(ev)[0] + (f"+epsilon={ev.epsilon:g}" if ev.epsilon else "")
 
 
 def default_title(p: Protocol) -> str:
@@ -593,7 +680,8 @@ def plan_text(p: Protocol, cells: Sequence[Cell], lay: Layout, threads: int) -> 
     lines += ["", "estimated CPU-hours (one core per cell, threads=1; rates in the protocol file; evaluation episodes "
               "taken to their step limit):"]
     split = budget(cells)
-    parts = ("curriculum", "direct", "ablations", "evaluation")
+    parts = ("curriculum", "direct", "ablations", *(("matched",) if any(g.endswith(" matched") for g in split) else ()),
+             "evaluation")
     algos = list(dict.fromkeys(g.split(" ")[0] for g in split if " " in g))
     lines.append(f"  {'':<12}" + "".join(f"{x:>12}" for x in (*parts, "all")))
     for a in algos:

@@ -49,7 +49,7 @@ from tqdm import tqdm
 
 import evaaa
 from evaaa import END_TYPES, EV_NAMES
-from evaaa.records import TRAINING_EPISODE_FIELDS
+from evaaa.records import TRAINING_EPISODE_FIELDS, DiskError
 
 from .checkpoint import CHECKPOINT, CHECKPOINT_FORMAT, rng_state, save_checkpoint, set_rng_state
 from .config import Stage, env_overrides, observation_keys
@@ -231,25 +231,53 @@ class CsvLog:
     it back to what it held at the checkpoint."""
 
     def __init__(self, path: Path, columns: Sequence[str], truncate_to: int | None = None):
-        self.columns = tuple(columns)
-        self._file = open(path, "a+", newline="")
-        if truncate_to is not None:
-            self._file.truncate(truncate_to)
-        self._file.seek(0, os.SEEK_END)
-        self._writer = csv.writer(self._file)
-        if self._file.tell() == 0:
-            self._writer.writerow(self.columns)
-            self._file.flush()
+        self.path, self.columns = Path(path), tuple(columns)
+        self._failed_at: int | None = None
+        try:
+            self._file = open(path, "a+", newline="")
+            if truncate_to is not None:
+                self._file.truncate(truncate_to)
+            self._file.seek(0, os.SEEK_END)
+            self._writer = csv.writer(self._file)
+            if self._file.tell() == 0:
+                self._writer.writerow(self.columns)
+                self._file.flush()
+        except OSError as exc:
+            raise DiskError(path, exc) from None
 
     def write(self, row: Mapping[str, Any]) -> None:
-        self._writer.writerow([f"{v:.6g}" if isinstance(v, float) else v for v in (row[c] for c in self.columns)])
-        self._file.flush()
+        """Append one row; a disk that refuses it raises :class:`DiskError`, the file keeping its earlier rows whole."""
+        size = self._file.tell()
+        try:
+            self._writer.writerow([f"{v:.6g}" if isinstance(v, float) else v for v in (row[c] for c in self.columns)])
+            self._file.flush()
+        except OSError as exc:
+            self._discard(size)
+            raise DiskError(self.path, exc) from None
+
+    def _discard(self, size: int) -> None:
+        """Drop what a failed write left, in the file and in its buffer (a later flush would write it again); the
+        log stays closed, at ``size``."""
+        try:
+            self._file.close()
+        except OSError:
+            pass
+        try:
+            os.truncate(self.path, size)
+        except OSError:
+            pass
+        self._failed_at = size
 
     def size(self) -> int:
-        return self._file.tell()
+        return self._failed_at if self._failed_at is not None else self._file.tell()
 
     def close(self) -> None:
-        self._file.close()
+        if self._file.closed:
+            return
+        try:
+            self._file.close()
+        except OSError as exc:
+            raise DiskError(self.path, exc) from None
 
 
 def _refuse_old_eval_csv(path: Path) -> None:

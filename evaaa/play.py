@@ -31,6 +31,7 @@ import signal
 import socket
 import sys
 import tempfile
+import threading
 import traceback
 from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
@@ -46,9 +47,10 @@ import numpy as np
 
 from .physiology import END_TYPES, EV_NAMES
 from .pictures import top_image
-from .records import EPISODE_FIELDS, OPTIONAL_FIELDS, EpisodeTracker, StepLog, append_rows, new_log_path
+from .records import (EPISODE_FIELDS, OPTIONAL_FIELDS, DiskError, EpisodeTracker, StepLog, append_rows,
+                      new_log_path)
 from .sim import ACTION_NAMES, NUM_ACTIONS, Simulator
-from .spec import Level, LevelError, level_names, load_level
+from .spec import Level, LevelError, excerpt, level_names, load_level, register_level, registered_levels
 
 PAGE = Path(__file__).resolve().with_name("play.html")
 RECORDS_FILE = "episodes.csv"
@@ -62,6 +64,12 @@ MAX_BODY_BYTES = 4096
 #: a larger body is still read (and dropped) up to this size, so that its sender gets the refusal
 DRAIN_BYTES = 1 << 20
 PARTICIPANT = re.compile(r"[\w.@-]+")
+#: seconds a connection may stay silent (before its request, or between the parts of one) before it is closed:
+#: a browser sends a request at once, and a stalled client must not hold a thread for ever
+IDLE_TIMEOUT = 10.0
+#: requests answered at once (the others wait for the one simulator); beyond them the server answers 503 at once
+#: rather than letting requests pile up
+MAX_REQUESTS = 16
 
 
 # ------------------------------------------------------------------------------------------------- settings
@@ -79,7 +87,11 @@ def _setting(default: Any, meaning: str, *, choices: Callable[[], Any] | None = 
 class PlaySettings:
     """What a play server does: the keys of ``scripts/play.py``'s command line."""
 
-    level: str = _setting("1-1", "level or testbed to play (the page can switch to another)", choices=level_names)
+    level: str = _setting("1-1", "level or testbed to play (the page can switch to another): a packaged one, or the "
+                                 "name of a file in level_dir", choices=lambda: (*level_names(), *registered_levels()))
+    level_dir: Path | None = _setting(None, "a folder of your own level files (*.yaml): each is offered by its name "
+                                            "(the file's stem) beside the packaged levels; the page can ask for no "
+                                            "other file")
     participant: str = _setting("anonymous", "participant id written to every record (letters, digits, . _ @ -)",
                                 check=(lambda v: bool(PARTICIPANT.fullmatch(v)), "letters, digits and . _ @ - only"))
     host: str = _setting("127.0.0.1", "address to listen on (127.0.0.1: this machine only)")
@@ -119,6 +131,21 @@ class StartupError(Exception):
 def new_session_id() -> str:
     """An id for one run of the server: its start time (UTC) and a random suffix, e.g. 20260101T120000Z-3fa9c1."""
     return f"{datetime.now(timezone.utc):%Y%m%dT%H%M%SZ}-{secrets.token_hex(3)}"
+
+
+def register_level_dir(folder: Path) -> tuple[str, ...]:
+    """Make every level file in ``folder`` (``*.yaml``, ``*.yml``) playable by its name; each is loaded, so checked,
+    now.  Raises :class:`LevelError` naming the file that cannot be used."""
+    try:
+        files = sorted(p for p in Path(folder).iterdir() if p.suffix in (".yaml", ".yml") and p.is_file())
+    except OSError as exc:
+        raise LevelError(f"level_dir {folder} cannot be read: {exc.strerror or exc}") from None
+    return tuple(register_level(path) for path in files)
+
+
+def playable_levels() -> tuple[str, ...]:
+    """The names a request may ask for: the packaged levels, then those of ``level_dir``."""
+    return (*level_names(), *registered_levels())
 
 
 def check_records(path: Path) -> None:
@@ -188,6 +215,8 @@ class PlaySession:
     # -------------------------------------------------------------------------------- on the worker thread
     def _open_level(self, name: str) -> None:
         """Replace the simulator by one of level ``name`` (validated first, so a bad name keeps the old one)."""
+        if name not in playable_levels():  # a name, never a path: a request must not make the server read a file
+            raise RequestError(400, f"unknown level {excerpt(name)}; available: {', '.join(playable_levels())}")
         try:
             level = load_level(name, self.options.overrides)
         except LevelError as exc:
@@ -226,7 +255,12 @@ class PlaySession:
         self.done = bool(terminated[0] or truncated[0])
         rows = self.tracker.update(reward, info, terminated | truncated, actions=np.array([action]))
         if self.step_log is not None:
-            self.step_log.update(np.array([action]), reward, info, terminated | truncated)
+            try:
+                self.step_log.update(np.array([action]), reward, info, terminated | truncated)
+            except DiskError as exc:  # the game goes on; the page shows that the log stopped
+                self.record_error = f"the step log stopped: {exc}"
+                print(self.record_error, file=sys.stderr, flush=True)
+                self.step_log = None
         ended_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
         rows = [{**row, "session": self.session_id, "ended_at": ended_at} for row in rows]
         if self.done:
@@ -244,7 +278,7 @@ class PlaySession:
             "level": level.name,
             "kind": level.kind,
             "description": level.description,
-            "levels": list(level_names()),
+            "levels": list(playable_levels()),
             "participant": self.options.participant,
             "session": self.session_id,
             "episode": self.episode,
@@ -312,8 +346,8 @@ def api_reset(handler: PlayHandler) -> None:
     body = read_json(handler)
     only_keys(body, ("level",))
     level = body.get("level")
-    if level is not None and not isinstance(level, str):
-        raise RequestError(400, f"level must be a string, one of: {', '.join(level_names())}")
+    if level is not None and level not in playable_levels():  # refused before the simulator's queue
+        raise RequestError(400, f"unknown level {excerpt(level)}; available: {', '.join(playable_levels())}")
     handler.send_json(200, handler.server.session.reset(level))
 
 
@@ -385,9 +419,14 @@ class PlayHandler(BaseHTTPRequestHandler):
     def do_DELETE(self) -> None:
         self._dispatch()
 
+    def setup(self) -> None:
+        self.timeout = self.server.idle_timeout  # http.server closes a connection silent for this long
+        super().setup()
+
     def _dispatch(self) -> None:
         path = urlsplit(self.path).path
         self._allow = ""
+        busy = False
         try:
             self._check_caller()  # before anything is read or changed
             methods = ROUTES.get(path)
@@ -402,10 +441,17 @@ class PlayHandler(BaseHTTPRequestHandler):
             answer = methods.get("GET" if self.command == "HEAD" else self.command)
             if answer is None:
                 raise RequestError(405, f"{path} answers {', '.join(methods)}, not {self.command}")
-            answer(self)
+            busy = not self.server.slots.acquire(blocking=False)
+            if busy:
+                self._drain()  # read what it sent: closing on unread data would reset the connection
+                raise RequestError(503, f"busy: {self.server.max_requests} requests are being answered; try again")
+            try:
+                answer(self)
+            finally:
+                self.server.slots.release()
         except RequestError as exc:
             self.close_connection = True  # a refused request's body may be left unread
-            self.send_json(exc.status, {"error": exc.message})
+            self.send_json(exc.status, {"error": exc.message}, retry=exc.status == 503)
         except ConnectionError:  # the page went away (a reload, a closed tab): nobody to answer
             self.close_connection = True
         except Exception as exc:  # noqa: BLE001 - a bug answers 500 and the server goes on serving
@@ -436,12 +482,22 @@ class PlayHandler(BaseHTTPRequestHandler):
         if site is not None and site not in ("same-origin", "none") and not opens_page:
             raise RequestError(403, f"refused: a {site} request; only this server's own page may call the API")
 
-    def send_json(self, status: int, payload: Mapping[str, Any]) -> None:
-        self.send_body(status, "application/json", json.dumps(payload).encode())
+    def _drain(self) -> None:
+        try:
+            length = int(self.headers.get("Content-Length") or 0)
+        except ValueError:
+            return
+        if 0 < length <= DRAIN_BYTES:
+            self.rfile.read(length)
 
-    def send_body(self, status: int, content_type: str, body: bytes) -> None:
+    def send_json(self, status: int, payload: Mapping[str, Any], retry: bool = False) -> None:
+        self.send_body(status, "application/json", json.dumps(payload).encode(), retry)
+
+    def send_body(self, status: int, content_type: str, body: bytes, retry: bool = False) -> None:
         try:
             self.send_response(status)
+            if retry:
+                self.send_header("Retry-After", "1")
             if content_type:
                 self.send_header("Content-Type", content_type)
             if getattr(self, "_allow", "") and status in (204, 405):
@@ -464,11 +520,21 @@ class PlayHandler(BaseHTTPRequestHandler):
 
 
 class PlayServer(ThreadingHTTPServer):
-    """The HTTP server holding the session and the page."""
+    """The HTTP server holding the session and the page.
 
-    def __init__(self, host: str, port: int, page_html: bytes):
+    Each connection has a thread; one silent for ``idle_timeout`` seconds is closed, and beyond ``max_requests``
+    requests being answered at once the next are answered 503 (the page retries) instead of queueing."""
+
+    #: connections waiting to be accepted (socketserver's default of 5 overflowed under 40 clients)
+    request_queue_size = 128
+
+    def __init__(self, host: str, port: int, page_html: bytes, *, idle_timeout: float | None = None,
+                 max_requests: int | None = None):
         if ":" in host:
             self.address_family = socket.AF_INET6
+        self.idle_timeout = IDLE_TIMEOUT if idle_timeout is None else idle_timeout
+        self.max_requests = MAX_REQUESTS if max_requests is None else max_requests
+        self.slots = threading.BoundedSemaphore(self.max_requests)
         super().__init__((host, port), PlayHandler)
         self.page = page_html
         self.session: PlaySession | None = None
@@ -522,6 +588,11 @@ def serve(options: PlaySettings, prog: str = "play.py") -> int:
               "can play, and their episodes are recorded as this participant's. Prefer the default host and an "
               "ssh tunnel (docs/play.md).", file=sys.stderr, flush=True)
     try:
+        if options.level_dir is not None:
+            try:
+                register_level_dir(options.level_dir)
+            except LevelError as exc:
+                raise StartupError(" ".join(str(exc).split())) from None
         server.session = PlaySession(options)
         host, port = server.server_address[:2]
         url_host = f"[{host}]" if ":" in host else host

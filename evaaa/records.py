@@ -5,12 +5,14 @@ and, on request, one row per decision.
 returns a row for every episode that ends; ``append_rows`` adds rows to a CSV file, writing the header when the
 file is new and syncing to disk so that a killed run loses nothing it reported.  ``StepLog`` writes the per-step
 file the original's recorder wrote beside its per-episode one (pose, action, reward, distance, collision, events),
-one file per run, for the paper's behavioural-event analyses.
+one file per run, for the paper's behavioural-event analyses.  A disk that refuses a write (full, read-only, no
+permission) raises :class:`DiskError`, one line naming the file and the cause, with the file as it was before.
 """
 
 from __future__ import annotations
 
 import csv
+import errno
 import os
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -68,6 +70,36 @@ ACTION_FIELDS: tuple[str, ...] = tuple(f"{name}_pct" for name in ACTION_NAMES)
 WORLD_FIELDS: tuple[str, ...] = ("worlds",)
 #: Columns a row may carry after :data:`EPISODE_FIELDS`, in this order.
 OPTIONAL_FIELDS: tuple[str, ...] = (*EVENT_FIELDS, *REWARD_FIELDS, *ACTION_FIELDS, *WORLD_FIELDS)
+
+
+#: what a disk answers when it will not take a write: no space, over quota, file too large, read-only, no permission
+DISK_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EACCES, errno.EPERM})
+
+
+class DiskError(OSError):
+    """A file could not be written (no space left, a read-only file system, no permission, ...).  Its message is one
+    line naming the file and the cause; ``errno`` is the system's."""
+
+    def __init__(self, path: str | os.PathLike, cause: OSError):
+        super().__init__(cause.errno, cause.strerror or str(cause), str(path))
+
+    def __str__(self) -> str:
+        return f"cannot write {self.filename}: {self.strerror}"
+
+
+def disk_error(path: str | os.PathLike, exc: BaseException) -> DiskError | None:
+    """The :class:`DiskError` for writing ``path`` behind ``exc``: ``exc`` itself or the ``OSError`` it was raised
+    from or while handling (``torch.save`` turns a failed write into a ``RuntimeError`` about zip positions).
+    ``None`` when no ``OSError`` is behind it."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, DiskError):
+            return exc
+        if isinstance(exc, OSError):
+            return DiskError(path, exc)
+        exc = exc.__cause__ or exc.__context__
+    return None
 
 
 def _scalar(value) -> Any:
@@ -185,7 +217,10 @@ def append_rows(path: str | os.PathLike, rows: Iterable[Mapping[str, Any]]) -> N
     if not rows:
         return
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DiskError(path.parent, exc) from None
     fields = list(EPISODE_FIELDS) + [k for k in OPTIONAL_FIELDS if any(k in r for r in rows)]
     # a tool's own columns (human play: session, ended_at) follow, in the order its rows give them
     fields += [k for k in dict.fromkeys(k for r in rows for k in r) if k not in fields]
@@ -199,26 +234,48 @@ def append_rows(path: str | os.PathLike, rows: Iterable[Mapping[str, Any]]) -> N
         if missing:
             _widen(path, existing + missing)
         fields = existing + missing
-    with path.open("a", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=fields, extrasaction="raise")
-        if new:
-            writer.writeheader()
-        writer.writerows(rows)
-        f.flush()
-        os.fsync(f.fileno())
+    existed = path.exists()
+    size = path.stat().st_size if existed else 0
+    try:
+        with path.open("a", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=fields, extrasaction="raise")
+            if new:
+                writer.writeheader()
+            writer.writerows(rows)
+            f.flush()
+            os.fsync(f.fileno())
+    except OSError as exc:
+        _cut_back(path, size if existed else None)  # a row cut short by a full disk would read as a different episode
+        raise DiskError(path, exc) from None
+
+
+def _cut_back(path: Path, size: int | None) -> None:
+    """Return ``path`` to its first ``size`` bytes (what it held before a failed append; ``None``: it did not exist),
+    as far as the disk lets."""
+    try:
+        if size is None:
+            path.unlink(missing_ok=True)
+        elif path.exists() and path.stat().st_size > size:
+            os.truncate(path, size)
+    except OSError:
+        pass  # a read-only file system: then nothing was appended either
 
 
 def _widen(path: Path, fields: list[str]) -> None:
     """Rewrite a CSV file under a wider header (new cells empty), atomically."""
     old = read_rows(path)
     tmp = path.with_name(path.name + ".widening")
-    with tmp.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=fields)
-        writer.writeheader()
-        writer.writerows(old)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with tmp.open("w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=fields)
+            writer.writeheader()
+            writer.writerows(old)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise DiskError(path, exc) from None
 
 
 def read_rows(path: str | os.PathLike) -> list[dict[str, str]]:
@@ -288,10 +345,15 @@ class StepLog:
 
     def __init__(self, path: str | os.PathLike, *, policy: str = "", acting: str = "", participant: str = ""):
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._file = self.path.open("x", newline="")  # "x": refuse to overwrite what an earlier run wrote
-        self._writer = csv.DictWriter(self._file, fieldnames=STEP_FIELDS, extrasaction="raise")
-        self._writer.writeheader()
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._file = self.path.open("x", newline="")  # "x": refuse to overwrite what an earlier run wrote
+            self._writer = csv.DictWriter(self._file, fieldnames=STEP_FIELDS, extrasaction="raise")
+            self._writer.writeheader()
+        except FileExistsError:
+            raise
+        except OSError as exc:
+            raise DiskError(self.path, exc) from None
         self.policy, self.acting, self.participant = policy, acting, participant
         self.level, self.seed, self.judged = "", None, False
         self._global: dict[int, int] = {}
@@ -350,8 +412,11 @@ class StepLog:
                 "original_end_type": ORIGINAL_END_TYPES[end] if end else "",
                 "success": bool(info["success"][w, 0]) if done[w] and self.judged and "success" in info else "",
             })
-        self._writer.writerows(rows)
-        self._file.flush()
+        try:
+            self._writer.writerows(rows)
+            self._file.flush()
+        except OSError as exc:
+            raise DiskError(self.path, exc) from None
         self._previous = position
         if next_info is not None:
             self._previous = np.asarray(next_info["position"], dtype=np.float64).reshape(n, 3).copy()
@@ -359,9 +424,16 @@ class StepLog:
 
     def close(self) -> None:
         if not self._file.closed:
-            self._file.flush()
-            os.fsync(self._file.fileno())
-            self._file.close()
+            try:
+                self._file.flush()
+                os.fsync(self._file.fileno())
+            except OSError as exc:
+                raise DiskError(self.path, exc) from None
+            finally:
+                try:
+                    self._file.close()
+                except OSError:  # the same failed flush again: reported above
+                    pass
 
     def __enter__(self) -> "StepLog":
         return self

@@ -9,9 +9,11 @@ field and what it accepts.
 
 from __future__ import annotations
 
-import copy
+import functools
 import math
 import os
+import re
+import reprlib
 from collections.abc import Mapping
 from importlib import resources
 from pathlib import Path
@@ -20,9 +22,11 @@ from typing import Annotated, Any, Literal
 import yaml
 from pydantic import (
     AfterValidator,
+    BeforeValidator,
     BaseModel,
     ConfigDict,
     Field,
+    Strict,
     ValidationError,
     field_validator,
     model_validator,
@@ -52,8 +56,18 @@ def _ordered(pair: tuple[float, float]) -> tuple[float, float]:
     return pair
 
 
+def _not_a_set(value: Any) -> Any:
+    if isinstance(value, (set, frozenset)):  # a set has no order: [low, high] would be whichever came first
+        raise ValueError(f"expected a list, got a set {excerpt(value)}")
+    return value
+
+
+#: numbers, flags and text are strict (``_Spec``'s config): ``true`` is no mass and ``'3'`` no count.  A sequence
+#: of fixed length is written as a YAML list, so it is read as a list or a tuple (strictly, only a tuple), never as
+#: a set; its items stay strict.
+Lax, NoSet = Strict(False), BeforeValidator(_not_a_set)
 #: A closed interval ``[low, high]``.
-Interval = Annotated[tuple[float, float], AfterValidator(_ordered)]
+Interval = Annotated[tuple[float, float], Lax, NoSet, AfterValidator(_ordered)]
 Positive = Annotated[float, Field(gt=0)]
 NonNegative = Annotated[float, Field(ge=0)]
 
@@ -95,7 +109,8 @@ def _check_bounded(value: Any) -> None:
 
 class _Spec(BaseModel):
     # every float of a level is finite: NaN or infinity anywhere would reach the observations or the reward
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    # strict: YAML's true, '3' and !!binary are not numbers (lax pydantic would read them as 1.0 and 3.0)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, strict=True)
 
     @field_validator("*", mode="after")
     @classmethod
@@ -108,8 +123,8 @@ class _Spec(BaseModel):
 class Arena(_Spec):
     """The floor (centred on the origin; walking surface at z = 0) and its walls."""
 
-    size: tuple[Annotated[float, Field(ge=MIN_ARENA_SIDE, le=MAX_ARENA_SIDE)],
-                Annotated[float, Field(ge=MIN_ARENA_SIDE, le=MAX_ARENA_SIDE)]]
+    size: Annotated[tuple[Annotated[float, Field(ge=MIN_ARENA_SIDE, le=MAX_ARENA_SIDE)],
+                          Annotated[float, Field(ge=MIN_ARENA_SIDE, le=MAX_ARENA_SIDE)]], Lax, NoSet]
     walls: bool
     wall_height: Positive
     floor: Literal["ground", "gray"]
@@ -142,7 +157,7 @@ class Agent(_Spec):
     spawn_x: Interval
     spawn_y: Interval
     spawn_padding: NonNegative
-    start_position: tuple[float, float]
+    start_position: Annotated[tuple[float, float], Lax, NoSet]
     #: compass heading in degrees: 0 faces +y, 90 faces +x (clockwise seen from above)
     start_heading: float
     collision_damage: CollisionDamage
@@ -192,7 +207,8 @@ class Physiology(_Spec):
 
 
 # --------------------------------------------------------------------------------------------------- resources
-Extents = Annotated[tuple[Positive, Positive, Positive], Field(description="width (x), depth (y), height (z)")]
+Extents = Annotated[tuple[Positive, Positive, Positive], Lax, NoSet,
+                    Field(description="width (x), depth (y), height (z)")]
 
 
 class ResourceGroup(_Spec):
@@ -228,7 +244,7 @@ class ObstacleGroup(_Spec):
     #: compass heading of the obstacle's depth axis, degrees (fixed, not random)
     heading: float = 0.0
     #: per-axis scale ranges (width, depth, height) applied to the kind's base extents (see evaaa.entities)
-    scale: tuple[Interval, Interval, Interval] = ((1.0, 1.0), (1.0, 1.0), (1.0, 1.0))
+    scale: Annotated[tuple[Interval, Interval, Interval], Lax, NoSet] = ((1.0, 1.0), (1.0, 1.0), (1.0, 1.0))
     padding: NonNegative = 2.0
     #: cells under the obstacle are set to this temperature before smoothing (0: no heat)
     temperature: float = 0.0
@@ -276,7 +292,7 @@ class Landmarks(_Spec):
     """Patrol points: the floor split into a grid of cells; a cell holding n > 0 gets n x n points.
     Rows run from the north (+y) edge southward.  The patrol area is the convex hull of the points."""
 
-    pattern: list[list[Annotated[int, Field(ge=0, le=10)]]]
+    pattern: Annotated[list[Annotated[list[Annotated[int, Field(ge=0, le=10)]], Lax, NoSet]], Lax, NoSet]
     radius: Positive = 1.5
     padding: NonNegative = 2.0
 
@@ -307,7 +323,7 @@ class EventTrigger(_Spec):
     x: float
     y: float
     #: width (x) and depth (y) of the box before it is turned by ``heading``
-    size: tuple[Positive, Positive]
+    size: Annotated[tuple[Positive, Positive], Lax, NoSet]
     heading: float = 0.0
     max_count: Annotated[int, Field(ge=1)] = 1
     set: EVAssignment
@@ -341,7 +357,7 @@ class Hotspots(_Spec):
 
 
 class Thermal(_Spec):
-    grid: tuple[Annotated[int, Field(ge=1, le=1000)], Annotated[int, Field(ge=1, le=1000)]]
+    grid: Annotated[tuple[Annotated[int, Field(ge=1, le=1000)], Annotated[int, Field(ge=1, le=1000)]], Lax, NoSet]
     base_temperature: float
     hotspots: Hotspots
     #: Gaussian smoothing in cells (0: none)
@@ -535,10 +551,154 @@ class Level(_Spec):
 
 
 # --------------------------------------------------------------------------------------------------- loading
-#: libyaml's safe loader where PyYAML was built with it (same documents, about 7x faster than the Python one)
-_YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+#: Largest level file read (bytes).  The packaged levels are 0.5-3.5 KB, and a landmark pattern of 100 x 100 cells
+#: is 30 KB; PyYAML's pure-Python parser reads about 50-200 KB/s, so a file at the limit parses in about a second.
+MAX_FILE_BYTES = 64 * 1024
+#: Deepest nesting of a level file or an override value (the schema nests 7 deep).  Parsing, merging and the
+#: error messages stay far from Python's recursion limit, and libyaml's loader, which crashed the process at
+#: 100,000 levels, is never used.
+MAX_DEPTH = 32
+#: Most values (mappings, lists and scalars, counting each use of an alias as a copy of what it names) in one level
+#: file: ten times the largest landmark pattern.  A 7 x 7 alias chain would expand to 8e5, a 9 x 9 one to 4e8.
+MAX_NODES = 100_000
 #: keys of a level file about the file itself, not the level: they are not inherited through ``extends:``
 _FILE_KEYS = ("extends", "order")
+
+# error messages quote what was given, cut short: a value can be a whole level, or an alias expanded millions of times
+_EXCERPT = reprlib.Repr()
+_EXCERPT.maxlevel, _EXCERPT.maxstring, _EXCERPT.maxother = 2, 60, 60
+_EXCERPT.maxlist = _EXCERPT.maxtuple = _EXCERPT.maxset = _EXCERPT.maxfrozenset = _EXCERPT.maxdict = 4
+EXCERPT_CHARS = 120
+
+
+def excerpt(value: Any) -> str:
+    """``repr(value)`` cut to at most :data:`EXCERPT_CHARS` characters (nesting, items and text elided with ...)."""
+    text = _EXCERPT.repr(value)
+    return text if len(text) <= EXCERPT_CHARS else text[:EXCERPT_CHARS - 3] + "..."
+
+
+class _Refused(yaml.YAMLError):
+    """A level file that breaks a limit of :class:`_LevelLoader` or uses YAML that is not level data."""
+
+    def __init__(self, message: str, mark: yaml.Mark | None):
+        super().__init__(message if mark is None else f"{message} (line {mark.line + 1}, column {mark.column + 1})")
+
+
+class _LevelLoader(yaml.SafeLoader):
+    """PyYAML's pure-Python safe loader, with limits: nesting depth, values after alias expansion, duplicate keys,
+    plain data only (no sets, binary, ordered maps; dates stay text).
+
+    The C loader is not used: its composer recurses in C, so deep nesting overflows the C stack.  The Python
+    composer recurses too, but :meth:`compose_node` stops it at :data:`MAX_DEPTH`.  Aliases are counted as the
+    values they stand for, so an alias chain is refused while it is read, before anything expands it.
+    """
+
+    def __init__(self, stream: str):
+        super().__init__(stream)
+        self._depth = 0  # of the node being composed (the document's root is 1)
+        self._deepest = 0  # deepest level reached inside the anchored node being composed, aliases expanded
+        self._nodes = 0
+        self._anchored: dict[str, tuple[int, int]] = {}  # anchor -> (values it stands for, its height)
+
+    def _count(self, nodes: int, deepest: int, mark: yaml.Mark) -> None:
+        self._nodes += nodes
+        self._deepest = max(self._deepest, deepest)
+        if deepest > MAX_DEPTH:
+            raise _Refused(f"nested deeper than {MAX_DEPTH} levels (the limit of a level file)", mark)
+        if self._nodes > MAX_NODES:
+            raise _Refused(f"more than {MAX_NODES} values, counting what each alias stands for (the limit of a "
+                           "level file)", mark)
+
+    def compose_node(self, parent: yaml.Node | None, index: Any) -> yaml.Node:
+        event = self.peek_event()
+        if isinstance(event, yaml.AliasEvent):
+            if event.anchor in self.anchors and event.anchor not in self._anchored:
+                raise _Refused(f"the alias *{excerpt(event.anchor)[1:-1]} lies inside the value it names: a level "
+                               "cannot contain itself", event.start_mark)
+            node = super().compose_node(parent, index)  # an undefined alias raises here
+            nodes, height = self._anchored[event.anchor]
+            self._count(nodes, self._depth + height, event.start_mark)
+            return node
+        self._depth += 1
+        outer_deepest, self._deepest = self._deepest, self._depth
+        start = self._nodes
+        self._count(1, self._depth, event.start_mark)
+        node = super().compose_node(parent, index)
+        if event.anchor is not None:
+            self._anchored[event.anchor] = (self._nodes - start, self._deepest - self._depth + 1)
+        self._deepest = max(outer_deepest, self._deepest)
+        self._depth -= 1
+        return node
+
+    def compose_mapping_node(self, anchor: str | None) -> yaml.MappingNode:
+        node = super().compose_mapping_node(anchor)
+        seen: set[tuple[str, str]] = set()
+        for key, _ in node.value:
+            if isinstance(key, yaml.ScalarNode) and key.tag != "tag:yaml.org,2002:merge":
+                if (key.tag, key.value) in seen:  # a later key would silently win over the earlier one
+                    raise _Refused(f"the key {excerpt(key.value)} is repeated", key.start_mark)
+                seen.add((key.tag, key.value))
+        return node
+
+    def _not_level_data(self, node: yaml.Node) -> Any:
+        raise _Refused(f"{node.tag.replace('tag:yaml.org,2002:', '!!')} is not level data (numbers, true/false, "
+                       "text, lists and mappings)", node.start_mark)
+
+
+for _tag in ("set", "binary", "omap", "pairs"):
+    _LevelLoader.add_constructor(f"tag:yaml.org,2002:{_tag}", _LevelLoader._not_level_data)
+# a date is text to a level (a description may start with one), not a datetime no field accepts
+_LevelLoader.add_constructor("tag:yaml.org,2002:timestamp", yaml.SafeLoader.construct_yaml_str)
+# YAML 1.2's numbers: PyYAML (YAML 1.1) reads 1e-3 and 1e6 as text, which strict fields would refuse
+_LevelLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float", re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."))
+
+
+def parse_level_text(data: bytes, label: str) -> dict[str, Any]:
+    """The mapping in a level file's bytes, parsed within the limits above.  Raises :class:`LevelError`, one line
+    naming ``label`` (the file) and what is wrong."""
+    if len(data) > MAX_FILE_BYTES:
+        raise LevelError(f"level file '{label}' is larger than {MAX_FILE_BYTES // 1024} KiB (the limit of a level "
+                         "file)")
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as err:
+        raise LevelError(f"level file '{label}' is not UTF-8 text: byte {err.object[err.start]:#04x} at offset "
+                         f"{err.start} ({err.reason})") from None
+    try:
+        loader = _LevelLoader(text)
+    except yaml.reader.ReaderError as err:  # raised while checking the whole text, before any parsing
+        raise LevelError(f"level file '{label}' is not valid YAML: character {err.character:#06x} at offset "
+                         f"{err.position} is not allowed") from None
+    try:
+        tree = loader.get_single_data()
+    except _Refused as err:
+        raise LevelError(f"level file '{label}': {err}") from None
+    except yaml.YAMLError as err:
+        raise LevelError(f"level file '{label}' is not valid YAML: {_yaml_problem(err)}") from None
+    finally:
+        loader.dispose()
+    if tree is None:
+        return {}
+    if not isinstance(tree, dict):
+        raise LevelError(f"level file '{label}' must hold a mapping at the top, not {type(tree).__name__}")
+    return tree
+
+
+def _yaml_problem(err: yaml.YAMLError) -> str:
+    """A PyYAML error in one line of bounded length (its message can quote the file's text)."""
+    problem = getattr(err, "problem", None) or str(err)
+    mark = getattr(err, "problem_mark", None)
+    where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
+    text = " ".join(str(problem).split())
+    return (text if len(text) <= 200 else text[:200] + "...") + where
+
+
+#: the packaged level files, including the bases (``_defaults``, ``_testbed``): the only names ``extends:`` and
+#: :func:`load_level` resolve inside the package
+PACKAGED_FILES = tuple(sorted(entry.name[:-5] for entry in resources.files("evaaa.levels").iterdir()
+                              if entry.name.endswith(".yaml")))
 
 
 def _is_path(name: str | os.PathLike) -> bool:
@@ -546,35 +706,54 @@ def _is_path(name: str | os.PathLike) -> bool:
     return isinstance(name, os.PathLike) or str(name).endswith((".yaml", ".yml"))
 
 
-def _read_yaml(name: str | os.PathLike) -> dict[str, Any]:
-    """The mapping of a packaged level file (by name) or of the user's file (by path); safe YAML only."""
-    if _is_path(name):
-        path = Path(name)
+def _read_file(source: str | Path) -> dict[str, Any]:
+    """The mapping of a packaged level file (a name of :data:`PACKAGED_FILES`) or of a file the user named."""
+    if isinstance(source, Path):
         try:
-            text = path.read_text()
+            if not source.is_file():  # a FIFO or a device would block or never end
+                raise LevelError(f"level file '{source}' cannot be read: "
+                                 + ("not a regular file" if source.exists() else "no such file"))
+            with source.open("rb") as f:
+                data = f.read(MAX_FILE_BYTES + 1)
         except OSError as err:
-            raise LevelError(f"level file '{path}' cannot be read: {err.strerror or err}") from None
-        label = str(path)
-    else:
-        try:
-            text = resources.files("evaaa.levels").joinpath(f"{name}.yaml").read_text()
-        except FileNotFoundError:
-            raise LevelError(f"level file '{name}.yaml' is missing from evaaa/levels") from None
-        label = f"{name}.yaml"
-    try:
-        data = yaml.load(text, Loader=_YAML_LOADER) or {}
-    except yaml.YAMLError as err:
-        raise LevelError(f"level file '{label}' is not valid YAML: {err}") from None
-    if not isinstance(data, dict):
-        raise LevelError(f"level file '{label}' must hold a mapping at the top")
-    return data
+            raise LevelError(f"level file '{source}' cannot be read: {err.strerror or err}") from None
+        return parse_level_text(data, str(source))
+    return _packaged_file(source)
+
+
+@functools.cache
+def _packaged_file(name: str) -> dict[str, Any]:
+    """A packaged file's mapping, parsed once (the pure-Python parser is 7x slower than libyaml's): shared, so
+    never changed in place (:func:`_raw_level` copies its top, :func:`_set_dotted` what it changes)."""
+    assert name in PACKAGED_FILES, name
+    return parse_level_text(resources.files("evaaa.levels").joinpath(f"{name}.yaml").read_bytes(), f"{name}.yaml")
+
+
+def _parent(parent: Any, child: str | Path, root: Path | None) -> str | Path:
+    """Where ``extends: <parent>`` of ``child`` leads: a packaged file, or a file of the user's in ``root`` (the
+    folder of the file the user named) or below it."""
+    label = f"{child}" if isinstance(child, Path) else f"{child}.yaml"
+    usage = (f"a packaged level ({', '.join(n for n in PACKAGED_FILES)}) or, in a file of your own, a .yaml file in "
+             "its folder or below it")
+    if not isinstance(parent, str) or not parent:
+        what = "null (leave extends out to start from _defaults)" if parent is None else excerpt(parent)
+        raise LevelError(f"level file '{label}': extends must name {usage}; got {what}")
+    if not _is_path(parent):
+        if parent not in PACKAGED_FILES:
+            raise LevelError(f"level file '{label}': extends: {excerpt(parent)} is not {usage}")
+        return parent
+    if not isinstance(child, Path) or root is None:
+        raise LevelError(f"level file '{label}': a packaged level extends packaged levels only, not {excerpt(parent)}")
+    path = child.parent / parent
+    if not path.resolve().is_relative_to(root):  # '..', an absolute path or a link out of the folder
+        raise LevelError(f"level file '{label}': extends: {excerpt(parent)} leads out of {root}; a level file "
+                         "extends files in its own folder or below it only")
+    return path
 
 
 def _packaged_files() -> dict[str, dict[str, Any]]:
     """Every packaged level file that is a level (not a ``_base`` shared by others), by name."""
-    return {entry.name[:-5]: _read_yaml(entry.name[:-5])
-            for entry in resources.files("evaaa.levels").iterdir()
-            if entry.name.endswith(".yaml") and not entry.name.startswith("_")}
+    return {name: _read_file(name) for name in PACKAGED_FILES if not name.startswith("_")}
 
 
 def _listed_levels() -> tuple[tuple[str, ...], tuple[str, ...]]:
@@ -593,33 +772,36 @@ def _listed_levels() -> tuple[tuple[str, ...], tuple[str, ...]]:
 
 
 def _deep_merge(base: dict[str, Any], update: Mapping[str, Any]) -> dict[str, Any]:
-    """Merge ``update`` into a copy of ``base``; mappings merge key by key, ``None`` deletes a key."""
-    out = copy.deepcopy(base)
+    """``update`` merged into a shallow copy of ``base``; mappings merge key by key, ``None`` deletes a key.
+
+    Nothing is deep-copied: both trees are freshly parsed and nested at most :data:`MAX_DEPTH` deep, and
+    :func:`_set_dotted` copies what it changes."""
+    out = dict(base)
     for key, value in update.items():
         if value is None:
             out.pop(key, None)
         elif isinstance(value, Mapping) and isinstance(out.get(key), dict):
             out[key] = _deep_merge(out[key], value)
         else:
-            out[key] = copy.deepcopy(value)
+            out[key] = value
     return out
 
 
-def _raw_level(name: str | os.PathLike, _seen: tuple[str, ...] = ()) -> dict[str, Any]:
-    key = str(Path(name).resolve()) if _is_path(name) else name
+def _raw_level(source: str | Path, _seen: tuple[str, ...] = (), root: Path | None = None) -> dict[str, Any]:
+    """The merged tree of a level file and the files it extends (``root``: the folder a user's files stay in)."""
+    key = str(source.resolve()) if isinstance(source, Path) else source
     if key in _seen:
-        raise LevelError(f"level '{name}' extends itself through {' -> '.join(_seen + (key,))}")
-    data = _read_yaml(name)
-    parent = data.pop("extends", "_defaults" if name != "_defaults" else None)
+        raise LevelError(f"level '{source}' extends itself through {' -> '.join(_seen + (key,))}")
+    data = dict(_read_file(source))
+    if "extends" in data:
+        parent = _parent(data.pop("extends"), source, root)
+    else:
+        parent = "_defaults" if source != "_defaults" else None
     for file_key in _FILE_KEYS:
         data.pop(file_key, None)
     if parent is None:
         return data
-    if not isinstance(parent, str):
-        raise LevelError(f"level '{name}': extends must be a level's name or a file, got {parent!r}")
-    if _is_path(parent) and _is_path(name):  # a user's file may extend another file beside it
-        parent = Path(name).parent / parent
-    return _deep_merge(_raw_level(parent, _seen + (key,)), data)
+    return _deep_merge(_raw_level(parent, _seen + (key,), root), data)
 
 
 def _set_dotted(tree: dict[str, Any], path: str, value: Any) -> None:
@@ -632,7 +814,9 @@ def _set_dotted(tree: dict[str, Any], path: str, value: Any) -> None:
             if child is None:
                 allowed = ", ".join(sorted(node)) or "(none)"
                 raise LevelError(f"override '{path}': '{where}' is not a field; allowed here: {allowed}")
-            raise LevelError(f"override '{path}': '{where}' is a value ({child!r}), not a section")
+            raise LevelError(f"override '{path}': '{where}' is a value ({excerpt(child)}), not a section")
+        # a copy: the same mapping may sit elsewhere in the tree too (a YAML alias), which must not change with it
+        node[key] = child = dict(child)
         node = child
     if value is None:  # as in level files, None removes an entry (e.g. a resource group)
         if keys[-1] not in node:
@@ -642,16 +826,37 @@ def _set_dotted(tree: dict[str, Any], path: str, value: Any) -> None:
         node[keys[-1]] = value
 
 
-def _flatten_overrides(overrides: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+def _check_value(path: str, value: Any) -> None:
+    """Refuse an override value nested deeper than a level file may be, or holding a cycle or a set (walked without
+    recursion: the value may come from anywhere)."""
+    stack, nodes = [(value, 1)], 0
+    while stack:
+        item, depth = stack.pop()
+        nodes += 1
+        if depth > MAX_DEPTH or nodes > MAX_NODES:
+            raise LevelError(f"override '{path}': the value nests deeper than {MAX_DEPTH} levels or holds more than "
+                             f"{MAX_NODES} values (the limits of a level)")
+        if isinstance(item, (set, frozenset)):
+            raise LevelError(f"override '{path}': expected a list, got a set {excerpt(item)}")
+        if isinstance(item, Mapping):
+            stack.extend((v, depth + 1) for v in item.values())
+        elif isinstance(item, (list, tuple)):
+            stack.extend((v, depth + 1) for v in item)
+
+
+def _flatten_overrides(overrides: Mapping[str, Any], prefix: str = "", depth: int = 1) -> dict[str, Any]:
     """Accept both ``{"agent.move_speed": 10}`` and ``{"agent": {"move_speed": 10}}``; ``None`` removes an entry."""
+    if depth > MAX_DEPTH:
+        raise LevelError(f"override '{prefix[:200]}...' nests deeper than {MAX_DEPTH} levels")
     flat: dict[str, Any] = {}
     for key, value in overrides.items():
         if not isinstance(key, str) or not key:
-            raise LevelError(f"override keys must be non-empty strings, got {key!r}")
+            raise LevelError(f"override keys must be non-empty strings, got {excerpt(key)}")
         path = f"{prefix}{key}"
         if isinstance(value, Mapping):
-            flat.update(_flatten_overrides(value, path + "."))  # an empty mapping changes nothing
+            flat.update(_flatten_overrides(value, path + ".", depth + 1))  # an empty mapping changes nothing
         else:
+            _check_value(path, value)
             flat[path] = value
     return flat
 
@@ -676,22 +881,32 @@ def _model_at(loc: tuple[Any, ...]) -> type[BaseModel] | None:
 
 def _format_errors(name: str, err: ValidationError) -> str:
     lines = []
+    unknown: dict[tuple[Any, ...], list[str]] = {}  # a section's unknown fields, said on one line
     for e in err.errors():
         loc = tuple(e["loc"])
         where = ".".join(str(p) for p in loc)
         if e["type"] == "extra_forbidden":
-            owner = _model_at(loc[:-1])
-            allowed = ", ".join(owner.model_fields) if owner else "?"
-            lines.append(f"{where}: unknown field; allowed: {allowed}")
+            if loc[:-1] not in unknown:
+                unknown[loc[:-1]] = []
+                lines.append(loc[:-1])  # placeholder, filled in below
+            unknown[loc[:-1]].append(where)
         elif e["type"] == "missing":
             lines.append(f"{where}: required field is missing")
         else:
             got = e.get("input")
-            got_text = "" if isinstance(got, dict) else f" (got {got!r})"
+            got_text = "" if isinstance(got, dict) else f" (got {excerpt(got)})"
             msg = e["msg"].removeprefix("Value error, ")
             # a rule across sections (loc empty) names its fields itself
             lines.append(f"{where}: {msg}{got_text}" if where else msg)
-    return f"invalid level '{name}':\n  " + "\n  ".join(lines)
+    for i, line in enumerate(lines):
+        if isinstance(line, tuple):
+            fields, owner = unknown[line], _model_at(line)
+            named = ", ".join(excerpt(f)[1:-1] for f in fields[:5]) + (f" and {len(fields) - 5} more"
+                                                                        if len(fields) > 5 else "")
+            lines[i] = (f"{named}: unknown field{'s' if len(fields) > 1 else ''}; allowed: "
+                        f"{', '.join(owner.model_fields) if owner else '?'}")
+    shown = lines[:10] + ([f"... and {len(lines) - 10} more"] if len(lines) > 10 else [])
+    return f"invalid level '{name}':\n  " + "\n  ".join(shown)
 
 
 def load_level(name: str | os.PathLike, overrides: Mapping[str, Any] | None = None) -> Level:
@@ -699,22 +914,26 @@ def load_level(name: str | os.PathLike, overrides: Mapping[str, Any] | None = No
     overrides and validate it.
 
     A file outside the package is read as the packaged ones are: it starts from ``_defaults.yaml`` and may
-    ``extends:`` a packaged level by name (or another file, relative to its own folder).  Its level's name is the
-    file's stem unless it says ``name:``.
+    ``extends:`` a packaged level by name (or another file in its own folder or below it).  Its level's name is the
+    file's stem unless it says ``name:``.  Every file is parsed within limits (:data:`MAX_FILE_BYTES`,
+    :data:`MAX_DEPTH`, :data:`MAX_NODES`), and only these files are read.
 
     >>> load_level("1-1", {"agent.move_speed": 10}).agent.move_speed
     10.0
     """
+    root = None
     if isinstance(name, str) and name in _USER_FILES:
-        name, label = _USER_FILES[name], name
+        source, label = _USER_FILES[name], name
     elif isinstance(name, (str, os.PathLike)) and _is_path(name):
-        label = Path(name).stem
+        source, label = Path(name), Path(name).stem
     elif not isinstance(name, str) or name not in level_names():
-        raise LevelError(f"unknown level {name!r}; available: {', '.join(level_names())}, or a path to a .yaml "
-                         "level file")
+        raise LevelError(f"unknown level {excerpt(name)}; available: {', '.join(level_names())}, or a path to a "
+                         ".yaml level file")
     else:
-        label = name
-    raw = _raw_level(name)
+        source = label = name
+    if isinstance(source, Path):
+        root = source.resolve().parent
+    raw = _raw_level(source, root=root)
     for path, value in _flatten_overrides(overrides or {}).items():
         if path in ("name", "kind"):
             raise LevelError(f"override '{path}' cannot change a level's identity")
@@ -745,6 +964,11 @@ def register_level(path: str | os.PathLike) -> str:
     load_level(path)
     _USER_FILES[name] = path
     return name
+
+
+def registered_levels() -> tuple[str, ...]:
+    """The names :func:`register_level` made loadable in this process."""
+    return tuple(_USER_FILES)
 
 
 def level_names() -> tuple[str, ...]:

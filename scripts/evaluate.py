@@ -11,7 +11,9 @@ Arguments are ``key=value`` (lists as ``[a,b]``), the keys of :class:`EvalConfig
 types, defaults and meanings.
 
 Writes to ``out``, which must not hold an earlier evaluation (it is refused, changing nothing: each evaluation is a
-complete result of its own): ``episodes.csv`` (one row per episode, put in place once every episode is done),
+complete result of its own; one stopped after its ``episodes.csv`` and before its ``summary.md``, which is written
+last, is completed by the same command): ``episodes.csv`` (one row per episode, put in place once every episode is
+done),
 ``summary.md`` (per testbed the success rate with its 95 % Wilson interval, per training level the interquartile
 mean survival with its 95 % bootstrap interval beside mean ± standard error, one column per policy), ``success.png``,
 ``survival.png`` and ``outcomes.png`` (what the agent did: consumed the right or wrong resource, died of which
@@ -24,6 +26,8 @@ from __future__ import annotations
 import os
 import re
 import sys
+import tempfile
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,7 +40,7 @@ from evaaa_baselines.cli import option
 from evaaa_baselines.evaluation import REFERENCE_AGENTS, EvaluatedPolicy, EvaluationError, episode_records
 from evaaa_baselines.reports import (SUMMARY_NOTE, markdown_table, plot_outcomes, plot_summary, read_episodes,
                                      summarize)
-from evaaa.records import StepLog, append_rows, new_log_path
+from evaaa.records import DISK_ERRNOS, DiskError, StepLog, append_rows, disk_error, new_log_path, read_rows
 
 GROUPS = {"testbeds": evaaa.TESTBEDS, "training": evaaa.LEVELS, "all": evaaa.LEVELS + evaaa.TESTBEDS}
 #: what an evaluation writes to ``out``: any of them there means ``out`` already holds one
@@ -100,15 +104,59 @@ def episodes(summary) -> str:
     return f"{counts[0]} episodes per bar" if len(counts) == 1 else f"{counts[0]}–{counts[-1]} episodes per bar"
 
 
+def _writable(out: Path) -> None:
+    """Fail now, not after the episodes, where ``out`` cannot take files (a real write: root passes permission
+    checks yet cannot write a read-only mount)."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=out, prefix=".write-test-"):
+            pass
+    except OSError as exc:
+        raise DiskError(out, exc) from None
+
+
+def _check_episodes(path: Path, policies: list[EvaluatedPolicy], cfg: EvalConfig) -> None:
+    """Refuse (SystemExit) an ``episodes.csv`` that is not every episode this command asks for."""
+    rows = read_rows(path)
+    counts = Counter((r["policy"], r["acting"], r["level"], r["seed"], r.get("worlds")) for r in rows)
+    wanted = {(p.name, p.acting, level, str(cfg.seed), cfg.worlds): cfg.episodes for p in policies
+              for level in cfg.levels}
+    if counts != wanted:
+        missing = [f"{key[0]} on {key[2]}" for key, n in wanted.items() if counts.get(key) != n]
+        raise SystemExit(f"evaluate.py: {path} holds other episodes than this command's ({len(rows)} rows; "
+                         f"not as asked: {', '.join(missing[:3]) or 'episodes of other policies or levels'}); "
+                         "nothing was changed: choose another out=, or repeat the command that made it")
+
+
+def _atomic(path: Path, write) -> Path:
+    """``write(tmp)`` then rename ``tmp`` to ``path``: a full disk leaves no half-written file under its name."""
+    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException as exc:
+        tmp.unlink(missing_ok=True)
+        error = disk_error(path, exc) if isinstance(exc, OSError) else None
+        if error is None:
+            raise
+        raise error from None
+    return path
+
+
 def main(argv: list[str] | None = None) -> int:
     cfg = parse(argv)
     out = Path(cfg.out)
     earlier = [name for name in OUTPUTS if (out / name).exists()]
-    if earlier:
+    # episodes.csv without summary.md: killed while the summary was written; the same command completes it
+    completing = bool(earlier) and "episodes.csv" in earlier and "summary.md" not in earlier
+    if earlier and not completing:
         # appending would pool two evaluations (n doubles, the standard error shrinks); replacing would lose one
         raise SystemExit(f"evaluate.py: {out} already holds an evaluation ({', '.join(earlier)}); nothing was "
                          "changed: choose another out=, or move those files away first")
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        _writable(out)
+    except DiskError as err:
+        raise SystemExit(f"evaluate.py: {err}; nothing was written") from None
     if cfg.threads is not None:
         torch.set_num_threads(cfg.threads)
     try:
@@ -116,49 +164,80 @@ def main(argv: list[str] | None = None) -> int:
                     for spec in cfg.policy]
     except EvaluationError as err:
         cli.fail("evaluate.py", str(err))
+    if completing:
+        _check_episodes(out / "episodes.csv", policies, cfg)
+        print(f"{out / 'episodes.csv'} holds every episode of this evaluation: writing its summary and figures")
+    else:
+        try:
+            _run_episodes(cfg, policies, out)
+        except DiskError as err:
+            raise SystemExit(f"evaluate.py: {err}; no episodes.csv was written (run the command again once the "
+                             "disk takes writes)") from None
+    try:
+        written, table = _summarize(cfg, out)
+    except OSError as err:
+        if err.errno not in DISK_ERRNOS:
+            raise
+        raise SystemExit(f"evaluate.py: {disk_error(err.filename or out, err)}; episodes.csv is complete: the same "
+                         "command writes the summary and figures once the disk takes writes") from None
+    print(table)
+    print("\nwrote " + ", ".join(str(p) for p in written))
+    return 0
+
+
+def _run_episodes(cfg: EvalConfig, policies: list[EvaluatedPolicy], out: Path) -> None:
     total = len(policies) * len(cfg.levels) * cfg.episodes
     # episodes go to a hidden file until the last one is done: an interrupted evaluation leaves no episodes.csv
     partial = out / ".episodes.csv.partial"
     partial.unlink(missing_ok=True)  # an earlier interrupted evaluation's
     step_log = StepLog(new_log_path(out)) if cfg.step_log else None
-    with tqdm(total=total, desc="episodes", unit="ep", dynamic_ncols=True) as bar:
-        for policy in policies:
-            for level in cfg.levels:
-                bar.set_postfix_str(f"{policy.name} on {level}")
-                try:
-                    rows = episode_records(policy, level, episodes=cfg.episodes, num_envs=cfg.num_envs,
-                                           seed=cfg.seed, worlds=cfg.worlds, step_log=step_log,
-                                           on_episode=lambda: bar.update(1))
-                except EvaluationError as err:
-                    raise SystemExit(f"evaluate.py: {err}") from None
-                append_rows(partial, rows)
-    os.replace(partial, out / "episodes.csv")
+    try:
+        with tqdm(total=total, desc="episodes", unit="ep", dynamic_ncols=True) as bar:
+            for policy in policies:
+                for level in cfg.levels:
+                    bar.set_postfix_str(f"{policy.name} on {level}")
+                    try:
+                        rows = episode_records(policy, level, episodes=cfg.episodes, num_envs=cfg.num_envs,
+                                               seed=cfg.seed, worlds=cfg.worlds, step_log=step_log,
+                                               on_episode=lambda: bar.update(1))
+                    except EvaluationError as err:
+                        raise SystemExit(f"evaluate.py: {err}") from None
+                    append_rows(partial, rows)
+        os.replace(partial, out / "episodes.csv")
+    except DiskError:
+        partial.unlink(missing_ok=True)
+        raise
+    finally:
+        if step_log is not None:
+            step_log.close()
     if step_log is not None:
-        step_log.close()
         print(f"step log: {step_log.path}")
+
+
+def _summarize(cfg: EvalConfig, out: Path) -> tuple[list[Path], str]:
+    """summary.md and the figures from ``out/episodes.csv``; summary.md last, so that it marks a complete
+    evaluation."""
     rows = read_episodes([out / "episodes.csv", *cfg.include])
     rows = rows[rows["level"].isin(cfg.levels)]
     summary = summarize(rows)
     table = markdown_table(summary)
-    (out / "summary.md").write_text(
-        f"# Evaluation ({cfg.episodes} episodes per level and policy, {cfg.worlds} worlds of seed {cfg.seed}"
-        + ("; checkpoints sample their actions (DQN's act greedily: it has no distribution)" if cfg.sample else "")
-        + (f"; checkpoints act epsilon-greedily, epsilon {cfg.epsilon:g}" if cfg.epsilon else "") + ")\n\n"
-        + SUMMARY_NOTE + "\n\n"
-        + table + "\n")
-    written = [out / "episodes.csv", out / "summary.md"]
+    written = [out / "episodes.csv"]
     tests = summary[summary["level"].isin(evaaa.TESTBEDS)]
     if len(tests):
-        written.append(plot_summary(tests, out / "success.png", success=True,
-                                    title=f"Success per testbed ({episodes(tests)})"))
+        written.append(_atomic(out / "success.png", lambda p: plot_summary(
+            tests, p, success=True, title=f"Success per testbed ({episodes(tests)})")))
     training = summary[summary["level"].isin(evaaa.LEVELS)]
     if len(training):
-        written.append(plot_summary(training, out / "survival.png", success=False,
-                                    title=f"Survival per training level ({episodes(training)})"))
-    written.append(plot_outcomes(rows, out / "outcomes.png"))
-    print(table)
-    print("\nwrote " + ", ".join(str(p) for p in written))
-    return 0
+        written.append(_atomic(out / "survival.png", lambda p: plot_summary(
+            training, p, success=False, title=f"Survival per training level ({episodes(training)})")))
+    written.append(_atomic(out / "outcomes.png", lambda p: plot_outcomes(rows, p)))
+    text = (f"# Evaluation ({cfg.episodes} episodes per level and policy, {cfg.worlds} worlds of seed {cfg.seed}"
+            + ("; checkpoints sample their actions (DQN's act greedily: it has no distribution)" if cfg.sample
+               else "")
+            + (f"; checkpoints act epsilon-greedily, epsilon {cfg.epsilon:g}" if cfg.epsilon else "") + ")\n\n"
+            + SUMMARY_NOTE + "\n\n" + table + "\n")
+    written.insert(1, _atomic(out / "summary.md", lambda p: p.write_text(text)))
+    return written, table
 
 
 if __name__ == "__main__":

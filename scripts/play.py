@@ -7,6 +7,7 @@ and the level: the rows the evaluation tool writes for agents, so a report can p
     python scripts/play.py level=1-1 participant=p01                 # then open http://127.0.0.1:8000/
     python scripts/play.py level=1-2 participant=p02 rate=5 seed=3 port=8080 out=outputs/human
     python scripts/play.py level=1-1 overrides.episode.max_steps=200 # any level field, by its dotted path
+    python scripts/play.py level_dir=my-levels level=maze           # my-levels/maze.yaml (the page offers them all)
 
 Keys: up = forward, left/right = turn, space = eat, period = do nothing, Enter = new episode once one ended.
 Steps advance on each key press; with ``rate=R`` they advance R times a second instead, a second without a
@@ -20,7 +21,7 @@ from collections.abc import Mapping
 from dataclasses import replace
 from typing import Any
 
-from evaaa.play import PlaySettings, serve
+from evaaa.play import PlaySettings, register_level_dir, serve
 from evaaa.spec import LevelError, load_level
 from evaaa_baselines import cli
 
@@ -51,9 +52,15 @@ def _dotted(overrides: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
 def parse_args(argv: list[str]) -> PlaySettings:
     """The settings from ``key=value`` arguments.  Raises :class:`UsageError` (one line naming the key)."""
     try:
+        # the levels of level_dir are registered before the values are checked: level= may name one of them
+        level_dir = cli.read(PlaySettings, argv, checks=False).level_dir
+        if level_dir is not None:
+            register_level_dir(level_dir)
         options = cli.read(PlaySettings, argv)
     except cli.UsageError as exc:
         raise UsageError(str(exc)) from None
+    except LevelError as exc:
+        raise UsageError("level_dir: " + " ".join(str(exc).split())) from None
     options = replace(options, overrides=_dotted(options.overrides))
     try:  # fail here, before a port is taken, on a bad override
         load_level(options.level, options.overrides)

@@ -51,6 +51,7 @@ from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
 import evaaa  # noqa: E402,F401  (sets MUJOCO_GL before mujoco loads)
 from evaaa_baselines import train  # noqa: E402
+from evaaa.records import DISK_ERRNOS, DiskError  # noqa: E402
 from evaaa_baselines.checkpoint import CheckpointError  # noqa: E402
 from evaaa_baselines.config import CONF_DIR, check_command_line, register_levels  # noqa: E402
 from evaaa_baselines.runner import RunRefused  # noqa: E402
@@ -81,6 +82,13 @@ def main(cfg: DictConfig) -> None:
     except Interrupted as err:
         print(f"train.py: {err}", file=sys.stderr, flush=True)
         raise SystemExit(130) from None
+    except OSError as err:  # a full or read-only disk: one line; what was written before stays as it was
+        if err.errno not in DISK_ERRNOS:
+            raise
+        where = err if isinstance(err, DiskError) else DiskError(err.filename or hydra_cfg.runtime.output_dir, err)
+        print(f"train.py: {where}; the run's earlier files are intact (resume=true continues from its last "
+              "checkpoint once the disk takes writes)", file=sys.stderr, flush=True)
+        raise SystemExit(1) from None
 
 
 if __name__ == "__main__":

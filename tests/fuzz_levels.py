@@ -4,6 +4,9 @@ Each case starts from a level or testbed, picks one to three of its fields (walk
 field of the schema that the level has can be hit) and gives each a value that is likely to break something:
 NaN and infinities, zero, negative and huge numbers, wrong types, swapped intervals, the other choices of a
 ``Literal``, removed groups, a fixed start anywhere.
+
+:func:`hostile_file` attacks the file itself rather than its values: nesting, alias chains, YAML tags, encodings
+and sizes.
 """
 
 from __future__ import annotations
@@ -159,3 +162,115 @@ def draw_case(seed: int) -> tuple[str, dict[str, Any]]:
             continue
         overrides[path] = mutate(rng, path, value)
     return base, overrides
+
+
+# ------------------------------------------------------------------------------------------------ hostile files
+#: fields a hostile value is put in: text, a number, a flag, an interval, a section, a named group
+_TARGETS = ("description", "agent.mass", "agent.auto_eat", "agent.spawn_x", "arena", "resources.food")
+_TAGS = ("!!python/object/apply:os.system ['touch /tmp/evaaa-pwned']", "!!python/name:os.system", "!!binary Mw==",
+         "!!set {1, 2}", "!!timestamp 2001-12-14", "!!omap [a: 1]", "!!pairs [a: 1]", "!custom 3", "!!str 3",
+         "!!int '3'", "!!float 3", "!!bool yes", "!!null ''", "!<tag:example.com,2000:x> 1", "!!merge 3")
+
+
+def _nest(field: str, value: str) -> str:
+    """``value`` at a dotted ``field`` as block YAML."""
+    parts = field.split(".")
+    lines = [f"{'  ' * i}{key}:" for i, key in enumerate(parts[:-1])]
+    return "\n".join([*lines, f"{'  ' * (len(parts) - 1)}{parts[-1]}: {value}"]) + "\n"
+
+
+def _deep(rng: random.Random) -> str:
+    depth = rng.choice([rng.randint(1, 40), rng.randint(30, 3000), rng.randint(3000, 120_000)])
+    style = rng.randrange(4)
+    if style == 0:
+        return "description: " + "[" * depth + "1" + "]" * depth + "\n"
+    if style == 1:
+        return "description: " + "{a: " * depth + "1" + "}" * depth + "\n"
+    if style == 2:  # block mappings, one level per line
+        depth = min(depth, 3000)
+        return "description:\n" + "".join(f"{' ' * (2 * i + 2)}k{i}:\n" for i in range(depth)) + " " * (
+            2 * depth + 2) + "x\n"
+    return "description: " + "- " * min(depth, 5000) + "1\n"  # block sequences on one line
+
+
+def _aliases(rng: random.Random) -> str:
+    width, chain = rng.randint(1, 12), rng.randint(1, 12)
+    lines = [f"a0: &a0 [{', '.join(['lol'] * width)}]"]
+    lines += [f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * width)}]" for i in range(1, chain)]
+    kind = rng.randrange(5)
+    if kind == 0:
+        lines.append("b: &b [1, *b]")  # an alias inside what it names
+    elif kind == 1:
+        lines.append("c: *nowhere")
+    elif kind == 2:
+        lines.append("d: &a0 1")  # an anchor defined twice
+    elif kind == 3:  # merge keys through a chain of mappings
+        lines += ["m0: &m0 {mass: 3}"] + [f"m{i}: &m{i} {{<<: *m{i - 1}, k{i}: {i}}}" for i in range(1, chain)]
+        return "\n".join(lines) + "\n" + _nest("agent", f"{{<<: *m{chain - 1}}}")
+    return "\n".join(lines) + "\n" + _nest(rng.choice(_TARGETS), f"*a{chain - 1}")
+
+
+def _tags(rng: random.Random) -> str:
+    return _nest(rng.choice(_TARGETS), rng.choice(_TAGS))
+
+
+def _encoding(rng: random.Random) -> bytes:
+    text = 'extends: "1-2"\ndescription: "caf\u00e9 \u2603 \U0001f600"\nagent: {mass: 12.5}\n'
+    kind = rng.randrange(8)
+    if kind == 0:
+        return text.encode(rng.choice(["utf-16", "utf-16-le", "utf-32", "utf-32-be"]))
+    if kind == 1:
+        return text.encode("latin-1", errors="replace")
+    if kind == 2:
+        return b"\xef\xbb\xbf" + text.encode()  # UTF-8 with a byte-order mark: fine
+    if kind == 3:
+        data = bytearray(text.encode())
+        data.insert(rng.randrange(len(data)), rng.choice([0, 1, 7, 27, 0x7F]))
+        return bytes(data)
+    if kind == 4:
+        return text.encode()[:rng.randint(1, len(text.encode()))]  # cut anywhere, even inside a character
+    if kind == 5:
+        return bytes(rng.randrange(256) for _ in range(rng.randint(1, 400)))
+    if kind == 6:
+        return text.replace("\n", rng.choice(["\r\n", "\r", "\u2028", "\x85"])).encode()
+    return text.encode()
+
+
+def _sizes(rng: random.Random) -> str:
+    # a count that is small, near the file size limit (64 KiB: parsing it takes about a second) or far over it
+    def many(small: int, near: int, over: int) -> int:
+        return rng.choices([rng.randint(1, small), near, over], weights=[0.5, 0.05, 0.45])[0]
+
+    kind = rng.randrange(9)
+    if kind == 0:
+        return "description: '" + "x" * many(1000, 60_000, 300_000) + "'\n"
+    if kind == 1:
+        return "description: " + "x" * many(1000, 60_000, 200_000) + "\n"  # one long plain line
+    if kind == 2:
+        return "".join(f"k{i}: {i}\n" for i in range(many(300, 7_000, 20_000)))
+    if kind == 3:
+        return rng.choice(["", "# only a comment\n", "---\n", "...\n", "null\n", "~\n"])
+    if kind == 4:
+        return "description: a\n---\ndescription: b\n"  # two documents
+    if kind == 5:
+        return _nest(rng.choice(["agent.mass", "episode.max_steps", "resources.food.count"]),
+                     rng.choice(["1" + "0" * 400, "-1" + "0" * 400, ".inf", "-.inf", ".nan", "0x7fffffffffffffff",
+                                 "1e400", "0b101", "0o17", "1_000", "12:30:00", "+.5", "1e-400"]))
+    if kind == 6:
+        return _nest("agent.spawn_x", "[" + ", ".join(["1"] * many(300, 20_000, 90_000)) + "]")
+    if kind == 7:
+        return rng.choice(["[1, 2]\n", "3\n", "'text'\n", "- a\n- b\n", "? [a, b]\n: 1\n", "{[1]: 2}\n",
+                           "a: {[1]: 2}\n"])
+    return "agent: {mass: 5, mass: 6}\n" if rng.random() < 0.5 else "agent: {mass: 5}\nagent: {mass: 6}\n"
+
+
+def hostile_file(seed: int) -> tuple[str, bytes]:
+    """What a hostile level file tries (depth, aliases, tags, encodings, sizes) and its bytes; a pure function of
+    ``seed``.  Most start from a packaged level, so that what is not refused is a level."""
+    rng = random.Random(seed)
+    kind = rng.choice(["depth", "aliases", "tags", "encoding", "sizes"])
+    if kind == "encoding":
+        return kind, _encoding(rng)
+    body = {"depth": _deep, "aliases": _aliases, "tags": _tags, "sizes": _sizes}[kind](rng)
+    base = rng.choice(['extends: "1-1"\n', 'extends: "two-resource-food"\n', ""])
+    return kind, (base + body).encode()

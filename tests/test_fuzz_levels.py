@@ -4,13 +4,21 @@ or gives a world that runs 50 decisions with finite observations and rewards.
 The cases (tests/fuzz_levels.py) are seeded: a failure names its seed, and ``draw_case(seed)`` replays it.  The
 default suite runs a few hundred cases without vision except where a case changes what the camera sees; the slow
 version runs more, every modality on.
+
+Hostile files (``hostile_file``: nesting, aliases, tags, encodings, sizes) must end in a one-line LevelError naming the
+file (or, where only the level's values are wrong, the usual list of fields under a first line naming it) or in a
+level that runs, each within a time bound.
 """
 
 from __future__ import annotations
 
+import collections
+import time
+from pathlib import Path
+
 import numpy as np
 import pytest
-from fuzz_levels import draw_case
+from fuzz_levels import draw_case, hostile_file
 
 from evaaa.sim import Simulator
 from evaaa.spec import LevelError, load_level
@@ -29,13 +37,13 @@ def _names_a_changed_field(message: str, overrides: dict) -> bool:
     return any(path.split(".")[-1] in message for path in overrides)
 
 
-def _run(level, seed: int, modalities) -> str | None:
+def _run(level, seed: int, modalities, steps: int = STEPS) -> str | None:
     """Step a world of ``level`` with random actions; the problem found, or None."""
     sim = Simulator(level, 1, modalities, seed=seed, threads=1)
     try:
-        actions = np.random.default_rng(seed).integers(0, 5, size=STEPS)
+        actions = np.random.default_rng(seed).integers(0, 5, size=steps)
         obs = sim.reset()
-        for t in range(STEPS):
+        for t in range(steps):
             for key, value in obs.items():
                 if value.dtype.kind == "f" and not np.isfinite(value).all():
                     return f"observation {key} not finite at step {t}: {value}"
@@ -84,3 +92,58 @@ def test_fuzzed_levels_with_every_modality():
     failures, refused, ran = _fuzz(range(300, 2300), all_modalities=True)
     assert not failures, f"{len(failures)} of 2000 cases failed:\n" + "\n".join(failures)
     assert refused >= 500 and ran >= 300, (refused, ran)
+
+
+# ------------------------------------------------------------------------------------------------ hostile files
+#: longer than any case takes on a slow machine (they take milliseconds): a case past it hangs
+HANG_SECONDS = 10
+
+
+def _hostile(seeds, tmp_path) -> tuple[list[str], collections.Counter]:
+    """Load each hostile file: it must end, within the bound, in a LevelError whose first line names the file (a
+    single line unless the level's values are what is wrong), or in a level that steps."""
+    failures, outcomes = [], collections.Counter()
+    for seed in seeds:
+        kind, data = hostile_file(seed)
+        path = tmp_path / f"hostile-{seed}.yaml"
+        path.write_bytes(data)
+        case = f"seed {seed} ({kind}, {len(data)} bytes: {data[:80]!r})"
+        start = time.monotonic()
+        try:
+            level = load_level(path)
+            problem = _run(level, seed, NO_VISION, steps=10)
+            outcomes["level"] += 1
+            if problem:
+                failures.append(f"{case}\n  {problem}")
+        except LevelError as exc:
+            message = str(exc)
+            lines = message.splitlines()
+            outcomes["values" if message.startswith("invalid level") else "file"] += 1
+            if str(path) not in lines[0]:
+                failures.append(f"{case}\n  the error does not name the file: {message[:300]}")
+            if len(message) > 2000 or max(map(len, lines)) > 600:
+                failures.append(f"{case}\n  the error is {len(message)} characters long: {message[:300]}")
+            if not message.startswith("invalid level") and len(lines) != 1:
+                failures.append(f"{case}\n  the error spans {len(lines)} lines: {message[:300]}")
+        except Exception as exc:  # noqa: BLE001 - anything else is a crash of the loader
+            failures.append(f"{case}\n  {type(exc).__name__}: {str(exc)[:300]}")
+        elapsed = time.monotonic() - start
+        if elapsed > HANG_SECONDS:
+            failures.append(f"{case}\n  took {elapsed:.1f} s")
+        path.unlink()
+    assert not Path("/tmp/evaaa-pwned").exists(), "a YAML tag ran code"
+    return failures, outcomes
+
+
+def test_hostile_level_files_end_in_a_named_one_line_error_or_a_level(tmp_path):
+    failures, outcomes = _hostile(range(150), tmp_path)
+    assert not failures, f"{len(failures)} of 150 cases failed:\n" + "\n".join(failures)
+    # every kind of ending occurs, or the generator would check little
+    assert outcomes["file"] >= 60 and outcomes["values"] >= 5 and outcomes["level"] >= 5, outcomes
+
+
+@pytest.mark.slow
+def test_more_hostile_level_files(tmp_path):
+    failures, outcomes = _hostile(range(150, 1650), tmp_path)
+    assert not failures, f"{len(failures)} of 1500 cases failed:\n" + "\n".join(failures)
+    assert outcomes["file"] >= 600 and outcomes["level"] >= 50, outcomes

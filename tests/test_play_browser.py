@@ -189,7 +189,8 @@ def test_the_api_refuses_bad_requests_and_keeps_serving(tmp_path):
             ("POST", "api/step", b'{"action": 1, "repeat": 3}', 400, "unknown field(s) repeat"),
             ("POST", "api/step", b"x" * 10_000, 413, "request body over"),
             ("POST", "api/reset", b'{"level": "no-such-level"}', 400, "available: 1-1, 1-2"),
-            ("POST", "api/reset", b'{"level": 11}', 400, "level must be a string"),
+            ("POST", "api/reset", b'{"level": 11}', 400, "unknown level 11"),
+            ("POST", "api/reset", b'{"level": "/etc/passwd.yaml"}', 400, "unknown level '/etc/passwd.yaml'"),
             ("GET", "no/such/path", None, 404, "unknown path /no/such/path"),
             ("GET", "api/step", None, 405, "answers POST, not GET"),
             ("POST", "api/state", b"{}", 405, "answers GET, not POST"),
@@ -246,7 +247,8 @@ def test_the_command_line_reads_key_value_arguments():
 
 @pytest.mark.parametrize("args, expected", [
     (["level=no-such-level"], ["level=no-such-level: 'no-such-level' is not allowed", "allowed: 1-1, 1-2"]),
-    (["colour=red"], ["unknown key 'colour'", "keys: level, participant, host, port, seed, rate, out, step_log, overrides"]),
+    (["colour=red"], ["unknown key 'colour'",
+                      "keys: level, level_dir, participant, host, port, seed, rate, out, step_log, overrides"]),
     (["level"], ["'level' is not of the form key=value"]),
     (["port=http"], ["port=http: expected an integer"]),
     (["port=70000"], ["port=70000: expected a port in [0, 65535]"]),

@@ -8,6 +8,9 @@ import http.client
 import io
 import json
 import re
+import socket
+import threading
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -15,9 +18,9 @@ from urllib.parse import urlsplit
 
 from helpers import play_server
 
+from evaaa import play
 from evaaa.play import PlayHandler, PlayServer, PlaySettings, is_loopback, serve
 from evaaa.records import read_rows
-
 
 
 @contextmanager
@@ -29,9 +32,9 @@ def server(workdir: Path, *args: str) -> Iterator[tuple[str, int]]:
 
 
 def call(address: tuple[str, int], method: str, path: str, body: bytes | None = None,
-         headers: dict[str, str] | None = None) -> tuple[int, dict[str, str], bytes]:
+         headers: dict[str, str] | None = None, timeout: float = 30) -> tuple[int, dict[str, str], bytes]:
     """One request with exactly these headers (http.client adds Host unless one is given)."""
-    connection = http.client.HTTPConnection(*address, timeout=30)
+    connection = http.client.HTTPConnection(*address, timeout=timeout)
     headers = dict(headers or {})
     skip_host = "Host" in headers
     connection.putrequest(method, path, skip_host=skip_host, skip_accept_encoding=True)
@@ -171,3 +174,124 @@ def test_a_vanished_browser_leaves_no_traceback(capsys):
     except ConnectionResetError:
         server.handle_error(None, ("127.0.0.1", 1))
     assert capsys.readouterr().err == ""
+
+
+# ------------------------------------------------------------------------------------------------ hostile requests
+def _alias_bomb(width: int) -> str:
+    """A few hundred bytes of YAML whose aliases expand to ``width ** width`` strings."""
+    lines = [f"a0: &a0 [{', '.join(['lol'] * width)}]"]
+    lines += [f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * width)}]" for i in range(1, width)]
+    return "\n".join(lines) + f"\ndescription: *a{width - 1}\n"
+
+
+def test_a_level_request_is_a_name_and_the_server_keeps_answering(tmp_path):
+    bomb = tmp_path / "bomb.yaml"
+    bomb.write_text(_alias_bomb(9))
+    secret = tmp_path / "secret.yaml"
+    secret.write_text("agent: {mass: the-secret-value}\n")
+    with server(tmp_path, f"out={tmp_path / 'records'}") as address:
+        before = state(address)
+        latencies, failures, stop = [], [], threading.Event()
+
+        def poll():
+            while not stop.is_set():
+                start = time.monotonic()
+                try:
+                    status = call(address, "GET", "/api/state", timeout=10)[0]
+                except OSError as exc:
+                    failures.append(repr(exc))
+                    continue
+                latencies.append(time.monotonic() - start)
+                if status != 200:
+                    failures.append(status)
+
+        pollers = [threading.Thread(target=poll) for _ in range(3)]
+        for thread in pollers:
+            thread.start()
+        try:
+            for level in (str(bomb), str(secret), "../../../../" + str(secret)[1:], str(secret)[:-5], "1-1/x.yaml"):
+                status, _, payload = call(address, "POST", "/api/reset", json.dumps({"level": level}).encode(),
+                                          timeout=10)
+                error = json.loads(payload)["error"]
+                assert status == 400 and error.startswith("unknown level"), (level, status, error)
+                assert "the-secret-value" not in error
+            time.sleep(0.5)
+        finally:
+            stop.set()
+            for thread in pollers:
+                thread.join()
+        assert not failures and latencies, failures
+        assert max(latencies) < 1.0, max(latencies)  # the issue's bound: every request answered within a second
+        assert state(address)["level"] == before["level"] == "1-1"
+
+
+class _SlowSession:
+    """Stands in for the play session: ``state`` waits until the test lets it answer."""
+
+    def __init__(self):
+        self.entered, self.release = threading.Event(), threading.Event()
+
+    def state(self):
+        self.entered.set()
+        self.release.wait(30)
+        return {"step": 0}
+
+
+@contextmanager
+def in_process(monkeypatch, idle_timeout: float, max_requests: int) -> Iterator[tuple[tuple[str, int], _SlowSession]]:
+    # module settings rather than arguments, so that the test runs (and fails) on a server without them
+    monkeypatch.setattr(play, "IDLE_TIMEOUT", idle_timeout, raising=False)
+    monkeypatch.setattr(play, "MAX_REQUESTS", max_requests, raising=False)
+    httpd = PlayServer("127.0.0.1", 0, b"<html></html>")
+    httpd.session = _SlowSession()
+    thread = threading.Thread(target=httpd.serve_forever, daemon=True)
+    thread.start()
+    try:
+        yield httpd.server_address[:2], httpd.session
+    finally:
+        httpd.session.release.set()
+        httpd.shutdown()
+        httpd.server_close()
+
+
+def test_idle_connections_are_closed(monkeypatch):
+    with in_process(monkeypatch, idle_timeout=0.5, max_requests=4) as (address, _):
+        with socket.create_connection(address) as idle:
+            idle.settimeout(15)  # a hang is far longer than the 0.5 s asked for
+            assert idle.recv(1) == b""  # the server closed it
+        with socket.create_connection(address) as slow:  # a request line, then nothing
+            slow.sendall(b"GET / HTTP/1.1\r\n")
+            slow.settimeout(15)
+            while slow.recv(4096):
+                pass
+        assert call(address, "GET", "/")[0] == 200  # still serving
+
+
+def test_requests_beyond_the_bound_are_answered_503(monkeypatch):
+    with in_process(monkeypatch, idle_timeout=10, max_requests=1) as (address, session):
+        held = []
+        holder = threading.Thread(target=lambda: held.append(call(address, "GET", "/api/state", timeout=30)))
+        holder.start()
+        assert session.entered.wait(10)  # the one request allowed is being answered
+        status, headers, payload = call(address, "POST", "/api/step", b'{"action": 1}', timeout=5)
+        assert status == 503 and headers["Retry-After"] == "1", (status, payload)
+        assert "busy" in json.loads(payload)["error"]
+        session.release.set()
+        holder.join()
+        assert held[0][0] == 200  # the request in progress was answered
+        # many clients at once: every request is answered, 200 or 503, none reset
+        answers, errors = [], []
+
+        def client():
+            for _ in range(5):
+                try:
+                    answers.append(call(address, "GET", "/api/state", timeout=30)[0])
+                except OSError as exc:
+                    errors.append(repr(exc))
+
+        clients = [threading.Thread(target=client) for _ in range(40)]
+        for thread in clients:
+            thread.start()
+        for thread in clients:
+            thread.join()
+        assert not errors and len(answers) == 200 and set(answers) <= {200, 503}, (errors, set(answers))
