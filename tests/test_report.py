@@ -640,13 +640,15 @@ def test_a_number_spelled_two_ways_or_another_time_budget_does_not_split_a_group
 
     sim = Sim(tmp_path / "runs")
     dirs = [sim.run("ppo", 0, level="1-1", finish=1, overrides=("algo.value_coef=1", "max_minutes=75")),
-            sim.run("ppo", 1, level="1-1", finish=1, overrides=("algo.value_coef=1.0", "max_minutes=33")),
+            sim.run("ppo", 1, level="1-1", finish=1, overrides=("algo.value_coef=1.0", "max_minutes=33",
+                                                                  "max_cpu_minutes=110")),
             sim.run("ppo", 2, level="1-1", finish=1, overrides=("algo.value_coef=0.25",))]
     runs = [load_run(d) for d in dirs]
     assert [r.config["algo"]["value_coef"] for r in runs] == [1, 1.0, 0.25]
     assert isinstance(runs[0].config["algo"]["value_coef"], int)
     describe_extras(runs)
-    assert runs[0].extras == runs[1].extras == ("algo.value_coef=1",)  # max_minutes is a budget, not a setting
+    # max_minutes and max_cpu_minutes are budgets, not settings
+    assert runs[0].extras == runs[1].extras == ("algo.value_coef=1",)
     assert runs[2].extras == ("algo.value_coef=0.25",)  # a setting that differs still splits
     names = labels(runs)
     assert names[dirs[0]] == names[dirs[1]] != names[dirs[2]]
@@ -1054,3 +1056,15 @@ def test_a_folder_of_evaluations_is_searched_for_their_episode_files(world, tmp_
     (tmp_path / "empty").mkdir()
     with pytest.raises(ReportError, match="holds no episodes.csv"):
         build_report([], [tmp_path / "empty"], tmp_path / "none")
+
+
+def test_the_claims_compare_agents_in_the_acting_mode_they_all_have():
+    from evaaa_baselines.reports.sections import _one_mode
+
+    rows = pd.DataFrame({"run": ["ppo0", "ppo0", "dqn0", "ppo1", "ppo1"],
+                         "acting": ["mode", "sample", "mode", "sample", "mode"], "steps": [1, 2, 3, 4, 5]})
+    assert _one_mode(rows)["acting"].tolist() == ["mode"] * 3  # the deterministic action: every agent has it
+    apart = pd.DataFrame({"run": ["a", "a", "b", "c", "c", "c"],
+                          "acting": ["sample", "sample", "mode", "sample", "mode", "mode"]})
+    # no mode shared by every run: each run's most frequent (such agents are then not compared)
+    assert _one_mode(apart)["acting"].tolist() == ["sample", "sample", "mode", "mode", "mode"]

@@ -36,7 +36,8 @@ BEST_MODEL_FILE = re.compile(r"^model-best-(\d+)-(.+)\.pt$")
 #: Settings that do not change what is trained: runs differing only in these (and the seed) are pooled
 #: (``deterministic`` picks CUDA kernels that repeat; runs made before it existed have no such key).
 BOOKKEEPING = ("seed", "resume", "start_over", "threads", "progress", "progress_window", "log_every", "total_steps",
-               "max_minutes", "deterministic", "stages", "run.", "logger.", "checkpoint.", "eval.", "level.", "hydra.")
+               "max_minutes", "max_cpu_minutes", "deterministic", "stages", "run.", "logger.", "checkpoint.", "eval.",
+               "level.", "hydra.")
 RUN_COLUMNS = ("env_steps", "stage", "level", "steps")
 #: eval.csv: one row per episode (``steps``), or, in files written before, one row per evaluation (its mean)
 EVAL_RUN_COLUMNS = ("env_steps", "stage", "level", "steps")

@@ -751,11 +751,18 @@ def _pooled_success(episodes: pd.DataFrame, by: Sequence[str]) -> pd.DataFrame:
 
 
 def _one_mode(rows: pd.DataFrame) -> pd.DataFrame:
-    """``rows`` of one acting mode per run, for the claims: where a run's networks were evaluated in several ways,
-    the way most of its episodes were made (its other ways stay in the tables, labelled)."""
-    if not len(rows) or "acting" not in rows:
+    """``rows`` of one acting mode for the claims, the same for every agent where it can be: where networks were
+    evaluated in several ways, the way every run has (the deterministic ``mode…`` first, the one every algorithm
+    has; DQN has no other), else each run's most frequent (such agents are then not compared: :mod:`.claims`).  The
+    other ways stay in the tables, labelled."""
+    if not len(rows) or "acting" not in rows or rows["acting"].nunique() < 2:
         return rows
-    counts = rows.groupby(["run", "acting"]).size().reset_index(name="k").sort_values("k", kind="stable")
+    per_run = rows.groupby("run")["acting"].agg(lambda a: set(a))
+    shared = sorted(set.intersection(*per_run), key=lambda a: (not a.startswith("mode"), a))
+    if shared:
+        return rows[rows["acting"] == shared[0]]
+    counts = rows.groupby(["run", "acting"]).size().reset_index(name="k").sort_values(
+        ["k", "acting"], ascending=[True, False], kind="stable")
     chosen = dict(zip(counts["run"], counts["acting"]))
     return rows[rows["acting"] == rows["run"].map(chosen)]
 
