@@ -592,3 +592,17 @@ def test_paper_learned_compute_matches_1_1_and_gives_direct_runs_the_curriculum_
     assert [c.argv[3] for c in by["eval/dqn/matched-1-1/seed0"].commands] == ["sample=false"] * 2
     assert {"ref/random", "ref/still", "ref/oracle"} <= set(by)
     assert sum(c.minutes for c in cells) / 60 <= p.budget_cpu_hours
+
+
+def test_docs_quote_the_paper_learned_plan(tmp_path, capsys):
+    assert reproduce.main(["protocol=paper_learned", "plan=true", f"root={tmp_path}",
+                           f"out={tmp_path / 'report'}"]) == 0
+    out = capsys.readouterr().out
+    docs = (Path(__file__).parents[1] / "docs/reports.md").read_text()
+    docs = docs[docs.index("## The paper's claims between agents that learned"):]
+    total = float(re.search(r"^  total\s+(\d+\.\d+)", out, re.M).group(1))
+    assert f"| **total** | | | | | | **{total:.2f}** |" in docs and "WARNING" not in out
+    for algo in ("ppo", "dqn", "ppo_lstm", "dreamer_xs"):
+        row = re.search(rf"^  {algo}\s+([\d. ]+)$", out, re.M).group(1).split()
+        assert f"| {algo} | " + " | ".join("–" if v == "0.00" else v for v in row) + " |" in docs
+    assert f"**S = {load_protocol('paper_learned').stage_steps:,}** env steps" in docs
