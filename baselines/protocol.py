@@ -563,7 +563,8 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
     title = p.report.title or default_title(p)
     argv = ["scripts/report.py", f"runs=[{arg(lay.runs)}]", "evals=[" + ",".join(map(arg, eval_outs)) + "]",
             f"out={arg(out)}", f"survival={p.report.survival}", f"title={title}"]
-    if any(c.kind == "eval" for c in cells):
+    if any(c.kind == "eval" for c in cells) and len(modes) == 1:
+        # several modes: the report shows each, labelled, and its claims take the mode every agent has
         argv.append(f"acting={acting(ev)}")
     cells.append(Cell("report", "report", [Command(argv, None)], 1.0, "report", needs_cells=[c.name for c in cells],
                       report_out=out))
@@ -588,7 +589,18 @@ def acting(ev: EvaluationSpec) -> str:
 def default_title(p: Protocol) -> str:
     algos = ", ".join(n for n, a in p.algorithms.items() if a.enabled)
     return (f"evaaa: the paper's protocol at CPU scale ({p.name}: {algos}; {p.stage_steps:,} env steps per "
-            f"stage; seeds {', '.join(map(str, p.seeds))}; checkpoints act {acting(p.evaluation)})")
+            f"stage; seeds {', '.join(map(str, p.seeds))}; checkpoints act {acting_text(p.evaluation)})")
+
+
+def acting_text(ev: EvaluationSpec) -> str:
+    """How the protocol's checkpoints act, in words that hold for every algorithm (DQN has no distribution)."""
+    eps = f", epsilon {ev.epsilon:g}" if ev.epsilon else ""
+    modes = eval_modes(ev)
+    if modes == ["mode"]:
+        return f"by their most likely action{eps}"
+    if modes == ["sample"]:
+        return f"by sampling (DQN: its greedy action){eps}"
+    return f"by their most likely action, and by sampling where they have a distribution{eps}"
 
 
 # ------------------------------------------------------------------------------------------------ status
@@ -667,7 +679,7 @@ def plan_text(p: Protocol, cells: Sequence[Cell], lay: Layout, threads: int) -> 
     states = {c.name: status(c, lay, cells) for c in cells}
     width = max(len(c.name) for c in cells)
     lines = [f"protocol {p.name}: {len(cells)} cells under {lay.root}; S = {p.stage_steps:,} env steps per stage "
-             f"(curriculum stage and direct run), seeds {p.seeds}; checkpoints act {acting(p.evaluation)}", "",
+             f"(curriculum stage and direct run), seeds {p.seeds}; checkpoints act {acting_text(p.evaluation)}", "",
              f"{'cell':<{width}}  {'status':<7}  {'CPU-min':>8}  {'took':>8}"]
     took = {c.name: lay.took(c.name) if states[c.name] == "done" else None for c in cells}
     for c in cells:
@@ -719,7 +731,7 @@ def provenance(p: Protocol, cells: Sequence[Cell], lay: Layout, selects: str | N
     example = next((c.name for c in cells if c.kind == "train"), cells[0].name)
     lines = ["## How this report was made", "",
              f"The protocol `{p.name}`: S = {p.stage_steps:,} env steps per stage (curriculum "
-             f"stage and direct run), seeds {', '.join(map(str, p.seeds))}, checkpoints act {acting(p.evaluation)}; "
+             f"stage and direct run), seeds {', '.join(map(str, p.seeds))}, checkpoints act {acting_text(p.evaluation)}; "
              f"{len(cells)} cells, {len(done)} of them done (the report not counted) when this report was made. From "
              "the repository root:", "", "```bash",
              f"python scripts/reproduce.py {selects} plan=true   # every cell: status, command, CPU time",

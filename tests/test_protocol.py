@@ -156,9 +156,10 @@ def test_a_second_session_on_the_same_root_is_refused(tmp_path, capsys):
 
 def test_an_unknown_protocol_name_and_a_bad_key_are_one_line_errors(capsys):
     with pytest.raises(SystemExit) as stop:
-        reproduce.main(["protocol=paper_gpu", "plan=true"])
+        reproduce.main(["protocol=paper_nowhere", "plan=true"])
     assert stop.value.code == 2
-    assert "protocol=paper_gpu: no such protocol; allowed: paper_cpu, smoke" in capsys.readouterr().err
+    assert "protocol=paper_nowhere: no such protocol; allowed: paper_cpu, paper_learned, smoke" in \
+        capsys.readouterr().err
     with pytest.raises(SystemExit):
         reproduce.main(["protocol=smoke", "cells=[train/nothing]", "plan=true"])
     assert "no cell named 'train/nothing'" in capsys.readouterr().err
