@@ -413,12 +413,13 @@ def job_overrides(overrides: list[str], multirun: bool) -> list[list[str]]:
     return jobs
 
 
-def check_overrides(overrides: list[str], multirun: bool) -> None:
+def check_overrides(overrides: list[str], multirun: bool, values: bool = True) -> None:
     """Compose and check every job of :func:`job_overrides`; a job that differs from the first only in the value of
     a plain key (``seed=0,1,2``) is checked by setting that value in the first job's config, which is much faster
-    than composing it again and gives the same verdict.  Raises :class:`ConfigError`."""
+    than composing it again and gives the same verdict.  ``values=False``: keys and types only, not what depends on
+    this machine (:func:`check_values`).  Raises :class:`ConfigError`."""
     jobs = job_overrides(overrides, multirun)
-    compose_checked(jobs[0])
+    compose_checked(jobs[0], values)
     first, defaults = _LAST
     from hydra.core.global_hydra import GlobalHydra
 
@@ -427,7 +428,7 @@ def check_overrides(overrides: list[str], multirun: bool) -> None:
     for job in jobs[1:]:
         changed = [parser.parse_override(new) for new, old in zip(job, jobs[0]) if new != old]
         if len(changed) != 1 or _group_of(changed[0], groups) or changed[0].key_or_group.startswith("hydra"):
-            compose_checked(job)
+            compose_checked(job, values)
             continue
         trial = copy.deepcopy(first)
         with open_dict(trial):

@@ -52,7 +52,7 @@ class EvalConfig:
     episodes: int = option(20, "episodes per level and policy", check=(lambda v: v >= 1, "a positive integer"))
     num_envs: int = option(4, "worlds run together", check=(lambda v: v >= 1, "a positive integer"))
     seed: int = option(0, "seed of the envs (and the random agent); the same for every policy, so they face the "
-                          "same draws")
+                          "same draws", check=cli.SEED)
     out: str = option("outputs/eval", "output directory")
     include: list[str] = option([], "episode CSV files to add to the report (e.g. human play records of "
                                     "scripts/play.py)", check=(lambda p: Path(p).is_file(), "existing files"))
