@@ -118,6 +118,21 @@ def test_a_string_key_keeps_its_text_and_a_single_value_is_a_list():
     (["seed=0,1"], "seed=0,1: several values make a sweep: add -m"),
     (["-m", "seed=0,x"], "seed=x: expected an integer"),
     (["total_steps=[1"], "total_steps=[1"),
+    # what YAML makes of a newcomer's typing, budgets of zero or less, values only a running job used to check
+    (["level=3_2"], "level=3_2: no option '3_2' in level (did you mean level=3-2?); allowed: 1-1"),
+    (["total_steps=-5"], "total_steps=-5: expected an integer >= 1 (default 2000000)"),
+    (["total_steps=1e3"], "total_steps=1e3: expected an integer (default 2000000); YAML reads it as 1000.0: write it "
+                          "as an integer, e.g. total_steps=1000 or total_steps=1_000"),
+    (["progress=on"], "progress=on: expected true or false"),
+    (["run.name=3_2"], "run.name=3_2: expected a string"),
+    (["level=curriculum", "level.stages=[1-1,3_2]"], "level.stages=[1-1,3_2]: '3_2' is not a level"),
+    (["level=curriculum", "level.stage_steps=0"], "level.stage_steps=0: expected an integer >= 1"),
+    (["env.num_envs=0"], "env.num_envs=0: expected an integer >= 1"),
+    (["env.num_envs=3"], "algo.frames_per_batch=1024: expected a multiple of env.num_envs (3)"),
+    (["max_minutes=-1"], "max_minutes=-1: expected a number > 0"),
+    (["algo.lr=-1"], "algo.lr=-1: expected a number > 0"),
+    (["device=on"], "device=on: not a device; allowed: auto, cpu, cuda, cuda:N"),
+    (["protocol=smoke"], "protocol=smoke: protocol is not a key of train.py"),
 ])
 def test_train_refuses_a_malformed_override_in_one_line(args, message, capsys):
     with pytest.raises(SystemExit) as exit_:
@@ -141,12 +156,25 @@ def test_train_accepts_what_its_config_allows():
 
 
 def test_train_script_refuses_before_hydra_writes_anything(tmp_path):
-    done = subprocess.run([sys.executable, str(ROOT / "scripts" / "train.py"), "total_steps=abc"], cwd=tmp_path,
+    done = subprocess.run([sys.executable, str(ROOT / "scripts" / "train.py"), "total_steps=-5"], cwd=tmp_path,
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 2
-    assert done.stderr.strip().splitlines()[-1] == "train.py: error: total_steps=abc: expected an integer (default " \
-                                                   "2000000)"
-    assert "Traceback" not in done.stderr and not list(tmp_path.iterdir())  # no run directory, no .hydra
+    assert done.stderr.strip().splitlines() == ["train.py: error: total_steps=-5: expected an integer >= 1 (default "
+                                                "2000000)"]
+    assert not list(tmp_path.iterdir())  # no run directory, no .hydra: the corrected command finds nothing in its way
+
+
+def test_dreamer_size_s_on_a_machine_without_a_gpu_stops_and_says_what_to_type(monkeypatch, capsys):
+    monkeypatch.setattr("torch.cuda.is_available", lambda: False)
+    with pytest.raises(SystemExit) as exit_:
+        check_command_line(["algo=dreamer", "level=3-2"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.count("\n") == 1, err
+    assert "algo=dreamer is DreamerV3 size S, a GPU size" in err and "algo=dreamer_xs" in err and "device=cpu" in err
+    for asked in (["algo=dreamer", "device=cpu"], ["algo=dreamer_xs"], ["algo=dreamer", "preset=debug"]):
+        check_command_line(asked)  # the paper's size by name, the CPU size, and the smoke-test networks go ahead
+    with pytest.raises(SystemExit):
+        check_command_line(["-m", "algo=ppo,dreamer"])  # each job of a sweep is checked
 
 
 # ------------------------------------------------------------------------------------------------ documented commands
