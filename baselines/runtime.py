@@ -311,6 +311,11 @@ class Run:
         #: gradient steps so far (:meth:`updated`), and a function of env steps giving those owed by then (for the ETA)
         self.updates = 0
         self.planned_updates: Callable[[int], int] | None = None
+        #: env steps an iteration takes (all worlds) and how, e.g. (1024, "8 worlds x 128 steps, then an update"):
+        #: the stage ends with the iteration that reaches its budget; an algorithm that steps otherwise sets it
+        self.iteration: tuple[int, str] = (cfg.env.num_envs, f"one step of each of the {cfg.env.num_envs} worlds")
+        #: the algorithm checks :attr:`stop_requested` between its gradient steps and calls :meth:`stop_now`
+        self.stops_between_updates = False
         self._ratio: float | None = None
         self._shown = 0.0
 
@@ -477,8 +482,26 @@ class Run:
         if crossed(self.cfg.checkpoint.every) or self.done or stop:
             self._checkpoint(td)
         if stop:
-            raise Interrupted(f"interrupted at env step {now:,} of {self.stage.level}: checkpoint written to "
-                              f"{self.dir / CHECKPOINT}; the same command with resume=true continues from it")
+            self._interrupted()
+
+    def stop_now(self, td: TensorDictBase) -> None:
+        """A stop was requested inside an iteration, between two gradient steps: checkpoint here and raise
+        :class:`Interrupted`.  The algorithm's resume finishes the iteration (the gradient steps still owed, then
+        :meth:`end_iteration`) before it takes another env step, so the resumed run is the uninterrupted one."""
+        self._checkpoint(td)
+        self._interrupted()
+
+    def _interrupted(self) -> None:
+        raise Interrupted(f"interrupted at env step {self.steps:,} of {self.stage.level}: checkpoint written to "
+                          f"{self.dir / CHECKPOINT}; the same command with resume=true continues from it")
+
+    def stop_wait(self) -> str:
+        """What a first Ctrl-C waits for, in words, with how long it takes here when that is known."""
+        if self.stops_between_updates and self.phase != "prefill":
+            seconds = self.meter.seconds_per_update if self.meter is not None else math.nan
+            known = f" (about {_duration(seconds)} each here)" if math.isfinite(seconds) else ""
+            return f"the gradient step under way{known}"
+        return "the iteration under way"
 
     @property
     def model_path(self) -> Path:
