@@ -21,6 +21,7 @@ inside a minute-long gradient step (:class:`StopRequest`).
 
 from __future__ import annotations
 
+import csv
 import logging
 import os
 import signal
@@ -376,6 +377,31 @@ def _train(cfg: DictConfig, run_dir: Path, records: Mapping[str, Any] | None, st
     finally:
         _quietly(logger.shutdown)
     return run_dir
+
+
+def summary(cfg: DictConfig, run_dir: Path) -> str:
+    """What a finished run shows last: its folder, its final evaluation (the last row of ``eval.csv``) and its
+    final model."""
+    run_dir = Path(run_dir)
+    rows = []
+    if (run_dir / "eval.csv").is_file():
+        with open(run_dir / "eval.csv", newline="") as f:
+            rows = list(csv.DictReader(f))
+    lines = [f"run folder: {run_dir}"]
+    if rows:
+        last = rows[-1]
+        acting = "actions sampled from the policy" if cfg.eval.get("sample") else "the policy's deterministic actions"
+        lines.append(f"final evaluation on {last['level']} at env step {int(last['env_steps']):,}: mean survival "
+                     f"{float(last['survival_mean']):.0f} steps over {last['episodes']} episodes (min "
+                     f"{float(last['survival_min']):.0f}, max {float(last['survival_max']):.0f}; {acting}; "
+                     f"episode end types {last['end_types']})")
+        model = run_dir / f"model-{last['stage']}-{last['level']}.pt"
+        if model.exists():
+            lines.append(f"final model: {model} (python scripts/evaluate.py policy={model} levels=[{last['level']}] "
+                         f"evaluates it on the test worlds)")
+    else:
+        lines.append("no evaluation was made (eval.every=0)")
+    return "\n".join(lines)
 
 
 def _quietly(cleanup) -> None:

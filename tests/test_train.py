@@ -97,7 +97,7 @@ def test_config_composes_for_every_modality_reward_logger_and_level(algo):
         cfg = make_cfg(f"algo={algo}", f"modality={modality}", f"reward={reward}", f"logger={logger}")
         check_composed(cfg, algo, "1-1", modality, reward, logger)
     for level in (*evaaa.LEVELS, *evaaa.TESTBEDS, "curriculum"):
-        check_composed(make_cfg(f"algo={algo}", f"level={level}"), algo, level, "all", "squared", "wandb")
+        check_composed(make_cfg(f"algo={algo}", f"level={level}"), algo, level, "all", "squared", "csv")
 
 
 def test_debug_preset_shrinks_each_algorithm():
