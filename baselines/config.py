@@ -121,7 +121,7 @@ ALGO_LIMITS: dict[str, tuple[Any, str]] = {
     **dict.fromkeys(("frames_per_batch", "num_minibatches", "epochs", "batch_size", "buffer_size", "frame_stack",
                      "sequence_length", "horizon", "target_update_every", "updates_per_step", "dense", "recurrent",
                      "hidden", "stochastic", "classes", "bins", "mlp_layers"), _POSITIVE),
-    **dict.fromkeys(("learning_starts", "eps_anneal_updates"), _NATURAL),
+    "learning_starts": _NATURAL, "eps_anneal_updates": _POSITIVE,
     **dict.fromkeys(("lr", "replay_ratio"), _POSITIVE_NUMBER),
     **dict.fromkeys(("gamma", "gae_lambda", "lmbda"), _DISCOUNT),
     **dict.fromkeys(("eps_start", "eps_end", "consume_share", "terminal_share", "tau", "unimix"), _SHARE),

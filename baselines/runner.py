@@ -28,6 +28,7 @@ import signal
 import sys
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager, suppress
 from pathlib import Path
@@ -383,6 +384,8 @@ def summary(cfg: DictConfig, run_dir: Path) -> str:
     """What a finished run shows last: its folder, its final evaluation (the last row of ``eval.csv``) and its
     final model."""
     run_dir = Path(run_dir)
+    with suppress(ValueError):  # as the command named it: runs/..., not the absolute path Hydra resolved
+        run_dir = run_dir.resolve().relative_to(Path.cwd().resolve())
     rows = []
     if (run_dir / "eval.csv").is_file():
         with open(run_dir / "eval.csv", newline="") as f:
@@ -390,11 +393,12 @@ def summary(cfg: DictConfig, run_dir: Path) -> str:
     lines = [f"run folder: {run_dir}"]
     if rows:
         last = rows[-1]
+        ends = ", ".join(f"{name} {n}" for name, n in Counter(last["end_types"].split(";")).most_common())
         acting = "actions sampled from the policy" if cfg.eval.get("sample") else "the policy's deterministic actions"
         lines.append(f"final evaluation on {last['level']} at env step {int(last['env_steps']):,}: mean survival "
                      f"{float(last['survival_mean']):.0f} steps over {last['episodes']} episodes (min "
-                     f"{float(last['survival_min']):.0f}, max {float(last['survival_max']):.0f}; {acting}; "
-                     f"episode end types {last['end_types']})")
+                     f"{float(last['survival_min']):.0f}, max {float(last['survival_max']):.0f}; {acting}; ended by "
+                     f"{ends})")
         model = run_dir / f"model-{last['stage']}-{last['level']}.pt"
         if model.exists():
             lines.append(f"final model: {model} (python scripts/evaluate.py policy={model} levels=[{last['level']}] "

@@ -146,6 +146,19 @@ def _duration(seconds: float) -> str:
     return f"{int(seconds // 60)}:{int(seconds % 60):02d}"
 
 
+def _about(seconds: float) -> str:
+    """A duration in words for a log line: "about 14 minutes", "about 2.3 hours", "about 3.1 days"."""
+    if not math.isfinite(seconds):
+        return "an unknown time"
+    if seconds < 90:
+        return f"about {seconds:.0f} seconds"
+    if seconds < 5400:
+        return f"about {seconds / 60:.0f} minutes"
+    if seconds < 2 * 86400:
+        return f"about {seconds / 3600:.1f} hours"
+    return f"about {seconds / 86400:.1f} days"
+
+
 def _rate(x: float) -> str:
     return f"{x:.3g}" if x < 100 else f"{x:.0f}"
 
@@ -401,7 +414,7 @@ class Run:
         if self.meter.sums["updates"] > 0:
             speed += f", {self.meter.seconds_per_update:.3g} s per gradient step"
         log.info("time estimate for %s on %s: %s more for the %s env steps (%s done), from this run's speed over "
-                 "its first %.0f s here (%s)%s", self.cfg.algo.name, self.stage.level, _duration(left),
+                 "its first %.0f s here (%s)%s", self.cfg.algo.name, self.stage.level, _about(left),
                  f"{self.trained_steps:,}", f"{self.steps:,}", elapsed, speed, capped)
 
     def acting(self, policy: TensorDictModuleBase) -> OnDevice:

@@ -283,3 +283,20 @@ def test_every_script_refuses_a_bad_value_in_one_line_and_writes_nothing(name, a
 
 def test_every_script_has_rows_of_bad_values():
     assert {name for name, _, _ in BAD_VALUES} == set(SCHEMAS)
+
+
+def test_setup_sh_help_prints_help_and_sets_nothing_up():
+    done = subprocess.run(["bash", str(ROOT / "scripts" / "setup.sh"), "--help"], capture_output=True, text=True,
+                          timeout=60)
+    assert done.returncode == 0 and done.stdout.startswith("usage: bash scripts/setup.sh"), done.stderr
+    assert "[setup]" not in done.stdout + done.stderr  # no step ran
+    wrong = subprocess.run(["bash", str(ROOT / "scripts" / "setup.sh"), "--bogus"], capture_output=True, text=True,
+                           timeout=60)
+    assert wrong.returncode == 2 and wrong.stderr.strip() == "setup.sh: error: unknown argument --bogus (see --help)"
+
+
+def test_train_help_lists_only_training_groups(capsys):
+    with pytest.raises(SystemExit):
+        check_command_line(["--help"])
+    groups = capsys.readouterr().out.split("groups (")[1].split("\nkeys (")[0]
+    assert "algo: dqn" in groups and "protocol" not in groups  # protocol=<name> is scripts/reproduce.py's key

@@ -27,8 +27,8 @@ import evaaa
 from evaaa_baselines import checkpoint, evaluate, load_policy, runtime
 from evaaa_baselines.evaluation import EvaluatedPolicy, EvaluationError
 from evaaa_baselines.runtime import DeviceError, Progress, resolve_device
-from evaaa_baselines.config import CONF_DIR, env_overrides, observation_keys, register_levels, stages
-from evaaa_baselines.runner import make_logger, train
+from evaaa_baselines.config import CONF_DIR, Stage, env_overrides, observation_keys, register_levels, stages
+from evaaa_baselines.runner import make_logger, summary, train
 from evaaa.records import TRAINING_EPISODE_FIELDS
 
 register_levels()
@@ -668,3 +668,39 @@ def test_a_new_algorithm_is_one_module_and_its_config(tmp_path, monkeypatch):
     actions = policy(env.reset())["action"]
     assert actions.shape == (2,) and ((actions >= 0) & (actions < len(evaaa.ACTION_NAMES))).all()
     env.close()
+
+
+def test_a_run_states_its_budget_and_ends_with_its_folder_and_final_evaluation(tmp_path, caplog, capsys):
+    # PPO's debug iteration is 32 env steps (2 worlds x 16): 100 asked is 128 trained, and the first line says why;
+    # progress=true draws no bar here, where the output is not a terminal
+    cfg = debug_cfg("ppo", "progress=true", "eval.every=64", total_steps=100)
+    with caplog.at_level(logging.INFO, logger="evaaa_baselines.runtime"):
+        run_dir = train(cfg, tmp_path / "run")
+    assert "100 env steps asked: 128 trained, as the stage ends with the iteration that reaches its budget and one " \
+           "iteration is 32 env steps (2 worlds x 16 steps, then an update)" in caplog.text
+    assert "128 env steps (100 asked, in whole iterations of 32)" in caplog.text
+    assert "step/s" not in capsys.readouterr().err  # tqdm drew nothing
+    last = read_csv(run_dir / "eval.csv")[-1]
+    lines = summary(cfg, run_dir).splitlines()
+    assert lines[0] == f"run folder: {run_dir}"
+    assert lines[1].startswith(f"final evaluation on 1-1 at env step 128: mean survival "
+                               f"{float(last['survival_mean']):.0f} steps over 2 episodes")
+    assert lines[2].startswith(f"final model: {run_dir / 'model-0-1-1.pt'}")
+
+
+def test_the_time_estimate_comes_from_the_run_s_own_speed(caplog, monkeypatch):
+    now = [0.0]
+    monkeypatch.setattr(runtime.time, "perf_counter", lambda: now[0])
+    run = runtime.Run.__new__(runtime.Run)  # the estimate alone: no worlds, no networks
+    run.cfg, run.stage = debug_cfg("ppo"), Stage(0, "1-1", 1000)
+    run.iteration, run.updates, run.planned_updates = (100, "test"), 0, None
+    run.counters, run._estimated, run._session = {"steps": 0}, False, (0.0, 0)
+    run.meter = Progress(60, 0, now=0.0)
+    with caplog.at_level(logging.INFO, logger="evaaa_baselines.runtime"):
+        for t, steps in ((10, 100), (20, 200), (30, 300)):  # 10 env steps/s
+            now[0], run.counters["steps"] = float(t), steps
+            run.meter.add(steps)
+            run._estimate()
+    lines = [r.getMessage() for r in caplog.records if "time estimate" in r.getMessage()]
+    assert lines == ["time estimate for ppo on 1-1: about 80 seconds more for the 1,000 env steps (200 done), from "
+                     "this run's speed over its first 20 s here (10 env steps/s)"]
