@@ -9,6 +9,7 @@ its ETA adds acting and gradient steps; the loader refuses a checkpoint trained 
 from __future__ import annotations
 
 import csv
+import hashlib
 import itertools
 import logging
 import os
@@ -16,6 +17,8 @@ import re
 import signal
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -24,7 +27,7 @@ import torch
 from hydra import compose, initialize_config_dir
 
 import evaaa
-from evaaa_baselines import checkpoint, evaluate, load_policy, runtime
+from evaaa_baselines import checkpoint, evaluate, load_policy, runner, runtime
 from evaaa_baselines.evaluation import EvaluatedPolicy, EvaluationError
 from evaaa_baselines.runtime import DeviceError, Progress, resolve_device
 from evaaa_baselines.config import CONF_DIR, Stage, env_overrides, observation_keys, register_levels, stages
@@ -704,3 +707,34 @@ def test_the_time_estimate_comes_from_the_run_s_own_speed(caplog, monkeypatch):
     lines = [r.getMessage() for r in caplog.records if "time estimate" in r.getMessage()]
     assert lines == ["time estimate for ppo on 1-1: about 80 seconds more for the 1,000 env steps (200 done), from "
                      "this run's speed over its first 20 s here (10 env steps/s)"]
+
+
+def test_two_ctrl_c_inside_one_long_call_still_stop_the_run_at_once(tmp_path, monkeypatch, capsys):
+    # Python runs a signal handler only between bytecodes, and two SIGINTs inside one long C call (a gradient step's
+    # backward pass) reach it as one call: the watcher thread counts them as they arrive. The long call here is
+    # PBKDF2, which releases the GIL and never looks at signals, as a torch backward pass does
+    def long_call(iterations: int) -> float:
+        began = time.perf_counter()
+        hashlib.pbkdf2_hmac("sha256", b"evaaa", b"salt", iterations)
+        return time.perf_counter() - began
+
+    iterations = int(100_000 * 2.5 / max(long_call(100_000), 1e-3))  # about 2.5 s here
+    ended: list[float] = []
+    monkeypatch.setattr(runner.StopRequest, "GRACE", 0.5)
+    monkeypatch.setattr(runner.os, "_exit", lambda code: ended.append(time.perf_counter()) if code == 130 else None)
+
+    def ctrl_c_twice():
+        for _ in range(2):
+            time.sleep(0.3)
+            os.kill(os.getpid(), signal.SIGINT)
+
+    with runner._graceful_interrupts(tmp_path / "run"):
+        threading.Thread(target=ctrl_c_twice).start()
+        try:
+            began = time.perf_counter()
+            long_call(iterations)
+            returned = time.perf_counter()
+        except KeyboardInterrupt:  # the handler's own count, had the two signals not arrived inside the call
+            returned = time.perf_counter()
+    assert ended and ended[0] < returned, (ended, began, returned)  # the process was ended while the call ran
+    assert "stopped at once, before the first checkpoint" in capsys.readouterr().err
