@@ -551,9 +551,11 @@ class Run:
         """What a first Ctrl-C waits for, in words, with how long it takes here when that is known."""
         if self.stops_between_updates and self.phase != "prefill":
             seconds = self.meter.seconds_per_update if self.meter is not None else math.nan
-            known = f" (about {_duration(seconds)} each here)" if math.isfinite(seconds) else ""
+            known = f" ({_about(seconds)} each here)" if math.isfinite(seconds) else ""
             return f"the gradient step under way{known}"
-        return "the iteration under way"
+        rate = self.meter.session_rate if self.meter is not None else math.nan
+        known = f" (one takes {_about(self.iteration[0] / rate)} here)" if math.isfinite(rate) and rate > 0 else ""
+        return f"the iteration under way{known}"
 
     @property
     def model_path(self) -> Path:
