@@ -227,7 +227,8 @@ def test_a_buffer_larger_than_the_memory_is_refused_naming_both(tmp_path, monkey
         train(debug_cfg("algo.buffer_on_disk=false"), tmp_path / "run")
 
 
-def test_the_bar_says_prefill_then_counts_gradient_steps(tmp_path, capsys):
+def test_the_bar_says_prefill_then_counts_gradient_steps(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)  # the bar is drawn in a terminal only
     train(debug_cfg("progress=true", "total_steps=64"), tmp_path / "run")
     bar = capsys.readouterr().err.replace("\r", "\n")
     assert "dreamer 1-1 prefill:" in bar  # before learning_starts
