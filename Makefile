@@ -9,7 +9,8 @@ setup:
 	@bash scripts/setup.sh
 
 # Every script takes key=value arguments (python scripts/<name>.py --help lists them); ARGS passes them on.
-# the main job: train a baseline (Hydra overrides in ARGS, e.g. make train ARGS="algo=dreamer level=3-2")
+# the main job: train a baseline (Hydra overrides in ARGS, e.g. make train ARGS="algo=ppo level=1-1 total_steps=10000";
+# ARGS="algo=dreamer level=3-2" is DreamerV3 size S, for a GPU: algo=dreamer_xs is its CPU size)
 train: setup
 	$(PY) scripts/train.py $(ARGS)
 

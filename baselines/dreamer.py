@@ -1251,17 +1251,25 @@ def train(run: Run) -> None:
                            "return_norm": actor_loss.retnorm, "replay": replay, "counters": counters})
     run.updates = counters["updates"]  # a resumed run's bar counts on from its checkpoint
     first_update = counters["updates"] == 0
-    while not run.done:
-        transition, td = run.step(prefill_policy if cfg.prefill_random and run.steps < start else policy, td)
-        transition["next", "consumed"] = consumed(transition)
-        stored_td = transition.select(*stored)
-        if reward_scale != 1.0:  # the world model learns the scaled reward; the logged episode returns stay the env's
-            stored_td["next", "reward"] = stored_td["next", "reward"] * reward_scale
-        replay.extend(stored_td)
+    # a gradient step of size S takes a minute on a CPU: a Ctrl-C stops between two of them (Run.stop_now), and the
+    # resume of such a checkpoint first makes the gradient steps its iteration still owed, as the whole run did
+    run.stops_between_updates = True
+    owed = counters["updates"] < _updates_due(cfg, run.steps, replay.rows, num_envs)
+    while not run.done or owed:
+        if not owed:
+            transition, td = run.step(prefill_policy if cfg.prefill_random and run.steps < start else policy, td)
+            transition["next", "consumed"] = consumed(transition)
+            stored_td = transition.select(*stored)
+            if reward_scale != 1.0:  # the world model learns the scaled reward; the episodes' returns stay the env's
+                stored_td["next", "reward"] = stored_td["next", "reward"] * reward_scale
+            replay.extend(stored_td)
+        owed = False
         metrics = None
         due = _updates_due(cfg, run.steps, replay.rows, num_envs)
         run.set_phase("prefill" if due == 0 else None)
         while counters["updates"] < due:
+            if run.stop_requested():
+                run.stop_now(td)
             began = time.perf_counter()
             metrics = update()
             counters["updates"] += 1

@@ -61,7 +61,7 @@ class EvalConfig:
     episodes: int = option(20, "episodes per level and policy", check=(lambda v: v >= 1, "a positive integer"))
     num_envs: int = option(4, "worlds run together", check=(lambda v: v >= 1, "a positive integer"))
     seed: int = option(0, "seed of the envs (and the random agent); the same for every policy, so they face the "
-                          "same draws")
+                          "same draws", check=cli.SEED)
     worlds: str = option("test", "which of the seed's worlds: test (held out: every published number) or validation "
                                  "(the ones to choose settings on); never training worlds (evaaa/worlds.py)",
                          choices=lambda: ["test", "validation"])

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import torch
 
+from evaaa.sensors import SENSORS, resolve_modalities
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
 from evaaa_baselines.dreamer import eat_success_readout, fit_world_model
@@ -37,10 +38,11 @@ class FitConfig:
     every: int = option(250, "gradient steps between measurements", check=(lambda v: v >= 1, ">= 1"))
     set: list[str] = option([], "algo keys to override, e.g. [consume_share=0.5,model.stochastic=32]")
     keys: list[str] | None = option(None, "observation keys the new model sees (null: the run's), e.g. "
-                                    "[interoception,olfaction] to leave the pixels out")
+                                    "[interoception,olfaction] to leave the pixels out",
+                                    choices=lambda: resolve_modalities(list(SENSORS)))
     held_out: float = option(0.1, "share of the replay's rows kept for measuring",
                              check=(lambda v: 0 < v < 1, "in (0, 1)"))
-    seed: int = option(0, "seed of the new model and of the batches")
+    seed: int = option(0, "seed of the new model and of the batches", check=cli.SEED)
     out: str = option("", "a CSV file for the measurements (empty: print only)")
     threads: int | None = option(None, "torch intra-op threads (null: torch's default), as train.py's threads=",
                                  check=(lambda v: v is None or v >= 1, "null or >= 1"))

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -226,7 +227,8 @@ def test_a_buffer_larger_than_the_memory_is_refused_naming_both(tmp_path, monkey
         train(debug_cfg("algo.buffer_on_disk=false"), tmp_path / "run")
 
 
-def test_the_bar_says_prefill_then_counts_gradient_steps(tmp_path, capsys):
+def test_the_bar_says_prefill_then_counts_gradient_steps(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)  # the bar is drawn in a terminal only
     train(debug_cfg("progress=true", "total_steps=64"), tmp_path / "run")
     bar = capsys.readouterr().err.replace("\r", "\n")
     assert "dreamer 1-1 prefill:" in bar  # before learning_starts
@@ -420,3 +422,28 @@ def test_the_linear_probe_reads_what_the_features_hold_and_not_what_they_lack():
     assert float(dreamer.linear_probe_r2(lacking, target, fit).max()) < 0.1
     nothing = dreamer.linear_probe_r2(torch.zeros(400, 1), target, fit)  # the fitted mean
     assert float(nothing.abs().max()) < 0.05
+
+
+def test_ctrl_c_stops_between_two_gradient_steps_and_the_resume_finishes_the_iteration(tmp_path, monkeypatch):
+    # two gradient steps per iteration (replay ratio 1, two worlds): the Ctrl-C after the 40th of them leaves the
+    # 41st owed by the same iteration; a size-S gradient step takes a minute on a CPU, an iteration several
+    ratio = ("algo.replay_ratio=1.0", "total_steps=96")
+    train(debug_cfg(*ratio), tmp_path / "whole")
+    updated = runtime.Run.updated
+
+    def ctrl_c_after_40(self, count, seconds, total, ratio=None):
+        updated(self, count, seconds, total, ratio)
+        if total == 40:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    monkeypatch.setattr(runtime.Run, "updated", ctrl_c_after_40)
+    with pytest.raises(runtime.Interrupted, match="interrupted at env step"):
+        train(debug_cfg(*ratio), tmp_path / "resumed")
+    monkeypatch.undo()
+    at_stop = checkpoint.load_checkpoint(tmp_path / "resumed" / checkpoint.CHECKPOINT)
+    assert at_stop["components"]["counters"]["updates"] == 40  # not the 41st: the step under way was the last
+    train(debug_cfg(*ratio, "resume=true"), tmp_path / "resumed")
+    whole = checkpoint.load_checkpoint(tmp_path / "whole" / checkpoint.CHECKPOINT)
+    resumed = checkpoint.load_checkpoint(tmp_path / "resumed" / checkpoint.CHECKPOINT)
+    same_training(whole, resumed)
+    assert read_csv(tmp_path / "whole" / "eval.csv") == read_csv(tmp_path / "resumed" / "eval.csv")
