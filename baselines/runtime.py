@@ -385,6 +385,11 @@ class Run:
         (wall, cpu), (wall0, cpu0) = self._spent_before, self._clock_start
         return wall + time.perf_counter() - wall0, cpu + time.process_time() - cpu0
 
+    def session_seconds(self) -> float:
+        """Wall-clock seconds since :meth:`start` began this process's session of the stage (a resumed stage's
+        earlier sessions not included: :meth:`seconds_spent` counts those)."""
+        return time.perf_counter() - self._session[0]
+
     def train_env(self, transforms: Sequence[Transform]) -> TransformedEnv:
         """The stage's worlds wrapped in the algorithm's transforms."""
         self.env = wrap_env(self.base_env, transforms)
