@@ -108,8 +108,8 @@ def record(out: Path) -> None:
 def _fresh_acting() -> dict[str, torch.Tensor]:
     """A fresh seeded model acting through the training policy, in the env its transforms make."""
     import evaaa
-    from evaaa_baselines import dreamer
     from evaaa_baselines.config import observation_keys
+    from evaaa_baselines.dreamer import model as dreamer_model
     from evaaa_baselines.evaluation import wrap_env
 
     cfg = _cfg("dreamer")
@@ -117,47 +117,25 @@ def _fresh_acting() -> dict[str, torch.Tensor]:
     torch.manual_seed(11)
     base = evaaa.make_env("1-1", num_envs=2, seed=5, modalities=keys, episode={"max_steps": 48})
     shapes = {k: tuple(base.observation_spec[k].shape[1:]) for k in keys}
-    model = dreamer.make_model(cfg.algo, shapes)
-    env = wrap_env(base, dreamer.make_transforms(cfg.algo, keys, model))
-    policy = _acting_policy()(model)
+    model = dreamer_model.make_model(cfg.algo, shapes)
+    env = wrap_env(base, dreamer_model.make_transforms(cfg.algo, keys, model))
     try:
-        return _trajectory(policy, env, 40)
+        return _trajectory(dreamer_model.acting_policy(model), env, 40)
     finally:
         env.close()
 
 
-def _acting_policy():
-    """The training acting policy, wherever the split put it."""
-    import importlib
-
-    for module in ("evaaa_baselines.dreamer.model", "evaaa_baselines.dreamer"):
-        try:
-            found = getattr(importlib.import_module(module), "acting_policy", None)
-        except ImportError:
-            continue
-        if found is not None:
-            return found
-    raise ImportError("acting_policy not found")
-
-
 def _probes(run: Path) -> dict[str, Any]:
-    import importlib
+    from evaaa_baselines.dreamer import probes
 
-    for name in ("evaaa_baselines.dreamer.probes", "evaaa_baselines.dreamer"):
-        try:
-            probes = importlib.import_module(name)
-        except ImportError:
-            continue
-        if hasattr(probes, "fit_world_model"):
-            break
-    rows: list = []
     torch.manual_seed(3)
     return {
         "ev_decoding_errors": probes.ev_decoding_errors(run, sequences=4),
         "imagined_action_values": probes.imagined_action_values(run, sequences=4, samples=2),
         "eat_success_readout": probes.eat_success_readout(run),
+        # every row but its wall-clock seconds
         "fit_world_model": [{k: v for k, v in row.items() if k != "seconds"} for row in probes.fit_world_model(
-            run, updates=4, every=2, overrides=["consume_share=0.5"], held_out=0.25, report=rows.append)],
+            run, updates=4, every=2, overrides=["consume_share=0.5"], held_out=0.25)],
     }
 
 

@@ -216,7 +216,8 @@ def test_only_memory_mapped_batches_go_to_a_gpu_through_pinned_memory(tmp_path):
     # a buffer in memory lives on the training device: its batches are there already and cannot be pinned (on a GPU
     # that raised at the first gradient step); memory-mapped rows are read on the host and pinned for the copy
     shape = dict(capacity=64, num_envs=2, sequence_length=8, batch_size=2)
-    in_memory, mapped = dreamer_replay.SequenceReplay(**shape), dreamer_replay.SequenceReplay(**shape, directory=tmp_path / "replay")
+    in_memory = dreamer_replay.SequenceReplay(**shape)
+    mapped = dreamer_replay.SequenceReplay(**shape, directory=tmp_path / "replay")
     assert not in_memory.pins and not mapped.pins  # on the CPU nothing is pinned
     in_memory.device = mapped.device = torch.device("cuda")  # as a run with device=cuda makes them (CPU-only here)
     assert not in_memory.pins and mapped.pins
@@ -309,7 +310,8 @@ def test_the_probe_reads_other_networks_of_the_run_on_its_replay(runs, capsys, t
     state["env_steps"] = 12
     flat = tmp_path / "model-flat.pt"
     checkpoint.save_checkpoint(state, flat)
-    own = dreamer_probes.imagined_action_values(runs["whole"], sequences=4, samples=2)["groups"]["every state"]["policy"]
+    own = dreamer_probes.imagined_action_values(runs["whole"], sequences=4,
+                                                samples=2)["groups"]["every state"]["policy"]
     values = dreamer_probes.imagined_action_values(runs["whole"], sequences=4, samples=2, model_file=flat)
     assert values["env_steps"] == 12
     assert list(values["groups"]["every state"]["policy"].values()) == pytest.approx([0.2] * 5)
@@ -367,7 +369,8 @@ def test_the_world_model_fit_leaves_out_steps_taken_on_a_reset_observation_it_ne
     data["next", "consumed"][held_out_rows, 0] = True
     data["is_init"].zero_()
     monkeypatch.setattr(dreamer_probes, "_run_replay", lambda run_dir: (state, data, num_envs, rows))
-    assert dreamer_probes.fit_world_model(runs["whole"], updates=0, every=1, held_out=0.25)[0]["held_out_eating_steps"] == 3
+    fit = dreamer_probes.fit_world_model(runs["whole"], updates=0, every=1, held_out=0.25)
+    assert fit[0]["held_out_eating_steps"] == 3
     data["is_init"][held_out_rows[:2], 0] = True  # two of the three meals were an episode's first step
     row = dreamer_probes.fit_world_model(runs["whole"], updates=0, every=1, held_out=0.25)[0]
     assert row["held_out_eating_steps"] == 1

@@ -54,6 +54,8 @@ def _updates_due(cfg: DictConfig, steps: int, rows: int, num_envs: int) -> int:
 
 
 def train(run: Run) -> None:
+    """One stage of DreamerV3 training: builds the model, losses, optimisers and replay, then drives ``run`` until
+    ``run.done``; ``update`` below is one gradient step."""
     cfg = run.cfg.algo
     device = run.device
     model = make_model(cfg, run.obs_shapes).to(device)
@@ -115,6 +117,9 @@ def train(run: Run) -> None:
         return norm
 
     def update() -> dict[str, torch.Tensor]:
+        """One gradient step on a replayed batch: the world model, then the actor in imagination from the
+        batch's posterior latents, then the critic, each with its own optimiser and clipping; then the slow
+        critic."""
         batch = replay.sample()
         batch["state"] = torch.zeros(*batch.shape, model.state_dim, device=device)
         batch["belief"] = torch.zeros(*batch.shape, model.belief_dim, device=device)
