@@ -393,12 +393,15 @@ def summary(cfg: DictConfig, run_dir: Path) -> str:
     lines = [f"run folder: {run_dir}"]
     if rows:
         last = rows[-1]
-        ends = ", ".join(f"{name} {n}" for name, n in Counter(last["end_types"].split(";")).most_common())
-        acting = "actions sampled from the policy" if cfg.eval.get("sample") else "the policy's deterministic actions"
-        lines.append(f"final evaluation on {last['level']} at env step {int(last['env_steps']):,}: mean survival "
-                     f"{float(last['survival_mean']):.0f} steps over {last['episodes']} episodes (min "
-                     f"{float(last['survival_min']):.0f}, max {float(last['survival_max']):.0f}; {acting}; ended by "
-                     f"{ends})")
+        # the last evaluation: its episodes (one row each, on the run's validation worlds)
+        final = [r for r in rows if (r["env_steps"], r["stage"]) == (last["env_steps"], last["stage"])]
+        steps = [int(r["steps"]) for r in final]
+        ends = ", ".join(f"{name} {n}" for name, n in Counter(r["end_type"] for r in final).most_common())
+        acting = ("actions sampled from the policy" if last.get("acting", "").startswith("sample")
+                  else "the policy's most likely actions")
+        lines.append(f"final evaluation on {last['level']} at env step {int(last['env_steps']):,} ({last['worlds']} "
+                     f"worlds): mean survival {sum(steps) / len(steps):.0f} steps over {len(steps)} episodes (min "
+                     f"{min(steps)}, max {max(steps)}; {acting}; ended by {ends})")
         model = run_dir / f"model-{last['stage']}-{last['level']}.pt"
         if model.exists():
             lines.append(f"final model: {model} (python scripts/evaluate.py policy={model} levels=[{last['level']}] "

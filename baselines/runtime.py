@@ -400,8 +400,14 @@ class Run:
 
     def seconds_spent(self) -> tuple[float, float]:
         """Wall-clock and CPU seconds of this stage so far, earlier sessions included (kept in the checkpoint)."""
-        (wall, cpu), (wall0, cpu0) = self._spent_before, self._clock_start
+        wall, cpu = getattr(self, "_spent_before", (0.0, 0.0))
+        wall0, cpu0 = getattr(self, "_clock_start", None) or (time.perf_counter(), time.process_time())
         return wall + time.perf_counter() - wall0, cpu + time.process_time() - cpu0
+
+    def session_seconds(self) -> float:
+        """Wall-clock seconds since :meth:`start` began this process's session of the stage (a resumed stage's
+        earlier sessions not included: :meth:`seconds_spent` counts those)."""
+        return time.perf_counter() - self._session[0]
 
     def train_env(self, transforms: Sequence[Transform]) -> TransformedEnv:
         """The stage's worlds wrapped in the algorithm's transforms."""
