@@ -43,9 +43,9 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 import evaaa
 
-from .algos import algorithm
 from .algos import names as algorithm_names
 from .config import CONF_DIR
+from .evaluation import samples_actions
 
 REPO = CONF_DIR.parent
 PROTOCOL_DIR = CONF_DIR / "protocol"
@@ -455,7 +455,7 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
     def eval_cell(name: str, model: Path, own: str, train_cell: str, sps: float, algo: str) -> Cell:
         cmds, seconds = [], 0.0
         # an algorithm without an action distribution acts the same when asked to sample: evaluated once
-        own_modes = [m for m in modes if m == "mode" or getattr(algorithm(algo), "SAMPLES_ACTIONS", True)] or modes
+        own_modes = [m for m in modes if m == "mode" or samples_actions(algo)] or modes
         for mode in own_modes:
             suffix = "" if len(modes) == 1 else f"-{mode}"
             common = [f"seed={ev.seed}", f"epsilon={ev.epsilon:g}", f"sample={str(mode == 'sample').lower()}",
