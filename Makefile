@@ -3,7 +3,7 @@ PY := .venv/bin/python
 
 ARGS ?=
 
-.PHONY: setup train demo test test-fast bench pictures
+.PHONY: setup train demo test test-fast lint bench pictures
 
 setup:
 	@bash scripts/setup.sh
@@ -27,6 +27,11 @@ test: setup
 
 test-fast: setup
 	$(PY) -m pytest -q -m "not slow" $(XDIST)
+
+# ruff: lint and format check (CI runs it); `.venv/bin/ruff format .` and `ruff check --fix .` mend
+lint: setup
+	.venv/bin/ruff check .
+	.venv/bin/ruff format --check .
 
 bench: setup
 	$(PY) scripts/bench_env.py $(ARGS)

@@ -70,7 +70,11 @@ def algorithm(name: str) -> Algorithm:
     ``algo`` field: only modules of this package or registered ones are ever imported)."""
     if name in _registered:
         return _registered[name]
-    if not isinstance(name, str) or not _NAME.fullmatch(name) or importlib.util.find_spec(f"{__package__}.{name}") is None:
+    if (
+        not isinstance(name, str)
+        or not _NAME.fullmatch(name)
+        or importlib.util.find_spec(f"{__package__}.{name}") is None
+    ):
         raise ValueError(f"unknown algo {name!r}; known: {', '.join(names())}")
     module = importlib.import_module(f"{__package__}.{name}")
     _check(name, module)
@@ -80,5 +84,7 @@ def algorithm(name: str) -> Algorithm:
 def _check(name: str, module: Any) -> None:
     missing = [f for f in FUNCTIONS if not callable(getattr(module, f, None))]
     if missing:
-        raise ValueError(f"algo {name!r}: {getattr(module, '__name__', module)!r} is not an algorithm: it lacks "
-                         f"{', '.join(missing)} (an algorithm module defines {', '.join(FUNCTIONS)})")
+        raise ValueError(
+            f"algo {name!r}: {getattr(module, '__name__', module)!r} is not an algorithm: it lacks "
+            f"{', '.join(missing)} (an algorithm module defines {', '.join(FUNCTIONS)})"
+        )

@@ -59,8 +59,12 @@ def to_plain(obj: Any, where: str = "state") -> Any:
         if obj.dtype.hasobject:
             raise TypeError(f"{where}: a numpy array of Python objects cannot be stored in a checkpoint")
         raw = np.ascontiguousarray(obj).reshape(-1).view(np.uint8)  # any dtype (uint32, float16...) as its bytes
-        return {_TAG: "ndarray", "dtype": obj.dtype.str, "shape": list(obj.shape),
-                "bytes": torch.from_numpy(raw.copy())}
+        return {
+            _TAG: "ndarray",
+            "dtype": obj.dtype.str,
+            "shape": list(obj.shape),
+            "bytes": torch.from_numpy(raw.copy()),
+        }
     if isinstance(obj, np.generic):
         return {_TAG: "npscalar", "array": to_plain(np.asarray(obj), where)}
     if isinstance(obj, TensorDictBase):
@@ -70,8 +74,12 @@ def to_plain(obj: Any, where: str = "state") -> Any:
                 items[key] = {_TAG: "nontensor", "data": to_plain(value.data, f"{where}.{key}")}
             else:
                 items[key] = to_plain(value, f"{where}.{key}")
-        return {_TAG: "tensordict", "batch_size": list(obj.batch_size),
-                "device": None if obj.device is None else str(obj.device), "items": items}
+        return {
+            _TAG: "tensordict",
+            "batch_size": list(obj.batch_size),
+            "device": None if obj.device is None else str(obj.device),
+            "items": items,
+        }
     if isinstance(obj, (DictConfig, ListConfig)):
         return OmegaConf.to_container(obj, resolve=True)
     if isinstance(obj, Mapping):
@@ -85,8 +93,10 @@ def to_plain(obj: Any, where: str = "state") -> Any:
         return [to_plain(v, f"{where}[{i}]") for i, v in enumerate(obj)]
     if isinstance(obj, tuple):
         return tuple(to_plain(v, f"{where}[{i}]") for i, v in enumerate(obj))
-    raise TypeError(f"{where}: a {type(obj).__module__}.{type(obj).__qualname__} cannot be stored in a checkpoint "
-                    "(only tensors, numpy arrays, tensordicts and plain data)")
+    raise TypeError(
+        f"{where}: a {type(obj).__module__}.{type(obj).__qualname__} cannot be stored in a checkpoint "
+        "(only tensors, numpy arrays, tensordicts and plain data)"
+    )
 
 
 def from_plain(obj: Any) -> Any:
@@ -209,21 +219,29 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device | None = 
         envelope = torch.load(path, map_location=map_location, weights_only=True)
     except pickle.UnpicklingError as err:
         lines = [line.strip() for line in str(err).splitlines() if "Unpickler error" in line] or [type(err).__name__]
-        raise CheckpointError(f"{path} is refused: it holds objects other than tensors and plain data, which could "
-                              f"run code when loaded ({lines[0][:200]})") from None
+        raise CheckpointError(
+            f"{path} is refused: it holds objects other than tensors and plain data, which could "
+            f"run code when loaded ({lines[0][:200]})"
+        ) from None
     except Exception as err:  # noqa: BLE001 - truncated zip, bad magic number, ...: all mean "unreadable"
-        raise CheckpointError(f"{path} is unreadable (truncated or damaged): {type(err).__name__}: "
-                              f"{str(err).strip().splitlines()[0][:200] if str(err).strip() else ''}") from None
-    if not (isinstance(envelope, dict) and envelope.get("evaaa_checkpoint") == FILE_FORMAT
-            and {"checksum", "state"} <= envelope.keys()):
+        raise CheckpointError(
+            f"{path} is unreadable (truncated or damaged): {type(err).__name__}: "
+            f"{str(err).strip().splitlines()[0][:200] if str(err).strip() else ''}"
+        ) from None
+    if not (
+        isinstance(envelope, dict)
+        and envelope.get("evaaa_checkpoint") == FILE_FORMAT
+        and {"checksum", "state"} <= envelope.keys()
+    ):
         raise CheckpointError(f"{path} is not an evaaa checkpoint (file format {FILE_FORMAT})")
     if checksum(envelope["state"]) != envelope["checksum"]:
         raise CheckpointError(f"{path} is damaged: its contents do not match its checksum")
     return from_plain(envelope["state"])
 
 
-def load_latest(run_dir: str | Path,
-                map_location: str | torch.device | None = "cpu") -> tuple[dict, Path, str | None] | None:
+def load_latest(
+    run_dir: str | Path, map_location: str | torch.device | None = "cpu"
+) -> tuple[dict, Path, str | None] | None:
     """The newest usable checkpoint of a run directory: its state, its file, and a note naming the latest file when
     that one is missing or damaged and the previous one is used instead; ``None`` when the run has neither.
 
@@ -240,8 +258,10 @@ def load_latest(run_dir: str | Path,
             continue
         note = None
         if path.name != CHECKPOINT:
-            note = (f"{'; '.join(problems) or f'{run_dir / CHECKPOINT} is missing'}: using the previous checkpoint "
-                    f"{path} (env step {state.get('counters', {}).get('steps', '?')}) instead")
+            note = (
+                f"{'; '.join(problems) or f'{run_dir / CHECKPOINT} is missing'}: using the previous checkpoint "
+                f"{path} (env step {state.get('counters', {}).get('steps', '?')}) instead"
+            )
         return state, path, note
     if problems:
         raise CheckpointError("no usable checkpoint: " + "; ".join(problems))

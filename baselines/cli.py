@@ -34,8 +34,13 @@ HELP_FLAGS = ("-h", "--help")
 SYNTAX = "key=value; lists as key=[a,b]; values read as YAML (null, true, 3, 0.5)"
 
 
-def option(default: Any, meaning: str, *, choices: Sequence[Any] | Callable[[], Sequence[Any]] | None = None,
-           check: tuple[Callable[[Any], bool], str] | None = None) -> Any:
+def option(
+    default: Any,
+    meaning: str,
+    *,
+    choices: Sequence[Any] | Callable[[], Sequence[Any]] | None = None,
+    check: tuple[Callable[[Any], bool], str] | None = None,
+) -> Any:
     """A dataclass field of a script's config: its default, what it means (for ``--help``), and what is allowed.
 
     ``choices``: the allowed values (for a list: of each element), or a function giving them;
@@ -111,7 +116,8 @@ def _expected(tp: Any) -> str:
         text = f"a list of {type_name(item)} values, e.g. [a,b]"
     else:
         text = {int: "an integer", float: "a number", bool: "true or false", str: "a string", Path: "a path"}.get(
-            inner, f"a value of type {type_name(inner)}")
+            inner, f"a value of type {type_name(inner)}"
+        )
     return text + (" (or null)" if optional else "")
 
 
@@ -143,8 +149,9 @@ def usage(schema: type, prog: str, description: str, examples: Sequence[str] = (
         choices = f.metadata.get("choices")
         if choices is not None:
             meaning += f" (allowed: {', '.join(map(str, _choices(choices)))})"
-        lines += textwrap.wrap(meaning, width=114, initial_indent=" " * 6, subsequent_indent=" " * 6,
-                               break_on_hyphens=False)
+        lines += textwrap.wrap(
+            meaning, width=114, initial_indent=" " * 6, subsequent_indent=" " * 6, break_on_hyphens=False
+        )
     if examples:
         lines += ["", "examples:", *(f"  python scripts/{prog} {e}" for e in examples)]
     return "\n".join(lines)
@@ -176,8 +183,9 @@ def read(schema: type[T], argv: Sequence[str], checks: bool = True) -> T:
             value = OmegaConf.to_container(OmegaConf.from_dotlist([f"v={text}"]))["v"]
         except yaml.YAMLError:
             if not (key == top and _is_text(tp)):
-                raise UsageError(f"{key}={text}: not a valid value (lists are written [a,b]); "
-                                 f"expected {_expected(tp)}") from None
+                raise UsageError(
+                    f"{key}={text}: not a valid value (lists are written [a,b]); expected {_expected(tp)}"
+                ) from None
             value = text
         if key == top and _is_text(tp) and value is not None and not isinstance(value, str):
             value = text  # a name like 07, or a title with a colon, stays as typed
@@ -185,14 +193,19 @@ def read(schema: type[T], argv: Sequence[str], checks: bool = True) -> T:
             value = _as_typed(text, value)  # levels=[3_2] names '3_2', not the number 32 YAML reads
         if key == top and _is_list(tp) and not isinstance(value, list) and value is not None:
             value = [value]
-        if key == top and _optional(tp)[0] is bool and isinstance(value, bool) and text.strip().lower() not in (
-                "true", "false"):
+        if (
+            key == top
+            and _optional(tp)[0] is bool
+            and isinstance(value, bool)
+            and text.strip().lower() not in ("true", "false")
+        ):
             # YAML 1.1 reads on/off/yes/no as true/false: a typo of another key's value would pass unnoticed
             raise UsageError(f"{key}={text}: expected true or false")
         if key == top and _optional(tp)[0] is int and isinstance(value, float) and value.is_integer():
             # YAML reads 1e3 as the float 1000.0, which an integer key refuses: say what to write
-            raise UsageError(f"{key}={text}: expected {_expected(tp)} (YAML reads {text} as {value!r}: write "
-                             f"{int(value)})")
+            raise UsageError(
+                f"{key}={text}: expected {_expected(tp)} (YAML reads {text} as {value!r}: write {int(value)})"
+            )
         OmegaConf.update(given, key, value, force_add=True)
     try:
         cfg = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(schema), given))
@@ -216,8 +229,10 @@ def read(schema: type[T], argv: Sequence[str], checks: bool = True) -> T:
             allowed = _choices(choices)
             bad = [v for v in items if v not in allowed]
             if bad:
-                raise UsageError(f"{f.name}={_given(argv, f.name)}: '{_show(bad[0])}' is not allowed; "
-                                 f"allowed: {', '.join(map(str, allowed))}")
+                raise UsageError(
+                    f"{f.name}={_given(argv, f.name)}: '{_show(bad[0])}' is not allowed; "
+                    f"allowed: {', '.join(map(str, allowed))}"
+                )
         bad = [v for v in items if check is not None and not check[0](v)]
         if bad:
             got = f" (got {_show(bad[0])})" if isinstance(value, list) else ""
@@ -237,8 +252,9 @@ def fail(prog: str, message: str) -> typing.NoReturn:
     raise SystemExit(2)
 
 
-def parse(schema: type[T], argv: Sequence[str] | None, *, prog: str, description: str,
-          examples: Sequence[str] = ()) -> T:
+def parse(
+    schema: type[T], argv: Sequence[str] | None, *, prog: str, description: str, examples: Sequence[str] = ()
+) -> T:
     """The script's config from ``argv`` (default ``sys.argv[1:]``): ``--help`` prints :func:`usage` and exits 0;
     a malformed argument exits 2 after one line naming the key (:func:`fail`)."""
     argv = list(sys.argv[1:] if argv is None else argv)

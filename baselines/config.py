@@ -81,8 +81,11 @@ def env_overrides(cfg: DictConfig) -> dict[str, Any]:
     """Level-field overrides for ``evaaa.make_env``: the level option's, the reward's, then ``env.overrides``."""
     # a reward option names a level reward function, or lists the level's reward fields it sets under ``overrides``
     reward = cfg.reward.get("overrides") or {"name": cfg.reward.name}
-    layers = [OmegaConf.to_container(cfg.level.overrides, resolve=True), {"reward": reward},
-              OmegaConf.to_container(cfg.env.overrides, resolve=True)]
+    layers = [
+        OmegaConf.to_container(cfg.level.overrides, resolve=True),
+        {"reward": reward},
+        OmegaConf.to_container(cfg.env.overrides, resolve=True),
+    ]
     return OmegaConf.to_container(OmegaConf.merge(*layers))
 
 
@@ -92,8 +95,14 @@ class ConfigError(ValueError):
 
 
 #: keys whose default is null, and what else they take (a null default says nothing about the type)
-NULLABLE = {"max_minutes": (float, int), "max_cpu_minutes": (float, int), "threads": (int,), "level.stages": (list,), "algo.lstm": (dict,),
-            "algo.sequence_length": (int,)}
+NULLABLE = {
+    "max_minutes": (float, int),
+    "max_cpu_minutes": (float, int),
+    "threads": (int,),
+    "level.stages": (list,),
+    "algo.lstm": (dict,),
+    "algo.sequence_length": (int,),
+}
 #: free-form nodes: any key below them is a level field (checked by evaaa when the env is made)
 FREE_FORM = ("env.overrides", "level.overrides")
 #: config groups of conf/ that are not training's: ``scripts/reproduce.py protocol=<name>`` reads conf/protocol/
@@ -112,18 +121,46 @@ _DISCOUNT = ((lambda v: 0 < v <= 1), "a number > 0 and <= 1")
 #: bounds beyond a key's type, checked before anything is written: ``(test, what is allowed)``.  A budget of 0 or
 #: less would create the run folder and then fail (or divide by zero) in the training loop
 LIMITS: dict[str, tuple[Any, str]] = {
-    "seed": _NATURAL, "total_steps": _POSITIVE, "max_minutes": _POSITIVE_NUMBER, "threads": _POSITIVE,
-    "env.num_envs": _POSITIVE, "eval.every": (_NATURAL[0], "an integer >= 0 (0: never)"), "eval.episodes": _POSITIVE,
-    "eval.seed_offset": _NATURAL, "checkpoint.every": (_NATURAL[0], "an integer >= 0 (0: only at the end)"),
-    "log_every": _POSITIVE, "progress_window": _POSITIVE, "progress_seconds": _POSITIVE_NUMBER,
+    "seed": _NATURAL,
+    "total_steps": _POSITIVE,
+    "max_minutes": _POSITIVE_NUMBER,
+    "threads": _POSITIVE,
+    "env.num_envs": _POSITIVE,
+    "eval.every": (_NATURAL[0], "an integer >= 0 (0: never)"),
+    "eval.episodes": _POSITIVE,
+    "eval.seed_offset": _NATURAL,
+    "checkpoint.every": (_NATURAL[0], "an integer >= 0 (0: only at the end)"),
+    "log_every": _POSITIVE,
+    "progress_window": _POSITIVE,
+    "progress_seconds": _POSITIVE_NUMBER,
     "level.stage_steps": _POSITIVE,
 }
 #: bounds of the algorithms' keys, by the key's last name (``algo.lr``, ``algo.actor.lr``)
 ALGO_LIMITS: dict[str, tuple[Any, str]] = {
-    **dict.fromkeys(("frames_per_batch", "num_minibatches", "epochs", "batch_size", "buffer_size", "frame_stack",
-                     "sequence_length", "horizon", "target_update_every", "updates_per_step", "dense", "recurrent",
-                     "hidden", "stochastic", "classes", "bins", "mlp_layers"), _POSITIVE),
-    "learning_starts": _NATURAL, "eps_anneal_updates": _POSITIVE,
+    **dict.fromkeys(
+        (
+            "frames_per_batch",
+            "num_minibatches",
+            "epochs",
+            "batch_size",
+            "buffer_size",
+            "frame_stack",
+            "sequence_length",
+            "horizon",
+            "target_update_every",
+            "updates_per_step",
+            "dense",
+            "recurrent",
+            "hidden",
+            "stochastic",
+            "classes",
+            "bins",
+            "mlp_layers",
+        ),
+        _POSITIVE,
+    ),
+    "learning_starts": _NATURAL,
+    "eps_anneal_updates": _POSITIVE,
     **dict.fromkeys(("lr", "replay_ratio"), _POSITIVE_NUMBER),
     **dict.fromkeys(("gamma", "gae_lambda", "lmbda"), _DISCOUNT),
     **dict.fromkeys(("eps_start", "eps_end", "consume_share", "terminal_share", "tau", "unimix"), _SHARE),
@@ -135,23 +172,34 @@ def limit_of(full: str) -> tuple[Any, str] | None:
     if full in LIMITS:
         return LIMITS[full]
     return ALGO_LIMITS.get(full.rpartition(".")[2]) if full.startswith("algo.") else None
+
+
 #: meanings of the keys that name a group's option, and of those of the ``level=<name>`` options that
 #: :func:`register_levels` stores
-GROUP_KEYS = {"algo.name": "the algorithm (algo=<name> chooses it)", "modality.name": "the set of observation keys "
-              "(modality=<name> chooses it)", "modality.enabled": "the observation keys the agent sees",
-              "reward.name": "the reward function (reward=<name> chooses it)",
-              "logger.backend": "where training metrics go (logger=<name> chooses it)",
-              "level.name": "the level or testbed trained on (level=<name> chooses it)",
-              "level.file": "the YAML file of your own level (level=file level.file=path/to/my.yaml)",
-              "level.overrides": "level-field changes for this level, e.g. ++level.overrides.episode.max_steps=2000"}
+GROUP_KEYS = {
+    "algo.name": "the algorithm (algo=<name> chooses it)",
+    "modality.name": "the set of observation keys (modality=<name> chooses it)",
+    "modality.enabled": "the observation keys the agent sees",
+    "reward.name": "the reward function (reward=<name> chooses it)",
+    "logger.backend": "where training metrics go (logger=<name> chooses it)",
+    "level.name": "the level or testbed trained on (level=<name> chooses it)",
+    "level.file": "the YAML file of your own level (level=file level.file=path/to/my.yaml)",
+    "level.overrides": "level-field changes for this level, e.g. ++level.overrides.episode.max_steps=2000",
+}
 
 
 def _type_text(types: tuple[type, ...], plural: bool = False) -> str:
     if plural:
         names = {bool: "true/false values", int: "integers", float: "numbers", str: "strings"}
     else:
-        names = {bool: "true or false", int: "an integer", float: "a number", str: "a string", list: "a list [a,b]",
-                 dict: "a mapping {a: 1}"}
+        names = {
+            bool: "true or false",
+            int: "an integer",
+            float: "a number",
+            str: "a string",
+            list: "a list [a,b]",
+            dict: "a mapping {a: 1}",
+        }
     if float in types:  # an integer is a number too
         types = tuple(t for t in types if t is not int)
     return " or ".join(names[t] for t in types)
@@ -223,8 +271,10 @@ def validate(cfg: DictConfig, defaults: DictConfig, path: str = "", typed: dict[
         elif value is None:
             if full in NULLABLE:
                 continue
-            raise ConfigError(f"{full}={shown(full, value)}: expected {_type_text(_allowed_types(default))} "
-                              f"(default {_show(default)})")
+            raise ConfigError(
+                f"{full}={shown(full, value)}: expected {_type_text(_allowed_types(default))} "
+                f"(default {_show(default)})"
+            )
         elif OmegaConf.is_dict(default):
             if not OmegaConf.is_dict(value):
                 raise ConfigError(f"{full}={_show(value)}: expected a mapping of {', '.join(default.keys())}")
@@ -243,19 +293,30 @@ def validate(cfg: DictConfig, defaults: DictConfig, path: str = "", typed: dict[
                 read_as += f": quote it to keep the text, e.g. '{full}=\"{shown(full, value)}\"'"
             elif int in types and float not in types and isinstance(plain, float) and plain.is_integer():
                 read_as += f": write it as an integer, e.g. {full}={int(plain)} or {full}={int(plain):_}"
-            raise ConfigError(f"{full}={shown(full, value)}: expected {_type_text(types)}"
-                              + ("" if default is None else f" (default {_show(default)})") + read_as)
+            raise ConfigError(
+                f"{full}={shown(full, value)}: expected {_type_text(types)}"
+                + ("" if default is None else f" (default {_show(default)})")
+                + read_as
+            )
         bounds = limit_of(full)
         if bounds is not None and not isinstance(plain, (list, dict, bool, str)) and not bounds[0](plain):
-            raise ConfigError(f"{full}={shown(full, value)}: expected {bounds[1]}"
-                              + ("" if default is None else f" (default {_show(default)})"))
-        if OmegaConf.is_list(default) and len(default) and not isinstance(default[0], (list, dict)) and \
-                not OmegaConf.is_config(default[0]):
+            raise ConfigError(
+                f"{full}={shown(full, value)}: expected {bounds[1]}"
+                + ("" if default is None else f" (default {_show(default)})")
+            )
+        if (
+            OmegaConf.is_list(default)
+            and len(default)
+            and not isinstance(default[0], (list, dict))
+            and not OmegaConf.is_config(default[0])
+        ):
             item_types = _allowed_types(default[0])
             bad = [v for v in plain if not _matches(v, item_types)]
             if bad:
-                raise ConfigError(f"{full}={shown(full, value)}: expected a list of {_type_text(item_types, plural=True)} "
-                                  f"(default {_show(default)}), got {_show(bad[0])}")
+                raise ConfigError(
+                    f"{full}={shown(full, value)}: expected a list of {_type_text(item_types, plural=True)} "
+                    f"(default {_show(default)}), got {_show(bad[0])}"
+                )
 
 
 def _group_of(override: Override, groups: set[str]) -> bool:
@@ -289,16 +350,17 @@ def compose_checked(overrides: list[str], values: bool = True) -> DictConfig:
     for o in parsed:
         group = o.key_or_group.split("@")[0]
         if group in NOT_TRAINING[1:]:
-            raise ConfigError(f"{o.input_line}: {group} is not a key of train.py (scripts/reproduce.py "
-                              f"{group}=<name> runs a protocol)")
+            raise ConfigError(
+                f"{o.input_line}: {group} is not a key of train.py (scripts/reproduce.py "
+                f"{group}=<name> runs a protocol)"
+            )
         if _group_of(o, groups) and o.value() is not None and not isinstance(o.value(), list):
             options = loader.get_group_options(group)
             text = _typed_text(o)  # YAML reads level=3_2 as the integer 32: the message quotes what was typed
             if options and (not isinstance(o.value(), str) or o.value() not in options):
                 close = difflib.get_close_matches(text, options, n=1, cutoff=0.6)
                 hint = f" (did you mean {group}={close[0]}?)" if close else ""
-                raise ConfigError(f"{o.input_line}: no option '{text}' in {group}{hint}; allowed: "
-                                  f"{', '.join(options)}")
+                raise ConfigError(f"{o.input_line}: no option '{text}' in {group}{hint}; allowed: {', '.join(options)}")
     key = tuple(chosen)
     if key not in _DEFAULTS:  # a sweep composes the same groups' defaults again and again
         try:
@@ -314,11 +376,14 @@ def compose_checked(overrides: list[str], values: bool = True) -> DictConfig:
         if full_key and "not in" in str(cause):
             parent = full_key.rpartition(".")[0]
             node = OmegaConf.select(defaults, parent) if parent else defaults
-            keys = ", ".join(f"{parent + '.' if parent else ''}{k}" for k in (node.keys() if OmegaConf.is_dict(node)
-                                                                               else ()))
+            keys = ", ".join(
+                f"{parent + '.' if parent else ''}{k}" for k in (node.keys() if OmegaConf.is_dict(node) else ())
+            )
             if node is None:
-                raise ConfigError(f"unknown key '{full_key}': {parent} is null with these options; set it whole, "
-                                  f"e.g. {parent}={{{full_key.rpartition('.')[2]}: ...}}") from None
+                raise ConfigError(
+                    f"unknown key '{full_key}': {parent} is null with these options; set it whole, "
+                    f"e.g. {parent}={{{full_key.rpartition('.')[2]}: ...}}"
+                ) from None
             if OmegaConf.is_dict(node) and not len(node):  # an empty mapping (env.overrides) takes new keys
                 line = next((o.input_line for o in parsed if o.key_or_group.startswith(full_key)), full_key)
                 raise ConfigError(f"'{full_key}' is not in {parent} yet: add it with ++{line.lstrip('+')}") from None
@@ -363,24 +428,32 @@ def check_values(cfg: DictConfig, typed: dict[str, str] | None = None) -> None:
                 names = raw if isinstance(raw, list) and len(raw) == len(names) else names
         unknown = [n for n in names if n not in (*evaaa.LEVELS, *evaaa.TESTBEDS)]
         if unknown or not names:
-            raise ConfigError(f"level.stages={text or _show(cfg.level.stages)}: "
-                              + (f"'{unknown[0]}' is not a level" if unknown else "expected at least one level")
-                              + f"; allowed: {', '.join((*evaaa.LEVELS, *evaaa.TESTBEDS))}")
+            raise ConfigError(
+                f"level.stages={text or _show(cfg.level.stages)}: "
+                + (f"'{unknown[0]}' is not a level" if unknown else "expected at least one level")
+                + f"; allowed: {', '.join((*evaaa.LEVELS, *evaaa.TESTBEDS))}"
+            )
     module = algorithm(cfg.algo.name)
     check = getattr(module, "check_config", None)
     if check is not None:
         problem = check(cfg)
         if problem:
             raise ConfigError(problem)
-    if cfg.algo.name == "dreamer" and cfg.algo.get("size") == "S" and device.type == "cpu" and \
-            str(cfg.device).strip().lower() == "auto":
+    if (
+        cfg.algo.name == "dreamer"
+        and cfg.algo.get("size") == "S"
+        and device.type == "cpu"
+        and str(cfg.device).strip().lower() == "auto"
+    ):
         raise ConfigError(CPU_DREAMER)
 
 
 #: why ``algo=dreamer`` stops on a machine without a GPU, and what to type instead (docs/training.md, "DreamerV3")
-CPU_DREAMER = ("algo=dreamer is DreamerV3 size S, a GPU size: no CUDA device here, and on a CPU one of its gradient "
-               "steps takes 10-80 s (days for a level); algo=dreamer_xs is its CPU size, or add device=cpu to train "
-               "size S on the CPU anyway")
+CPU_DREAMER = (
+    "algo=dreamer is DreamerV3 size S, a GPU size: no CUDA device here, and on a CPU one of its gradient "
+    "steps takes 10-80 s (days for a level); algo=dreamer_xs is its CPU size, or add device=cpu to train "
+    "size S on the CPU anyway"
+)
 
 
 _LAST: list[DictConfig] = []  # the last config compose_checked composed, and its defaults
@@ -398,20 +471,24 @@ def job_overrides(overrides: list[str], multirun: bool) -> list[list[str]]:
     swept = {i: list(o.sweep_string_iterator()) for i, o in enumerate(parsed) if o.is_sweep_override()}
     if swept and not multirun:
         first = parsed[next(iter(swept))]
-        raise ConfigError(f"{first.input_line}: several values make a sweep: add -m (--multirun); a list is "
-                          f"written {first.key_or_group}=[a,b]")
+        raise ConfigError(
+            f"{first.input_line}: several values make a sweep: add -m (--multirun); a list is "
+            f"written {first.key_or_group}=[a,b]"
+        )
     if not swept:
         return [list(overrides)]
 
     def line(i: int, value: str) -> str:
         return f"{parsed[i].get_key_element()}={value}"
 
-    base = [line(i, values[0]) if i in swept else o.input_line for i, (o, values) in
-            enumerate((o, swept.get(i, [])) for i, o in enumerate(parsed))]
+    base = [
+        line(i, values[0]) if i in swept else o.input_line
+        for i, (o, values) in enumerate((o, swept.get(i, [])) for i, o in enumerate(parsed))
+    ]
     jobs = [base]
     for i, values in swept.items():
         for value in values[1:]:
-            jobs.append([*base[:i], line(i, value), *base[i + 1:]])
+            jobs.append([*base[:i], line(i, value), *base[i + 1 :]])
     return jobs
 
 
@@ -447,8 +524,7 @@ def check_command_line(argv: list[str], doc: str = "") -> None:
 
     register_levels()
     args = get_args_parser().parse_args(argv)  # Hydra's own flags, parsed as Hydra will (a bad flag exits 2 here)
-    if args.hydra_help or args.info or args.shell_completion or args.config_name or args.config_path or \
-            args.config_dir:
+    if args.hydra_help or args.info or args.shell_completion or args.config_name or args.config_path or args.config_dir:
         return  # Hydra's own answers, or another config than conf/config.yaml: Hydra checks it
     with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
         try:
@@ -521,8 +597,9 @@ def _config_files(choices: dict[str, Any]) -> list[tuple[Path, str]]:
         path, package = group.split("@")[0], (group.split("@")[1] if "@" in group else group)
         names = [option]
         while (CONF_DIR / path / f"{names[-1]}.yaml").is_file():  # an option may extend another (ppo_lstm: ppo)
-            base = re.search(r"^defaults:\n\s+-\s+([\w-]+)\s*$", (CONF_DIR / path / f"{names[-1]}.yaml").read_text(),
-                             re.M)
+            base = re.search(
+                r"^defaults:\n\s+-\s+([\w-]+)\s*$", (CONF_DIR / path / f"{names[-1]}.yaml").read_text(), re.M
+            )
             if base is None or base[1] in names:
                 break
             names.append(base[1])
@@ -546,18 +623,29 @@ def help_text(overrides: list[str], prog: str = "train.py", description: str = "
     for path, package in _config_files(choices):
         for key, text in comments(path, package).items():
             meanings.setdefault(key, text)
-    lines = [f"usage: python scripts/{prog} [key=value ...]        (one run)",
-             f"       python scripts/{prog} -m key=a,b ... [key=value ...]   (a sweep: one run per combination)", ""]
+    lines = [
+        f"usage: python scripts/{prog} [key=value ...]        (one run)",
+        f"       python scripts/{prog} -m key=a,b ... [key=value ...]   (a sweep: one run per combination)",
+        "",
+    ]
     if description:
         lines += [*textwrap.wrap(" ".join(description.split()), width=114), ""]
     lines.append("groups (group=option; the config below is composed from the options chosen):")
     for group in sorted(g for g in loader.list_groups("") if g not in NOT_TRAINING):
         options = loader.get_group_options(group)
-        lines += textwrap.wrap(f"{group}: {', '.join(options)} (now {choices.get(group)})", width=114,
-                               initial_indent="  ", subsequent_indent="      ", break_on_hyphens=False)
+        lines += textwrap.wrap(
+            f"{group}: {', '.join(options)} (now {choices.get(group)})",
+            width=114,
+            initial_indent="  ",
+            subsequent_indent="      ",
+            break_on_hyphens=False,
+        )
     groups = set(loader.list_groups(""))
-    lines += ["", "keys (key=value, nested keys dotted: eval.every=50000; lists key=[a,b]; values read as YAML; "
-              "a key not listed needs ++key=value):"]
+    lines += [
+        "",
+        "keys (key=value, nested keys dotted: eval.every=50000; lists key=[a,b]; values read as YAML; "
+        "a key not listed needs ++key=value):",
+    ]
 
     def walk(node: DictConfig, path: str) -> None:
         for key in node.keys():
@@ -575,19 +663,23 @@ def help_text(overrides: list[str], prog: str = "train.py", description: str = "
                 if OmegaConf.is_dict(value) and len(value) and full not in FREE_FORM:
                     if full in meanings:  # what the keys below have in common
                         lines.append(f"  {full}.*:")
-                        lines.extend(textwrap.wrap(meanings[full], width=114, initial_indent=" " * 6,
-                                                   subsequent_indent=" " * 6))
+                        lines.extend(
+                            textwrap.wrap(meanings[full], width=114, initial_indent=" " * 6, subsequent_indent=" " * 6)
+                        )
                     walk(value, f"{full}.")
                     continue
                 kind = _kind(full, value)
             lines.append(f"  {full}: {kind} = {_show(value)}")
             if full in meanings:
-                lines.extend(textwrap.wrap(meanings[full], width=114, initial_indent=" " * 6,
-                                           subsequent_indent=" " * 6))
+                lines.extend(
+                    textwrap.wrap(meanings[full], width=114, initial_indent=" " * 6, subsequent_indent=" " * 6)
+                )
 
     walk(cfg, "")
-    lines += ["", "Hydra's own flags: --cfg job (print the composed config), --hydra-help, -m/--multirun. See "
-              "docs/training.md."]
+    lines += [
+        "",
+        "Hydra's own flags: --cfg job (print the composed config), --hydra-help, -m/--multirun. See docs/training.md.",
+    ]
     return "\n".join(lines)
 
 

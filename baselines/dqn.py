@@ -42,8 +42,11 @@ def make_model(cfg: DictConfig, obs_shapes: Mapping[str, Sequence[int]]) -> QVal
     encoder = MultimodalEncoder(stacked_shapes(obs_shapes, keys, cfg.frame_stack), cfg.encoder.cnn, cfg.encoder.mlp)
     q_values = TensorDictSequential(
         TensorDictModule(encoder, in_keys=keys, out_keys=["embed"]),
-        TensorDictModule(head(encoder.out_features, cfg.head.units, len(ACTION_NAMES), cfg.head.layer_norm),
-                         in_keys=["embed"], out_keys=["action_value"]),
+        TensorDictModule(
+            head(encoder.out_features, cfg.head.units, len(ACTION_NAMES), cfg.head.layer_norm),
+            in_keys=["embed"],
+            out_keys=["action_value"],
+        ),
     )
     return QValueActor(q_values, spec=Categorical(len(ACTION_NAMES)))
 
@@ -65,8 +68,9 @@ def train(run: Run) -> None:
     if run.cfg.get("compile"):
         compile_networks(model)
     env = run.train_env(make_transforms(cfg, run.obs_keys, model))
-    explore = EGreedyModule(env.action_spec, eps_init=cfg.eps_start, eps_end=cfg.eps_end,
-                            annealing_num_steps=cfg.eps_anneal_updates).to(run.device)
+    explore = EGreedyModule(
+        env.action_spec, eps_init=cfg.eps_start, eps_end=cfg.eps_end, annealing_num_steps=cfg.eps_anneal_updates
+    ).to(run.device)
     policy = run.acting(TensorDictSequential(model, explore))
 
     # what a transition keeps: stacked observations before and after, the action and the outcome
@@ -84,8 +88,9 @@ def train(run: Run) -> None:
     first = -(-cfg.learning_starts // num_envs)  # the first env step (of all worlds) followed by updates
     run.planned_updates = lambda steps: max(0, steps // num_envs - first + 1) * cfg.updates_per_step
 
-    td = run.start(model, {"loss": loss_fn, "optimizer": optimizer, "explore": explore, "buffer": buffer,
-                           "counters": counters})
+    td = run.start(
+        model, {"loss": loss_fn, "optimizer": optimizer, "explore": explore, "buffer": buffer, "counters": counters}
+    )
     run.updates = counters["updates"]  # a resumed run's bar counts on from its checkpoint
     storage = buffer.storage
     if storage.initialized and storage._storage.device != run.device:  # restored rows arrive on the CPU

@@ -40,8 +40,16 @@ def wrap_env(env: EnvBase, transforms: Sequence[Transform]) -> TransformedEnv:
 
 
 #: the diagnostics :func:`evaluate` reads: the env it steps must emit them (``evaaa.make_env(info=...)``)
-EVALUATION_INFO = ("step_count", "end_type", *EV_NAMES, "food_eaten", "water_eaten", "collision", "damage_taken",
-                   "success")
+EVALUATION_INFO = (
+    "step_count",
+    "end_type",
+    *EV_NAMES,
+    "food_eaten",
+    "water_eaten",
+    "collision",
+    "damage_taken",
+    "success",
+)
 
 
 def samples_actions(algo: str) -> bool:
@@ -100,8 +108,10 @@ def evaluate(env: EnvBase, policy: TensorDictModuleBase, *, sample: bool = False
     emitted = env.observation_spec.keys(include_nested=True)
     missing = [field for field in EVALUATION_INFO if ("info", field) not in emitted]
     if missing:
-        raise ValueError(f"evaluate reads info fields {list(EVALUATION_INFO)} the env does not emit ({missing}): "
-                         f"make it with evaaa.make_env(..., info={list(EVALUATION_INFO)}) or info=True")
+        raise ValueError(
+            f"evaluate reads info fields {list(EVALUATION_INFO)} the env does not emit ({missing}): "
+            f"make it with evaaa.make_env(..., info={list(EVALUATION_INFO)}) or info=True"
+        )
     n = env.batch_size.numel()
     level = getattr(env, "base_env", env).level
     tracker = EpisodeTracker(n, level.name, "", judged=level.episode.success.rule != "none")
@@ -154,12 +164,20 @@ class LoadedPolicy:
         """``env`` (an evaaa env emitting exactly this policy's observation keys) with the policy's transforms."""
         emitted = tuple(k for k in evaaa.MODALITIES if k in env.observation_spec.keys())
         if set(emitted) != set(self.obs_keys):
-            raise ValueError(f"{self.path}: the policy reads observation keys {list(self.obs_keys)}, "
-                             f"the env emits {list(emitted)}")
+            raise ValueError(
+                f"{self.path}: the policy reads observation keys {list(self.obs_keys)}, the env emits {list(emitted)}"
+            )
         return wrap_env(env, self.transforms())
 
-    def make_env(self, level: str | None = None, *, num_envs: int = 1, seed: int | None = None,
-                 overrides: Mapping[str, Any] | None = None, worlds: str = "test") -> TransformedEnv:
+    def make_env(
+        self,
+        level: str | None = None,
+        *,
+        num_envs: int = 1,
+        seed: int | None = None,
+        overrides: Mapping[str, Any] | None = None,
+        worlds: str = "test",
+    ) -> TransformedEnv:
         """An env of ``level`` (default: the one trained on) with this policy's observation keys and transforms,
         on the seed's ``worlds`` (:mod:`evaaa.worlds`; default the test worlds, which no training run steps).
 
@@ -167,13 +185,21 @@ class LoadedPolicy:
         the level as it is.
         """
         overrides = self.env_overrides if overrides is None else overrides
-        env = evaaa.make_env(level or self.level, num_envs=num_envs, seed=seed, modalities=self.obs_keys,
-                             info=True, worlds=worlds, **overrides)
+        env = evaaa.make_env(
+            level or self.level,
+            num_envs=num_envs,
+            seed=seed,
+            modalities=self.obs_keys,
+            info=True,
+            worlds=worlds,
+            **overrides,
+        )
         return self.wrap(env)
 
 
-def load_policy(path: str | Path, *, modalities: Iterable[str] | str | None = None,
-                device: str | torch.device = "cpu") -> LoadedPolicy:
+def load_policy(
+    path: str | Path, *, modalities: Iterable[str] | str | None = None, device: str | torch.device = "cpu"
+) -> LoadedPolicy:
     """Load a checkpoint (``checkpoint.pt`` or ``model-*.pt`` of a run directory) as a policy.
 
     Args:
@@ -199,8 +225,10 @@ def load_policy(path: str | Path, *, modalities: Iterable[str] | str | None = No
         wanted = resolve_modalities(modalities)
         if set(wanted) != set(obs_keys):
             missing, extra = sorted(set(obs_keys) - set(wanted)), sorted(set(wanted) - set(obs_keys))
-            raise ValueError(f"{path} was trained on observation keys {list(obs_keys)}, not {list(wanted)}: "
-                             f"missing {missing}, unexpected {extra}")
+            raise ValueError(
+                f"{path} was trained on observation keys {list(obs_keys)}, not {list(wanted)}: "
+                f"missing {missing}, unexpected {extra}"
+            )
     try:
         algo = algorithm(state["algo"])
     except ValueError as err:
@@ -209,10 +237,17 @@ def load_policy(path: str | Path, *, modalities: Iterable[str] | str | None = No
     model = algo.make_model(algo_cfg, {k: tuple(s) for k, s in state["obs_shapes"].items()})
     model.load_state_dict(state["model"])
     model.to(device).eval()
-    return LoadedPolicy(path=path, algo=state["algo"], config=state["config"], level=state["level"],
-                        modalities=tuple(state["modalities"]), obs_keys=obs_keys,
-                        env_overrides=state["env_overrides"], model=model,
-                        policy=OnDevice(algo.make_policy(model), device))
+    return LoadedPolicy(
+        path=path,
+        algo=state["algo"],
+        config=state["config"],
+        level=state["level"],
+        modalities=tuple(state["modalities"]),
+        obs_keys=obs_keys,
+        env_overrides=state["env_overrides"],
+        model=model,
+        policy=OnDevice(algo.make_policy(model), device),
+    )
 
 
 # ------------------------------------------------------------------------------------------------ evaluate.py
@@ -235,8 +270,15 @@ class EvaluatedPolicy:
     ``seed``, so runs repeat).  :attr:`name` and :attr:`acting` go into every episode row.
     """
 
-    def __init__(self, spec: str, seed: int, modalities: list[str] | None = None, epsilon: float = 0.0,
-                 sample: bool = False, device: str = "cpu"):
+    def __init__(
+        self,
+        spec: str,
+        seed: int,
+        modalities: list[str] | None = None,
+        epsilon: float = 0.0,
+        sample: bool = False,
+        device: str = "cpu",
+    ):
         self.spec = spec
         self.seed = seed
         self.epsilon = epsilon
@@ -267,8 +309,9 @@ class EvaluatedPolicy:
             except ValueError as err:
                 raise EvaluationError(str(err)) from None
         self.agent = _REFERENCE[self.spec](seed)
-        return evaaa.make_env(level, num_envs=num_envs, seed=seed, modalities=["interoception"], info=True,
-                              worlds=worlds)
+        return evaaa.make_env(
+            level, num_envs=num_envs, seed=seed, modalities=["interoception"], info=True, worlds=worlds
+        )
 
     def act(self, env: EnvBase, td: TensorDictBase) -> torch.Tensor:
         if self.loaded is not None:
@@ -282,9 +325,17 @@ class EvaluatedPolicy:
         return torch.from_numpy(self.agent.act(sim))
 
 
-def episode_records(policy: EvaluatedPolicy, level: str, *, episodes: int, num_envs: int, seed: int,
-                    worlds: str = "test", step_log: StepLog | None = None,
-                    on_episode: Callable[[], None] | None = None) -> list[dict]:
+def episode_records(
+    policy: EvaluatedPolicy,
+    level: str,
+    *,
+    episodes: int,
+    num_envs: int,
+    seed: int,
+    worlds: str = "test",
+    step_log: StepLog | None = None,
+    on_episode: Callable[[], None] | None = None,
+) -> list[dict]:
     """``episodes`` episodes of ``policy`` on ``level`` in ``num_envs`` of the ``worlds`` (``test`` or ``validation``)
     of ``seed``, as episode rows (:class:`evaaa.records.EpisodeTracker`, with a ``worlds`` column; ``episode``
     numbered from 0 in the order they ended).  Each world runs its share of the episodes; ``step_log`` gets every

@@ -39,9 +39,14 @@ class MultimodalEncoder(nn.Module):
         for key, shape in obs_shapes.items():
             if key == "pixels":
                 height, width, channels = shape
-                conv = ConvNet(in_features=channels, num_cells=list(cnn["channels"]),
-                               kernel_sizes=list(cnn["kernels"]), strides=list(cnn["strides"]),
-                               paddings=cnn["padding"], activation_class=nn.ReLU)
+                conv = ConvNet(
+                    in_features=channels,
+                    num_cells=list(cnn["channels"]),
+                    kernel_sizes=list(cnn["kernels"]),
+                    strides=list(cnn["strides"]),
+                    paddings=cnn["padding"],
+                    activation_class=nn.ReLU,
+                )
                 with torch.no_grad():
                     flat = conv(torch.zeros(1, channels, height, width)).shape[-1]
                 self.branches[key] = nn.Sequential(conv, nn.Linear(flat, cnn["features"]), nn.ReLU())
@@ -65,8 +70,9 @@ class MultimodalEncoder(nn.Module):
 def head(in_features: int, units: Sequence[int], out_features: int, layer_norm: bool = False) -> MLP:
     """An MLP head: ReLU hidden layers of ``units`` (each followed by LayerNorm if asked), then a linear output."""
     norm = {"norm_class": nn.LayerNorm, "norm_kwargs": [{"normalized_shape": u} for u in units]} if layer_norm else {}
-    return MLP(in_features=in_features, out_features=out_features, num_cells=list(units), activation_class=nn.ReLU,
-               **norm)
+    return MLP(
+        in_features=in_features, out_features=out_features, num_cells=list(units), activation_class=nn.ReLU, **norm
+    )
 
 
 def compile_networks(model: nn.Module, types: tuple[type, ...] = (MultimodalEncoder, MLP)) -> int:

@@ -45,8 +45,9 @@ LOGGED = ("entropy", "kl_approx", "clip_fraction")  # the loss's diagnostics wor
 def make_model(cfg: DictConfig, obs_shapes: Mapping[str, Sequence[int]]) -> ActorValueOperator:
     """Trunk (encoder [+ LSTM]) -> ``"hidden"``; actor head -> ``"logits"`` -> action; critic head -> value."""
     keys = list(obs_shapes)
-    encoder = MultimodalEncoder(stacked_shapes(obs_shapes, ["pixels"], cfg.frame_stack), cfg.encoder.cnn,
-                                cfg.encoder.mlp)
+    encoder = MultimodalEncoder(
+        stacked_shapes(obs_shapes, ["pixels"], cfg.frame_stack), cfg.encoder.cnn, cfg.encoder.mlp
+    )
     features = encoder.out_features
     if cfg.lstm:
         trunk = TensorDictSequential(
@@ -57,9 +58,14 @@ def make_model(cfg: DictConfig, obs_shapes: Mapping[str, Sequence[int]]) -> Acto
     else:
         trunk = TensorDictModule(encoder, in_keys=keys, out_keys=["hidden"])
     actor = ProbabilisticActor(
-        TensorDictModule(head(features, cfg.head.units, len(ACTION_NAMES), cfg.head.layer_norm),
-                         in_keys=["hidden"], out_keys=["logits"]),
-        in_keys=["logits"], spec=Categorical(len(ACTION_NAMES)), distribution_class=torch.distributions.Categorical,
+        TensorDictModule(
+            head(features, cfg.head.units, len(ACTION_NAMES), cfg.head.layer_norm),
+            in_keys=["hidden"],
+            out_keys=["logits"],
+        ),
+        in_keys=["logits"],
+        spec=Categorical(len(ACTION_NAMES)),
+        distribution_class=torch.distributions.Categorical,
         return_log_prob=True,
     )
     critic = ValueOperator(head(features, cfg.head.units, 1, cfg.head.layer_norm), in_keys=["hidden"])
@@ -133,8 +139,12 @@ class ReturnScale:
         return batch
 
     def state_dict(self) -> dict:
-        return {"returns": torch.as_tensor(self.returns), "mean": float(self.rms.mean), "var": float(self.rms.var),
-                "count": float(self.rms.count)}
+        return {
+            "returns": torch.as_tensor(self.returns),
+            "mean": float(self.rms.mean),
+            "var": float(self.rms.var),
+            "count": float(self.rms.count),
+        }
 
     def load_state_dict(self, state: Mapping) -> None:
         self.returns = state["returns"].double().numpy().copy()
@@ -147,15 +157,21 @@ def check_config(cfg: DictConfig) -> str | None:
     before it writes anything."""
     algo, num_envs = cfg.algo, cfg.env.num_envs
     if algo.frames_per_batch % num_envs:
-        return (f"algo.frames_per_batch={algo.frames_per_batch}: expected a multiple of env.num_envs ({num_envs}): "
-                f"each world takes the same number of steps per update")
+        return (
+            f"algo.frames_per_batch={algo.frames_per_batch}: expected a multiple of env.num_envs ({num_envs}): "
+            f"each world takes the same number of steps per update"
+        )
     rollout = algo.frames_per_batch // num_envs
     if algo.lstm and rollout % algo.sequence_length:
-        return (f"algo.sequence_length={algo.sequence_length}: each world's rollout ({rollout} steps = "
-                f"algo.frames_per_batch / env.num_envs) must be a multiple of it")
+        return (
+            f"algo.sequence_length={algo.sequence_length}: each world's rollout ({rollout} steps = "
+            f"algo.frames_per_batch / env.num_envs) must be a multiple of it"
+        )
     if algo.frames_per_batch < algo.num_minibatches:
-        return (f"algo.num_minibatches={algo.num_minibatches}: more minibatches than transitions per update "
-                f"(algo.frames_per_batch={algo.frames_per_batch})")
+        return (
+            f"algo.num_minibatches={algo.num_minibatches}: more minibatches than transitions per update "
+            f"(algo.frames_per_batch={algo.frames_per_batch})"
+        )
     return None
 
 
@@ -179,15 +195,28 @@ def train(run: Run) -> None:
     # without vmap, which has no batching rule for the LSTM.  The loss's critic is the value head alone: it reads the
     # trunk features the actor's pass has just written into the same minibatch, so the shared trunk runs once per
     # minibatch and receives the gradients of both losses.
-    advantage = GAE(gamma=cfg.gamma, lmbda=cfg.gae_lambda, value_network=model.get_value_operator(),
-                    average_gae=False, deactivate_vmap=True)
-    loss_fn = ClipPPOLoss(policy, model.get_value_head(), clip_epsilon=cfg.clip, entropy_coeff=cfg.entropy_coef,
-                          critic_coeff=cfg.value_coef, loss_critic_type="l2",
-                          normalize_advantage=cfg.normalize_advantage, clip_value=cfg.clip_value_loss).to(run.device)
+    advantage = GAE(
+        gamma=cfg.gamma,
+        lmbda=cfg.gae_lambda,
+        value_network=model.get_value_operator(),
+        average_gae=False,
+        deactivate_vmap=True,
+    )
+    loss_fn = ClipPPOLoss(
+        policy,
+        model.get_value_head(),
+        clip_epsilon=cfg.clip,
+        entropy_coeff=cfg.entropy_coef,
+        critic_coeff=cfg.value_coef,
+        loss_critic_type="l2",
+        normalize_advantage=cfg.normalize_advantage,
+        clip_value=cfg.clip_value_loss,
+    ).to(run.device)
 
     optimizer_cls = {"adam": torch.optim.Adam, "adamw": torch.optim.AdamW}[cfg.optimizer.name]
-    optimizer = optimizer_cls(model.parameters(), lr=cfg.lr, eps=cfg.optimizer.eps,
-                              weight_decay=cfg.optimizer.weight_decay, fused=True)  # fused: ~5x faster step on CPU
+    optimizer = optimizer_cls(
+        model.parameters(), lr=cfg.lr, eps=cfg.optimizer.eps, weight_decay=cfg.optimizer.weight_decay, fused=True
+    )  # fused: ~5x faster step on CPU
     iterations = -(-run.stage.budget // cfg.frames_per_batch)
 
     def remaining(iteration: int) -> float:  # 1 -> 0 over the stage: the annealing factor
@@ -234,7 +263,13 @@ def train(run: Run) -> None:
         scheduler.step()
         done_updates = -(-run.steps // cfg.frames_per_batch) * updates  # every iteration makes as many
         run.updated(updates, time.perf_counter() - began, done_updates)
-        run.log({**{k: v / updates for k, v in totals.items()}, "lr": optimizer.param_groups[0]["lr"],
-                 "clip": loss_fn.clip_epsilon, "updates": done_updates,
-                 **({"reward_scale": return_scale.scale} if return_scale else {})})
+        run.log(
+            {
+                **{k: v / updates for k, v in totals.items()},
+                "lr": optimizer.param_groups[0]["lr"],
+                "clip": loss_fn.clip_epsilon,
+                "updates": done_updates,
+                **({"reward_scale": return_scale.scale} if return_scale else {}),
+            }
+        )
         run.end_iteration(td)

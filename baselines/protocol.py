@@ -32,7 +32,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 from typing import Any, Literal
 
@@ -202,8 +202,13 @@ class Protocol(_Strict):
     references: ReferenceSpec | None = None
     matched: MatchedSpec | None = None  # the compute-matched comparison on one level
     # the order of the parts' cells, and so of the scheduler's work: the first ones answer something on their own
-    order: list[Literal["references", "matched", "ablations", "curriculum", "direct"]] = \
-        ["references", "curriculum", "direct", "ablations", "matched"]
+    order: list[Literal["references", "matched", "ablations", "curriculum", "direct"]] = [
+        "references",
+        "curriculum",
+        "direct",
+        "ablations",
+        "matched",
+    ]
     report: ReportSpec
     # where the runs, evaluations, logs and done-markers go (reproduce.py's root= overrides it); relative paths: to
     # the repository root. A folder inside the repository can be committed (its .gitignore keeps the checkpoints
@@ -227,13 +232,16 @@ class Protocol(_Strict):
     @model_validator(mode="after")
     def _part_algorithms(self) -> Protocol:
         enabled = [n for n, a in self.algorithms.items() if a.enabled]
-        for where, names in (("training.algorithms", self.training.algorithms),
-                             ("matched.algorithms", self.matched.algorithms if self.matched else None),
-                             ("matched.overrides", list(self.matched.overrides) if self.matched else None)):
+        for where, names in (
+            ("training.algorithms", self.training.algorithms),
+            ("matched.algorithms", self.matched.algorithms if self.matched else None),
+            ("matched.overrides", list(self.matched.overrides) if self.matched else None),
+        ):
             bad = [n for n in names or () if n not in enabled]
             if bad:
-                raise ValueError(f"{where}: {bad[0]!r} is not an enabled algorithm of this protocol; allowed: "
-                                 f"{', '.join(enabled)}")
+                raise ValueError(
+                    f"{where}: {bad[0]!r} is not an enabled algorithm of this protocol; allowed: {', '.join(enabled)}"
+                )
         if sorted(self.order) != sorted(set(self.order)) or len(set(self.order)) != 5:
             raise ValueError("order: name each of references, matched, ablations, curriculum, direct once")
         return self
@@ -244,8 +252,10 @@ class Protocol(_Strict):
         if ab is not None and ab.enabled:
             enabled = [n for n, a in self.algorithms.items() if a.enabled]
             if ab.algorithm not in enabled:
-                raise ValueError(f"ablations.algorithm: {ab.algorithm!r} is not an enabled algorithm of this "
-                                 f"protocol; allowed: {', '.join(enabled)}")
+                raise ValueError(
+                    f"ablations.algorithm: {ab.algorithm!r} is not an enabled algorithm of this "
+                    f"protocol; allowed: {', '.join(enabled)}"
+                )
         return self
 
     @property
@@ -342,7 +352,7 @@ def _safe(name: str) -> str:
     return name.replace("/", os.sep)
 
 
-@lru_cache(maxsize=None)
+@cache
 def max_steps(level: str) -> int:
     """A level's episode cap (decisions), for the estimates."""
     return int(evaaa.load_level(level).episode.max_steps)
@@ -458,22 +468,47 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
         own_modes = [m for m in modes if m == "mode" or samples_actions(algo)] or modes
         for mode in own_modes:
             suffix = "" if len(modes) == 1 else f"-{mode}"
-            common = [f"seed={ev.seed}", f"epsilon={ev.epsilon:g}", f"sample={str(mode == 'sample').lower()}",
-                      f"threads={th}", f"policy=[{arg(model)}]"]
+            common = [
+                f"seed={ev.seed}",
+                f"epsilon={ev.epsilon:g}",
+                f"sample={str(mode == 'sample').lower()}",
+                f"threads={th}",
+                f"policy=[{arg(model)}]",
+            ]
             if ev.worlds != "test":
                 common.append(f"worlds={ev.worlds}")
             if ev.testbeds is not None:
                 out = lay.evals / _safe(name.removeprefix("eval/")) / f"testbeds{suffix}"
                 tb = expand_levels(ev.testbeds.levels)
-                cmds.append(Command(["scripts/evaluate.py", *common, f"levels=[{','.join(ev.testbeds.levels)}]",
-                                     f"episodes={ev.testbeds.episodes}", f"num_envs={ev.testbeds.num_envs}",
-                                     f"out={arg(out)}"], out))
+                cmds.append(
+                    Command(
+                        [
+                            "scripts/evaluate.py",
+                            *common,
+                            f"levels=[{','.join(ev.testbeds.levels)}]",
+                            f"episodes={ev.testbeds.episodes}",
+                            f"num_envs={ev.testbeds.num_envs}",
+                            f"out={arg(out)}",
+                        ],
+                        out,
+                    )
+                )
                 seconds += STARTUP_SECONDS + ev.testbeds.episodes * sum(max_steps(t) for t in tb) / sps
             if ev.own_level is not None:
                 out = lay.evals / _safe(name.removeprefix("eval/")) / f"level{suffix}"
-                cmds.append(Command(["scripts/evaluate.py", *common, f"levels=[{own}]",
-                                     f"episodes={ev.own_level.episodes}", f"num_envs={ev.own_level.num_envs}",
-                                     f"out={arg(out)}"], out))
+                cmds.append(
+                    Command(
+                        [
+                            "scripts/evaluate.py",
+                            *common,
+                            f"levels=[{own}]",
+                            f"episodes={ev.own_level.episodes}",
+                            f"num_envs={ev.own_level.num_envs}",
+                            f"out={arg(out)}",
+                        ],
+                        out,
+                    )
+                )
                 seconds += STARTUP_SECONDS + ev.own_level.episodes * max_steps(own) / sps
         eval_outs.extend(c.out for c in cmds if c.out is not None)
         return Cell(name, "eval", cmds, seconds / 60, f"{algo} evaluation", needs=[model], needs_cells=[train_cell])
@@ -484,35 +519,84 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
             names = ref.levels_of.get(policy, ref.levels)
             ref_levels = expand_levels(names)
             out = lay.evals / "ref" / policy
-            cmd = Command(["scripts/evaluate.py", f"policy=[{policy}]", f"levels=[{','.join(names)}]",
-                           f"episodes={ref.episodes}", f"num_envs={ref.num_envs}", f"seed={ev.seed}",
-                           f"threads={th}", *([f"worlds={ev.worlds}"] if ev.worlds != "test" else []),
-                           f"out={arg(out)}"], out)
+            cmd = Command(
+                [
+                    "scripts/evaluate.py",
+                    f"policy=[{policy}]",
+                    f"levels=[{','.join(names)}]",
+                    f"episodes={ref.episodes}",
+                    f"num_envs={ref.num_envs}",
+                    f"seed={ev.seed}",
+                    f"threads={th}",
+                    *([f"worlds={ev.worlds}"] if ev.worlds != "test" else []),
+                    f"out={arg(out)}",
+                ],
+                out,
+            )
             seconds = STARTUP_SECONDS + ref.episodes * sum(max_steps(lv) for lv in ref_levels) / ref.steps_per_second
             parts["references"].append(Cell(f"ref/{policy}", "ref", [cmd], seconds / 60, "references"))
             eval_outs.append(out)
 
-    def train_cell(part: str, algo: str, spec: AlgorithmSpec, setup: str, seed: int, level_args: list[str],
-                   stages: list[str], group: str, extra: Sequence[str] = (), steps: int | None = None,
-                   minutes: float | None = None) -> None:
+    def train_cell(
+        part: str,
+        algo: str,
+        spec: AlgorithmSpec,
+        setup: str,
+        seed: int,
+        level_args: list[str],
+        stages: list[str],
+        group: str,
+        extra: Sequence[str] = (),
+        steps: int | None = None,
+        minutes: float | None = None,
+    ) -> None:
         name = f"train/{algo}/{setup}/seed{seed}"
         run_name = f"{algo}/{setup}/seed{seed}"
         run_dir = lay.runs / _safe(run_name)
-        argv = ["scripts/train.py", f"algo={algo}", *level_args, f"seed={seed}", f"threads={th}",
-                *p.training.overrides, *spec.overrides, *extra, f"run.root={arg(lay.runs)}", f"run.name={run_name}"]
+        argv = [
+            "scripts/train.py",
+            f"algo={algo}",
+            *level_args,
+            f"seed={seed}",
+            f"threads={th}",
+            *p.training.overrides,
+            *spec.overrides,
+            *extra,
+            f"run.root={arg(lay.runs)}",
+            f"run.name={run_name}",
+        ]
         if minutes is None:
             minutes = (STARTUP_SECONDS + (steps or S * len(stages)) / spec.steps_per_second) / 60
         final = run_dir / f"model-{len(stages) - 1}-{stages[-1]}.pt"
         cells = parts[part]
-        cells.append(Cell(name, "train", [Command(argv)], minutes, f"{algo} {group}", run_dir=run_dir,
-                          final_model=final, keep_checkpoints=spec.keep_checkpoints))
+        cells.append(
+            Cell(
+                name,
+                "train",
+                [Command(argv)],
+                minutes,
+                f"{algo} {group}",
+                run_dir=run_dir,
+                final_model=final,
+                keep_checkpoints=spec.keep_checkpoints,
+            )
+        )
         if len(stages) > 1:
             for i, lv in enumerate(stages):
-                cells.append(eval_cell(f"eval/{algo}/{setup}/seed{seed}/stage{i}-{lv}", run_dir / f"model-{i}-{lv}.pt",
-                                       lv, name, ev.steps_per_second, algo))
+                cells.append(
+                    eval_cell(
+                        f"eval/{algo}/{setup}/seed{seed}/stage{i}-{lv}",
+                        run_dir / f"model-{i}-{lv}.pt",
+                        lv,
+                        name,
+                        ev.steps_per_second,
+                        algo,
+                    )
+                )
         else:
-            cells.append(eval_cell(f"eval/{algo}/{setup}/seed{seed}", final, stages[0], name, ev.steps_per_second,
-                                   algo))
+            cells.append(
+                eval_cell(f"eval/{algo}/{setup}/seed{seed}", final, stages[0], name, ev.steps_per_second, algo)
+            )
 
     enabled = [a for a, spec in p.algorithms.items() if spec.enabled]
     trained = p.training.algorithms if p.training.algorithms is not None else enabled
@@ -521,9 +605,16 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
         spec = p.algorithms[algo]
         if algo in trained and p.training.curriculum:
             for seed in p.seeds:
-                train_cell("curriculum", algo, spec, "curriculum", seed,
-                           ["level=curriculum", f"level.stages=[{','.join(levels)}]", f"level.stage_steps={S}"],
-                           levels, "curriculum")
+                train_cell(
+                    "curriculum",
+                    algo,
+                    spec,
+                    "curriculum",
+                    seed,
+                    ["level=curriculum", f"level.stages=[{','.join(levels)}]", f"level.stage_steps={S}"],
+                    levels,
+                    "curriculum",
+                )
         direct_levels = list(p.training.direct_levels or levels) if p.training.direct and algo in trained else []
         shares_all = ab is not None and ab.algorithm == algo and "all" in ab.modalities
         for lv in dict.fromkeys([*direct_levels, *([ab.level] if shares_all else [])]):
@@ -536,38 +627,83 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
             steps = S * (k + 1) if p.training.direct_steps == "matched" and not ablation_only else S
             part = "ablations" if ablation_only or (shares_all and lv == ab.level and k == 0) else "direct"
             for seed in seeds:
-                train_cell(part, algo, spec, f"direct-{lv}", seed, [f"level={lv}", f"total_steps={steps}"], [lv],
-                           "direct", steps=steps)
+                train_cell(
+                    part,
+                    algo,
+                    spec,
+                    f"direct-{lv}",
+                    seed,
+                    [f"level={lv}", f"total_steps={steps}"],
+                    [lv],
+                    "direct",
+                    steps=steps,
+                )
         if ab is not None and ab.algorithm == algo:
             for mod in ab.modalities:
                 if mod == "all":
                     continue
                 for seed in ab.seeds or p.seeds:
-                    train_cell("ablations", algo, spec, f"ablation-{mod}", seed,
-                               [f"level={ab.level}", f"total_steps={S}"], [ab.level], "ablations",
-                               extra=[f"modality={mod}"])
+                    train_cell(
+                        "ablations",
+                        algo,
+                        spec,
+                        f"ablation-{mod}",
+                        seed,
+                        [f"level={ab.level}", f"total_steps={S}"],
+                        [ab.level],
+                        "ablations",
+                        extra=[f"modality={mod}"],
+                    )
     if p.matched is not None:
         m = p.matched
         for seed in m.seeds or p.seeds:
             for algo in m.algorithms or enabled:
                 # a step budget no run reaches: the CPU minutes end every run
-                train_cell("matched", algo, p.algorithms[algo], f"matched-{m.level}", seed,
-                           [f"level={m.level}", f"total_steps={MATCHED_STEPS}", f"max_cpu_minutes={m.cpu_minutes:g}"],
-                           [m.level], "matched", extra=m.overrides.get(algo, []),
-                           minutes=m.cpu_minutes + STARTUP_SECONDS / 60)
+                train_cell(
+                    "matched",
+                    algo,
+                    p.algorithms[algo],
+                    f"matched-{m.level}",
+                    seed,
+                    [f"level={m.level}", f"total_steps={MATCHED_STEPS}", f"max_cpu_minutes={m.cpu_minutes:g}"],
+                    [m.level],
+                    "matched",
+                    extra=m.overrides.get(algo, []),
+                    minutes=m.cpu_minutes + STARTUP_SECONDS / 60,
+                )
     cells = [c for part in p.order for c in parts[part]]
 
-    out = Path(report_out) if report_out is not None else lay.root / "report" if p.report.out is None \
+    out = (
+        Path(report_out)
+        if report_out is not None
+        else lay.root / "report"
+        if p.report.out is None
         else REPO / p.report.out
+    )
     out = out.resolve()
     title = p.report.title or default_title(p)
-    argv = ["scripts/report.py", f"runs=[{arg(lay.runs)}]", "evals=[" + ",".join(map(arg, eval_outs)) + "]",
-            f"out={arg(out)}", f"survival={p.report.survival}", f"title={title}"]
+    argv = [
+        "scripts/report.py",
+        f"runs=[{arg(lay.runs)}]",
+        "evals=[" + ",".join(map(arg, eval_outs)) + "]",
+        f"out={arg(out)}",
+        f"survival={p.report.survival}",
+        f"title={title}",
+    ]
     if any(c.kind == "eval" for c in cells) and len(modes) == 1:
         # several modes: the report shows each, labelled, and its claims take the mode every agent has
         argv.append(f"acting={acting(ev)}")
-    cells.append(Cell("report", "report", [Command(argv, None)], 1.0, "report", needs_cells=[c.name for c in cells],
-                      report_out=out))
+    cells.append(
+        Cell(
+            "report",
+            "report",
+            [Command(argv, None)],
+            1.0,
+            "report",
+            needs_cells=[c.name for c in cells],
+            report_out=out,
+        )
+    )
     return cells
 
 
@@ -588,8 +724,10 @@ def acting(ev: EvaluationSpec) -> str:
 
 def default_title(p: Protocol) -> str:
     algos = ", ".join(n for n, a in p.algorithms.items() if a.enabled)
-    return (f"evaaa: the paper's protocol at CPU scale ({p.name}: {algos}; {p.stage_steps:,} env steps per "
-            f"stage; seeds {', '.join(map(str, p.seeds))}; checkpoints act {acting_text(p.evaluation)})")
+    return (
+        f"evaaa: the paper's protocol at CPU scale ({p.name}: {algos}; {p.stage_steps:,} env steps per "
+        f"stage; seeds {', '.join(map(str, p.seeds))}; checkpoints act {acting_text(p.evaluation)})"
+    )
 
 
 def acting_text(ev: EvaluationSpec) -> str:
@@ -630,13 +768,15 @@ def status(cell: Cell, lay: Layout, cells: Sequence[Cell] = ()) -> Literal["done
         if cell.kind != "report":
             return "done"
         others = [c for c in cells if c.kind != "report"]
-        if all(status(c, lay) == "done" for c in others) and \
-                lay.marker(cell.name).stat().st_mtime >= _newest([o for c in others for o in outputs(c, lay)]):
+        if all(status(c, lay) == "done" for c in others) and lay.marker(cell.name).stat().st_mtime >= _newest(
+            [o for c in others for o in outputs(c, lay)]
+        ):
             return "done"
         return "partial"  # written before some cell was (re)done
     if cell.kind == "train":
-        return "partial" if cell.run_dir is not None and cell.run_dir.is_dir() and any(cell.run_dir.iterdir()) \
-            else "todo"
+        return (
+            "partial" if cell.run_dir is not None and cell.run_dir.is_dir() and any(cell.run_dir.iterdir()) else "todo"
+        )
     if cell.kind in ("eval", "ref"):
         return "partial" if any(c.out is not None and c.out.exists() for c in cell.commands) else "todo"
     return "partial" if any(o.exists() for o in outs) else "todo"
@@ -678,22 +818,35 @@ def plan_text(p: Protocol, cells: Sequence[Cell], lay: Layout, threads: int) -> 
     """The plan: every cell with its status and estimate, the budget split, the totals, each cell's command."""
     states = {c.name: status(c, lay, cells) for c in cells}
     width = max(len(c.name) for c in cells)
-    lines = [f"protocol {p.name}: {len(cells)} cells under {lay.root}; S = {p.stage_steps:,} env steps per stage "
-             f"(curriculum stage and direct run), seeds {p.seeds}; checkpoints act {acting_text(p.evaluation)}", "",
-             f"{'cell':<{width}}  {'status':<7}  {'CPU-min':>8}  {'took':>8}"]
+    lines = [
+        f"protocol {p.name}: {len(cells)} cells under {lay.root}; S = {p.stage_steps:,} env steps per stage "
+        f"(curriculum stage and direct run), seeds {p.seeds}; checkpoints act {acting_text(p.evaluation)}",
+        "",
+        f"{'cell':<{width}}  {'status':<7}  {'CPU-min':>8}  {'took':>8}",
+    ]
     took = {c.name: lay.took(c.name) if states[c.name] == "done" else None for c in cells}
     for c in cells:
         t = took[c.name]
-        lines.append(f"{c.name:<{width}}  {states[c.name]:<7}  {c.minutes:8.1f}  "
-                     f"{'' if t is None else f'{t / 60:8.1f}'}".rstrip())
+        lines.append(
+            f"{c.name:<{width}}  {states[c.name]:<7}  {c.minutes:8.1f}  "
+            f"{'' if t is None else f'{t / 60:8.1f}'}".rstrip()
+        )
     total = sum(c.minutes for c in cells)
     left = sum(c.minutes for c in cells if states[c.name] != "done")
     counts = {s: sum(1 for v in states.values() if v == s) for s in ("done", "partial", "todo")}
-    lines += ["", "estimated CPU-hours (one core per cell, threads=1; rates in the protocol file; evaluation episodes "
-              "taken to their step limit):"]
+    lines += [
+        "",
+        "estimated CPU-hours (one core per cell, threads=1; rates in the protocol file; evaluation episodes "
+        "taken to their step limit):",
+    ]
     split = budget(cells)
-    parts = ("curriculum", "direct", "ablations", *(("matched",) if any(g.endswith(" matched") for g in split) else ()),
-             "evaluation")
+    parts = (
+        "curriculum",
+        "direct",
+        "ablations",
+        *(("matched",) if any(g.endswith(" matched") for g in split) else ()),
+        "evaluation",
+    )
     algos = list(dict.fromkeys(g.split(" ")[0] for g in split if " " in g))
     lines.append(f"  {'':<12}" + "".join(f"{x:>12}" for x in (*parts, "all")))
     for a in algos:
@@ -701,15 +854,19 @@ def plan_text(p: Protocol, cells: Sequence[Cell], lay: Layout, threads: int) -> 
         lines.append(f"  {a:<12}" + "".join(f"{v:12.2f}" for v in (*row, sum(row))))
     for g in (g for g in split if " " not in g):
         lines.append(f"  {g:<12}" + " " * 12 * len(parts) + f"{split[g] / 60:12.2f}")
-    lines.append(f"  {'total':<12}" + " " * 12 * len(parts) + f"{total / 60:12.2f}  ({len(cells)} cells: "
-                 f"{counts['done']} done, {counts['partial']} partial, {counts['todo']} todo; {left / 60:.2f} h left)")
+    lines.append(
+        f"  {'total':<12}" + " " * 12 * len(parts) + f"{total / 60:12.2f}  ({len(cells)} cells: "
+        f"{counts['done']} done, {counts['partial']} partial, {counts['todo']} todo; {left / 60:.2f} h left)"
+    )
     timed = [c for c in cells if took[c.name] is not None]
     if timed:
         # the CPU time of each cell's processes, summed over the sessions that ran them
         spent = sum(took[c.name] for c in timed) / 3600  # type: ignore[misc]
         planned = sum(c.minutes for c in timed) / 60
-        lines.append(f"  measured: the {len(timed)} timed done cells took {spent:.2f} CPU-hours, against "
-                     f"{planned:.2f} estimated for them")
+        lines.append(
+            f"  measured: the {len(timed)} timed done cells took {spent:.2f} CPU-hours, against "
+            f"{planned:.2f} estimated for them"
+        )
     if p.budget_cpu_hours is not None and total / 60 > p.budget_cpu_hours:
         lines.append(f"  WARNING: over the protocol's budget of {p.budget_cpu_hours:g} CPU-hours")
     lines += ["", "commands (run from the repository root; a started training run gets resume=true):"]
@@ -729,34 +886,50 @@ def provenance(p: Protocol, cells: Sequence[Cell], lay: Layout, selects: str | N
     timed = [c for c in done if took[c.name] is not None]
     selects = selects or f"protocol={p.name}"
     example = next((c.name for c in cells if c.kind == "train"), cells[0].name)
-    lines = ["## How this report was made", "",
-             f"The protocol `{p.name}`: S = {p.stage_steps:,} env steps per stage (curriculum "
-             f"stage and direct run), seeds {', '.join(map(str, p.seeds))}, checkpoints act {acting_text(p.evaluation)}; "
-             f"{len(cells)} cells, {len(done)} of them done (the report not counted) when this report was made. From "
-             "the repository root:", "", "```bash",
-             f"python scripts/reproduce.py {selects} plan=true   # every cell: status, command, CPU time",
-             f"python scripts/reproduce.py {selects} jobs=2      # what is not done (killed: the same continues)",
-             f"python scripts/reproduce.py {selects} \"cells=[{example}]\" redo=true   # one cell again",
-             "```", ""]
+    lines = [
+        "## How this report was made",
+        "",
+        f"The protocol `{p.name}`: S = {p.stage_steps:,} env steps per stage (curriculum "
+        f"stage and direct run), seeds {', '.join(map(str, p.seeds))}, checkpoints act {acting_text(p.evaluation)}; "
+        f"{len(cells)} cells, {len(done)} of them done (the report not counted) when this report was made. From "
+        "the repository root:",
+        "",
+        "```bash",
+        f"python scripts/reproduce.py {selects} plan=true   # every cell: status, command, CPU time",
+        f"python scripts/reproduce.py {selects} jobs=2      # what is not done (killed: the same continues)",
+        f'python scripts/reproduce.py {selects} "cells=[{example}]" redo=true   # one cell again',
+        "```",
+        "",
+    ]
     if not timed:
         return lines + ["No done cell was timed.", ""]
-    lines += ["CPU time each done cell's processes took (their own `rusage`, summed over the sessions that ran them; "
-              "`threads=1`, one core each), per budget line, against the protocol file's estimate for the same cells:",
-              "", "| budget line | timed cells | CPU-hours | estimated | wall hours of its commands |",
-              "|---|---|---|---|---|"]
+    lines += [
+        "CPU time each done cell's processes took (their own `rusage`, summed over the sessions that ran them; "
+        "`threads=1`, one core each), per budget line, against the protocol file's estimate for the same cells:",
+        "",
+        "| budget line | timed cells | CPU-hours | estimated | wall hours of its commands |",
+        "|---|---|---|---|---|",
+    ]
     wall = {c.name: lay.wall(c.name) for c in timed}
     for group in dict.fromkeys(c.group for c in timed):
         part = [c for c in timed if c.group == group]
-        lines.append(f"| {group} | {len(part)} | {sum(took[c.name] for c in part) / 3600:.2f} | "
-                     f"{sum(c.minutes for c in part) / 60:.2f} | {sum(wall[c.name] or 0.0 for c in part) / 3600:.2f} |")
+        lines.append(
+            f"| {group} | {len(part)} | {sum(took[c.name] for c in part) / 3600:.2f} | "
+            f"{sum(c.minutes for c in part) / 60:.2f} | {sum(wall[c.name] or 0.0 for c in part) / 3600:.2f} |"
+        )
     spent = sum(took[c.name] for c in timed) / 3600  # type: ignore[misc]
-    lines.append(f"| **all** | {len(timed)} | **{spent:.2f}** | {sum(c.minutes for c in timed) / 60:.2f} | "
-                 f"{sum(wall[c.name] or 0.0 for c in timed) / 3600:.2f} |")
+    lines.append(
+        f"| **all** | {len(timed)} | **{spent:.2f}** | {sum(c.minutes for c in timed) / 60:.2f} | "
+        f"{sum(wall[c.name] or 0.0 for c in timed) / 3600:.2f} |"
+    )
     untimed = [c for c in done if took[c.name] is None]
     if untimed:
-        lines += ["", f"{len(untimed)} done cells were not timed (run before cells were): "
-                  f"{', '.join(c.name for c in untimed)}; the protocol file estimates them at "
-                  f"{sum(c.minutes for c in untimed) / 60:.2f} CPU-hours."]
+        lines += [
+            "",
+            f"{len(untimed)} done cells were not timed (run before cells were): "
+            f"{', '.join(c.name for c in untimed)}; the protocol file estimates them at "
+            f"{sum(c.minutes for c in untimed) / 60:.2f} CPU-hours.",
+        ]
     return lines + [""]
 
 
@@ -796,10 +969,21 @@ class _Job:
 class Scheduler:
     """Runs cells as subprocesses, ``jobs`` at a time, each when the files it needs exist."""
 
-    def __init__(self, p: Protocol, cells: Sequence[Cell], lay: Layout, *, jobs: int = 1,
-                 max_minutes: float | None = None, redo: bool = False, retries: int = 0,
-                 python: str = sys.executable, progress: bool = True, echo: Callable[[str], None] = print,
-                 selects: str | None = None):
+    def __init__(
+        self,
+        p: Protocol,
+        cells: Sequence[Cell],
+        lay: Layout,
+        *,
+        jobs: int = 1,
+        max_minutes: float | None = None,
+        redo: bool = False,
+        retries: int = 0,
+        python: str = sys.executable,
+        progress: bool = True,
+        echo: Callable[[str], None] = print,
+        selects: str | None = None,
+    ):
         self.p, self.cells, self.lay, self.jobs, self.retries = p, list(cells), lay, jobs, retries
         self.selects = selects  # reproduce.py's protocol=, root=, out= as given: the report's commands repeat them
         self.max_minutes, self.redo, self.python, self.progress, self.echo = max_minutes, redo, python, progress, echo
@@ -823,8 +1007,15 @@ class Scheduler:
         job.log.flush()
         # a session of its own: a Ctrl-C at the terminal reaches reproduce.py only, which passes exactly one on (a
         # second one would stop a training at once, without its checkpoint)
-        job.proc = subprocess.Popen([self.python, *cmd.argv], cwd=REPO, env=self.env, stdout=job.log,
-                                    stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)
+        job.proc = subprocess.Popen(
+            [self.python, *cmd.argv],
+            cwd=REPO,
+            env=self.env,
+            stdout=job.log,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            start_new_session=True,
+        )
         job.began = time.monotonic()
 
     def _reap(self, job: _Job, block: bool = False) -> int | None:
@@ -854,7 +1045,7 @@ class Scheduler:
         argv = []
         for a in cmd.argv:
             if a.startswith("evals=["):
-                done = [x for x in a[len("evals=["):-1].split(",") if x and (REPO / x / "episodes.csv").exists()]
+                done = [x for x in a[len("evals=[") : -1].split(",") if x and (REPO / x / "episodes.csv").exists()]
                 a = "evals=[" + ",".join(done) + "]"
             argv.append(a)
         return Command(argv)
@@ -887,6 +1078,7 @@ class Scheduler:
         bar = None
         if self.progress:
             from tqdm import tqdm
+
             bar = tqdm(total=len(todo), desc="cells", unit="cell", dynamic_ncols=True)
 
         def interrupt(signum, frame):
@@ -911,8 +1103,10 @@ class Scheduler:
                     elif tries.get(job.cell.name, 0) < self.retries and rc not in (130, -signal.SIGINT):
                         # e.g. the renderer's crash: the same cell again, continuing from what it left
                         tries[job.cell.name] = tries.get(job.cell.name, 0) + 1
-                        self.echo(f"{job.cell.name}: exit status {rc}; trying again ({tries[job.cell.name]} of "
-                                  f"{self.retries}); see {self.lay.log(job.cell.name)}")
+                        self.echo(
+                            f"{job.cell.name}: exit status {rc}; trying again ({tries[job.cell.name]} of "
+                            f"{self.retries}); see {self.lay.log(job.cell.name)}"
+                        )
                         waiting.append(job.cell)
                         continue
                     else:
@@ -922,8 +1116,10 @@ class Scheduler:
                         bar.update(1)
                 if self.max_minutes is not None and not stopping and time.monotonic() - began > 60 * self.max_minutes:
                     stopping = True
-                    self.echo(f"max_minutes={self.max_minutes:g} reached: no new cell starts; the {len(running)} "
-                              "running finish")
+                    self.echo(
+                        f"max_minutes={self.max_minutes:g} reached: no new cell starts; the {len(running)} "
+                        "running finish"
+                    )
                 if stopping:
                     waiting = []
                 for cell in list(waiting):
@@ -968,8 +1164,10 @@ class Scheduler:
                 if running:
                     time.sleep(0.2)
         except KeyboardInterrupt:
-            self.echo(f"reproduce: stopping: {len(running)} running cell(s) asked to stop (training writes a "
-                      "checkpoint; an evaluation stops and is run again next time)")
+            self.echo(
+                f"reproduce: stopping: {len(running)} running cell(s) asked to stop (training writes a "
+                "checkpoint; an evaluation stops and is run again next time)"
+            )
             for job in running:
                 if self._reap(job) is None:
                     job.proc.send_signal(signal.SIGINT)
@@ -987,8 +1185,10 @@ class Scheduler:
             if bar is not None:
                 bar.close()
         if blocked:
-            self.echo("not started (a cell they need failed or was not selected, and its files are missing): "
-                      + ", ".join(blocked))
+            self.echo(
+                "not started (a cell they need failed or was not selected, and its files are missing): "
+                + ", ".join(blocked)
+            )
         not_started = len(selected) - len(finished) - len(failed)  # todo and the evaluations made again
         if not_started:
             self.echo(f"{not_started} cell(s) not started (max_minutes); the same command continues")

@@ -97,11 +97,15 @@ def _check_same_run(state: dict, cfg: DictConfig, plan: list) -> list[str]:
     wrong = {k: v for k, v in expected.items() if v[0] != v[1]}
     if wrong:
         detail = "; ".join(f"{k}: checkpoint {a}, now {b}" for k, (a, b) in wrong.items())
-        raise OtherExperiment(f"cannot resume: the checkpoint belongs to another experiment ({detail}); nothing "
-                              "was changed")
+        raise OtherExperiment(
+            f"cannot resume: the checkpoint belongs to another experiment ({detail}); nothing was changed"
+        )
     now, before = flat_hparams(cfg), flat_hparams(OmegaConf.create(saved))
-    return sorted(k for k in now.keys() | before.keys()
-                  if k not in ("resume", "start_over") and not k.startswith("stages") and now.get(k) != before.get(k))
+    return sorted(
+        k
+        for k in now.keys() | before.keys()
+        if k not in ("resume", "start_over") and not k.startswith("stages") and now.get(k) != before.get(k)
+    )
 
 
 # ------------------------------------------------------------------------------------------------ run directory
@@ -146,21 +150,35 @@ def _decide(cfg: DictConfig, run_dir: Path, plan: list) -> tuple[dict | None, li
         raise RunRefused("resume=true and start_over=true contradict each other: choose one")
     contents = run_contents(run_dir)
     has_checkpoint = any(name in contents for name in (CHECKPOINT, PREVIOUS))
-    start_over = ("start_over=true moves it aside (to a hidden folder beside it, which reports skip) and trains from "
-                  "zero; or choose another run.name / run.root")
+    start_over = (
+        "start_over=true moves it aside (to a hidden folder beside it, which reports skip) and trains from "
+        "zero; or choose another run.name / run.root"
+    )
     if cfg.get("start_over"):
         if not contents:
             return None, [(logging.INFO, f"start_over=true: {run_dir} holds no run; starting from zero")], None
         target = _aside(run_dir)
-        return None, [(logging.WARNING, f"start_over=true: the run that was in {run_dir} ({', '.join(contents)}) "
-                                        f"is now in {target}; starting from zero")], target
+        return (
+            None,
+            [
+                (
+                    logging.WARNING,
+                    f"start_over=true: the run that was in {run_dir} ({', '.join(contents)}) "
+                    f"is now in {target}; starting from zero",
+                )
+            ],
+            target,
+        )
     if not cfg.resume:
         if has_checkpoint:
-            raise RunExists(f"{run_dir} already holds a run (checkpoint.pt); nothing was changed. resume=true "
-                            f"continues it; {start_over}")
+            raise RunExists(
+                f"{run_dir} already holds a run (checkpoint.pt); nothing was changed. resume=true "
+                f"continues it; {start_over}"
+            )
         if contents:
-            raise RunExists(f"{run_dir} already holds a run's results ({', '.join(contents)}); nothing was "
-                            f"changed. {start_over}")
+            raise RunExists(
+                f"{run_dir} already holds a run's results ({', '.join(contents)}); nothing was changed. {start_over}"
+            )
         return None, [], None
     if has_checkpoint:
         try:
@@ -172,20 +190,36 @@ def _decide(cfg: DictConfig, run_dir: Path, plan: list) -> tuple[dict | None, li
         changed = _check_same_run(state, cfg, plan)
         notes = [(logging.WARNING, note)] if note else []  # a damaged latest checkpoint: said once the run goes on
         # "resuming ... env step <digits>": scripts/bench_train.py finds a run's sessions by it in train.log
-        notes.append((logging.INFO, f"resuming {run_dir} from {path.name} at stage {state['stage']} "
-                                    f"({state['level']}), env step {state['counters']['steps']}"))
+        notes.append(
+            (
+                logging.INFO,
+                f"resuming {run_dir} from {path.name} at stage {state['stage']} "
+                f"({state['level']}), env step {state['counters']['steps']}",
+            )
+        )
         if changed:
             notes.append((logging.WARNING, "resuming with changed settings in: " + ", ".join(changed)))
         return state, notes, None
     if not contents:
         return None, [(logging.WARNING, f"resume=true: {run_dir} holds no checkpoint yet: starting from zero")], None
     if any(name.startswith("model-") for name in contents):
-        raise RunExists(f"cannot resume {run_dir}: it holds a trained run's results ({', '.join(contents)}) but "
-                        f"no checkpoint (checkpoint.pt was deleted or lost); nothing was changed. {start_over}")
+        raise RunExists(
+            f"cannot resume {run_dir}: it holds a trained run's results ({', '.join(contents)}) but "
+            f"no checkpoint (checkpoint.pt was deleted or lost); nothing was changed. {start_over}"
+        )
     # a run stopped before its first checkpoint: nothing to continue, and nothing finished to keep in place
     target = _aside(run_dir)
-    return None, [(logging.WARNING, f"resume=true: {run_dir} stopped before its first checkpoint, so it starts from "
-                                    f"zero; what it had written ({', '.join(contents)}) is now in {target}")], target
+    return (
+        None,
+        [
+            (
+                logging.WARNING,
+                f"resume=true: {run_dir} stopped before its first checkpoint, so it starts from "
+                f"zero; what it had written ({', '.join(contents)}) is now in {target}",
+            )
+        ],
+        target,
+    )
 
 
 def _write_records(run_dir: Path, records: Mapping[str, Any] | None, resumed: bool) -> None:
@@ -240,8 +274,9 @@ class StopRequest:
     def request(self) -> None:
         if not self.event.is_set():
             self.event.set()
-            log.warning("Ctrl-C: stopping after %s, then writing a checkpoint (Ctrl-C again to stop at once)",
-                        self.wait())
+            log.warning(
+                "Ctrl-C: stopping after %s, then writing a checkpoint (Ctrl-C again to stop at once)", self.wait()
+            )
 
     def handler(self, signum, frame) -> None:
         self._handled += 1
@@ -274,8 +309,10 @@ def stopped_at_once(run_dir: Path) -> str:
     latest = run_dir / CHECKPOINT
     if latest.exists():
         return f"stopped at once: no new checkpoint; the same command with resume=true continues from the last one, {latest}"
-    return (f"stopped at once, before the first checkpoint: there is no checkpoint to continue from; the same command "
-            f"with start_over=true starts {run_dir} again from zero")
+    return (
+        f"stopped at once, before the first checkpoint: there is no checkpoint to continue from; the same command "
+        f"with start_over=true starts {run_dir} again from zero"
+    )
 
 
 @contextmanager
@@ -365,9 +402,18 @@ def _train(cfg: DictConfig, run_dir: Path, records: Mapping[str, Any] | None, st
         if state is None:
             logger.log_hparams(flat_hparams(cfg))
         weights = None
-        for stage in plan[state["stage"] if state else 0:]:
-            run = Run(cfg, run_dir, stage, algo, logger, resume=state, init_weights=weights,
-                      fresh_logs=state is None and stage.index == 0, stop_requested=stop.is_set)
+        for stage in plan[state["stage"] if state else 0 :]:
+            run = Run(
+                cfg,
+                run_dir,
+                stage,
+                algo,
+                logger,
+                resume=state,
+                init_weights=weights,
+                fresh_logs=state is None and stage.index == 0,
+                stop_requested=stop.is_set,
+            )
             stop.wait = run.stop_wait
             try:
                 algo.train(run)
@@ -397,15 +443,22 @@ def summary(cfg: DictConfig, run_dir: Path) -> str:
         final = [r for r in rows if (r["env_steps"], r["stage"]) == (last["env_steps"], last["stage"])]
         steps = [int(r["steps"]) for r in final]
         ends = ", ".join(f"{name} {n}" for name, n in Counter(r["end_type"] for r in final).most_common())
-        acting = ("actions sampled from the policy" if last.get("acting", "").startswith("sample")
-                  else "the policy's most likely actions")
-        lines.append(f"final evaluation on {last['level']} at env step {int(last['env_steps']):,} ({last['worlds']} "
-                     f"worlds): mean survival {sum(steps) / len(steps):.0f} steps over {len(steps)} episodes (min "
-                     f"{min(steps)}, max {max(steps)}; {acting}; ended by {ends})")
+        acting = (
+            "actions sampled from the policy"
+            if last.get("acting", "").startswith("sample")
+            else "the policy's most likely actions"
+        )
+        lines.append(
+            f"final evaluation on {last['level']} at env step {int(last['env_steps']):,} ({last['worlds']} "
+            f"worlds): mean survival {sum(steps) / len(steps):.0f} steps over {len(steps)} episodes (min "
+            f"{min(steps)}, max {max(steps)}; {acting}; ended by {ends})"
+        )
         model = run_dir / f"model-{last['stage']}-{last['level']}.pt"
         if model.exists():
-            lines.append(f"final model: {model} (python scripts/evaluate.py policy={model} levels=[{last['level']}] "
-                         f"evaluates it on the test worlds)")
+            lines.append(
+                f"final model: {model} (python scripts/evaluate.py policy={model} levels=[{last['level']}] "
+                f"evaluates it on the test worlds)"
+            )
     else:
         lines.append("no evaluation was made (eval.every=0)")
     return "\n".join(lines)

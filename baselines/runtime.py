@@ -63,8 +63,22 @@ TRAINING_INFO = ("step_count", "end_type", *EV_NAMES, "food_eaten", "water_eaten
 #: Columns of ``eval.csv``: one row per episode of every periodic evaluation, on the run's validation worlds
 #: (``worlds``), acting as ``acting`` says (:func:`~.evaluation.acting_mode`).  Files written before held one row per
 #: evaluation (``episodes, survival_mean, survival_min, survival_max, return_mean, end_types``): reports read both.
-EVAL_COLUMNS = ("env_steps", "stage", "level", "worlds", "acting", "episode", "steps", "return", "end_type",
-                "food_eaten", "water_eaten", "collisions", "damage_taken", "wall_time")
+EVAL_COLUMNS = (
+    "env_steps",
+    "stage",
+    "level",
+    "worlds",
+    "acting",
+    "episode",
+    "steps",
+    "return",
+    "end_type",
+    "food_eaten",
+    "water_eaten",
+    "collisions",
+    "damage_taken",
+    "wall_time",
+)
 
 
 class Interrupted(KeyboardInterrupt):
@@ -89,8 +103,10 @@ def resolve_device(spec: str | torch.device) -> torch.device:
         raise DeviceError(f"device={spec}: not a device; allowed: auto, cpu, cuda, cuda:N")
     if not torch.cuda.is_available():
         build = f"CUDA {torch.version.cuda}" if torch.version.cuda else "without CUDA"
-        raise DeviceError(f"device={spec}: no CUDA device is available here (torch {torch.__version__}, built "
-                          f"{build}); use device=cpu or device=auto")
+        raise DeviceError(
+            f"device={spec}: no CUDA device is available here (torch {torch.__version__}, built "
+            f"{build}); use device=cpu or device=auto"
+        )
     index, count = int(match.group(1) or 0), torch.cuda.device_count()
     if index >= count:
         raise DeviceError(f"device={spec}: this machine has {count} CUDA device(s): cuda:0 to cuda:{count - 1}")
@@ -190,8 +206,12 @@ class Progress:
         now = time.perf_counter() if now is None else now
         elapsed = max(now - self.last, 0.0)
         decay = math.exp(-elapsed / self.window)
-        increments = {"seconds": elapsed, "steps": steps - self.steps, "update_seconds": min(update_seconds, elapsed),
-                      "updates": updates}
+        increments = {
+            "seconds": elapsed,
+            "steps": steps - self.steps,
+            "update_seconds": min(update_seconds, elapsed),
+            "updates": updates,
+        }
         for key, value in increments.items():
             self.sums[key] = self.sums[key] * decay + value
         self.last, self.steps = now, steps
@@ -299,9 +319,11 @@ def _refuse_old_eval_csv(path: Path) -> None:
         with open(path, newline="") as f:
             header = next(csv.reader(f), [])
         if header and tuple(header) != EVAL_COLUMNS:
-            raise ValueError(f"{path} holds one row per evaluation (written by an earlier evaaa), and this version "
-                             f"writes one row per episode on validation worlds: finish that run with the version "
-                             f"that began it, or train it again (start_over=true keeps the old run aside)")
+            raise ValueError(
+                f"{path} holds one row per evaluation (written by an earlier evaaa), and this version "
+                f"writes one row per episode on validation worlds: finish that run with the version "
+                f"that began it, or train it again (start_over=true keeps the old run aside)"
+            )
 
 
 class Counters(dict):
@@ -334,9 +356,19 @@ class Run:
         stop_requested: asked at the end of every iteration; true: checkpoint now and raise :class:`Interrupted`.
     """
 
-    def __init__(self, cfg: DictConfig, run_dir: Path, stage: Stage, algo: ModuleType, logger: Logger, *,
-                 resume: dict | None = None, init_weights: Mapping | None = None, fresh_logs: bool = False,
-                 stop_requested: Callable[[], bool] | None = None):
+    def __init__(
+        self,
+        cfg: DictConfig,
+        run_dir: Path,
+        stage: Stage,
+        algo: ModuleType,
+        logger: Logger,
+        *,
+        resume: dict | None = None,
+        init_weights: Mapping | None = None,
+        fresh_logs: bool = False,
+        stop_requested: Callable[[], bool] | None = None,
+    ):
         self.cfg, self.dir, self.stage, self.algo, self.logger = cfg, Path(run_dir), stage, algo, logger
         self.stop_requested = stop_requested or (lambda: False)
         #: where the networks, losses, optimisers and replay live (the worlds stay on the CPU)
@@ -344,8 +376,14 @@ class Run:
         self.resume_state, self.init_weights = resume, init_weights
         self.obs_keys = observation_keys(cfg)
         self.overrides = env_overrides(cfg)
-        self.base_env = evaaa.make_env(stage.level, num_envs=cfg.env.num_envs, seed=cfg.seed + stage.index,
-                                       modalities=self.obs_keys, info=TRAINING_INFO, **self.overrides)
+        self.base_env = evaaa.make_env(
+            stage.level,
+            num_envs=cfg.env.num_envs,
+            seed=cfg.seed + stage.index,
+            modalities=self.obs_keys,
+            info=TRAINING_INFO,
+            **self.overrides,
+        )
         #: per-world shapes of the enabled observation keys, before any frame stacking
         self.obs_shapes = {k: tuple(self.base_env.observation_spec[k].shape[1:]) for k in self.obs_keys}
         self.counters = Counters(steps=0, episodes=0, logged=0, last_end=0)
@@ -355,8 +393,9 @@ class Run:
         self.last_eval: float | None = None
         self.best_eval: float | None = None
         offsets = resume["logs"] if resume else {}
-        self.episodes_csv = CsvLog(self.dir / "episodes.csv", TRAINING_EPISODE_FIELDS,
-                                   0 if fresh_logs else offsets.get("episodes_csv"))
+        self.episodes_csv = CsvLog(
+            self.dir / "episodes.csv", TRAINING_EPISODE_FIELDS, 0 if fresh_logs else offsets.get("episodes_csv")
+        )
         if not fresh_logs:
             _refuse_old_eval_csv(self.dir / "eval.csv")
         self.eval_csv = CsvLog(self.dir / "eval.csv", EVAL_COLUMNS, 0 if fresh_logs else offsets.get("eval_csv"))
@@ -428,16 +467,29 @@ class Run:
             if self.init_weights is not None:
                 model.load_state_dict(self.init_weights)
             td = self.env.reset()
-        log.info("%s on %s: %s parameters on %s (bf16 autocast %s, compile %s), %d worlds on the CPU, %s",
-                 self.cfg.algo.name, self.stage.level, f"{parameter_count(model):,}", self.device,
-                 "on" if self.cfg.get("bf16") else "off", "on" if self.cfg.get("compile") else "off",
-                 self.base_env.num_envs, self.budget_text())
+        log.info(
+            "%s on %s: %s parameters on %s (bf16 autocast %s, compile %s), %d worlds on the CPU, %s",
+            self.cfg.algo.name,
+            self.stage.level,
+            f"{parameter_count(model):,}",
+            self.device,
+            "on" if self.cfg.get("bf16") else "off",
+            "on" if self.cfg.get("compile") else "off",
+            self.base_env.num_envs,
+            self.budget_text(),
+        )
         # the bar's own rate and ETA (tqdm's) are left out: they follow the last few updates of the bar and swing
         # with the loop's phases; Progress gives smoothed ones.  disable=None: no bar where the output is not a
         # terminal (a file or a pipe would get one line per refresh)
-        self.progress = tqdm(total=self.stage.budget, initial=self.steps, unit="step", dynamic_ncols=True,
-                             desc=self._desc(), disable=None if self.cfg.progress else True,
-                             bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]")
+        self.progress = tqdm(
+            total=self.stage.budget,
+            initial=self.steps,
+            unit="step",
+            dynamic_ncols=True,
+            desc=self._desc(),
+            disable=None if self.cfg.progress else True,
+            bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]",
+        )
         self._estimated = False
         self._session = (time.perf_counter(), self.steps)
         self._clock_start = (self._session[0], time.process_time())
@@ -455,8 +507,10 @@ class Run:
         text = f"{self.stage.budget:,} env steps"
         if self.trained_steps != self.stage.budget:
             size, how = self.iteration
-            text += (f" asked: {self.trained_steps:,} trained, as the stage ends with the iteration that reaches "
-                     f"its budget and one iteration is {size:,} env steps ({how})")
+            text += (
+                f" asked: {self.trained_steps:,} trained, as the stage ends with the iteration that reaches "
+                f"its budget and one iteration is {size:,} env steps ({how})"
+            )
         return text
 
     def _estimate(self) -> None:
@@ -476,9 +530,18 @@ class Run:
         speed = f"{_rate(self.meter.env_rate)} env steps/s"
         if self.meter.sums["updates"] > 0:
             speed += f", {self.meter.seconds_per_update:.3g} s per gradient step"
-        log.info("time estimate for %s on %s: %s more for the %s env steps (%s done), from this run's speed over "
-                 "its first %.0f s here (%s)%s", self.cfg.algo.name, self.stage.level, _about(left),
-                 f"{self.trained_steps:,}", f"{self.steps:,}", elapsed, speed, capped)
+        log.info(
+            "time estimate for %s on %s: %s more for the %s env steps (%s done), from this run's speed over "
+            "its first %.0f s here (%s)%s",
+            self.cfg.algo.name,
+            self.stage.level,
+            _about(left),
+            f"{self.trained_steps:,}",
+            f"{self.steps:,}",
+            elapsed,
+            speed,
+            capped,
+        )
 
     def acting(self, policy: TensorDictModuleBase) -> OnDevice:
         """``policy`` (on :attr:`device`) acting on the CPU worlds' tensordicts."""
@@ -525,8 +588,9 @@ class Run:
         self.progress.update(n)
         return out, td
 
-    def collect(self, policy: TensorDictModuleBase, td: TensorDictBase,
-                steps: int) -> tuple[TensorDictBase, TensorDictBase]:
+    def collect(
+        self, policy: TensorDictModuleBase, td: TensorDictBase, steps: int
+    ) -> tuple[TensorDictBase, TensorDictBase]:
         """``steps`` env steps in every world: the transitions as ``[num_envs, steps]``, and the next tensordict."""
         transitions = []
         for _ in range(steps):
@@ -539,8 +603,11 @@ class Run:
         for world in done.nonzero().flatten().tolist():
             self.counters["episodes"] += 1
             row = {
-                "env_steps": self.steps, "stage": self.stage.index, "level": self.stage.level,
-                "episode": self.counters["episodes"], "world": world,
+                "env_steps": self.steps,
+                "stage": self.stage.index,
+                "level": self.stage.level,
+                "episode": self.counters["episodes"],
+                "world": world,
                 "steps": int(info["step_count"][world]),
                 "return": float(nxt["episode_reward"][world]),
                 "end_type": END_TYPES[int(info["end_type"][world])],
@@ -548,12 +615,16 @@ class Run:
                 "wall_time": _now(),
             }
             self.episodes_csv.write(row)
-            self.logger.log_metrics({
-                "episode/survival_steps": row["steps"], "episode/return": row["return"],
-                **{f"episode/{ev}": row[f"final_{ev}"] for ev in EV_NAMES},
-                # one 0/1 series per end type: its running mean is how often episodes end that way
-                **{f"episode/end/{name}": float(name == row["end_type"]) for name in END_TYPES[1:]},
-            }, step=self.steps)
+            self.logger.log_metrics(
+                {
+                    "episode/survival_steps": row["steps"],
+                    "episode/return": row["return"],
+                    **{f"episode/{ev}": row[f"final_{ev}"] for ev in EV_NAMES},
+                    # one 0/1 series per end type: its running mean is how often episodes end that way
+                    **{f"episode/end/{name}": float(name == row["end_type"]) for name in END_TYPES[1:]},
+                },
+                step=self.steps,
+            )
             self.recent.append(row["steps"])
 
     # -------------------------------------------------------------------------------------------- bookkeeping
@@ -592,8 +663,10 @@ class Run:
         if crossed(self.cfg.eval.every) or (self.done and self.cfg.eval.every > 0):
             self.evaluate()
         if self.done:
-            save_checkpoint(self._identity() | {"model": self.model.state_dict(), "env_steps": now,
-                                                "time": self._time()}, self.model_path)
+            save_checkpoint(
+                self._identity() | {"model": self.model.state_dict(), "env_steps": now, "time": self._time()},
+                self.model_path,
+            )
         stop = self.stop_requested()
         if crossed(self.cfg.checkpoint.every) or self.done or stop:
             self._checkpoint(td)
@@ -608,8 +681,10 @@ class Run:
         self._interrupted()
 
     def _interrupted(self) -> None:
-        raise Interrupted(f"interrupted at env step {self.steps:,} of {self.stage.level}: checkpoint written to "
-                          f"{self.dir / CHECKPOINT}; the same command with resume=true continues from it")
+        raise Interrupted(
+            f"interrupted at env step {self.steps:,} of {self.stage.level}: checkpoint written to "
+            f"{self.dir / CHECKPOINT}; the same command with resume=true continues from it"
+        )
 
     def stop_wait(self) -> str:
         """What a first Ctrl-C waits for, in words, with how long it takes here when that is known."""
@@ -635,8 +710,14 @@ class Run:
         worlds every time (:mod:`evaaa.worlds`: never a training world, never a test world); one row per episode in
         ``eval.csv``, and ``model-best-*.pt`` when their mean survival is the best so far."""
         if self._eval_env is None:
-            base = evaaa.make_env(self.stage.level, num_envs=self.cfg.eval.episodes, modalities=self.obs_keys,
-                                  info=EVALUATION_INFO, worlds="validation", **self.overrides)
+            base = evaaa.make_env(
+                self.stage.level,
+                num_envs=self.cfg.eval.episodes,
+                modalities=self.obs_keys,
+                info=EVALUATION_INFO,
+                worlds="validation",
+                **self.overrides,
+            )
             self._eval_env = wrap_env(base, self.algo.make_transforms(self.cfg.algo, self.obs_keys, self.model))
         seed = self.cfg.seed
         self._eval_env.set_seed(seed, static_seed=True)
@@ -648,14 +729,28 @@ class Run:
         self.last_eval = result.survival_mean
         if self.best_eval is None or result.survival_mean > self.best_eval:
             self.best_eval = result.survival_mean
-            save_checkpoint(self._identity() | {"model": self.model.state_dict(), "env_steps": self.steps,
-                                            "eval_survival_mean": result.survival_mean}, self.best_model_path)
-        common = {"env_steps": self.steps, "stage": self.stage.index, "level": self.stage.level,
-                  "worlds": "validation", "acting": acting_mode(self.cfg.algo.name, sample), "wall_time": _now()}
+            save_checkpoint(
+                self._identity()
+                | {
+                    "model": self.model.state_dict(),
+                    "env_steps": self.steps,
+                    "eval_survival_mean": result.survival_mean,
+                },
+                self.best_model_path,
+            )
+        common = {
+            "env_steps": self.steps,
+            "stage": self.stage.index,
+            "level": self.stage.level,
+            "worlds": "validation",
+            "acting": acting_mode(self.cfg.algo.name, sample),
+            "wall_time": _now(),
+        }
         for row in result.rows:
             self.eval_csv.write({k: row[k] for k in EVAL_COLUMNS if k in row} | common)
-        self.logger.log_metrics({"eval/survival_mean": result.survival_mean, "eval/return_mean": result.return_mean},
-                                step=self.steps)
+        self.logger.log_metrics(
+            {"eval/survival_mean": result.survival_mean, "eval/return_mean": result.return_mean}, step=self.steps
+        )
         self._show(force=True)
 
     def status(self) -> str:
@@ -717,9 +812,14 @@ class Run:
             "counters": self.counters.state_dict(),
             "time": self._time(),
             "rng": rng_state(),
-            "logs": {"episodes_csv": self.episodes_csv.size(), "eval_csv": self.eval_csv.size(),
-                     "logger": self.logger.state_dict(), "recent": list(self.recent), "last_eval": self.last_eval,
-                     "best_eval": self.best_eval},
+            "logs": {
+                "episodes_csv": self.episodes_csv.size(),
+                "eval_csv": self.eval_csv.size(),
+                "logger": self.logger.state_dict(),
+                "recent": list(self.recent),
+                "last_eval": self.last_eval,
+                "best_eval": self.best_eval,
+            },
         }
         save_checkpoint(state, self.dir / CHECKPOINT, keep_previous=True)
 
@@ -727,9 +827,11 @@ class Run:
         self.model.load_state_dict(state["model"])
         missing = sorted(set(self.components) - set(state["components"]))
         if missing:  # e.g. a PPO run made before algo.normalize_reward was on by default
-            raise ValueError(f"the checkpoint in {self.dir} holds no state for {', '.join(missing)}: it was made with "
-                             "settings that did not use it; resume with the run's own settings (for PPO's "
-                             "return_scale: algo.normalize_reward=false)")
+            raise ValueError(
+                f"the checkpoint in {self.dir} holds no state for {', '.join(missing)}: it was made with "
+                "settings that did not use it; resume with the run's own settings (for PPO's "
+                "return_scale: algo.normalize_reward=false)"
+            )
         for name, component in self.components.items():
             component.load_state_dict(state["components"][name])
         self.env.reset()  # materialises the frame-stack buffers (lazy until the first reset) so they can be loaded
@@ -748,11 +850,21 @@ class Run:
         if self.progress is not None:
             self.progress.close()
             if self.steps > self._session[1]:
-                asked = (f" ({self.stage.budget:,} asked, in whole iterations of {self.iteration[0]:,})"
-                         if self.steps != self.stage.budget and self.steps >= self.stage.budget else "")
-                log.info("%s on %s: %s env steps%s, %.3g env steps/s this session, %s gradient steps, %s",
-                         self.cfg.algo.name, self.stage.level, f"{self.steps:,}", asked, self.steps_per_second(),
-                         f"{self.updates:,}", _duration(time.perf_counter() - self._session[0]))
+                asked = (
+                    f" ({self.stage.budget:,} asked, in whole iterations of {self.iteration[0]:,})"
+                    if self.steps != self.stage.budget and self.steps >= self.stage.budget
+                    else ""
+                )
+                log.info(
+                    "%s on %s: %s env steps%s, %.3g env steps/s this session, %s gradient steps, %s",
+                    self.cfg.algo.name,
+                    self.stage.level,
+                    f"{self.steps:,}",
+                    asked,
+                    self.steps_per_second(),
+                    f"{self.updates:,}",
+                    _duration(time.perf_counter() - self._session[0]),
+                )
         self.episodes_csv.close()
         self.eval_csv.close()
         # close explicitly: an evaaa env collected later, while another env's GL context is current, frees its

@@ -47,7 +47,6 @@ __all__ = [
 ]
 
 
-
 def _mujoco_warning(message: str) -> None:
     logging.getLogger("mujoco").warning("MuJoCo: %s", message.strip())
 

@@ -94,13 +94,15 @@ class MotionPlanner:
             dst_cell = idx[:, 0] * gy + idx[:, 1]
             ok = inside & free[dst_cell]
             for frac in (0.5, 0.75):  # the way itself must be free
-                mid = np.clip(np.floor((centres + frac * move - grid.origin) / grid.cell).astype(int), 0,
-                              np.array(grid.shape) - 1)
+                mid = np.clip(
+                    np.floor((centres + frac * move - grid.origin) / grid.cell).astype(int), 0, np.array(grid.shape) - 1
+                )
                 ok &= free[mid[:, 0] * gy + mid[:, 1]]
             src = node[np.flatnonzero(ok), k]
             rows.append(src), cols.append(node[dst_cell[ok], k]), wts.append(weight[dst_cell[ok]])
-        self.graph = sp.coo_matrix((np.concatenate(wts), (np.concatenate(rows), np.concatenate(cols))),
-                                   shape=(n, n)).tocsr()
+        self.graph = sp.coo_matrix(
+            (np.concatenate(wts), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)
+        ).tocsr()
         self.reverse = self.graph.T.tocsr()
         self.centres = centres
         self._cost_to_go: dict = {}
@@ -150,8 +152,9 @@ class OracleAgent:
             if sim.steps[w] == 0 or self._grids[w] is None:
                 self._current[w] = None
                 self._grids[w], heat = self._grid(sim, w)
-                self._planners[w] = MotionPlanner(self._grids[w], sim.heading_rad[w],
-                                                  math.radians(sim.level.agent.turn_degrees), heat)
+                self._planners[w] = MotionPlanner(
+                    self._grids[w], sim.heading_rad[w], math.radians(sim.level.agent.turn_degrees), heat
+                )
 
     @staticmethod
     def _grid(sim: World, w: int) -> NavGrid:

@@ -112,7 +112,7 @@ class DayNight:
         dn = self.spec
         if dn.enabled:
             state.sun_angle[w] = rng.uniform(0.0, 360.0) if dn.random_start else dn.start_angle % 360.0
-        state.field_offset[w] = self.temperature_offset(state.sun_angle[w: w + 1])[0]
+        state.field_offset[w] = self.temperature_offset(state.sun_angle[w : w + 1])[0]
 
     def advance(self, state: WorldState) -> None:
         """The sun moves on by one decision and the floor's offset follows it."""
@@ -145,8 +145,9 @@ class DayNight:
         # exponential-squared fog of this density hides ~95% at sqrt(3)/density; MuJoCo's fog is linear
         fog_end = np.where(density > 0, np.sqrt(3.0) / np.maximum(density, 1e-9), 0.0)
         far = dn.day_far + (dn.night_far - dn.day_far) * haze
-        self.light_plan = list(zip(dark.tolist(), direction.tolist(), (0.6 * strength).tolist(),
-                                   fog_end.tolist(), far.tolist()))
+        self.light_plan = list(
+            zip(dark.tolist(), direction.tolist(), (0.6 * strength).tolist(), fog_end.tolist(), far.tolist())
+        )
 
     def light_world(self, row: int, scene: mujoco.MjvScene, context: mujoco.MjrContext) -> None:
         """Set the sun, the sky and the fog of the ``row``-th world being drawn (worlds share one model)."""

@@ -45,8 +45,9 @@ OBSTACLE_KINDS: dict[str, Kind] = {
     "block": Kind("block", "box", (1.0, 1.0, 1.0), (0.7, 0.7, 0.72, 1.0), True),
     "bush": Kind("bush", "ellipsoid", (0.72, 0.73, 1.43), (0.2, 0.45, 0.15, 1.0), True),
     "rock": Kind("rock", "dome", (3.8, 3.5, 2.0), (0.45, 0.44, 0.42, 1.0), True),
-    "bonfire": Kind("bonfire", "cylinder", (1.5, 1.5, 0.63), (0.95, 0.42, 0.08, 1.0), True,
-                    footprint=(1.48 / 1.5, 1.0)),
+    "bonfire": Kind(
+        "bonfire", "cylinder", (1.5, 1.5, 0.63), (0.95, 0.42, 0.08, 1.0), True, footprint=(1.48 / 1.5, 1.0)
+    ),
     "tree": Kind("tree", "box", (0.48, 0.49, 14.45), (0.4, 0.26, 0.13, 1.0), True),
     "rockwall": Kind("rockwall", "box", (0.1198, 0.016, 0.0369), (0.52, 0.48, 0.42, 1.0), True),
 }

@@ -103,8 +103,9 @@ class EvaaaEnv(EnvBase):
             if dtype == np.uint8:
                 obs[key] = Bounded(0, 255, shape=(n, *shape), dtype=torch.uint8, device=self.device)
             elif bounds[key] is not None:
-                obs[key] = Bounded(*bounds[key], shape=(n, *shape), dtype=_TORCH_DTYPE[np.dtype(dtype)],
-                                   device=self.device)
+                obs[key] = Bounded(
+                    *bounds[key], shape=(n, *shape), dtype=_TORCH_DTYPE[np.dtype(dtype)], device=self.device
+                )
             else:
                 obs[key] = Unbounded(shape=(n, *shape), dtype=_TORCH_DTYPE[np.dtype(dtype)], device=self.device)
         info = {}
@@ -120,8 +121,9 @@ class EvaaaEnv(EnvBase):
         self.action_spec = Categorical(NUM_ACTIONS, shape=(n,), dtype=torch.int64, device=self.device)
         self.reward_spec = Unbounded(shape=(n, 1), dtype=torch.float32, device=self.device)
         done = Categorical(2, shape=(n, 1), dtype=torch.bool, device=self.device)
-        self.done_spec = Composite(done=done.clone(), terminated=done.clone(), truncated=done.clone(),
-                                   shape=(n,), device=self.device)
+        self.done_spec = Composite(
+            done=done.clone(), terminated=done.clone(), truncated=done.clone(), shape=(n,), device=self.device
+        )
 
     # ---------------------------------------------------------------------------------------------- plumbing
     def _to_td(self, obs: dict[str, np.ndarray], info: dict[str, np.ndarray], extra: dict[str, torch.Tensor]):
@@ -142,8 +144,7 @@ class EvaaaEnv(EnvBase):
     def _check_open(self) -> None:
         # a closed env has freed its renderer; bringing it back silently would hide a use-after-close bug
         if self.__dict__.get("is_closed", False):
-            raise RuntimeError(f"this EvaaaEnv ({self.level.name}) was closed; make a new one with "
-                               "evaaa.make_env(...)")
+            raise RuntimeError(f"this EvaaaEnv ({self.level.name}) was closed; make a new one with evaaa.make_env(...)")
 
     def _action(self, tensordict: TensorDictBase) -> np.ndarray:
         """The ``"action"`` entry as one integer per world, or a clear error."""
@@ -161,16 +162,20 @@ class EvaaaEnv(EnvBase):
         if action.dtype.is_floating_point:
             return f"action must be {allowed}; got dtype {action.dtype}"
         if action.numel() == n * NUM_ACTIONS and action.shape[-1] == NUM_ACTIONS:
-            return (f"action has shape {tuple(action.shape)}, like a one-hot encoding; this env takes {allowed} "
-                    "(for a one-hot tensor, pass action.argmax(-1))")
+            return (
+                f"action has shape {tuple(action.shape)}, like a one-hot encoding; this env takes {allowed} "
+                "(for a one-hot tensor, pass action.argmax(-1))"
+            )
         return f"action must be {allowed}; got shape {tuple(action.shape)}"
 
     def extra_repr(self) -> str:
         # what repr(env) shows between the parentheses (EnvBase is an nn.Module)
         info = "all" if len(self._info_keys) == len(INFO_FIELDS) else list(self._info_keys) or False
-        return (f"level={self.level.name!r}, num_envs={self.num_envs}, modalities={list(self.sim.modalities)}, "
-                f"info={info}, device={self.device}, seed={self._seed_value}, worlds={self.worlds}, "
-                f"threads={self.sim.threads}")
+        return (
+            f"level={self.level.name!r}, num_envs={self.num_envs}, modalities={list(self.sim.modalities)}, "
+            f"info={info}, device={self.device}, seed={self._seed_value}, worlds={self.worlds}, "
+            f"threads={self.sim.threads}"
+        )
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         self._check_open()
@@ -181,20 +186,25 @@ class EvaaaEnv(EnvBase):
                 mask = reset.reshape(self.num_envs).cpu().numpy()
         obs = self.sim.reset(mask)
         false = torch.zeros((self.num_envs, 1), dtype=torch.bool)
-        return self._to_td(obs, self.sim.last_info, {"done": false, "terminated": false.clone(),
-                                                    "truncated": false.clone()})
+        return self._to_td(
+            obs, self.sim.last_info, {"done": false, "terminated": false.clone(), "truncated": false.clone()}
+        )
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         self._check_open()
         obs, reward, terminated, truncated, info = self.sim.step(self._action(tensordict))
         term = torch.from_numpy(terminated).unsqueeze(-1)
         trunc = torch.from_numpy(truncated).unsqueeze(-1)
-        return self._to_td(obs, info, {
-            "reward": torch.from_numpy(reward).unsqueeze(-1),
-            "done": term | trunc,
-            "terminated": term,
-            "truncated": trunc,
-        })
+        return self._to_td(
+            obs,
+            info,
+            {
+                "reward": torch.from_numpy(reward).unsqueeze(-1),
+                "done": term | trunc,
+                "terminated": term,
+                "truncated": trunc,
+            },
+        )
 
     @property
     def worlds(self) -> str:
@@ -239,8 +249,17 @@ def make_env(
     ``make_env("1-1", episode={"max_steps": 1000})``.  ``threads``, ``info``, ``worlds``: see :class:`EvaaaEnv`;
     ``make_env("1-1", seed=0, worlds="test")`` gives held-out worlds that no training run of any seed steps.
     """
-    return EvaaaEnv(name, num_envs=num_envs, seed=seed, modalities=modalities, device=device, overrides=overrides,
-                    threads=threads, info=info, worlds=worlds)
+    return EvaaaEnv(
+        name,
+        num_envs=num_envs,
+        seed=seed,
+        modalities=modalities,
+        device=device,
+        overrides=overrides,
+        threads=threads,
+        info=info,
+        worlds=worlds,
+    )
 
 
 def _info_keys(info: bool | Iterable[str]) -> tuple[str, ...]:
@@ -254,8 +273,9 @@ def _info_keys(info: bool | Iterable[str]) -> tuple[str, ...]:
     try:
         asked = set(info)
     except TypeError:
-        raise ValueError(f"info must be True, False or a list of fields of {', '.join(INFO_FIELDS)}; "
-                         f"got {info!r}") from None
+        raise ValueError(
+            f"info must be True, False or a list of fields of {', '.join(INFO_FIELDS)}; got {info!r}"
+        ) from None
     unknown = sorted(str(k) for k in asked - set(INFO_FIELDS))
     if unknown:
         raise ValueError(f"info names unknown fields {unknown}; allowed: {', '.join(INFO_FIELDS)}")

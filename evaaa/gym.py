@@ -54,11 +54,14 @@ class EvaaaGymEnv(gymnasium.Env[dict[str, np.ndarray], int]):
         self._sim_seeded = False
         self._closed = False
         bounds = {sensor.key: sensor.bounds for sensor in self.sim.sensors}
-        self.observation_space = spaces.Dict({
-            key: spaces.Box(0, 255, shape, np.uint8) if np.dtype(dtype) == np.uint8
-            else spaces.Box(*(bounds[key] or (-np.inf, np.inf)), shape, np.float32)
-            for key, (shape, dtype) in self.sim.observation_shapes.items()
-        })
+        self.observation_space = spaces.Dict(
+            {
+                key: spaces.Box(0, 255, shape, np.uint8)
+                if np.dtype(dtype) == np.uint8
+                else spaces.Box(*(bounds[key] or (-np.inf, np.inf)), shape, np.float32)
+                for key, (shape, dtype) in self.sim.observation_shapes.items()
+            }
+        )
         self.action_space = spaces.Discrete(NUM_ACTIONS)
         registered = load_level(level).episode.max_steps
         if self.level.episode.max_steps > registered:
@@ -70,8 +73,10 @@ class EvaaaGymEnv(gymnasium.Env[dict[str, np.ndarray], int]):
             )
 
     def __repr__(self) -> str:
-        return (f"EvaaaGymEnv(level={self.level.name!r}, modalities={list(self.sim.modalities)}, "
-                f"render_mode={self.render_mode!r}, max_steps={self.level.episode.max_steps})")
+        return (
+            f"EvaaaGymEnv(level={self.level.name!r}, modalities={list(self.sim.modalities)}, "
+            f"render_mode={self.render_mode!r}, max_steps={self.level.episode.max_steps})"
+        )
 
     def _check_open(self) -> None:
         # a closed env has freed its renderer; bringing it back silently would hide a use-after-close bug
@@ -133,5 +138,9 @@ def register_envs() -> None:
     for name in level_names():
         env_id = f"evaaa/{name}-v0"
         if env_id not in gymnasium.registry:
-            gymnasium.register(env_id, entry_point="evaaa.gym:EvaaaGymEnv", kwargs={"level": name},
-                               max_episode_steps=load_level(name).episode.max_steps)
+            gymnasium.register(
+                env_id,
+                entry_point="evaaa.gym:EvaaaGymEnv",
+                kwargs={"level": name},
+                max_episode_steps=load_level(name).episode.max_steps,
+            )

@@ -43,8 +43,15 @@ class ObstacleLayout:
         state.obs_xy[w], state.obs_present[w] = place_obstacles(self.pool, rng)
         hot = self.heat & state.obs_present[w]
         xy, half = state.obs_xy[w, hot], self.heat_half[hot]
-        return np.column_stack([xy[:, 0] - half[:, 0], xy[:, 0] + half[:, 0], xy[:, 1] - half[:, 1],
-                                xy[:, 1] + half[:, 1], self.pool.temperature[hot]])
+        return np.column_stack(
+            [
+                xy[:, 0] - half[:, 0],
+                xy[:, 0] + half[:, 0],
+                xy[:, 1] - half[:, 1],
+                xy[:, 1] + half[:, 1],
+                self.pool.temperature[hot],
+            ]
+        )
 
     def write(self, state: WorldState, w: int, data: mujoco.MjData) -> None:
         """Put world ``w``'s movable obstacles into its scene (absent ones parked under the floor)."""

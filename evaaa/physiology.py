@@ -89,7 +89,7 @@ class PhysiologyParams:
     clip: float | None = None
 
     @classmethod
-    def from_level(cls, level: "Level") -> "PhysiologyParams":
+    def from_level(cls, level: Level) -> PhysiologyParams:
         p, r = level.physiology, level.reward
 
         def vec(evs) -> np.ndarray:
@@ -159,8 +159,12 @@ def end_types(
     outside[:, DAMAGE] = ev[:, DAMAGE] > params.high[DAMAGE]
     # assign from lowest to highest precedence so that the highest wins
     out[steps >= max_steps] = END_MAX_STEPS
-    for column, end in ((DAMAGE, END_DAMAGE), (TEMPERATURE, END_TEMPERATURE), (HYDRATION, END_WATER),
-                        (SATIATION, END_FOOD)):
+    for column, end in (
+        (DAMAGE, END_DAMAGE),
+        (TEMPERATURE, END_TEMPERATURE),
+        (HYDRATION, END_WATER),
+        (SATIATION, END_FOOD),
+    ):
         out[outside[:, column]] = end
     if single_trial:
         out[resource_consumed] = END_RESOURCE
@@ -199,10 +203,12 @@ def _sparse(ev_before, ev_after, params, **senses) -> np.ndarray:
 def _shaped(ev_before, ev_after, params, *, odour=None, thermal=None, consumed=None, collided=None) -> np.ndarray:
     if odour is None or thermal is None or consumed is None or collided is None:
         raise ValueError("reward 'shaped' needs odour, thermal, consumed and collided")
-    return (np.asarray(odour, dtype=np.float64).sum(axis=-1) / SHAPED_ODOUR_DIVISOR
-            - np.abs(np.asarray(thermal, dtype=np.float64)).sum(axis=-1) / SHAPED_HEAT_DIVISOR
-            + SHAPED_CONSUMPTION_BONUS * np.asarray(consumed, dtype=bool)
-            - SHAPED_COLLISION_COST * np.asarray(collided, dtype=bool))
+    return (
+        np.asarray(odour, dtype=np.float64).sum(axis=-1) / SHAPED_ODOUR_DIVISOR
+        - np.abs(np.asarray(thermal, dtype=np.float64)).sum(axis=-1) / SHAPED_HEAT_DIVISOR
+        + SHAPED_CONSUMPTION_BONUS * np.asarray(consumed, dtype=bool)
+        - SHAPED_COLLISION_COST * np.asarray(collided, dtype=bool)
+    )
 
 
 #: every reward function by its name (``reward.name`` of a level)
@@ -246,8 +252,9 @@ def reward(
     """
     if params.reward not in REWARD_FUNCTIONS:  # the level schema rules this out; guards direct construction
         raise ValueError(f"reward.name must be one of {', '.join(REWARDS)}, got {params.reward!r}")
-    r = REWARD_FUNCTIONS[params.reward](ev_before, ev_after, params, odour=odour, thermal=thermal,
-                                        consumed=consumed, collided=collided)
+    r = REWARD_FUNCTIONS[params.reward](
+        ev_before, ev_after, params, odour=odour, thermal=thermal, consumed=consumed, collided=collided
+    )
     if params.action_cost and costly is not None:
         r = r - params.action_cost * np.asarray(costly, dtype=bool)
     penalised = _IS_DEATH[end]

@@ -82,16 +82,39 @@ def plot_thermal(ax, sim: Simulator, world: int = 0, *, colorbar: bool = True, f
         sel = present & (sim.pool.feeds == kind)  # apples count as food, the pond as water
         if sel.any():
             xy = sim.res_xy[world, sel]
-            ax.scatter(xy[:, 0], xy[:, 1], s=18, c=colour, marker=marker, edgecolors="white", linewidths=0.6,
-                       label=f"{name} ({int(sel.sum())})", zorder=3)
+            ax.scatter(
+                xy[:, 0],
+                xy[:, 1],
+                s=18,
+                c=colour,
+                marker=marker,
+                edgecolors="white",
+                linewidths=0.6,
+                label=f"{name} ({int(sel.sum())})",
+                zorder=3,
+            )
     x, y = sim.pos[world]
     h = float(sim.heading_rad[world])
     arrow = 0.08 * sx
-    ax.annotate("", xy=(x + arrow * math.sin(h), y + arrow * math.cos(h)), xytext=(x, y), zorder=5,
-                annotation_clip=False,  # an agent facing a wall points off the floor
-                arrowprops=dict(arrowstyle="-|>", color=AGENT_COLOUR, lw=2.0, mutation_scale=14))
-    ax.scatter([x], [y], s=90, c=[AGENT_COLOUR], marker="o", edgecolors="black", linewidths=1.2,
-               label=f"agent (heading {math.degrees(h):.0f}°)", zorder=6)
+    ax.annotate(
+        "",
+        xy=(x + arrow * math.sin(h), y + arrow * math.cos(h)),
+        xytext=(x, y),
+        zorder=5,
+        annotation_clip=False,  # an agent facing a wall points off the floor
+        arrowprops=dict(arrowstyle="-|>", color=AGENT_COLOUR, lw=2.0, mutation_scale=14),
+    )
+    ax.scatter(
+        [x],
+        [y],
+        s=90,
+        c=[AGENT_COLOUR],
+        marker="o",
+        edgecolors="black",
+        linewidths=1.2,
+        label=f"agent (heading {math.degrees(h):.0f}°)",
+        zorder=6,
+    )
     ax.set_xlim(extent[0], extent[1])
     ax.set_ylim(extent[2], extent[3])
     ax.set_xlabel("x (m, east)")
@@ -178,17 +201,23 @@ class FrameDrawer:
         eye = cv2.resize(pixels, None, fx=EYE_SCALE, fy=EYE_SCALE, interpolation=cv2.INTER_NEAREST)
         frame = np.empty((self.height, self.eye_width + PANEL_WIDTH, 3), dtype=np.uint8)
         frame[:, : self.eye_width] = cv2.cvtColor(eye, cv2.COLOR_RGB2BGR)
-        panel = frame[:, self.eye_width:]
+        panel = frame[:, self.eye_width :]
         panel[:] = BG
         font = cv2.FONT_HERSHEY_SIMPLEX
-        cv2.putText(panel, f"level {self.level}  step {step}  ep {episode}", (10, 20), font, 0.45, TEXT, 1,
-                    cv2.LINE_AA)
+        cv2.putText(panel, f"level {self.level}  step {step}  ep {episode}", (10, 20), font, 0.45, TEXT, 1, cv2.LINE_AA)
         if end is not None:
             cv2.putText(panel, f"episode end: {end}", (10, 38), font, 0.42, BAD, 1, cv2.LINE_AA)
         top, row_h = 52, (self.height - 52) // 4
         for i, name in enumerate(EV_NAMES):
-            self._bar(panel, top + i * row_h, name, float(ev[i]), float(self.low[i]), float(self.high[i]),
-                      float(self.setpoint[i]))
+            self._bar(
+                panel,
+                top + i * row_h,
+                name,
+                float(ev[i]),
+                float(self.low[i]),
+                float(self.high[i]),
+                float(self.setpoint[i]),
+            )
         return frame
 
     def _bar(self, panel, y, name, value, lo, hi, setpoint):
@@ -215,8 +244,14 @@ class FrameDrawer:
         cv2.line(panel, (px(setpoint), by0), (px(setpoint), by1), TEXT, 1)
 
 
-def plot_traces(path: Path, evs: np.ndarray, ends: list[tuple[int, str]], params: PhysiologyParams, level: str,
-                policy: str = "Random policy") -> Path:
+def plot_traces(
+    path: Path,
+    evs: np.ndarray,
+    ends: list[tuple[int, str]],
+    params: PhysiologyParams,
+    level: str,
+    policy: str = "Random policy",
+) -> Path:
     """The EVs of world 0 (T, 4) against the decision, bounds dashed, episode ends (decision, end type) as vertical
     lines; ``policy`` names what acted, in the title."""
     steps = np.arange(1, len(evs) + 1)
@@ -234,8 +269,17 @@ def plot_traces(path: Path, evs: np.ndarray, ends: list[tuple[int, str]], params
         for k, (t, why) in enumerate(ends):
             ax.axvline(t, color="crimson", lw=1.2, alpha=0.8, label="episode end" if k == 0 and i == 0 else None)
             if i == 0:
-                ax.annotate(why, (t, 1.0), xycoords=("data", "axes fraction"), xytext=(2, -10),
-                            textcoords="offset points", fontsize=7, color="crimson", rotation=90, va="top")
+                ax.annotate(
+                    why,
+                    (t, 1.0),
+                    xycoords=("data", "axes fraction"),
+                    xytext=(2, -10),
+                    textcoords="offset points",
+                    fontsize=7,
+                    color="crimson",
+                    rotation=90,
+                    va="top",
+                )
         ax.set_ylabel(name)
         ax.grid(alpha=0.25)
     axes[-1].set_xlabel("decision")

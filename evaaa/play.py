@@ -47,8 +47,7 @@ import numpy as np
 
 from .physiology import END_TYPES, EV_NAMES
 from .pictures import top_image
-from .records import (EPISODE_FIELDS, OPTIONAL_FIELDS, DiskError, EpisodeTracker, StepLog, append_rows,
-                      new_log_path)
+from .records import EPISODE_FIELDS, OPTIONAL_FIELDS, DiskError, EpisodeTracker, StepLog, append_rows, new_log_path
 from .sim import ACTION_NAMES, NUM_ACTIONS, Simulator
 from .spec import Level, LevelError, excerpt, level_names, load_level, register_level, registered_levels
 
@@ -73,8 +72,13 @@ MAX_REQUESTS = 16
 
 
 # ------------------------------------------------------------------------------------------------- settings
-def _setting(default: Any, meaning: str, *, choices: Callable[[], Any] | None = None,
-             check: tuple[Callable[[Any], bool], str] | None = None) -> Any:
+def _setting(
+    default: Any,
+    meaning: str,
+    *,
+    choices: Callable[[], Any] | None = None,
+    check: tuple[Callable[[Any], bool], str] | None = None,
+) -> Any:
     """A field of :class:`PlaySettings` with what it means and what is allowed, in the field metadata that
     ``scripts/play.py``'s command line (``evaaa_baselines.cli``) reads for ``--help`` and its messages."""
     metadata = {"meaning": meaning, "choices": choices, "check": check}
@@ -87,26 +91,46 @@ def _setting(default: Any, meaning: str, *, choices: Callable[[], Any] | None = 
 class PlaySettings:
     """What a play server does: the keys of ``scripts/play.py``'s command line."""
 
-    level: str = _setting("1-1", "level or testbed to play (the page can switch to another): a packaged one, or the "
-                                 "name of a file in level_dir", choices=lambda: (*level_names(), *registered_levels()))
-    level_dir: Path | None = _setting(None, "a folder of your own level files (*.yaml): each is offered by its name "
-                                            "(the file's stem) beside the packaged levels; the page can ask for no "
-                                            "other file")
-    participant: str = _setting("anonymous", "participant id written to every record (letters, digits, . _ @ -)",
-                                check=(lambda v: bool(PARTICIPANT.fullmatch(v)), "letters, digits and . _ @ - only"))
+    level: str = _setting(
+        "1-1",
+        "level or testbed to play (the page can switch to another): a packaged one, or the name of a file in level_dir",
+        choices=lambda: (*level_names(), *registered_levels()),
+    )
+    level_dir: Path | None = _setting(
+        None,
+        "a folder of your own level files (*.yaml): each is offered by its name "
+        "(the file's stem) beside the packaged levels; the page can ask for no "
+        "other file",
+    )
+    participant: str = _setting(
+        "anonymous",
+        "participant id written to every record (letters, digits, . _ @ -)",
+        check=(lambda v: bool(PARTICIPANT.fullmatch(v)), "letters, digits and . _ @ - only"),
+    )
     host: str = _setting("127.0.0.1", "address to listen on (127.0.0.1: this machine only)")
-    port: int = _setting(8000, "port to listen on (0 picks a free one)",
-                         check=(lambda v: 0 <= v <= 65535, "a port in [0, 65535]"))
-    seed: int = _setting(0, "seed of the worlds' layouts (the same for every participant: they meet the same "
-                            "worlds)", check=(lambda v: 0 <= v < 2**63, "an integer in [0, 2**63)"))
-    rate: float = _setting(0.0, f"decisions per second; 0 steps once per key press (at most {MAX_RATE:g})",
-                           check=(lambda v: 0 <= v <= MAX_RATE, f"a number in [0, {MAX_RATE:g}]"))
+    port: int = _setting(
+        8000, "port to listen on (0 picks a free one)", check=(lambda v: 0 <= v <= 65535, "a port in [0, 65535]")
+    )
+    seed: int = _setting(
+        0,
+        "seed of the worlds' layouts (the same for every participant: they meet the same worlds)",
+        check=(lambda v: 0 <= v < 2**63, "an integer in [0, 2**63)"),
+    )
+    rate: float = _setting(
+        0.0,
+        f"decisions per second; 0 steps once per key press (at most {MAX_RATE:g})",
+        check=(lambda v: 0 <= v <= MAX_RATE, f"a number in [0, {MAX_RATE:g}]"),
+    )
     out: Path = _setting(Path("outputs/human"), "directory of the records, <out>/episodes.csv")
-    step_log: bool = _setting(False, "also log every decision to <out>/steps-<UTC time>.csv (one row per decision: "
-                                     "evaaa.records.STEP_FIELDS)")
+    step_log: bool = _setting(
+        False, "also log every decision to <out>/steps-<UTC time>.csv (one row per decision: evaaa.records.STEP_FIELDS)"
+    )
     #: level fields by dotted path (``episode.max_steps: 5``), applied to every level played
-    overrides: dict[str, Any] = _setting({}, "any level field by its dotted path, as in make_env, e.g. "
-                                             "overrides.episode.max_steps=200 (null removes an entry)")
+    overrides: dict[str, Any] = _setting(
+        {},
+        "any level field by its dotted path, as in make_env, e.g. "
+        "overrides.episode.max_steps=200 (null removes an entry)",
+    )
 
 
 # ------------------------------------------------------------------------------------------------- the game
@@ -163,8 +187,10 @@ def check_records(path: Path) -> None:
             # an evaluation's columns and the session's; optional columns added later are widened in by append_rows
             known = {*EPISODE_FIELDS, *OPTIONAL_FIELDS, *SESSION_COLUMNS}
             if header and (set(header) - known or not {*EPISODE_FIELDS, *SESSION_COLUMNS} <= set(header)):
-                raise StartupError(f"{path} holds other columns ({', '.join(header)}): it was not written by this "
-                                   "version of play.py; choose another out= directory")
+                raise StartupError(
+                    f"{path} holds other columns ({', '.join(header)}): it was not written by this "
+                    "version of play.py; choose another out= directory"
+                )
     except OSError as exc:
         raise StartupError(f"cannot write records in {path.parent}: {exc.strerror or exc}") from None
 
@@ -186,8 +212,11 @@ class PlaySession:
         self.sim: Simulator | None = None
         self.tracker: EpisodeTracker | None = None
         self.done = False
-        self.step_log = (StepLog(new_log_path(options.out), policy="human", participant=options.participant)
-                         if options.step_log else None)
+        self.step_log = (
+            StepLog(new_log_path(options.out), policy="human", participant=options.participant)
+            if options.step_log
+            else None
+        )
         self._run(self._reset, options.level)
 
     def _run(self, fn: Callable[..., Any], *args: Any) -> Any:
@@ -232,13 +261,15 @@ class PlaySession:
         if level is not None and (self.sim is None or level != self.level.name):
             self._open_level(level)  # a bad name raises here and leaves the episode be
         if unfinished:
-            print(f"episode {self.episode} abandoned after {unfinished} steps (not recorded)", file=sys.stderr,
-                  flush=True)
+            print(
+                f"episode {self.episode} abandoned after {unfinished} steps (not recorded)", file=sys.stderr, flush=True
+            )
         # a fresh tracker per episode drops the sums of an abandoned one; the episode index runs on, as it does
         # within one run of the evaluation tool
         self.episode = self.tracker.episodes if self.tracker is not None else 0
-        self.tracker = EpisodeTracker(1, level=self.level.name, policy="human",
-                                      participant=self.options.participant, seed=self.options.seed)
+        self.tracker = EpisodeTracker(
+            1, level=self.level.name, policy="human", participant=self.options.participant, seed=self.options.seed
+        )
         self.tracker.episodes = self.episode
         self.frame = self.sim.reset()["pixels"][0]
         if self.step_log is not None:
@@ -431,8 +462,11 @@ class PlayHandler(BaseHTTPRequestHandler):
             self._check_caller()  # before anything is read or changed
             methods = ROUTES.get(path)
             if methods is None:
-                raise RequestError(404, f"unknown path {path}; the API is: "
-                                        + ", ".join(f"{m} {p}" for p, ms in ROUTES.items() for m in ms))
+                raise RequestError(
+                    404,
+                    f"unknown path {path}; the API is: "
+                    + ", ".join(f"{m} {p}" for p, ms in ROUTES.items() for m in ms),
+                )
             allowed = [*methods, *(["HEAD"] if "GET" in methods else []), "OPTIONS"]
             self._allow = ", ".join(allowed)
             if self.command == "OPTIONS":  # no CORS headers: a browser keeps other sites' pages out
@@ -466,19 +500,27 @@ class PlayHandler(BaseHTTPRequestHandler):
         on cross-site requests, must say the request comes from this server's own page."""
         host = self.headers.get("Host")
         if host is None or not self.server.is_own_host(host):
-            raise RequestError(403, f"refused: Host {host!r} is not this server "
-                                    f"({', '.join(self.server.own_hosts())}); open the address play.py printed")
+            raise RequestError(
+                403,
+                f"refused: Host {host!r} is not this server "
+                f"({', '.join(self.server.own_hosts())}); open the address play.py printed",
+            )
         origin = self.headers.get("Origin")
         if origin is not None:
             parts = urlsplit(origin)
             if parts.scheme != "http" or not self.server.is_own_host(parts.netloc):
-                raise RequestError(403, f"refused: requests from {origin} are not allowed; only this server's own "
-                                        "page may call the API")
+                raise RequestError(
+                    403,
+                    f"refused: requests from {origin} are not allowed; only this server's own page may call the API",
+                )
         site = self.headers.get("Sec-Fetch-Site")
         # a link elsewhere (a study's instructions) may open the page itself, in a tab of its own, not in a frame
-        opens_page = (self.command in ("GET", "HEAD") and urlsplit(self.path).path == "/"
-                      and self.headers.get("Sec-Fetch-Mode") == "navigate"
-                      and self.headers.get("Sec-Fetch-Dest") == "document")
+        opens_page = (
+            self.command in ("GET", "HEAD")
+            and urlsplit(self.path).path == "/"
+            and self.headers.get("Sec-Fetch-Mode") == "navigate"
+            and self.headers.get("Sec-Fetch-Dest") == "document"
+        )
         if site is not None and site not in ("same-origin", "none") and not opens_page:
             raise RequestError(403, f"refused: a {site} request; only this server's own page may call the API")
 
@@ -528,8 +570,15 @@ class PlayServer(ThreadingHTTPServer):
     #: connections waiting to be accepted (socketserver's default of 5 overflowed under 40 clients)
     request_queue_size = 128
 
-    def __init__(self, host: str, port: int, page_html: bytes, *, idle_timeout: float | None = None,
-                 max_requests: int | None = None):
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        page_html: bytes,
+        *,
+        idle_timeout: float | None = None,
+        max_requests: int | None = None,
+    ):
         if ":" in host:
             self.address_family = socket.AF_INET6
         self.idle_timeout = IDLE_TIMEOUT if idle_timeout is None else idle_timeout
@@ -584,9 +633,13 @@ def serve(options: PlaySettings, prog: str = "play.py") -> int:
         return 1
     signal.signal(signal.SIGTERM, _stop)
     if not is_loopback(options.host):
-        print(f"{prog}: WARNING: listening on {options.host}, not on this machine only: anyone who can reach it "
-              "can play, and their episodes are recorded as this participant's. Prefer the default host and an "
-              "ssh tunnel (docs/play.md).", file=sys.stderr, flush=True)
+        print(
+            f"{prog}: WARNING: listening on {options.host}, not on this machine only: anyone who can reach it "
+            "can play, and their episodes are recorded as this participant's. Prefer the default host and an "
+            "ssh tunnel (docs/play.md).",
+            file=sys.stderr,
+            flush=True,
+        )
     try:
         if options.level_dir is not None:
             try:
@@ -597,9 +650,11 @@ def serve(options: PlaySettings, prog: str = "play.py") -> int:
         host, port = server.server_address[:2]
         url_host = f"[{host}]" if ":" in host else host
         overrides = " ".join(f"{k}={v}" for k, v in options.overrides.items())
-        print(f"evaaa play: level {options.level}, participant {options.participant}, seed {options.seed}"
-              + (f", {options.rate:g} decisions/s" if options.rate else ", one decision per key press")
-              + (f", overrides {overrides}" if overrides else ""))
+        print(
+            f"evaaa play: level {options.level}, participant {options.participant}, seed {options.seed}"
+            + (f", {options.rate:g} decisions/s" if options.rate else ", one decision per key press")
+            + (f", overrides {overrides}" if overrides else "")
+        )
         print(f"  open http://{url_host}:{port}/ in a browser (one player at a time)")
         print(f"  finished episodes are appended to {server.session.records}")
         print("  Ctrl-C stops the server", flush=True)

@@ -54,16 +54,26 @@ class NavGrid:
         return {"size": self.size.copy(), "blocked": self.blocked.copy(), "cost": self.cost.copy()}
 
     @classmethod
-    def from_data(cls, data) -> "NavGrid":
+    def from_data(cls, data) -> NavGrid:
         """A grid from :meth:`to_data`'s arrays (an old in-memory snapshot's grid object is taken as it is)."""
         if isinstance(data, NavGrid):
             return data
-        return cls(tuple(np.asarray(data["size"], dtype=np.float64)), np.asarray(data["blocked"], dtype=bool),
-                   np.asarray(data["cost"], dtype=np.float64))
+        return cls(
+            tuple(np.asarray(data["size"], dtype=np.float64)),
+            np.asarray(data["blocked"], dtype=bool),
+            np.asarray(data["cost"], dtype=np.float64),
+        )
 
     @classmethod
-    def from_boxes(cls, arena_size, xy: np.ndarray, half: np.ndarray, heading: np.ndarray | None = None,
-                   inflate: float = 0.0, cell: float = 1.0) -> "NavGrid":
+    def from_boxes(
+        cls,
+        arena_size,
+        xy: np.ndarray,
+        half: np.ndarray,
+        heading: np.ndarray | None = None,
+        inflate: float = 0.0,
+        cell: float = 1.0,
+    ) -> NavGrid:
         """Grid of ``cell``-metre cells, blocked where a cell's centre lies inside a box: centre ``xy`` (K, 2),
         half-sides ``half`` (K, 2) in the box's own frame grown by ``inflate``, turned to compass ``heading``."""
         size = np.asarray(arena_size, dtype=np.float64)
@@ -74,8 +84,10 @@ class NavGrid:
         grown = np.asarray(half, dtype=np.float64).reshape(-1, 2) + inflate
         heading = np.zeros(len(xy)) if heading is None else np.asarray(heading, dtype=np.float64)
         c, s_ = np.cos(heading), np.sin(heading)
-        reach = np.stack([grown[:, 0] * np.abs(c) + grown[:, 1] * np.abs(s_),
-                          grown[:, 0] * np.abs(s_) + grown[:, 1] * np.abs(c)], axis=1)
+        reach = np.stack(
+            [grown[:, 0] * np.abs(c) + grown[:, 1] * np.abs(s_), grown[:, 0] * np.abs(s_) + grown[:, 1] * np.abs(c)],
+            axis=1,
+        )
         first = np.clip(np.ceil((xy - reach + size / 2) / step - 0.5).astype(int), 0, np.array(shape))
         last = np.clip(np.floor((xy + reach + size / 2) / step - 0.5).astype(int), -1, np.array(shape) - 1)
         # boxes are rasterised in groups by size, each box of a group over a square of cells from its first cell
@@ -95,8 +107,12 @@ class NavGrid:
             ry = -size[1] / 2 + (iy + 0.5) * step[1] - xy[group, 1, None, None]
             cs, sn = c[group, None, None], s_[group, None, None]
             lx, ly = rx * cs - ry * sn, rx * sn + ry * cs
-            inside = ((ix <= last[group, 0, None, None]) & (iy <= last[group, 1, None, None])
-                      & (np.abs(lx) <= grown[group, 0, None, None]) & (np.abs(ly) <= grown[group, 1, None, None]))
+            inside = (
+                (ix <= last[group, 0, None, None])
+                & (iy <= last[group, 1, None, None])
+                & (np.abs(lx) <= grown[group, 0, None, None])
+                & (np.abs(ly) <= grown[group, 1, None, None])
+            )
             blocked[ix[inside], iy[inside]] = True
         for k in np.flatnonzero(~done):
             (x0, y0), (x1, y1) = first[k], last[k]
@@ -133,8 +149,9 @@ class NavGrid:
             extra = (cost[a][ok] + cost[b][ok]) / 2
             weights.append(math.hypot(dx, dy) * (1.0 + extra))
         n = gx * gy
-        return sp.coo_matrix((np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))),
-                             shape=(n, n)).tocsr()
+        return sp.coo_matrix(
+            (np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)
+        ).tocsr()
 
     def cell_of(self, xy: np.ndarray) -> tuple[int, int]:
         i = np.clip(np.floor((np.asarray(xy) - self.origin) / self.cell).astype(int), 0, np.array(self.shape) - 1)
@@ -221,8 +238,15 @@ class Predators:
         self.landmarks: list[np.ndarray] = [np.zeros((0, 2))] * n_worlds
 
     # ------------------------------------------------------------------------------------------ episodes
-    def reset_world(self, w: int, rng: np.random.Generator, xy: np.ndarray, heading: np.ndarray,
-                    landmarks: np.ndarray, grid: NavGrid) -> None:
+    def reset_world(
+        self,
+        w: int,
+        rng: np.random.Generator,
+        xy: np.ndarray,
+        heading: np.ndarray,
+        landmarks: np.ndarray,
+        grid: NavGrid,
+    ) -> None:
         self.xy[w], self.heading[w] = xy, heading
         self.state[w] = SEARCHING
         self.search_count[w] = rng.integers(0, self.interval)

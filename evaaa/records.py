@@ -51,8 +51,16 @@ EPISODE_FIELDS: tuple[str, ...] = (
 #: episodes from 1), framed by :data:`TRAINING_ONLY_FIELDS`.  Positions are those of the files written before the
 #: names were shared, so that a resumed old run appends rows that line up with its header.
 TRAINING_EPISODE_FIELDS: tuple[str, ...] = (
-    "env_steps", "stage", "level", "episode", "world", "steps", "return", "end_type",
-    *(f"final_{name}" for name in EV_NAMES), "wall_time",
+    "env_steps",
+    "stage",
+    "level",
+    "episode",
+    "world",
+    "steps",
+    "return",
+    "end_type",
+    *(f"final_{name}" for name in EV_NAMES),
+    "wall_time",
 )
 #: The training columns that are not episode fields: where in the run the episode ended.
 TRAINING_ONLY_FIELDS: tuple[str, ...] = ("env_steps", "stage", "world", "wall_time")
@@ -110,8 +118,17 @@ def _scalar(value) -> Any:
 class EpisodeTracker:
     """Accumulates per-world episode statistics and emits a row when a world's episode ends."""
 
-    def __init__(self, num_worlds: int, level: str, policy: str, participant: str = "", seed: int | None = None,
-                 judged: bool | None = None, acting: str = "", worlds: str | None = None):
+    def __init__(
+        self,
+        num_worlds: int,
+        level: str,
+        policy: str,
+        participant: str = "",
+        seed: int | None = None,
+        judged: bool | None = None,
+        acting: str = "",
+        worlds: str | None = None,
+    ):
         """``judged``: whether the level has a success rule (default: looked up from the level's name);
         ``acting``: how a checkpoint picks its actions (see :data:`EPISODE_FIELDS`); ``worlds``: the set of worlds
         played (:data:`WORLD_FIELDS`), a column of every row when given."""
@@ -128,8 +145,19 @@ class EpisodeTracker:
 
     def _clear(self, worlds: np.ndarray) -> None:
         if not hasattr(self, "_sums"):
-            self._sums = {k: np.zeros(self.n) for k in ("return", "food_eaten", "water_eaten", "collisions",
-                                                        "damage_taken", "attacks", "decisions", *EVENT_FIELDS)}
+            self._sums = {
+                k: np.zeros(self.n)
+                for k in (
+                    "return",
+                    "food_eaten",
+                    "water_eaten",
+                    "collisions",
+                    "damage_taken",
+                    "attacks",
+                    "decisions",
+                    *EVENT_FIELDS,
+                )
+            }
             self._max_reward = np.full(self.n, -np.inf)
             self._min_reward = np.full(self.n, np.inf)
             self._actions = np.zeros((self.n, len(ACTION_NAMES)))
@@ -360,8 +388,15 @@ class StepLog:
         self._episode = np.zeros(0, dtype=np.int64)
         self._previous = np.zeros((0, 3))
 
-    def start(self, level: str, info: Mapping[str, Any], seed: int | None = None, judged: bool | None = None,
-              policy: str | None = None, acting: str | None = None) -> None:
+    def start(
+        self,
+        level: str,
+        info: Mapping[str, Any],
+        seed: int | None = None,
+        judged: bool | None = None,
+        policy: str | None = None,
+        acting: str | None = None,
+    ) -> None:
         """A level's env starts (or its worlds were all reset): ``info`` is the reset's (``position`` of every
         world); ``policy`` and ``acting``, when given, replace those the rows carry from here on."""
         position = np.asarray(info["position"], dtype=np.float64).reshape(-1, 3)
@@ -375,8 +410,9 @@ class StepLog:
         self._episode = np.zeros(len(position), dtype=np.int64)
         self._previous = position.copy()
 
-    def update(self, actions, reward, info: Mapping[str, Any], done, next_info: Mapping[str, Any] | None = None
-               ) -> None:
+    def update(
+        self, actions, reward, info: Mapping[str, Any], done, next_info: Mapping[str, Any] | None = None
+    ) -> None:
         """Write one row per world for a decision: its ``actions`` (N,), ``reward`` and ``done`` (N,) or (N, 1)
         and ``info``.  ``next_info``: the info after worlds that ended were reset (where the next distance is
         measured from); without it a world's next episode starts where :meth:`start` or this step left it."""
@@ -392,26 +428,42 @@ class StepLog:
             self._global[w] = self._global.get(w, 0) + 1
             food, water = int(info["food_eaten"][w, 0]), int(info["water_eaten"][w, 0])
             end = END_TYPES[int(info["end_type"][w, 0])] if done[w] else ""
-            rows.append({
-                "policy": self.policy, "acting": self.acting, "participant": self.participant,
-                "level": self.level, "seed": "" if self.seed is None else self.seed, "world": w,
-                "episode": int(self._episode[w]), "global_step": self._global[w],
-                "step": int(info["step_count"][w, 0]), "action": ACTION_NAMES[int(actions[w])],
-                "reward": float(reward[w]),
-                "x": float(position[w, 0]), "y": float(position[w, 1]), "z": float(position[w, 2]),
-                "yaw": float(info["yaw"][w, 0]), "distance": float(distance[w]),
-                "satiation": float(info["satiation"][w, 0]), "hydration": float(info["hydration"][w, 0]),
-                "temperature": float(info["temperature"][w, 0]), "damage": float(info["damage"][w, 0]),
-                "collision": bool(info["collision"][w, 0]), "damage_taken": float(info["damage_taken"][w, 0]),
-                "consumed": "+".join(k for k, c in (("food", food), ("water", water)) if c),
-                "food_eaten": food, "water_eaten": water,
-                "attacked": bool(info["attacked"][w, 0]) if "attacked" in info else False,
-                "event": "trigger" if "trigger_crossed" in info and info["trigger_crossed"][w, 0] else "",
-                "near_heat": bool(info["near_heat"][w, 0]) if "near_heat" in info else False,
-                "done": bool(done[w]), "end_type": end,
-                "original_end_type": ORIGINAL_END_TYPES[end] if end else "",
-                "success": bool(info["success"][w, 0]) if done[w] and self.judged and "success" in info else "",
-            })
+            rows.append(
+                {
+                    "policy": self.policy,
+                    "acting": self.acting,
+                    "participant": self.participant,
+                    "level": self.level,
+                    "seed": "" if self.seed is None else self.seed,
+                    "world": w,
+                    "episode": int(self._episode[w]),
+                    "global_step": self._global[w],
+                    "step": int(info["step_count"][w, 0]),
+                    "action": ACTION_NAMES[int(actions[w])],
+                    "reward": float(reward[w]),
+                    "x": float(position[w, 0]),
+                    "y": float(position[w, 1]),
+                    "z": float(position[w, 2]),
+                    "yaw": float(info["yaw"][w, 0]),
+                    "distance": float(distance[w]),
+                    "satiation": float(info["satiation"][w, 0]),
+                    "hydration": float(info["hydration"][w, 0]),
+                    "temperature": float(info["temperature"][w, 0]),
+                    "damage": float(info["damage"][w, 0]),
+                    "collision": bool(info["collision"][w, 0]),
+                    "damage_taken": float(info["damage_taken"][w, 0]),
+                    "consumed": "+".join(k for k, c in (("food", food), ("water", water)) if c),
+                    "food_eaten": food,
+                    "water_eaten": water,
+                    "attacked": bool(info["attacked"][w, 0]) if "attacked" in info else False,
+                    "event": "trigger" if "trigger_crossed" in info and info["trigger_crossed"][w, 0] else "",
+                    "near_heat": bool(info["near_heat"][w, 0]) if "near_heat" in info else False,
+                    "done": bool(done[w]),
+                    "end_type": end,
+                    "original_end_type": ORIGINAL_END_TYPES[end] if end else "",
+                    "success": bool(info["success"][w, 0]) if done[w] and self.judged and "success" in info else "",
+                }
+            )
         try:
             self._writer.writerows(rows)
             self._file.flush()
@@ -435,7 +487,7 @@ class StepLog:
                 except OSError:  # the same failed flush again: reported above
                     pass
 
-    def __enter__(self) -> "StepLog":
+    def __enter__(self) -> StepLog:
         return self
 
     def __exit__(self, *exc) -> None:

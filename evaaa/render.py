@@ -137,8 +137,15 @@ class RenderJob:
 class BatchRenderer:
     """Renders fixed cameras of a model for any of its ``MjData`` into (N, H, W, 3) uint8 arrays."""
 
-    def __init__(self, model: mujoco.MjModel, height: int, width: int, hidden_groups: tuple[int, ...] = (),
-                 adjust=None, threaded: bool = False):
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        height: int,
+        width: int,
+        hidden_groups: tuple[int, ...] = (),
+        adjust=None,
+        threaded: bool = False,
+    ):
         """``adjust(row, scene, context)``, if given, may change the scene (lights, flags) or the context (fog) of
         each frame after the scene is updated and before it is drawn: worlds that share a model can still
         differ in light.  ``threaded``: draw on a thread of this renderer's own (see the module docstring)."""
@@ -174,8 +181,10 @@ class BatchRenderer:
             raise gl_error(exc) from exc
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._context)
         if width > self._context.offWidth or height > self._context.offHeight:
-            raise ValueError(f"image {width}x{height} exceeds the off-screen buffer "
-                             f"{self._context.offWidth}x{self._context.offHeight}")
+            raise ValueError(
+                f"image {width}x{height} exceeds the off-screen buffer "
+                f"{self._context.offWidth}x{self._context.offHeight}"
+            )
         self._scene = mujoco.MjvScene(model, maxgeom=max(1000, 2 * model.ngeom))
         self._option = mujoco.MjvOption()
         for group in hidden_groups:
@@ -202,8 +211,9 @@ class BatchRenderer:
             raise ValueError("before_draw is for renderers that draw on the calling thread")
         return self.submit(datas, camera_id, out, before_draw=before_draw).result()
 
-    def submit(self, datas, camera_id: int, out: np.ndarray | None = None, first_row: int = 0,
-               before_draw=None) -> RenderJob:
+    def submit(
+        self, datas, camera_id: int, out: np.ndarray | None = None, first_row: int = 0, before_draw=None
+    ) -> RenderJob:
         """Start drawing the frames of :meth:`render`; on a threaded renderer this returns before they are drawn,
         and ``datas`` must not change until :meth:`RenderJob.result` has returned.  ``first_row``: the row of
         ``datas[0]`` in a larger batch (what ``adjust`` is told)."""
@@ -306,8 +316,15 @@ class SplitRenderer:
     """A :class:`BatchRenderer` that draws a batch on ``threads`` threads at once, each with its own GL context and
     a contiguous share of the worlds (as even as the batch allows).  Same interface and frames."""
 
-    def __init__(self, model: mujoco.MjModel, height: int, width: int, hidden_groups: tuple[int, ...] = (),
-                 adjust=None, threads: int = 2):
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        height: int,
+        width: int,
+        hidden_groups: tuple[int, ...] = (),
+        adjust=None,
+        threads: int = 2,
+    ):
         if threads < 1:
             raise ValueError(f"SplitRenderer needs threads >= 1, got {threads}")
         self.height, self.width = height, width
@@ -336,8 +353,10 @@ class SplitRenderer:
             out = np.empty((n, self.height, self.width, 3), dtype=np.uint8)
         k = min(len(self._parts), n)
         bounds = [n * i // k for i in range(k + 1)]
-        jobs = [part.submit(datas[a:b], camera_id, out[a:b], first_row=a)
-                for part, a, b in zip(self._parts, bounds[:-1], bounds[1:])]
+        jobs = [
+            part.submit(datas[a:b], camera_id, out[a:b], first_row=a)
+            for part, a, b in zip(self._parts, bounds[:-1], bounds[1:])
+        ]
         return _Jobs(jobs, out)
 
     def close(self) -> None:

@@ -81,8 +81,10 @@ def _geom(kind: Kind, extents: np.ndarray, *, group: int, solid: bool, extra: st
 def _canopy(extents: np.ndarray) -> str:
     h = float(extents[2])
     r = CANOPY["radius"] * h
-    return (f'<geom type="ellipsoid" size="{_v((r, r, 0.6 * r))}" pos="0 0 {_f(CANOPY["height"] * h - h / 2)}" '
-            f'rgba="{_v(CANOPY["rgba"])}" group="{GROUP_SOLID}" contype="0" conaffinity="0"/>')
+    return (
+        f'<geom type="ellipsoid" size="{_v((r, r, 0.6 * r))}" pos="0 0 {_f(CANOPY["height"] * h - h / 2)}" '
+        f'rgba="{_v(CANOPY["rgba"])}" group="{GROUP_SOLID}" contype="0" conaffinity="0"/>'
+    )
 
 
 def _euler(heading_rad: float) -> str:
@@ -94,8 +96,10 @@ def _resources(pool: ResourcePool) -> str:
     for j in range(pool.size_total):
         kind = RESOURCE_KINDS[pool.kind[j]]
         group = GROUP_SOLID if kind.solid else GROUP_RESOURCE
-        out.append(f'    <body name="res{j}" mocap="true" pos="0 0 {_f(PARKED_Z)}" {_euler(pool.heading[j])}>'
-                   f'{_geom(kind, pool.extents[j], group=group, solid=kind.solid)}</body>')
+        out.append(
+            f'    <body name="res{j}" mocap="true" pos="0 0 {_f(PARKED_Z)}" {_euler(pool.heading[j])}>'
+            f"{_geom(kind, pool.extents[j], group=group, solid=kind.solid)}</body>"
+        )
     return "\n".join(out)
 
 
@@ -111,8 +115,10 @@ def _obstacles(pool: ObstaclePool) -> str:
             pos = (pool.low[o, 0], pool.low[o, 1], z[o])
             out.append(f'    <body name="obs{o}" pos="{_v(pos)}" {_euler(pool.heading[o])}>{geoms}</body>')
         else:
-            out.append(f'    <body name="obs{o}" mocap="true" pos="0 0 {_f(PARKED_Z)}" '
-                       f'{_euler(pool.heading[o])}>{geoms}</body>')
+            out.append(
+                f'    <body name="obs{o}" mocap="true" pos="0 0 {_f(PARKED_Z)}" '
+                f"{_euler(pool.heading[o])}>{geoms}</body>"
+            )
     return "\n".join(out)
 
 
@@ -120,7 +126,7 @@ def _predators(count: int) -> str:
     # predators are moved kinematically and never push the agent: contact is handled by their state machine
     return "\n".join(
         f'    <body name="pred{k}" mocap="true" pos="0 0 {_f(PARKED_Z)}">'
-        f'{_geom(PREDATOR, np.array(PREDATOR.base), group=GROUP_SOLID, solid=False)}'
+        f"{_geom(PREDATOR, np.array(PREDATOR.base), group=GROUP_SOLID, solid=False)}"
         f'<geom type="box" size="0.12 0.05 0.06" pos="0.45 0.81 0.55" rgba="0.9 0.15 0.1 1" group="{GROUP_SOLID}" '
         f'contype="0" conaffinity="0"/>'
         f'<geom type="box" size="0.12 0.05 0.06" pos="-0.45 0.81 0.55" rgba="0.9 0.15 0.1 1" group="{GROUP_SOLID}" '
@@ -214,8 +220,10 @@ def build_model(level: Level, pool: ResourcePool, obstacles: ObstaclePool) -> tu
     try:
         model = mujoco.MjModel.from_xml_string(build_mjcf(level, pool, obstacles))
     except ValueError as exc:  # MuJoCo refuses a body the level's numbers made (too light, too thin, ...)
-        raise LevelError(f"invalid level '{level.name}':\n  {_xml_culprit(str(exc), pool, obstacles)}: MuJoCo "
-                         f"cannot build it: {' '.join(str(exc).split())}") from None
+        raise LevelError(
+            f"invalid level '{level.name}':\n  {_xml_culprit(str(exc), pool, obstacles)}: MuJoCo "
+            f"cannot build it: {' '.join(str(exc).split())}"
+        ) from None
 
     def body(name: str) -> int:
         return mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)
@@ -230,8 +238,7 @@ def build_model(level: Level, pool: ResourcePool, obstacles: ObstaclePool) -> tu
         top_camera=mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, "top"),
         sun_light=mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_LIGHT, "sun"),
         resource_mocap=np.array([model.body_mocapid[body(f"res{j}")] for j in range(pool.size_total)], np.int64),
-        obstacle_mocap=np.array([model.body_mocapid[body(f"obs{o}")] for o in range(obstacles.size_total)],
-                                np.int64),
+        obstacle_mocap=np.array([model.body_mocapid[body(f"obs{o}")] for o in range(obstacles.size_total)], np.int64),
         predator_mocap=np.array([model.body_mocapid[body(f"pred{k}")] for k in range(n_predators)], np.int64),
         ray_groups=ray_groups,
     )

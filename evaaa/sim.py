@@ -46,7 +46,6 @@ from .state import StepEvents, WorldState
 from .thermal import FieldSampler, build_field, hotspot_cells
 from .triggers import Triggers
 from .workers import Workers
-from .worlds import check_worlds, world_seeds
 from .worldgen import (
     AGENT_HALF,
     ObstaclePool,
@@ -56,6 +55,7 @@ from .worldgen import (
     sample_agent_start,
     sample_predator_starts,
 )
+from .worlds import check_worlds, world_seeds
 
 NUM_ACTIONS = 5
 ACTION_NAMES: tuple[str, ...] = ("none", "forward", "left", "right", "eat")
@@ -85,8 +85,9 @@ def default_threads() -> int:
         except ValueError:
             threads = 0
         if threads < 1:
-            raise ValueError(f"EVAAA_THREADS must be an integer >= 1 (1: everything in the calling thread), "
-                             f"got {setting!r}")
+            raise ValueError(
+                f"EVAAA_THREADS must be an integer >= 1 (1: everything in the calling thread), got {setting!r}"
+            )
         return threads
     return 2 if usable_cores() >= 2 else 1
 
@@ -114,8 +115,15 @@ class Simulator:
             whatever the number.
     """
 
-    def __init__(self, level: Level, num_worlds: int = 1, modalities=None, seed: int | None = None,
-                 threads: int | None = None, worlds: str = "train"):
+    def __init__(
+        self,
+        level: Level,
+        num_worlds: int = 1,
+        modalities=None,
+        seed: int | None = None,
+        threads: int | None = None,
+        worlds: str = "train",
+    ):
         if not isinstance(num_worlds, int) or isinstance(num_worlds, bool) or num_worlds < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_worlds!r}")
         self.worlds = check_worlds(worlds)
@@ -149,8 +157,15 @@ class Simulator:
         self._turn_rad = math.radians(level.agent.turn_degrees)
         self._move_speed = level.agent.move_speed
 
-        self.state = WorldState.empty(n, self.pool.size_total, self.obstacles.size_total, len(self.triggers),
-                                      level.thermal.grid, self.params.start, level.daynight.start_angle % 360.0)
+        self.state = WorldState.empty(
+            n,
+            self.pool.size_total,
+            self.obstacles.size_total,
+            len(self.triggers),
+            level.thermal.grid,
+            self.params.start,
+            level.daynight.start_angle % 360.0,
+        )
         self.last_obs: dict[str, np.ndarray] = {}
         self.last_info: dict[str, np.ndarray] = {}
         self._res_d2: np.ndarray | None = None
@@ -169,11 +184,11 @@ class Simulator:
         v = self.level.sensors.vision
         adjust = self.daynight.light_world if self.daynight.enabled else None
         if min(self.threads, self.n) > 1:
-            self._renderer = SplitRenderer(self.model, v.height, v.width, hidden_groups=(GROUP_AGENT,),
-                                           adjust=adjust, threads=self.threads)
+            self._renderer = SplitRenderer(
+                self.model, v.height, v.width, hidden_groups=(GROUP_AGENT,), adjust=adjust, threads=self.threads
+            )
         else:
-            self._renderer = BatchRenderer(self.model, v.height, v.width, hidden_groups=(GROUP_AGENT,),
-                                           adjust=adjust)
+            self._renderer = BatchRenderer(self.model, v.height, v.width, hidden_groups=(GROUP_AGENT,), adjust=adjust)
 
     def seed(self, seed: int | None) -> None:
         """Give every world its own generator, derived from ``seed`` (None: fresh entropy) within this simulator's
@@ -226,9 +241,11 @@ class Simulator:
         state, obstacles, pool = self.state, self.obstacles, self.pool
         placed = state.obs_present[world]
         solid = state.res_present[world] & self.resources.solid
-        return (np.concatenate([state.obs_xy[world, placed], state.res_xy[world, solid]]),
-                np.concatenate([obstacles.extents[placed, :2], pool.extents[solid, :2]]) / 2,
-                np.concatenate([obstacles.heading[placed], pool.heading[solid]]))
+        return (
+            np.concatenate([state.obs_xy[world, placed], state.res_xy[world, solid]]),
+            np.concatenate([obstacles.extents[placed, :2], pool.extents[solid, :2]]) / 2,
+            np.concatenate([obstacles.heading[placed], pool.heading[solid]]),
+        )
 
     def ground_temperature(self, world: int, xy: np.ndarray) -> np.ndarray:
         """The floor's temperature (day/night offset included) in ``world`` under points ``xy`` (..., 2)."""
@@ -310,9 +327,7 @@ class Simulator:
                 raise ValueError(f"actions must be integers in 0..{NUM_ACTIONS - 1}, got {a.tolist()}")
             a = a.astype(np.int64)
         if not ((a >= 0) & (a < NUM_ACTIONS)).all():
-            raise ValueError(
-                f"actions must be in 0..{NUM_ACTIONS - 1} ({', '.join(ACTION_NAMES)}), got {a.tolist()}"
-            )
+            raise ValueError(f"actions must be in 0..{NUM_ACTIONS - 1} ({', '.join(ACTION_NAMES)}), got {a.tolist()}")
         return a
 
     def apply_actions(self, actions: np.ndarray) -> None:
@@ -348,15 +363,23 @@ class Simulator:
         if self.predators.k:
             damage = damage + self._predators_act()
         self.daynight.advance(state)
-        events = StepEvents(food_count=food_count, water_count=water_count, food_eaten=food_count > 0,
-                            water_eaten=water_count > 0, damage=damage, collided=collided, crossed=crossed,
-                            costly=(actions == FORWARD) | (actions == EAT))  # what the reward charges for
+        events = StepEvents(
+            food_count=food_count,
+            water_count=water_count,
+            food_eaten=food_count > 0,
+            water_eaten=water_count > 0,
+            damage=damage,
+            collided=collided,
+            crossed=crossed,
+            costly=(actions == FORWARD) | (actions == EAT),
+        )  # what the reward charges for
         # 5. physiology and 6. senses; a single world's frame is drawn here while a helper does the rest
         if not self.workers.beside_frame:
             return self._conclude(events)
         frame, (obs, reward, terminated, truncated, info) = self.workers.while_drawing(
             lambda before_draw: self.render_eye(self._all, before_draw=before_draw),
-            lambda: self._conclude(events, skip_pixels=True))
+            lambda: self._conclude(events, skip_pixels=True),
+        )
         obs = {"pixels": frame, **obs}  # the canonical order: pixels first
         self.last_obs = obs
         return obs, reward, terminated, truncated, info
@@ -407,17 +430,31 @@ class Simulator:
         state.thermal_readings = self._sample_thermal(self._all)
         ev_before = state.ev
         thermal_sum = state.thermal_readings.sum(axis=1) - 8.0 * ev_before[:, 2]
-        state.ev = phys.step_evs(ev_before, params, food_eaten=events.food_eaten, water_eaten=events.water_eaten,
-                                 thermal_sum=thermal_sum, damage_taken=events.damage)
+        state.ev = phys.step_evs(
+            ev_before,
+            params,
+            food_eaten=events.food_eaten,
+            water_eaten=events.water_eaten,
+            thermal_sum=thermal_sum,
+            damage_taken=events.damage,
+        )
         consumed = events.food_eaten | events.water_eaten
-        end = phys.end_types(state.ev, params, resource_consumed=consumed,
-                             single_trial=self.level.episode.single_trial, steps=state.steps,
-                             max_steps=self.level.episode.max_steps)
+        end = phys.end_types(
+            state.ev,
+            params,
+            resource_consumed=consumed,
+            single_trial=self.level.episode.single_trial,
+            steps=state.steps,
+            max_steps=self.level.episode.max_steps,
+        )
         shaping = {}
         if params.reward == "shaped":  # the original's hand-shaped reward reads the senses, enabled or not
-            shaping = dict(odour=self._shaping_senses[0].read(self._all),
-                           thermal=self._shaping_senses[1].read(self._all), consumed=consumed,
-                           collided=events.collided)
+            shaping = dict(
+                odour=self._shaping_senses[0].read(self._all),
+                thermal=self._shaping_senses[1].read(self._all),
+                consumed=consumed,
+                collided=events.collided,
+            )
         reward = phys.reward(ev_before, state.ev, end, params, costly=events.costly, **shaping)
         truncated = end == phys.END_MAX_STEPS
         terminated = (end != phys.END_NONE) & ~truncated
@@ -529,11 +566,13 @@ class Simulator:
             "physics": self.physics_states(),
             "rngs": [rng.bit_generator.state for rng in self.rngs],
             "predators": {name: getattr(self.predators, name).copy() for name in self._PREDATOR_ARRAYS}
-            | {"routes": [[None if r is None else r.copy() for r in world] for world in self.predators.routes],
-               # plain arrays, so that a checkpoint can hold them: the grids' cells, the patrol areas' landmarks
-               "grids": [None if g is None else g.to_data() for g in self.predators.grids],
-               "areas": [None if a is None else a.points.copy() for a in self.predators.areas],
-               "landmarks": [p.copy() for p in self.predators.landmarks]},
+            | {
+                "routes": [[None if r is None else r.copy() for r in world] for world in self.predators.routes],
+                # plain arrays, so that a checkpoint can hold them: the grids' cells, the patrol areas' landmarks
+                "grids": [None if g is None else g.to_data() for g in self.predators.grids],
+                "areas": [None if a is None else a.points.copy() for a in self.predators.areas],
+                "landmarks": [p.copy() for p in self.predators.landmarks],
+            },
             "last_obs": {k: v.copy() for k, v in self.last_obs.items()},
             "last_info": {k: v.copy() for k, v in self.last_info.items()},
         }
@@ -559,8 +598,9 @@ class Simulator:
             setattr(self.predators, name, predators[name].copy())
         self.predators.routes = [[None if r is None else r.copy() for r in world] for world in predators["routes"]]
         self.predators.grids = [None if g is None else NavGrid.from_data(g) for g in predators["grids"]]
-        self.predators.areas = [a if a is None or isinstance(a, PatrolArea) else PatrolArea(np.asarray(a))
-                                for a in predators["areas"]]
+        self.predators.areas = [
+            a if a is None or isinstance(a, PatrolArea) else PatrolArea(np.asarray(a)) for a in predators["areas"]
+        ]
         self.predators.landmarks = [p.copy() for p in predators["landmarks"]]
         self.last_obs = {k: v.copy() for k, v in snapshot["last_obs"].items()}
         self.last_info = {k: v.copy() for k, v in snapshot["last_info"].items()}

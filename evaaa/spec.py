@@ -22,8 +22,8 @@ from typing import Annotated, Any, Literal
 import yaml
 from pydantic import (
     AfterValidator,
-    BeforeValidator,
     BaseModel,
+    BeforeValidator,
     ConfigDict,
     Field,
     Strict,
@@ -123,8 +123,14 @@ class _Spec(BaseModel):
 class Arena(_Spec):
     """The floor (centred on the origin; walking surface at z = 0) and its walls."""
 
-    size: Annotated[tuple[Annotated[float, Field(ge=MIN_ARENA_SIDE, le=MAX_ARENA_SIDE)],
-                          Annotated[float, Field(ge=MIN_ARENA_SIDE, le=MAX_ARENA_SIDE)]], Lax, NoSet]
+    size: Annotated[
+        tuple[
+            Annotated[float, Field(ge=MIN_ARENA_SIDE, le=MAX_ARENA_SIDE)],
+            Annotated[float, Field(ge=MIN_ARENA_SIDE, le=MAX_ARENA_SIDE)],
+        ],
+        Lax,
+        NoSet,
+    ]
     walls: bool
     wall_height: Positive
     floor: Literal["ground", "gray"]
@@ -197,7 +203,7 @@ class Physiology(_Spec):
     water_value: float
 
     @model_validator(mode="after")
-    def _start_inside_bounds(self) -> "Physiology":
+    def _start_inside_bounds(self) -> Physiology:
         for ev in EVs.model_fields:
             lo, hi = getattr(self.bounds, ev)
             value = getattr(self.start, ev)
@@ -207,8 +213,9 @@ class Physiology(_Spec):
 
 
 # --------------------------------------------------------------------------------------------------- resources
-Extents = Annotated[tuple[Positive, Positive, Positive], Lax, NoSet,
-                    Field(description="width (x), depth (y), height (z)")]
+Extents = Annotated[
+    tuple[Positive, Positive, Positive], Lax, NoSet, Field(description="width (x), depth (y), height (z)")
+]
 
 
 class ResourceGroup(_Spec):
@@ -297,7 +304,7 @@ class Landmarks(_Spec):
     padding: NonNegative = 2.0
 
     @model_validator(mode="after")
-    def _rectangular(self) -> "Landmarks":
+    def _rectangular(self) -> Landmarks:
         if not self.pattern or len({len(row) for row in self.pattern}) != 1 or not self.pattern[0]:
             raise ValueError("pattern must be a non-empty rectangle of rows of equal length")
         if sum(map(sum, self.pattern)) == 0:
@@ -366,19 +373,23 @@ class Thermal(_Spec):
     relative: bool
 
     @model_validator(mode="after")
-    def _smoothing_affordable(self) -> "Thermal":
+    def _smoothing_affordable(self) -> Thermal:
         # the field is rebuilt and smoothed at every reset: two passes of a 2*ceil(3 sigma)+1 kernel over the grid
         gx, gy = self.grid
         work = 2 * gx * gy * (2 * math.ceil(3 * self.sigma) + 1)
         if self.sigma > 0 and work > MAX_SMOOTHING_WORK:
-            raise ValueError(f"sigma = {self.sigma:g} cells over a grid of {gx} x {gy} cells is too much work for "
-                             f"every reset ({work:.2g} > {MAX_SMOOTHING_WORK:.0e} cell operations): lower sigma or "
-                             "the grid")
+            raise ValueError(
+                f"sigma = {self.sigma:g} cells over a grid of {gx} x {gy} cells is too much work for "
+                f"every reset ({work:.2g} > {MAX_SMOOTHING_WORK:.0e} cell operations): lower sigma or "
+                "the grid"
+            )
         spots = self.hotspots
         painted = spots.count * min(spots.size, gx) * min(spots.size, gy)
         if painted > MAX_SMOOTHING_WORK:
-            raise ValueError(f"hotspots.count = {spots.count} squares of hotspots.size = {spots.size} cells paint "
-                             f"{painted:.2g} cells at every reset; at most {MAX_SMOOTHING_WORK:.0e}")
+            raise ValueError(
+                f"hotspots.count = {spots.count} squares of hotspots.size = {spots.size} cells paint "
+                f"{painted:.2g} cells at every reset; at most {MAX_SMOOTHING_WORK:.0e}"
+            )
         return self
 
 
@@ -391,7 +402,7 @@ class Vision(_Spec):
     far: Positive
 
     @model_validator(mode="after")
-    def _near_before_far(self) -> "Vision":
+    def _near_before_far(self) -> Vision:
         if self.near >= self.far:
             raise ValueError(f"near ({self.near:g}) must be less than far ({self.far:g}): nothing would be drawn")
         return self
@@ -409,7 +420,7 @@ class CollisionSensor(_Spec):
     range: Positive
 
     @model_validator(mode="after")
-    def _rays_fill_sectors(self) -> "CollisionSensor":
+    def _rays_fill_sectors(self) -> CollisionSensor:
         if self.rays % self.sectors:
             raise ValueError(f"rays ({self.rays}) must be a multiple of sectors ({self.sectors})")
         return self
@@ -436,7 +447,7 @@ class Success(_Spec):
     resource: Literal["food", "water"] | None = None
 
     @model_validator(mode="after")
-    def _resource_when_consuming(self) -> "Success":
+    def _resource_when_consuming(self) -> Success:
         if self.rule in ("consume", "consume_after_trigger") and self.resource is None:
             raise ValueError(f"rule '{self.rule}' needs resource: food or water")
         return self
@@ -489,7 +500,7 @@ class Level(_Spec):
     reward: Reward
 
     @model_validator(mode="after")
-    def _inside_arena(self) -> "Level":
+    def _inside_arena(self) -> Level:
         hx, hy = self.arena.size[0] / 2, self.arena.size[1] / 2
         for section in ("resources", "obstacles", "predators"):
             for name, group in getattr(self, section).items():
@@ -502,51 +513,60 @@ class Level(_Spec):
         return self
 
     @model_validator(mode="after")
-    def _entities_fit(self) -> "Level":
+    def _entities_fit(self) -> Level:
         solid = sum(g.count for g in self.obstacles.values()) + sum(
-            g.count for g in self.resources.values() if getattr(RESOURCE_KINDS.get(g.kind), "solid", False))
+            g.count for g in self.resources.values() if getattr(RESOURCE_KINDS.get(g.kind), "solid", False)
+        )
         if solid > MAX_SOLID_BODIES:
-            raise ValueError(f"the obstacles' count and the solid resources' (ponds) count add up to {solid} bodies "
-                             f"the agent collides with; at most {MAX_SOLID_BODIES} in all")
+            raise ValueError(
+                f"the obstacles' count and the solid resources' (ponds) count add up to {solid} bodies "
+                f"the agent collides with; at most {MAX_SOLID_BODIES} in all"
+            )
         items = sum(g.count for g in self.resources.values())
         if items > MAX_ITEMS:
             raise ValueError(f"the resources' count adds up to {items} items; at most {MAX_ITEMS} in all")
         return self
 
     @model_validator(mode="after")
-    def _predators_need_landmarks(self) -> "Level":
+    def _predators_need_landmarks(self) -> Level:
         if any(g.count for g in self.predators.values()) and self.landmarks is None:
             raise ValueError("predators patrol the convex hull of the landmarks: set landmarks.pattern")
         return self
 
     @model_validator(mode="after")
-    def _agent_starts_on_the_floor(self) -> "Level":
+    def _agent_starts_on_the_floor(self) -> Level:
         # the body's centre keeps half its width (worldgen.AGENT_HALF, 0.5 m) from the floor's edge; a random start
         # falls back to start_position when its box is full, so that must lie on the floor either way
         a = self.agent
         hx, hy = self.arena.size[0] / 2 - 0.5, self.arena.size[1] / 2 - 0.5
         x, y = a.start_position
         if abs(x) > hx or abs(y) > hy:
-            raise ValueError(f"agent.start_position = [{x:g}, {y:g}] is off the floor: the body's centre must lie "
-                             f"within x in [{-hx:g}, {hx:g}], y in [{-hy:g}, {hy:g}] "
-                             f"(arena.size {list(self.arena.size)})")
+            raise ValueError(
+                f"agent.start_position = [{x:g}, {y:g}] is off the floor: the body's centre must lie "
+                f"within x in [{-hx:g}, {hx:g}], y in [{-hy:g}, {hy:g}] "
+                f"(arena.size {list(self.arena.size)})"
+            )
         if a.start == "random":
             for axis, (lo, hi), half in (("x", a.spawn_x, hx), ("y", a.spawn_y, hy)):
                 if hi < -half or lo > half:
-                    raise ValueError(f"agent.spawn_{axis} = [{lo:g}, {hi:g}] misses the floor, where the body's "
-                                     f"centre lies within [{-half:g}, {half:g}] (arena.size {list(self.arena.size)})")
+                    raise ValueError(
+                        f"agent.spawn_{axis} = [{lo:g}, {hi:g}] misses the floor, where the body's "
+                        f"centre lies within [{-half:g}, {half:g}] (arena.size {list(self.arena.size)})"
+                    )
         return self
 
     @model_validator(mode="after")
-    def _far_plane_beyond_near(self) -> "Level":
+    def _far_plane_beyond_near(self) -> Level:
         near = self.sensors.vision.near
         dn = self.daynight
         if dn.enabled:
             for name in ("day_far", "night_far"):
                 far = getattr(dn, name)
                 if far <= near:
-                    raise ValueError(f"daynight.{name} ({far:g}) must exceed sensors.vision.near ({near:g}): the "
-                                     "far plane would hide everything")
+                    raise ValueError(
+                        f"daynight.{name} ({far:g}) must exceed sensors.vision.near ({near:g}): the "
+                        "far plane would hide everything"
+                    )
         return self
 
 
@@ -574,7 +594,7 @@ EXCERPT_CHARS = 120
 def excerpt(value: Any) -> str:
     """``repr(value)`` cut to at most :data:`EXCERPT_CHARS` characters (nesting, items and text elided with ...)."""
     text = _EXCERPT.repr(value)
-    return text if len(text) <= EXCERPT_CHARS else text[:EXCERPT_CHARS - 3] + "..."
+    return text if len(text) <= EXCERPT_CHARS else text[: EXCERPT_CHARS - 3] + "..."
 
 
 class _Refused(yaml.YAMLError):
@@ -606,15 +626,19 @@ class _LevelLoader(yaml.SafeLoader):
         if deepest > MAX_DEPTH:
             raise _Refused(f"nested deeper than {MAX_DEPTH} levels (the limit of a level file)", mark)
         if self._nodes > MAX_NODES:
-            raise _Refused(f"more than {MAX_NODES} values, counting what each alias stands for (the limit of a "
-                           "level file)", mark)
+            raise _Refused(
+                f"more than {MAX_NODES} values, counting what each alias stands for (the limit of a level file)", mark
+            )
 
     def compose_node(self, parent: yaml.Node | None, index: Any) -> yaml.Node:
         event = self.peek_event()
         if isinstance(event, yaml.AliasEvent):
             if event.anchor in self.anchors and event.anchor not in self._anchored:
-                raise _Refused(f"the alias *{excerpt(event.anchor)[1:-1]} lies inside the value it names: a level "
-                               "cannot contain itself", event.start_mark)
+                raise _Refused(
+                    f"the alias *{excerpt(event.anchor)[1:-1]} lies inside the value it names: a level "
+                    "cannot contain itself",
+                    event.start_mark,
+                )
             node = super().compose_node(parent, index)  # an undefined alias raises here
             nodes, height = self._anchored[event.anchor]
             self._count(nodes, self._depth + height, event.start_mark)
@@ -641,8 +665,11 @@ class _LevelLoader(yaml.SafeLoader):
         return node
 
     def _not_level_data(self, node: yaml.Node) -> Any:
-        raise _Refused(f"{node.tag.replace('tag:yaml.org,2002:', '!!')} is not level data (numbers, true/false, "
-                       "text, lists and mappings)", node.start_mark)
+        raise _Refused(
+            f"{node.tag.replace('tag:yaml.org,2002:', '!!')} is not level data (numbers, true/false, "
+            "text, lists and mappings)",
+            node.start_mark,
+        )
 
 
 for _tag in ("set", "binary", "omap", "pairs"):
@@ -651,26 +678,33 @@ for _tag in ("set", "binary", "omap", "pairs"):
 _LevelLoader.add_constructor("tag:yaml.org,2002:timestamp", yaml.SafeLoader.construct_yaml_str)
 # YAML 1.2's numbers: PyYAML (YAML 1.1) reads 1e-3 and 1e6 as text, which strict fields would refuse
 _LevelLoader.add_implicit_resolver(
-    "tag:yaml.org,2002:float", re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
-    list("-+0123456789."))
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."),
+)
 
 
 def parse_level_text(data: bytes, label: str) -> dict[str, Any]:
     """The mapping in a level file's bytes, parsed within the limits above.  Raises :class:`LevelError`, one line
     naming ``label`` (the file) and what is wrong."""
     if len(data) > MAX_FILE_BYTES:
-        raise LevelError(f"level file '{label}' is larger than {MAX_FILE_BYTES // 1024} KiB (the limit of a level "
-                         "file)")
+        raise LevelError(
+            f"level file '{label}' is larger than {MAX_FILE_BYTES // 1024} KiB (the limit of a level file)"
+        )
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as err:
-        raise LevelError(f"level file '{label}' is not UTF-8 text: byte {err.object[err.start]:#04x} at offset "
-                         f"{err.start} ({err.reason})") from None
+        raise LevelError(
+            f"level file '{label}' is not UTF-8 text: byte {err.object[err.start]:#04x} at offset "
+            f"{err.start} ({err.reason})"
+        ) from None
     try:
         loader = _LevelLoader(text)
     except yaml.reader.ReaderError as err:  # raised while checking the whole text, before any parsing
-        raise LevelError(f"level file '{label}' is not valid YAML: character {err.character:#06x} at offset "
-                         f"{err.position} is not allowed") from None
+        raise LevelError(
+            f"level file '{label}' is not valid YAML: character {err.character:#06x} at offset "
+            f"{err.position} is not allowed"
+        ) from None
     try:
         tree = loader.get_single_data()
     except _Refused as err:
@@ -697,8 +731,9 @@ def _yaml_problem(err: yaml.YAMLError) -> str:
 
 #: the packaged level files, including the bases (``_defaults``, ``_testbed``): the only names ``extends:`` and
 #: :func:`load_level` resolve inside the package
-PACKAGED_FILES = tuple(sorted(entry.name[:-5] for entry in resources.files("evaaa.levels").iterdir()
-                              if entry.name.endswith(".yaml")))
+PACKAGED_FILES = tuple(
+    sorted(entry.name[:-5] for entry in resources.files("evaaa.levels").iterdir() if entry.name.endswith(".yaml"))
+)
 
 
 def _is_path(name: str | os.PathLike) -> bool:
@@ -711,8 +746,10 @@ def _read_file(source: str | Path) -> dict[str, Any]:
     if isinstance(source, Path):
         try:
             if not source.is_file():  # a FIFO or a device would block or never end
-                raise LevelError(f"level file '{source}' cannot be read: "
-                                 + ("not a regular file" if source.exists() else "no such file"))
+                raise LevelError(
+                    f"level file '{source}' cannot be read: "
+                    + ("not a regular file" if source.exists() else "no such file")
+                )
             with source.open("rb") as f:
                 data = f.read(MAX_FILE_BYTES + 1)
         except OSError as err:
@@ -733,8 +770,10 @@ def _parent(parent: Any, child: str | Path, root: Path | None) -> str | Path:
     """Where ``extends: <parent>`` of ``child`` leads: a packaged file, or a file of the user's in ``root`` (the
     folder of the file the user named) or below it."""
     label = f"{child}" if isinstance(child, Path) else f"{child}.yaml"
-    usage = (f"a packaged level ({', '.join(n for n in PACKAGED_FILES)}) or, in a file of your own, a .yaml file in "
-             "its folder or below it")
+    usage = (
+        f"a packaged level ({', '.join(n for n in PACKAGED_FILES)}) or, in a file of your own, a .yaml file in "
+        "its folder or below it"
+    )
     if not isinstance(parent, str) or not parent:
         what = "null (leave extends out to start from _defaults)" if parent is None else excerpt(parent)
         raise LevelError(f"level file '{label}': extends must name {usage}; got {what}")
@@ -746,8 +785,10 @@ def _parent(parent: Any, child: str | Path, root: Path | None) -> str | Path:
         raise LevelError(f"level file '{label}': a packaged level extends packaged levels only, not {excerpt(parent)}")
     path = child.parent / parent
     if not path.resolve().is_relative_to(root):  # '..', an absolute path or a link out of the folder
-        raise LevelError(f"level file '{label}': extends: {excerpt(parent)} leads out of {root}; a level file "
-                         "extends files in its own folder or below it only")
+        raise LevelError(
+            f"level file '{label}': extends: {excerpt(parent)} leads out of {root}; a level file "
+            "extends files in its own folder or below it only"
+        )
     return path
 
 
@@ -834,8 +875,10 @@ def _check_value(path: str, value: Any) -> None:
         item, depth = stack.pop()
         nodes += 1
         if depth > MAX_DEPTH or nodes > MAX_NODES:
-            raise LevelError(f"override '{path}': the value nests deeper than {MAX_DEPTH} levels or holds more than "
-                             f"{MAX_NODES} values (the limits of a level)")
+            raise LevelError(
+                f"override '{path}': the value nests deeper than {MAX_DEPTH} levels or holds more than "
+                f"{MAX_NODES} values (the limits of a level)"
+            )
         if isinstance(item, (set, frozenset)):
             raise LevelError(f"override '{path}': expected a list, got a set {excerpt(item)}")
         if isinstance(item, Mapping):
@@ -901,10 +944,13 @@ def _format_errors(name: str, err: ValidationError) -> str:
     for i, line in enumerate(lines):
         if isinstance(line, tuple):
             fields, owner = unknown[line], _model_at(line)
-            named = ", ".join(excerpt(f)[1:-1] for f in fields[:5]) + (f" and {len(fields) - 5} more"
-                                                                        if len(fields) > 5 else "")
-            lines[i] = (f"{named}: unknown field{'s' if len(fields) > 1 else ''}; allowed: "
-                        f"{', '.join(owner.model_fields) if owner else '?'}")
+            named = ", ".join(excerpt(f)[1:-1] for f in fields[:5]) + (
+                f" and {len(fields) - 5} more" if len(fields) > 5 else ""
+            )
+            lines[i] = (
+                f"{named}: unknown field{'s' if len(fields) > 1 else ''}; allowed: "
+                f"{', '.join(owner.model_fields) if owner else '?'}"
+            )
     shown = lines[:10] + ([f"... and {len(lines) - 10} more"] if len(lines) > 10 else [])
     return f"invalid level '{name}':\n  " + "\n  ".join(shown)
 
@@ -927,8 +973,9 @@ def load_level(name: str | os.PathLike, overrides: Mapping[str, Any] | None = No
     elif isinstance(name, (str, os.PathLike)) and _is_path(name):
         source, label = Path(name), Path(name).stem
     elif not isinstance(name, str) or name not in level_names():
-        raise LevelError(f"unknown level {excerpt(name)}; available: {', '.join(level_names())}, or a path to a "
-                         ".yaml level file")
+        raise LevelError(
+            f"unknown level {excerpt(name)}; available: {', '.join(level_names())}, or a path to a .yaml level file"
+        )
     else:
         source = label = name
     if isinstance(source, Path):

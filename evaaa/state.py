@@ -41,19 +41,35 @@ class WorldState:
     triggered: np.ndarray  # (N,) a trigger fired this episode
 
     @classmethod
-    def empty(cls, n: int, items: int, obstacles: int, triggers: int, grid: tuple[int, int],
-              ev_start: np.ndarray, sun_start: float) -> WorldState:
+    def empty(
+        cls,
+        n: int,
+        items: int,
+        obstacles: int,
+        triggers: int,
+        grid: tuple[int, int],
+        ev_start: np.ndarray,
+        sun_start: float,
+    ) -> WorldState:
         """The state of ``n`` worlds before their first reset."""
         return cls(
-            pos=np.zeros((n, 2)), heading_rad=np.zeros(n), ev=np.tile(ev_start, (n, 1)),
+            pos=np.zeros((n, 2)),
+            heading_rad=np.zeros(n),
+            ev=np.tile(ev_start, (n, 1)),
             steps=np.zeros(n, dtype=np.int64),
-            res_xy=np.zeros((n, items, 2)), res_present=np.zeros((n, items), dtype=bool),
-            fields=np.zeros((n, *grid)), field_offset=np.zeros(n), thermal_readings=np.zeros((n, 8)),
+            res_xy=np.zeros((n, items, 2)),
+            res_present=np.zeros((n, items), dtype=bool),
+            fields=np.zeros((n, *grid)),
+            field_offset=np.zeros(n),
+            thermal_readings=np.zeros((n, 8)),
             active_group=np.full(n, -1, dtype=np.int64),
-            obs_xy=np.zeros((n, obstacles, 2)), obs_present=np.zeros((n, obstacles), dtype=bool),
-            sun_angle=np.full(n, sun_start), attacked=np.zeros(n, dtype=bool),
+            obs_xy=np.zeros((n, obstacles, 2)),
+            obs_present=np.zeros((n, obstacles), dtype=bool),
+            sun_angle=np.full(n, sun_start),
+            attacked=np.zeros(n, dtype=bool),
             trigger_count=np.zeros((n, triggers), dtype=np.int64),
-            trigger_inside=np.zeros((n, triggers), dtype=bool), triggered=np.zeros(n, dtype=bool),
+            trigger_inside=np.zeros((n, triggers), dtype=bool),
+            triggered=np.zeros(n, dtype=bool),
         )
 
     def arrays(self) -> dict[str, np.ndarray]:
@@ -86,7 +102,13 @@ class StepEvents:
     @classmethod
     def none(cls, n: int) -> StepEvents:
         """Nothing happened (the record an episode starts with)."""
-        return cls(food_count=np.zeros(n, dtype=np.int64), water_count=np.zeros(n, dtype=np.int64),
-                   food_eaten=np.zeros(n, dtype=bool), water_eaten=np.zeros(n, dtype=bool),
-                   damage=np.zeros(n, dtype=np.float64), collided=np.zeros(n, dtype=bool),
-                   crossed=np.zeros(n, dtype=bool), costly=np.zeros(n, dtype=bool))
+        return cls(
+            food_count=np.zeros(n, dtype=np.int64),
+            water_count=np.zeros(n, dtype=np.int64),
+            food_eaten=np.zeros(n, dtype=bool),
+            water_eaten=np.zeros(n, dtype=bool),
+            damage=np.zeros(n, dtype=np.float64),
+            collided=np.zeros(n, dtype=bool),
+            crossed=np.zeros(n, dtype=bool),
+            costly=np.zeros(n, dtype=bool),
+        )

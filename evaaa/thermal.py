@@ -18,9 +18,7 @@ from .spec import Level
 
 #: Thermal sensor offsets in the agent's frame (right, forward), in the order F, B, L, R, FL, FR, BL, BR.
 SENSOR_NAMES: tuple[str, ...] = ("F", "B", "L", "R", "FL", "FR", "BL", "BR")
-SENSOR_OFFSETS = np.array(
-    [(0, 1), (0, -1), (-1, 0), (1, 0), (-1, 1), (1, 1), (-1, -1), (1, -1)], dtype=np.float64
-)
+SENSOR_OFFSETS = np.array([(0, 1), (0, -1), (-1, 0), (1, 0), (-1, 1), (1, 1), (-1, -1), (1, -1)], dtype=np.float64)
 
 
 def _blur(field: np.ndarray, sigma: float) -> np.ndarray:
@@ -57,13 +55,13 @@ def build_field(level: Level, hotspots: np.ndarray, heat: np.ndarray | None = No
     field = np.full(t.grid, t.base_temperature, dtype=np.float64)
     half = t.hotspots.size // 2  # an even size grows to the next odd square, as in the original
     for ix, iy in hotspots:
-        field[max(ix - half, 0): ix + half + 1, max(iy - half, 0): iy + half + 1] = t.hotspots.temperature
+        field[max(ix - half, 0) : ix + half + 1, max(iy - half, 0) : iy + half + 1] = t.hotspots.temperature
     if heat is not None and len(heat):
         sampler = FieldSampler(level)
         lo_x, lo_y = sampler.cells(heat[:, [0, 2]])
         hi_x, hi_y = sampler.cells(heat[:, [1, 3]])
         for x0, x1, y0, y1, temperature in zip(lo_x, hi_x, lo_y, hi_y, heat[:, 4]):
-            field[x0: x1 + 1, y0: y1 + 1] = temperature
+            field[x0 : x1 + 1, y0 : y1 + 1] = temperature
     return smooth(field, t.sigma)
 
 
@@ -93,8 +91,9 @@ class FieldSampler:
         y = pos[:, 1:2] - right * s + fwd * c
         return np.stack([x, y], axis=-1)
 
-    def sample(self, fields: np.ndarray, pos: np.ndarray, heading_rad: np.ndarray,
-               worlds: np.ndarray | None = None) -> np.ndarray:
+    def sample(
+        self, fields: np.ndarray, pos: np.ndarray, heading_rad: np.ndarray, worlds: np.ndarray | None = None
+    ) -> np.ndarray:
         """Temperatures (W, 8) under the thermal sensors of agents at ``pos`` (W, 2), read from ``fields``
         (N, gx, gy) at rows ``worlds`` (default: row i for agent i)."""
         ix, iy = self.cells(self.sensor_points(pos, heading_rad))

@@ -28,8 +28,10 @@ class Triggers:
         self.half = np.array([e.size for e in events], dtype=np.float64).reshape(-1, 2) / 2 + AGENT_HALF
         self.max_count = np.array([e.max_count for e in events], dtype=np.int64)
         #: (E, 4) the EV each trigger sets, NaN where it leaves one alone
-        self.sets = np.array([[np.nan if getattr(e.set, ev) is None else getattr(e.set, ev) for ev in EV_NAMES]
-                              for e in events], dtype=np.float64).reshape(-1, 4)
+        self.sets = np.array(
+            [[np.nan if getattr(e.set, ev) is None else getattr(e.set, ev) for ev in EV_NAMES] for e in events],
+            dtype=np.float64,
+        ).reshape(-1, 4)
 
     def __len__(self) -> int:
         return len(self.max_count)
@@ -45,7 +47,7 @@ class Triggers:
         """A new episode in world ``w``, whose body already stands at its start."""
         state.trigger_count[w] = 0
         state.triggered[w] = False
-        state.trigger_inside[w] = self.inside(state.pos[w: w + 1])[0]
+        state.trigger_inside[w] = self.inside(state.pos[w : w + 1])[0]
 
     def cross(self, state: WorldState, previous: np.ndarray) -> np.ndarray:
         """Fire the triggers the bodies entered on their way from ``previous`` (N, 2) to where they stand, setting

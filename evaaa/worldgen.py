@@ -51,12 +51,24 @@ class ResourcePool:
         return self.extents.max(axis=1)
 
     @classmethod
-    def from_level(cls, level: Level) -> "ResourcePool":
+    def from_level(cls, level: Level) -> ResourcePool:
         rows = []
-        for g, (name, spec) in enumerate(level.resources.items()):
+        for g, spec in enumerate(level.resources.values()):
             kind = RESOURCE_KINDS[spec.kind]
-            rows += [(g, spec.kind, FEEDS[spec.kind], (spec.x[0], spec.y[0]), (spec.x[1], spec.y[1]), spec.extents,
-                      np.radians(spec.heading), spec.respawn, kind.solid, kind.odour)] * spec.count
+            rows += [
+                (
+                    g,
+                    spec.kind,
+                    FEEDS[spec.kind],
+                    (spec.x[0], spec.y[0]),
+                    (spec.x[1], spec.y[1]),
+                    spec.extents,
+                    np.radians(spec.heading),
+                    spec.respawn,
+                    kind.solid,
+                    kind.odour,
+                )
+            ] * spec.count
         cols = list(zip(*rows)) if rows else [()] * 10
         return cls(
             names=tuple(level.resources),
@@ -122,17 +134,29 @@ class ObstaclePool:
         return len(self.group)
 
     @classmethod
-    def from_level(cls, level: Level) -> "ObstaclePool":
+    def from_level(cls, level: Level) -> ObstaclePool:
         # a generator of its own, so the sizes are a fixed property of the level
         rng = np.random.default_rng(zlib.crc32(f"evaaa-obstacles-{level.name}".encode()))
         rows = []
-        for g, (name, spec) in enumerate(level.obstacles.items()):
+        for g, spec in enumerate(level.obstacles.values()):
             kind = OBSTACLE_KINDS[spec.kind]
             for _ in range(spec.count):
                 scale = [rng.uniform(lo, hi) for lo, hi in spec.scale]
                 extents = np.array(kind.base) * scale
-                rows.append((g, spec.kind, spec.static, (spec.x[0], spec.y[0]), (spec.x[1], spec.y[1]), extents,
-                             np.radians(spec.heading), spec.padding, spec.temperature, spec.lift))
+                rows.append(
+                    (
+                        g,
+                        spec.kind,
+                        spec.static,
+                        (spec.x[0], spec.y[0]),
+                        (spec.x[1], spec.y[1]),
+                        extents,
+                        np.radians(spec.heading),
+                        spec.padding,
+                        spec.temperature,
+                        spec.lift,
+                    )
+                )
         rows.sort(key=lambda r: not r[2])  # static obstacles first: random ones are placed around them
         cols = list(zip(*rows)) if rows else [()] * 10
         kinds = np.array(cols[1], dtype=object)
@@ -212,15 +236,17 @@ def place_obstacles(pool: ObstaclePool, rng: np.random.Generator) -> tuple[np.nd
                 raise LevelError(
                     f"obstacles.{group}: obstacle {number} of {total} found no free spot in {PLACEMENT_LIMIT} "
                     f"candidates (padding {pool.padding[o]:g} m around its centre must touch no other obstacle); "
-                    f"lower obstacles.{group}.count or padding, or widen its x/y box")
+                    f"lower obstacles.{group}.count or padding, or widen its x/y box"
+                )
         xy[o], present[o] = spot, True
         placed_xy[m], placed_half[m] = spot, pool.half[o]
         m += 1
     return xy, present
 
 
-def _first_free(candidates: np.ndarray, half: np.ndarray, placed_xy: np.ndarray,
-                placed_half: np.ndarray) -> np.ndarray | None:
+def _first_free(
+    candidates: np.ndarray, half: np.ndarray, placed_xy: np.ndarray, placed_half: np.ndarray
+) -> np.ndarray | None:
     """The first candidate (2,) whose box overlaps no placed box, or None."""
     for chunk in (candidates[:8], candidates[8:]):
         free = np.flatnonzero(~_overlaps(chunk, half, placed_xy, placed_half))
@@ -253,8 +279,9 @@ def sample_agent_start(
     heading = float(rng.uniform(0.0, 360.0))
     # (B, 1) or (B, 2); reshaped to (B, -1) only when B > 0 (numpy cannot infer -1 from an empty array)
     blocker_half = np.asarray(blocker_half, dtype=np.float64)
-    blocker_half = np.broadcast_to(blocker_half.reshape(len(blocker_xy), -1) if len(blocker_xy)
-                                   else np.zeros((0, 2)), (len(blocker_xy), 2))
+    blocker_half = np.broadcast_to(
+        blocker_half.reshape(len(blocker_xy), -1) if len(blocker_xy) else np.zeros((0, 2)), (len(blocker_xy), 2)
+    )
     blocked = _overlaps(candidates, np.full(2, AGENT_HALF + a.spawn_padding), blocker_xy, blocker_half)
     free = np.flatnonzero(~blocked)
     if len(free) == 0:

@@ -44,16 +44,16 @@ from functools import partial
 from pathlib import Path
 
 import gymnasium
+import mujoco
 import numpy as np
+import torch
 
 import evaaa  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
-import mujoco
-import torch
 from evaaa.env import EvaaaEnv, make_env
 from evaaa.render import BatchRenderer
+from evaaa.scene import GROUP_AGENT
 from evaaa.sim import Simulator, default_threads
 from evaaa.spec import load_level
-from evaaa.scene import GROUP_AGENT
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
 
@@ -107,9 +107,16 @@ class IdleEnv(EvaaaEnv):
 
     def _step(self, tensordict):
         false = torch.zeros((self.num_envs, 1), dtype=torch.bool)
-        return self._to_td(self.sim.last_obs, self.sim.last_info, {
-            "reward": torch.zeros((self.num_envs, 1)), "done": false, "terminated": false.clone(),
-            "truncated": false.clone()})
+        return self._to_td(
+            self.sim.last_obs,
+            self.sim.last_info,
+            {
+                "reward": torch.zeros((self.num_envs, 1)),
+                "done": false,
+                "terminated": false.clone(),
+                "truncated": false.clone(),
+            },
+        )
 
 
 def time_gym(level: str, actions: np.ndarray, warmup: int = 50) -> tuple[float, float]:
@@ -165,8 +172,9 @@ def peer_python(venv_dir: Path) -> tuple[Path | None, str]:
             venv.create(venv_dir, with_pip=True)
         check = subprocess.run([python, "-c", "import miniworld"], capture_output=True)
         if check.returncode != 0:
-            install = subprocess.run([python, "-m", "pip", "install", "-q", "miniworld"], capture_output=True,
-                                     text=True, timeout=900)
+            install = subprocess.run(
+                [python, "-m", "pip", "install", "-q", "miniworld"], capture_output=True, text=True, timeout=900
+            )
             if install.returncode != 0:
                 return None, f"pip install miniworld failed: {install.stderr.strip().splitlines()[-1:]}"
     except (OSError, subprocess.SubprocessError) as error:
@@ -181,8 +189,9 @@ def time_peer(venv_dir: Path, steps: int) -> tuple[dict | None, str]:
         return None, why
     env = dict(os.environ, LP_NUM_THREADS="0")
     try:
-        out = subprocess.run([python, "-c", PEER_LOOP, str(steps)], capture_output=True, text=True, env=env,
-                             timeout=1800)
+        out = subprocess.run(
+            [python, "-c", PEER_LOOP, str(steps)], capture_output=True, text=True, env=env, timeout=1800
+        )
     except subprocess.SubprocessError as error:
         return None, f"the peer's loop failed: {error}"
     if out.returncode != 0:
@@ -255,15 +264,28 @@ def measure(args) -> dict:
     from torchrl.envs import ParallelEnv
 
     level, steps = args.level, args.steps
-    results: dict = {"level": level, "steps": steps, "machine": f"{platform.machine()}, {os.cpu_count()} cores",
-                     "settings": []}
+    results: dict = {
+        "level": level,
+        "steps": steps,
+        "machine": f"{platform.machine()}, {os.cpu_count()} cores",
+        "settings": [],
+    }
 
     def row(name, env_rate, raw_rate, target, cores=None, threads=None):
         ratio = env_rate / raw_rate
         per_core = ratio / cores if cores else None
-        results["settings"].append({"setting": name, "env_steps_per_s": env_rate, "raw_steps_per_s": raw_rate,
-                                    "ratio": ratio, "target": target, "cores": cores, "ratio_per_core": per_core,
-                                    "threads": threads})
+        results["settings"].append(
+            {
+                "setting": name,
+                "env_steps_per_s": env_rate,
+                "raw_steps_per_s": raw_rate,
+                "ratio": ratio,
+                "target": target,
+                "cores": cores,
+                "ratio_per_core": per_core,
+                "threads": threads,
+            }
+        )
         bound = f">= {target}" if target != "-" else "(report)"
         used = f"{cores:>7.2f}{per_core:>10.2f}" if cores is not None else f"{'':>17}"
         print(f"{name:<40}{env_rate:>12.0f}{raw_rate:>13.0f}{ratio:>8.2f}{used}   {bound}", flush=True)
@@ -292,10 +314,15 @@ def measure(args) -> dict:
     idle_rate, _ = time_env(env, random_actions(steps, 1, seed=1))
     env.close()
     ceiling = 1.0 / (1.0 + raw_one / idle_rate)
-    results["torchrl_floor"] = {"seconds_per_step": 1.0 / idle_rate, "raw_seconds_per_step": 1.0 / raw_one,
-                                "ceiling_ratio_1_env": ceiling}
-    print(f"{'  TorchRL step path alone (1 env)':<40}{idle_rate:>12.0f}{'':>13}{'':>8}{'':>17}   "
-          f"{1e6 / idle_rate:.0f} us/step: 1 env can keep at most {ceiling:.2f} of raw")
+    results["torchrl_floor"] = {
+        "seconds_per_step": 1.0 / idle_rate,
+        "raw_seconds_per_step": 1.0 / raw_one,
+        "ceiling_ratio_1_env": ceiling,
+    }
+    print(
+        f"{'  TorchRL step path alone (1 env)':<40}{idle_rate:>12.0f}{'':>13}{'':>8}{'':>17}   "
+        f"{1e6 / idle_rate:.0f} us/step: 1 env can keep at most {ceiling:.2f} of raw"
+    )
     # one world as a user steps it: TorchRL's rollout (also with every info field asked for), gymnasium; the peer
     rollout_rate, rollout_cores = time_rollout(level, steps)
     info_rate, info_cores = time_rollout(level, steps, info=True)
@@ -313,12 +340,20 @@ def measure(args) -> dict:
             results["peer"] = {"skipped": why}
         else:
             torchrl_x, gym_x = rollout_rate / peer["steps_per_s"], gym_rate / peer["steps_per_s"]
-            results["peer"] = {"name": "MiniWorld-CollectHealth-v0, 64x64, LP_NUM_THREADS=0", **peer,
-                               "torchrl_ratio": torchrl_x, "gymnasium_ratio": gym_x}
-            print(f"{'peer: MiniWorld-CollectHealth 64x64':<40}{peer['steps_per_s']:>12.0f}{'':>13}{'':>8}"
-                  f"{peer['cores']:>7.2f}")
-            print(f"  1 env / peer: TorchRL (env.rollout) {torchrl_x:.2f}x, gymnasium {gym_x:.2f}x   "
-                  "(target >= 1.5x each)")
+            results["peer"] = {
+                "name": "MiniWorld-CollectHealth-v0, 64x64, LP_NUM_THREADS=0",
+                **peer,
+                "torchrl_ratio": torchrl_x,
+                "gymnasium_ratio": gym_x,
+            }
+            print(
+                f"{'peer: MiniWorld-CollectHealth 64x64':<40}{peer['steps_per_s']:>12.0f}{'':>13}{'':>8}"
+                f"{peer['cores']:>7.2f}"
+            )
+            print(
+                f"  1 env / peer: TorchRL (env.rollout) {torchrl_x:.2f}x, gymnasium {gym_x:.2f}x   "
+                "(target >= 1.5x each)"
+            )
     n = args.num_envs
     env_rows(f"num_envs={n} (1 process)", n, 2, 0.85)
 
@@ -326,12 +361,15 @@ def measure(args) -> dict:
     for per_worker in () if args.skip_parallel else (1, n):
         acts = random_actions(steps, 2 * per_worker, seed=3)
         seeds = (10, 11)
-        penv = ParallelEnv(2, [partial(make_env, level, num_envs=per_worker, seed=s) for s in seeds],
-                           mp_start_method="spawn")
+        penv = ParallelEnv(
+            2, [partial(make_env, level, num_envs=per_worker, seed=s) for s in seeds], mp_start_method="spawn"
+        )
         env_rate, _ = time_env(penv, acts)  # the workers' CPU time is not this process's
         penv.close()
-        states = [record_states(level, per_worker, s, acts[:, i * per_worker: (i + 1) * per_worker])
-                  for i, s in enumerate(seeds)]
+        states = [
+            record_states(level, per_worker, s, acts[:, i * per_worker : (i + 1) * per_worker])
+            for i, s in enumerate(seeds)
+        ]
         name = "ParallelEnv(2)" if per_worker == 1 else f"ParallelEnv(2) x num_envs={per_worker}"
         row(name, env_rate, time_raw_parallel(level, states), "-")
 
@@ -358,23 +396,37 @@ def measure(args) -> dict:
     env.close()
     base = samples[0]
     drift = max(abs(s - base) for s in samples)
-    results["memory"] = {"steps": args.memory_steps, "rss_mb_first": base, "rss_mb_last": samples[-1],
-                         "max_drift_mb": drift, "samples_mb": samples}
-    print(f"memory over {args.memory_steps} steps: RSS {base:.1f} -> {samples[-1]:.1f} MB, "
-          f"largest drift {drift:.1f} MB   (target within 10 MB)")
+    results["memory"] = {
+        "steps": args.memory_steps,
+        "rss_mb_first": base,
+        "rss_mb_last": samples[-1],
+        "max_drift_mb": drift,
+        "samples_mb": samples,
+    }
+    print(
+        f"memory over {args.memory_steps} steps: RSS {base:.1f} -> {samples[-1]:.1f} MB, "
+        f"largest drift {drift:.1f} MB   (target within 10 MB)"
+    )
     return results
 
 
 @dataclass
 class BenchConfig:
-    level: str = option("1-1", "level or testbed whose scene is measured",
-                        choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS])
-    steps: int = option(3000, "decisions per setting (the first 50 warm up)",
-                        check=(lambda v: v > 60, "more than 60 (the first 50 decisions warm up)"))
+    level: str = option(
+        "1-1", "level or testbed whose scene is measured", choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS]
+    )
+    steps: int = option(
+        3000,
+        "decisions per setting (the first 50 warm up)",
+        check=(lambda v: v > 60, "more than 60 (the first 50 decisions warm up)"),
+    )
     num_envs: int = option(8, "worlds of the batched setting", check=(lambda v: v >= 1, "a positive integer"))
     resets: int = option(50, "resets timed for the cost of a reset", check=(lambda v: v >= 1, "a positive integer"))
-    memory_steps: int = option(20000, "steps of the memory run (resident memory is sampled every 1000 steps)",
-                               check=(lambda v: v >= 2000, "at least 2000 (memory is sampled every 1000 steps)"))
+    memory_steps: int = option(
+        20000,
+        "steps of the memory run (resident memory is sampled every 1000 steps)",
+        check=(lambda v: v >= 2000, "at least 2000 (memory is sampled every 1000 steps)"),
+    )
     skip_parallel: bool = option(False, "leave out the ParallelEnv settings")
     peer: bool = option(True, "also time MiniWorld-CollectHealth (installed on demand into peer_venv)")
     peer_venv: str = option("~/.cache/evaaa/bench-miniworld", "virtual environment the peer is installed into")
@@ -382,8 +434,13 @@ class BenchConfig:
 
 
 def main(argv=None) -> int:
-    args = cli.parse(BenchConfig, argv, prog="bench_env.py", description=__doc__.split("\n\n")[0],
-                     examples=["", "level=4-2 steps=1500 skip_parallel=true json=docs/bench_env_4-2.json"])
+    args = cli.parse(
+        BenchConfig,
+        argv,
+        prog="bench_env.py",
+        description=__doc__.split("\n\n")[0],
+        examples=["", "level=4-2 steps=1500 skip_parallel=true json=docs/bench_env_4-2.json"],
+    )
     results = measure(args)
     if args.json:
         with open(args.json, "w") as f:

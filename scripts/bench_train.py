@@ -47,7 +47,6 @@ from pathlib import Path
 import pandas as pd
 from omegaconf import OmegaConf
 
-
 import evaaa  # noqa: E402
 from evaaa_baselines import cli  # noqa: E402
 from evaaa_baselines.algos import names as algo_names  # noqa: E402
@@ -79,16 +78,20 @@ def read_throughput(run_dir: Path, algo: str, skip: float = 0.25) -> Throughput:
     if not rate_file.exists() and (session := session_totals(run_dir, algo)) is not None:
         return session
     if not rate_file.exists():
-        raise SystemExit(f"bench_train.py: {algo}: no {rate_file.relative_to(run_dir)} in {run_dir} (the run logged "
-                         "nothing: give it more minutes=, or see its train.log)")
+        raise SystemExit(
+            f"bench_train.py: {algo}: no {rate_file.relative_to(run_dir)} in {run_dir} (the run logged "
+            "nothing: give it more minutes=, or see its train.log)"
+        )
     rates = pd.read_csv(rate_file, header=None, names=["step", "rate"]).drop_duplicates("step", keep="last")
     rates = rates[rates["rate"] > 0]
     if len(rates) < 2:
         session = session_totals(run_dir, algo)
         if session is not None:  # too slow to log twice (e.g. DreamerV3 S on a CPU): the whole run's figures only
             return session
-        raise SystemExit(f"bench_train.py: {algo}: fewer than two log rows in {rate_file}; give it more minutes= "
-                         "or a smaller log_every")
+        raise SystemExit(
+            f"bench_train.py: {algo}: fewer than two log rows in {rate_file}; give it more minutes= "
+            "or a smaller log_every"
+        )
     # each row's rate is (step - the session's first step) / the session's seconds so far; a resumed run has a
     # session per resume (train.log: "resuming ... env step N"), laid end to end on one wall-time axis
     starts = resume_steps(run_dir)
@@ -112,17 +115,30 @@ def read_throughput(run_dir: Path, algo: str, skip: float = 0.25) -> Throughput:
             grad_rate = (by_step[last["step"]] - by_step[first["step"]]) / span
     gpu = run_dir / "logs" / "scalars" / "time" / "gpu_memory_peak_gb.csv"
     gpu_gb = float(pd.read_csv(gpu, header=None, names=["step", "gb"])["gb"].max()) if gpu.exists() else None
-    return Throughput(algo, int(last["step"]), float(last["seconds"]), float(last["step"] / last["seconds"]),
-                      float(steady), grad_steps, None if grad_rate is None else float(grad_rate),
-                      device=run_device(run_dir), gpu_memory_gb=gpu_gb)
+    return Throughput(
+        algo,
+        int(last["step"]),
+        float(last["seconds"]),
+        float(last["step"] / last["seconds"]),
+        float(steady),
+        grad_steps,
+        None if grad_rate is None else float(grad_rate),
+        device=run_device(run_dir),
+        gpu_memory_gb=gpu_gb,
+    )
 
 
 def session_totals(run_dir: Path, algo: str) -> Throughput | None:
     """The whole-run figures from the last session line of ``train.log`` (env steps, env steps/s, gradient steps),
     for a run that logged fewer than two rows; no steady rates."""
     log = run_dir / "train.log"
-    found = re.findall(r"on \S+: (\d+) env steps, ([\d.e+-]+) env steps/s this session, (\d+) gradient steps",
-                       log.read_text()) if log.exists() else []
+    found = (
+        re.findall(
+            r"on \S+: (\d+) env steps, ([\d.e+-]+) env steps/s this session, (\d+) gradient steps", log.read_text()
+        )
+        if log.exists()
+        else []
+    )
     if not found:
         return None
     steps, rate, updates = int(found[-1][0]), float(found[-1][1]), int(found[-1][2])
@@ -163,8 +179,14 @@ print(os.waitstatus_to_exitcode(status), usage.ru_maxrss)
 def run_measured(cmd: list[str], out_path: Path) -> tuple[int, int]:
     """Run ``cmd`` with its output in ``out_path``; returns its exit status and peak resident memory in bytes (its
     own: the command is started from a small measuring process, ``_MEASURE``)."""
-    done = subprocess.run([sys.executable, "-c", _MEASURE, str(out_path), *cmd], cwd=ROOT, env=os.environ.copy(),
-                          stdout=subprocess.PIPE, text=True, check=True)
+    done = subprocess.run(
+        [sys.executable, "-c", _MEASURE, str(out_path), *cmd],
+        cwd=ROOT,
+        env=os.environ.copy(),
+        stdout=subprocess.PIPE,
+        text=True,
+        check=True,
+    )
     status, kilobytes = done.stdout.split()
     return int(status), int(kilobytes) * 1024  # kilobytes on Linux
 
@@ -181,16 +203,38 @@ def run_algo(run_dir: Path) -> str:
     """The algorithm of a run directory, from the configuration it saved."""
     config = run_dir / ".hydra" / "config.yaml"
     if not config.exists():
-        raise SystemExit(f"bench_train.py: {run_dir} is not a run directory of scripts/train.py (no .hydra/config.yaml)")
+        raise SystemExit(
+            f"bench_train.py: {run_dir} is not a run directory of scripts/train.py (no .hydra/config.yaml)"
+        )
     return str(OmegaConf.load(config).algo.name)
 
 
-def train_overrides(algo: str, level: str, minutes: float, threads: int | None, root: Path, extra: list[str],
-                    device: str = "auto", progress: bool = False) -> list[str]:
+def train_overrides(
+    algo: str,
+    level: str,
+    minutes: float,
+    threads: int | None,
+    root: Path,
+    extra: list[str],
+    device: str = "auto",
+    progress: bool = False,
+) -> list[str]:
     """The ``scripts/train.py`` arguments of one algorithm's run."""
-    overrides = [f"algo={algo}", f"level={level}", "total_steps=1000000000", f"max_minutes={minutes}", "eval.every=0",
-                 "checkpoint.every=1000000000", "eval.episodes=1", "logger=csv", f"progress={str(progress).lower()}",
-                 f"device={device}", f"run.root={root}", f"run.name={algo}", *extra]
+    overrides = [
+        f"algo={algo}",
+        f"level={level}",
+        "total_steps=1000000000",
+        f"max_minutes={minutes}",
+        "eval.every=0",
+        "checkpoint.every=1000000000",
+        "eval.episodes=1",
+        "logger=csv",
+        f"progress={str(progress).lower()}",
+        f"device={device}",
+        f"run.root={root}",
+        f"run.name={algo}",
+        *extra,
+    ]
     return overrides + ([f"threads={threads}"] if threads is not None else [])
 
 
@@ -205,70 +249,113 @@ def check_runs(args: BenchConfig, device: str) -> None:
     with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
         for algo in args.algos:
             try:
-                check_overrides(train_overrides(algo, args.level, args.minutes, args.threads, Path("runs"),
-                                                args.overrides, device, args.progress), multirun=False)
+                check_overrides(
+                    train_overrides(
+                        algo,
+                        args.level,
+                        args.minutes,
+                        args.threads,
+                        Path("runs"),
+                        args.overrides,
+                        device,
+                        args.progress,
+                    ),
+                    multirun=False,
+                )
             except ConfigError as err:
                 cli.fail("bench_train.py", f"the run of {algo}: {err}")
 
 
-def run_one(algo: str, level: str, minutes: float, threads: int | None, root: Path, extra: list[str],
-            device: str = "auto", skip: float = 0.25, progress: bool = False) -> Throughput:
+def run_one(
+    algo: str,
+    level: str,
+    minutes: float,
+    threads: int | None,
+    root: Path,
+    extra: list[str],
+    device: str = "auto",
+    skip: float = 0.25,
+    progress: bool = False,
+) -> Throughput:
     """Train ``algo`` for ``minutes`` in ``root/<algo>`` on ``device``; returns its figures (``progress``: the run
     draws its progress bar into ``root/<algo>.out``)."""
     run_dir = root / algo
-    cmd = [sys.executable, str(ROOT / "scripts" / "train.py"),
-           *train_overrides(algo, level, minutes, threads, root, extra, device, progress)]
+    cmd = [
+        sys.executable,
+        str(ROOT / "scripts" / "train.py"),
+        *train_overrides(algo, level, minutes, threads, root, extra, device, progress),
+    ]
     log = root / f"{algo}.out"
     launched = time.time()
     code, peak_rss = run_measured(cmd, log)
     if code:
         tail = "\n".join(log.read_text().splitlines()[-40:])
         raise SystemExit(f"bench_train.py: {algo} failed (exit {code}); the end of its output:\n{tail}")
-    return replace(read_throughput(run_dir, algo, skip), peak_rss_gb=peak_rss / 1e9,
-                   first_gradient_step_s=first_gradient_step(run_dir, launched))
+    return replace(
+        read_throughput(run_dir, algo, skip),
+        peak_rss_gb=peak_rss / 1e9,
+        first_gradient_step_s=first_gradient_step(run_dir, launched),
+    )
 
 
 def table(rows: list[Throughput]) -> str:
     def fmt(value: float | None, spec: str) -> str:
         return "–" if value is None else format(value, spec)
 
-    head = (f"{'algo':<12}{'device':>8}{'env steps':>11}{'minutes':>9}{'env steps/s':>13}{'steady':>9}"
-            f"{'grad steps/s':>14}{'grad steps':>12}{'1st grad s':>12}{'peak RSS GB':>13}{'GPU GB':>8}")
+    head = (
+        f"{'algo':<12}{'device':>8}{'env steps':>11}{'minutes':>9}{'env steps/s':>13}{'steady':>9}"
+        f"{'grad steps/s':>14}{'grad steps':>12}{'1st grad s':>12}{'peak RSS GB':>13}{'GPU GB':>8}"
+    )
     lines = [head]
     for r in rows:
         steady = None if r.steady_env_steps_per_s != r.steady_env_steps_per_s else r.steady_env_steps_per_s  # nan
-        lines.append(f"{r.algo:<12}{r.device or '?':>8}{r.env_steps:>11,}{r.seconds / 60:>9.1f}"
-                     f"{r.env_steps_per_s:>13.1f}{fmt(steady, '.1f'):>9}"
-                     f"{fmt(r.steady_gradient_steps_per_s, '.3g'):>14}{fmt(r.gradient_steps, ','):>12}"
-                     f"{fmt(r.first_gradient_step_s, '.0f'):>12}{fmt(r.peak_rss_gb, '.2f'):>13}"
-                     f"{fmt(r.gpu_memory_gb, '.2f'):>8}")
+        lines.append(
+            f"{r.algo:<12}{r.device or '?':>8}{r.env_steps:>11,}{r.seconds / 60:>9.1f}"
+            f"{r.env_steps_per_s:>13.1f}{fmt(steady, '.1f'):>9}"
+            f"{fmt(r.steady_gradient_steps_per_s, '.3g'):>14}{fmt(r.gradient_steps, ','):>12}"
+            f"{fmt(r.first_gradient_step_s, '.0f'):>12}{fmt(r.peak_rss_gb, '.2f'):>13}"
+            f"{fmt(r.gpu_memory_gb, '.2f'):>8}"
+        )
     return "\n".join(lines)
 
 
 @dataclass
 class BenchConfig:
     algos: list[str] = option(list(DEFAULT_ALGOS), "algorithms to train, one after another", choices=algo_names)
-    level: str = option("1-1", "level or testbed trained on",
-                        choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS, "curriculum"])
+    level: str = option(
+        "1-1", "level or testbed trained on", choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS, "curriculum"]
+    )
     minutes: float = option(3.0, "wall-clock training time per algorithm", check=(lambda v: v > 0, "a positive number"))
-    threads: int | None = option(None, "torch threads (null: torch's default)",
-                                 check=(lambda v: v >= 1, "a positive integer"))
-    skip: float = option(0.25, "share of each run left out of the steady rates (warm-up)",
-                         check=(lambda v: 0 <= v < 1, "a number in [0, 1)"))
+    threads: int | None = option(
+        None, "torch threads (null: torch's default)", check=(lambda v: v >= 1, "a positive integer")
+    )
+    skip: float = option(
+        0.25,
+        "share of each run left out of the steady rates (warm-up)",
+        check=(lambda v: 0 <= v < 1, "a number in [0, 1)"),
+    )
     keep: str | None = option(None, "keep the run directories under this folder (null: a temporary one)")
     json: str | None = option(None, "also write the figures to this file")
-    runs: list[str] | None = option(None, "report these finished run directories (glob patterns allowed) instead of "
-                                          "training")
-    device: str = option("auto", "where the networks train: auto (CUDA when available), cpu, cuda or cuda:N",
-                         check=(lambda v: re.fullmatch(r"auto|cpu|cuda(:\d+)?", v) is not None,
-                                "auto, cpu, cuda or cuda:N"))
+    runs: list[str] | None = option(
+        None, "report these finished run directories (glob patterns allowed) instead of training"
+    )
+    device: str = option(
+        "auto",
+        "where the networks train: auto (CUDA when available), cpu, cuda or cuda:N",
+        check=(lambda v: re.fullmatch(r"auto|cpu|cuda(:\d+)?", v) is not None, "auto, cpu, cuda or cuda:N"),
+    )
     progress: bool = option(False, "keep each run's progress bar (in <keep>/<algo>.out)")
     overrides: list[str] = option([], "more train.py overrides for every run, e.g. [env.num_envs=16,preset=debug]")
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = cli.parse(BenchConfig, argv, prog="bench_train.py", description=__doc__.split("\n\n")[0],
-                     examples=["algos=[ppo,dqn] minutes=2 threads=1", '"runs=[runs/acceptance/*/seed0]"'])
+    args = cli.parse(
+        BenchConfig,
+        argv,
+        prog="bench_train.py",
+        description=__doc__.split("\n\n")[0],
+        examples=["algos=[ppo,dqn] minutes=2 threads=1", '"runs=[runs/acceptance/*/seed0]"'],
+    )
     algos = args.algos
     if not algos and args.runs is None:
         cli.fail("bench_train.py", f"algos=[]: name at least one of {', '.join(algo_names())}")
@@ -294,21 +381,44 @@ def main(argv: list[str] | None = None) -> int:
         cli.fail("bench_train.py", str(err))
     check_runs(args, str(device))
     gpu = f", {torch_device_name(device)}" if device.type == "cuda" else ""
-    print(f"evaaa bench_train: level {args.level}, {args.minutes:g} min per algorithm, device {device}{gpu}, threads "
-          f"{args.threads or 'default'}, {platform.machine()}, {os.cpu_count()} cores", flush=True)
+    print(
+        f"evaaa bench_train: level {args.level}, {args.minutes:g} min per algorithm, device {device}{gpu}, threads "
+        f"{args.threads or 'default'}, {platform.machine()}, {os.cpu_count()} cores",
+        flush=True,
+    )
     rows = []
     with tempfile.TemporaryDirectory(prefix="evaaa-bench-train-") as scratch:
         root = Path(args.keep) if args.keep else Path(scratch)
         root.mkdir(parents=True, exist_ok=True)
         for algo in algos:
             print(f"  {algo} ...", flush=True)
-            rows.append(run_one(algo, args.level, args.minutes, args.threads, root.resolve(), args.overrides,
-                                str(device), args.skip, args.progress))
+            rows.append(
+                run_one(
+                    algo,
+                    args.level,
+                    args.minutes,
+                    args.threads,
+                    root.resolve(),
+                    args.overrides,
+                    str(device),
+                    args.skip,
+                    args.progress,
+                )
+            )
     print(table(rows))
     if args.json:
-        write_json(args.json, {"level": args.level, "minutes": args.minutes, "threads": args.threads,
-                               "device": str(device), "overrides": args.overrides, "cores": os.cpu_count(),
-                               "rows": [asdict(r) for r in rows]})
+        write_json(
+            args.json,
+            {
+                "level": args.level,
+                "minutes": args.minutes,
+                "threads": args.threads,
+                "device": str(device),
+                "overrides": args.overrides,
+                "cores": os.cpu_count(),
+                "rows": [asdict(r) for r in rows],
+            },
+        )
     return 0
 
 

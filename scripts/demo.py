@@ -25,36 +25,42 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import evaaa  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
 import cv2
 import numpy as np
 import torch
 from tqdm import tqdm
 
+import evaaa  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
 from evaaa import END_TYPES, make_env
 from evaaa.pictures import PANEL_WIDTH, FrameDrawer, plot_traces
 from evaaa.video import VideoSink
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
 
+
 # ------------------------------------------------------------------------------------------------- main
 @dataclass
 class DemoConfig:
     level: str = option("1-1", "level or testbed to play", choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS])
     steps: int = option(500, "decisions to take", check=(lambda v: v >= 1, "a positive integer"))
-    num_envs: int = option(1, "worlds stepped together; the video shows world 0",
-                           check=(lambda v: v >= 1, "a positive integer"))
+    num_envs: int = option(
+        1, "worlds stepped together; the video shows world 0", check=(lambda v: v >= 1, "a positive integer")
+    )
     seed: int = option(0, "seed of the env and of the random actions", check=cli.SEED)
     out: Path = option(Path("outputs/demo"), "output directory, created if missing")
 
 
 def main(argv=None) -> int:
-    args = cli.parse(DemoConfig, argv, prog="demo.py",
-                     description="Roll out a random policy through the evaaa TorchRL env and write, for world 0, a "
-                                 "video of the egocentric view beside the four essential-variable bars "
-                                 "(rollout.mp4), its last frame (final_frame.png) and a plot of the EVs over time "
-                                 "(ev_traces.png). Prints the env's steps/s (video drawing and encoding excluded).",
-                     examples=["level=1-2 steps=1000 num_envs=2 seed=3"])
+    args = cli.parse(
+        DemoConfig,
+        argv,
+        prog="demo.py",
+        description="Roll out a random policy through the evaaa TorchRL env and write, for world 0, a "
+        "video of the egocentric view beside the four essential-variable bars "
+        "(rollout.mp4), its last frame (final_frame.png) and a plot of the EVs over time "
+        "(ev_traces.png). Prints the env's steps/s (video drawing and encoding excluded).",
+        examples=["level=1-2 steps=1000 num_envs=2 seed=3"],
+    )
     level = evaaa.load_level(args.level)
     args.out.mkdir(parents=True, exist_ok=True)
 
@@ -107,8 +113,10 @@ def main(argv=None) -> int:
     plot_traces(traces, evs, ends, params, args.level)
 
     rate = args.steps * n / env_time
-    print(f"env steps/s: {rate:.1f} ({n} world(s) x {args.steps} decisions in {env_time:.2f} s of env time, "
-          f"video drawing and encoding excluded; {episodes_done} episode(s) ended)")
+    print(
+        f"env steps/s: {rate:.1f} ({n} world(s) x {args.steps} decisions in {env_time:.2f} s of env time, "
+        f"video drawing and encoding excluded; {episodes_done} episode(s) ended)"
+    )
     if sink.note:
         print(f"note: {sink.note}")
     for p in (sink.path, final, traces):

@@ -35,12 +35,11 @@ import torch
 from tqdm import tqdm
 
 import evaaa
+from evaaa.records import DISK_ERRNOS, DiskError, StepLog, append_rows, disk_error, new_log_path, read_rows
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
 from evaaa_baselines.evaluation import REFERENCE_AGENTS, EvaluatedPolicy, EvaluationError, episode_records
-from evaaa_baselines.reports import (SUMMARY_NOTE, markdown_table, plot_outcomes, plot_summary, read_episodes,
-                                     summarize)
-from evaaa.records import DISK_ERRNOS, DiskError, StepLog, append_rows, disk_error, new_log_path, read_rows
+from evaaa_baselines.reports import SUMMARY_NOTE, markdown_table, plot_outcomes, plot_summary, read_episodes, summarize
 
 GROUPS = {"testbeds": evaaa.TESTBEDS, "training": evaaa.LEVELS, "all": evaaa.LEVELS + evaaa.TESTBEDS}
 #: what an evaluation writes to ``out``: any of them there means ``out`` already holds one
@@ -53,44 +52,83 @@ def _policy_ok(spec: str) -> bool:
 
 @dataclass
 class EvalConfig:
-    policy: list[str] = option(["oracle", "random", "still"], "oracle, random, still (stands still), or a checkpoint "
-                               "file of a baseline; a list evaluates each",
-                               check=(_policy_ok, "oracle, random, still or an existing checkpoint file"))
-    levels: list[str] = option(["testbeds"], "level and testbed names, or the groups testbeds, training, all",
-                               choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS, *GROUPS])
+    policy: list[str] = option(
+        ["oracle", "random", "still"],
+        "oracle, random, still (stands still), or a checkpoint file of a baseline; a list evaluates each",
+        check=(_policy_ok, "oracle, random, still or an existing checkpoint file"),
+    )
+    levels: list[str] = option(
+        ["testbeds"],
+        "level and testbed names, or the groups testbeds, training, all",
+        choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS, *GROUPS],
+    )
     episodes: int = option(20, "episodes per level and policy", check=(lambda v: v >= 1, "a positive integer"))
     num_envs: int = option(4, "worlds run together", check=(lambda v: v >= 1, "a positive integer"))
-    seed: int = option(0, "seed of the envs (and the random agent); the same for every policy, so they face the "
-                          "same draws", check=cli.SEED)
-    worlds: str = option("test", "which of the seed's worlds: test (held out: every published number) or validation "
-                                 "(the ones to choose settings on); never training worlds (evaaa/worlds.py)",
-                         choices=lambda: ["test", "validation"])
+    seed: int = option(
+        0,
+        "seed of the envs (and the random agent); the same for every policy, so they face the same draws",
+        check=cli.SEED,
+    )
+    worlds: str = option(
+        "test",
+        "which of the seed's worlds: test (held out: every published number) or validation "
+        "(the ones to choose settings on); never training worlds (evaaa/worlds.py)",
+        choices=lambda: ["test", "validation"],
+    )
     out: str = option("outputs/eval", "output directory")
-    include: list[str] = option([], "episode CSV files to add to the report (e.g. human play records of "
-                                    "scripts/play.py)", check=(lambda p: Path(p).is_file(), "existing files"))
-    modalities: list[str] | None = option(None, "for checkpoints: the observation keys to evaluate with (default: "
-                                                "those it was trained on; a checkpoint trained on others is refused)",
-                                          choices=lambda: evaaa.MODALITIES)
-    sample: bool = option(False, "for checkpoints: sample actions from the policy's distribution (PPO, DreamerV3) "
-                                 "instead of taking the most likely one; said in summary.md")
-    epsilon: float = option(0.0, "for checkpoints: chance of a uniformly random action at each step (0: the "
-                                 "policy's own action; 0.05 is DQN's customary evaluation epsilon); said in "
-                                 "summary.md", check=(lambda v: 0.0 <= v <= 1.0, "a number in [0, 1]"))
-    step_log: bool = option(False, "also write a per-step behaviour log, out/steps-<UTC time>.csv (one row per "
-                                   "world and decision: evaaa.records.STEP_FIELDS)")
-    threads: int | None = option(None, "torch intra-op threads (null: torch's default), as train.py's threads=",
-                                 check=(lambda v: v >= 1, "a positive integer"))
-    device: str = option("auto", "for checkpoints: where the networks run: auto (CUDA when available), cpu, cuda or "
-                                 "cuda:N; the worlds stay on the CPU",
-                         check=(lambda v: re.fullmatch(r"auto|cpu|cuda(:\d+)?", v) is not None,
-                                "auto, cpu, cuda or cuda:N"))
+    include: list[str] = option(
+        [],
+        "episode CSV files to add to the report (e.g. human play records of scripts/play.py)",
+        check=(lambda p: Path(p).is_file(), "existing files"),
+    )
+    modalities: list[str] | None = option(
+        None,
+        "for checkpoints: the observation keys to evaluate with (default: "
+        "those it was trained on; a checkpoint trained on others is refused)",
+        choices=lambda: evaaa.MODALITIES,
+    )
+    sample: bool = option(
+        False,
+        "for checkpoints: sample actions from the policy's distribution (PPO, DreamerV3) "
+        "instead of taking the most likely one; said in summary.md",
+    )
+    epsilon: float = option(
+        0.0,
+        "for checkpoints: chance of a uniformly random action at each step (0: the "
+        "policy's own action; 0.05 is DQN's customary evaluation epsilon); said in "
+        "summary.md",
+        check=(lambda v: 0.0 <= v <= 1.0, "a number in [0, 1]"),
+    )
+    step_log: bool = option(
+        False,
+        "also write a per-step behaviour log, out/steps-<UTC time>.csv (one row per "
+        "world and decision: evaaa.records.STEP_FIELDS)",
+    )
+    threads: int | None = option(
+        None,
+        "torch intra-op threads (null: torch's default), as train.py's threads=",
+        check=(lambda v: v >= 1, "a positive integer"),
+    )
+    device: str = option(
+        "auto",
+        "for checkpoints: where the networks run: auto (CUDA when available), cpu, cuda or "
+        "cuda:N; the worlds stay on the CPU",
+        check=(lambda v: re.fullmatch(r"auto|cpu|cuda(:\d+)?", v) is not None, "auto, cpu, cuda or cuda:N"),
+    )
 
 
 def parse(argv: list[str] | None = None) -> EvalConfig:
     """The config from ``key=value`` arguments (``--help`` lists the keys); level groups expanded, in order."""
-    cfg = cli.parse(EvalConfig, argv, prog="evaluate.py", description=__doc__.split("\n\n")[0],
-                    examples=["policy=[oracle,random] levels=testbeds episodes=20",
-                              "policy=[runs/1-1/ppo/all-squared/seed0/model-0-1-1.pt,random] levels=[1-1] sample=true"])
+    cfg = cli.parse(
+        EvalConfig,
+        argv,
+        prog="evaluate.py",
+        description=__doc__.split("\n\n")[0],
+        examples=[
+            "policy=[oracle,random] levels=testbeds episodes=20",
+            "policy=[runs/1-1/ppo/all-squared/seed0/model-0-1-1.pt,random] levels=[1-1] sample=true",
+        ],
+    )
     levels: list[str] = []
     for name in cfg.levels:
         levels += [level for level in GROUPS.get(name, (name,)) if level not in levels]
@@ -119,13 +157,16 @@ def _check_episodes(path: Path, policies: list[EvaluatedPolicy], cfg: EvalConfig
     """Refuse (SystemExit) an ``episodes.csv`` that is not every episode this command asks for."""
     rows = read_rows(path)
     counts = Counter((r["policy"], r["acting"], r["level"], r["seed"], r.get("worlds")) for r in rows)
-    wanted = {(p.name, p.acting, level, str(cfg.seed), cfg.worlds): cfg.episodes for p in policies
-              for level in cfg.levels}
+    wanted = {
+        (p.name, p.acting, level, str(cfg.seed), cfg.worlds): cfg.episodes for p in policies for level in cfg.levels
+    }
     if counts != wanted:
         missing = [f"{key[0]} on {key[2]}" for key, n in wanted.items() if counts.get(key) != n]
-        raise SystemExit(f"evaluate.py: {path} holds other episodes than this command's ({len(rows)} rows; "
-                         f"not as asked: {', '.join(missing[:3]) or 'episodes of other policies or levels'}); "
-                         "nothing was changed: choose another out=, or repeat the command that made it")
+        raise SystemExit(
+            f"evaluate.py: {path} holds other episodes than this command's ({len(rows)} rows; "
+            f"not as asked: {', '.join(missing[:3]) or 'episodes of other policies or levels'}); "
+            "nothing was changed: choose another out=, or repeat the command that made it"
+        )
 
 
 def _atomic(path: Path, write) -> Path:
@@ -151,8 +192,10 @@ def main(argv: list[str] | None = None) -> int:
     completing = bool(earlier) and "episodes.csv" in earlier and "summary.md" not in earlier
     if earlier and not completing:
         # appending would pool two evaluations (n doubles, the standard error shrinks); replacing would lose one
-        raise SystemExit(f"evaluate.py: {out} already holds an evaluation ({', '.join(earlier)}); nothing was "
-                         "changed: choose another out=, or move those files away first")
+        raise SystemExit(
+            f"evaluate.py: {out} already holds an evaluation ({', '.join(earlier)}); nothing was "
+            "changed: choose another out=, or move those files away first"
+        )
     try:
         _writable(out)
     except DiskError as err:
@@ -160,8 +203,9 @@ def main(argv: list[str] | None = None) -> int:
     if cfg.threads is not None:
         torch.set_num_threads(cfg.threads)
     try:
-        policies = [EvaluatedPolicy(spec, cfg.seed, cfg.modalities, cfg.epsilon, cfg.sample, cfg.device)
-                    for spec in cfg.policy]
+        policies = [
+            EvaluatedPolicy(spec, cfg.seed, cfg.modalities, cfg.epsilon, cfg.sample, cfg.device) for spec in cfg.policy
+        ]
     except EvaluationError as err:
         cli.fail("evaluate.py", str(err))
     if completing:
@@ -171,15 +215,18 @@ def main(argv: list[str] | None = None) -> int:
         try:
             _run_episodes(cfg, policies, out)
         except DiskError as err:
-            raise SystemExit(f"evaluate.py: {err}; no episodes.csv was written (run the command again once the "
-                             "disk takes writes)") from None
+            raise SystemExit(
+                f"evaluate.py: {err}; no episodes.csv was written (run the command again once the disk takes writes)"
+            ) from None
     try:
         written, table = _summarize(cfg, out)
     except OSError as err:
         if err.errno not in DISK_ERRNOS:
             raise
-        raise SystemExit(f"evaluate.py: {disk_error(err.filename or out, err)}; episodes.csv is complete: the same "
-                         "command writes the summary and figures once the disk takes writes") from None
+        raise SystemExit(
+            f"evaluate.py: {disk_error(err.filename or out, err)}; episodes.csv is complete: the same "
+            "command writes the summary and figures once the disk takes writes"
+        ) from None
     print(table)
     print("\nwrote " + ", ".join(str(p) for p in written))
     return 0
@@ -197,9 +244,16 @@ def _run_episodes(cfg: EvalConfig, policies: list[EvaluatedPolicy], out: Path) -
                 for level in cfg.levels:
                     bar.set_postfix_str(f"{policy.name} on {level}")
                     try:
-                        rows = episode_records(policy, level, episodes=cfg.episodes, num_envs=cfg.num_envs,
-                                               seed=cfg.seed, worlds=cfg.worlds, step_log=step_log,
-                                               on_episode=lambda: bar.update(1))
+                        rows = episode_records(
+                            policy,
+                            level,
+                            episodes=cfg.episodes,
+                            num_envs=cfg.num_envs,
+                            seed=cfg.seed,
+                            worlds=cfg.worlds,
+                            step_log=step_log,
+                            on_episode=lambda: bar.update(1),
+                        )
                     except EvaluationError as err:
                         raise SystemExit(f"evaluate.py: {err}") from None
                     append_rows(partial, rows)
@@ -224,18 +278,33 @@ def _summarize(cfg: EvalConfig, out: Path) -> tuple[list[Path], str]:
     written = [out / "episodes.csv"]
     tests = summary[summary["level"].isin(evaaa.TESTBEDS)]
     if len(tests):
-        written.append(_atomic(out / "success.png", lambda p: plot_summary(
-            tests, p, success=True, title=f"Success per testbed ({episodes(tests)})")))
+        written.append(
+            _atomic(
+                out / "success.png",
+                lambda p: plot_summary(tests, p, success=True, title=f"Success per testbed ({episodes(tests)})"),
+            )
+        )
     training = summary[summary["level"].isin(evaaa.LEVELS)]
     if len(training):
-        written.append(_atomic(out / "survival.png", lambda p: plot_summary(
-            training, p, success=False, title=f"Survival per training level ({episodes(training)})")))
+        written.append(
+            _atomic(
+                out / "survival.png",
+                lambda p: plot_summary(
+                    training, p, success=False, title=f"Survival per training level ({episodes(training)})"
+                ),
+            )
+        )
     written.append(_atomic(out / "outcomes.png", lambda p: plot_outcomes(rows, p)))
-    text = (f"# Evaluation ({cfg.episodes} episodes per level and policy, {cfg.worlds} worlds of seed {cfg.seed}"
-            + ("; checkpoints sample their actions (DQN's act greedily: it has no distribution)" if cfg.sample
-               else "")
-            + (f"; checkpoints act epsilon-greedily, epsilon {cfg.epsilon:g}" if cfg.epsilon else "") + ")\n\n"
-            + SUMMARY_NOTE + "\n\n" + table + "\n")
+    text = (
+        f"# Evaluation ({cfg.episodes} episodes per level and policy, {cfg.worlds} worlds of seed {cfg.seed}"
+        + ("; checkpoints sample their actions (DQN's act greedily: it has no distribution)" if cfg.sample else "")
+        + (f"; checkpoints act epsilon-greedily, epsilon {cfg.epsilon:g}" if cfg.epsilon else "")
+        + ")\n\n"
+        + SUMMARY_NOTE
+        + "\n\n"
+        + table
+        + "\n"
+    )
     written.insert(1, _atomic(out / "summary.md", lambda p: p.write_text(text)))
     return written, table
 

@@ -32,56 +32,78 @@ from evaaa_baselines.runtime import DeviceError, resolve_device
 
 @dataclass
 class FitConfig:
-    run: str = option("", "a DreamerV3 run directory (its checkpoint.pt and replay/)",
-                      check=(lambda v: bool(v), "a run directory"))
+    run: str = option(
+        "", "a DreamerV3 run directory (its checkpoint.pt and replay/)", check=(lambda v: bool(v), "a run directory")
+    )
     updates: int = option(2000, "gradient steps", check=(lambda v: v >= 1, ">= 1"))
     every: int = option(250, "gradient steps between measurements", check=(lambda v: v >= 1, ">= 1"))
     set: list[str] = option([], "algo keys to override, e.g. [consume_share=0.5,model.stochastic=32]")
-    keys: list[str] | None = option(None, "observation keys the new model sees (null: the run's), e.g. "
-                                    "[interoception,olfaction] to leave the pixels out",
-                                    choices=lambda: resolve_modalities(list(SENSORS)))
-    held_out: float = option(0.1, "share of the replay's rows kept for measuring",
-                             check=(lambda v: 0 < v < 1, "in (0, 1)"))
+    keys: list[str] | None = option(
+        None,
+        "observation keys the new model sees (null: the run's), e.g. [interoception,olfaction] to leave the pixels out",
+        choices=lambda: resolve_modalities(list(SENSORS)),
+    )
+    held_out: float = option(
+        0.1, "share of the replay's rows kept for measuring", check=(lambda v: 0 < v < 1, "in (0, 1)")
+    )
     seed: int = option(0, "seed of the new model and of the batches", check=cli.SEED)
     out: str = option("", "a CSV file for the measurements (empty: print only)")
-    threads: int | None = option(None, "torch intra-op threads (null: torch's default), as train.py's threads=",
-                                 check=(lambda v: v is None or v >= 1, "null or >= 1"))
-    device: str = option("cpu", "where the new model trains: cpu, cuda, cuda:N or auto (CUDA when available), as "
-                                "train.py's device=")
+    threads: int | None = option(
+        None,
+        "torch intra-op threads (null: torch's default), as train.py's threads=",
+        check=(lambda v: v is None or v >= 1, "null or >= 1"),
+    )
+    device: str = option(
+        "cpu", "where the new model trains: cpu, cuda, cuda:N or auto (CUDA when available), as train.py's device="
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
-    cfg = cli.parse(FitConfig, argv, prog="fit_world_model.py", description=__doc__.split("\n\n")[0],
-                    examples=["run=runs/1-1/dreamer_xs/all-squared/seed0 updates=1000 \"set=[consume_share=0.5]\""])
+    cfg = cli.parse(
+        FitConfig,
+        argv,
+        prog="fit_world_model.py",
+        description=__doc__.split("\n\n")[0],
+        examples=['run=runs/1-1/dreamer_xs/all-squared/seed0 updates=1000 "set=[consume_share=0.5]"'],
+    )
     if cfg.threads is not None:
         torch.set_num_threads(cfg.threads)
     try:
         device = resolve_device(cfg.device)
     except DeviceError as error:
         cli.fail("fit_world_model.py", str(error))
-    print(f"{cfg.run}: a new world model on {device}, {cfg.updates:,} gradient steps"
-          + (f", {' '.join(cfg.set)}" if cfg.set else "")
-          + (f", seeing {', '.join(cfg.keys)}" if cfg.keys else ""))
+    print(
+        f"{cfg.run}: a new world model on {device}, {cfg.updates:,} gradient steps"
+        + (f", {' '.join(cfg.set)}" if cfg.set else "")
+        + (f", seeing {', '.join(cfg.keys)}" if cfg.keys else "")
+    )
     readout = eat_success_readout(cfg.run, cfg.held_out)
-    print(f"its replay: {readout['presses']:,} eat presses, {readout['ate']} of them ate or drank "
-          f"({readout['held_out_ate']} in the held-out rows); how well a logistic read-out of the observation pressed "
-          "on tells which (held-out AUC, 0.5: chance): "
-          + ", ".join(f"{k} {v:.3f}" for k, v in readout["auc"].items()))
-    print(f"{'updates':>8} {'seconds':>8} {'eat effect':>11} {'on trained':>11} {'real':>7} {'posterior':>10} "
-          f"{'eat, nothing there':>19}")
+    print(
+        f"its replay: {readout['presses']:,} eat presses, {readout['ate']} of them ate or drank "
+        f"({readout['held_out_ate']} in the held-out rows); how well a logistic read-out of the observation pressed "
+        "on tells which (held-out AUC, 0.5: chance): " + ", ".join(f"{k} {v:.3f}" for k, v in readout["auc"].items())
+    )
+    print(
+        f"{'updates':>8} {'seconds':>8} {'eat effect':>11} {'on trained':>11} {'real':>7} {'posterior':>10} "
+        f"{'eat, nothing there':>19}"
+    )
 
     def report(row: dict) -> None:
-        print(f"{row['updates']:>8,} {row['seconds']:>8.0f} {row['eat_effect']:>11.3f} "
-              f"{row['eat_effect_trained']:>11.3f} {row['real_effect']:>7.3f} "
-              f"{row['posterior_effect']:>10.3f} {row['eat_effect_nothing']:>19.3f}", flush=True)
+        print(
+            f"{row['updates']:>8,} {row['seconds']:>8.0f} {row['eat_effect']:>11.3f} "
+            f"{row['eat_effect_trained']:>11.3f} {row['real_effect']:>7.3f} "
+            f"{row['posterior_effect']:>10.3f} {row['eat_effect_nothing']:>19.3f}",
+            flush=True,
+        )
 
-    rows = fit_world_model(cfg.run, cfg.updates, cfg.every, cfg.set, cfg.held_out, cfg.seed, report, cfg.keys,
-                           device)
+    rows = fit_world_model(cfg.run, cfg.updates, cfg.every, cfg.set, cfg.held_out, cfg.seed, report, cfg.keys, device)
     last = rows[-1]
-    print(f"held-out eating steps: {last['held_out_eating_steps']}; the same read-out of the trained latent on the "
-          f"observation pressed on (held-out AUC): encoder's embedding {last['latent_auc_embedding']:.3f}, "
-          f"stochastic state {last['latent_auc_state']:.3f}, deterministic state {last['latent_auc_belief']:.3f}, "
-          f"deterministic state after the eat action {last['latent_auc_belief_after_eat']:.3f}")
+    print(
+        f"held-out eating steps: {last['held_out_eating_steps']}; the same read-out of the trained latent on the "
+        f"observation pressed on (held-out AUC): encoder's embedding {last['latent_auc_embedding']:.3f}, "
+        f"stochastic state {last['latent_auc_state']:.3f}, deterministic state {last['latent_auc_belief']:.3f}, "
+        f"deterministic state after the eat action {last['latent_auc_belief_after_eat']:.3f}"
+    )
     if cfg.out:
         Path(cfg.out).parent.mkdir(parents=True, exist_ok=True)
         with open(cfg.out, "w", newline="") as f:

@@ -34,8 +34,12 @@ DESCRIPTION = "Serve a page where a person plays an evaaa level with the keyboar
 
 
 def usage() -> str:
-    return cli.usage(PlaySettings, "play.py", DESCRIPTION, ["level=1-1 participant=p01 rate=5",
-                                                            "level=1-1 overrides.episode.max_steps=200"])
+    return cli.usage(
+        PlaySettings,
+        "play.py",
+        DESCRIPTION,
+        ["level=1-1 participant=p01 rate=5", "level=1-1 overrides.episode.max_steps=200"],
+    )
 
 
 def _dotted(overrides: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:

@@ -26,15 +26,24 @@ from evaaa_baselines.cli import option
 class ProfileConfig:
     level: str = option("1-1", "level or testbed to step", choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS])
     num_envs: int = option(1, "worlds stepped together", check=(lambda v: v >= 1, "a positive integer"))
-    steps: int = option(2000, "decisions profiled (after 100 of warm-up)", check=(lambda v: v >= 1,
-                                                                                  "a positive integer"))
-    top: int = option(20, "functions listed, costliest first (by own time; PROFILE_SORT=cumulative sorts by "
-                          "cumulative time)", check=(lambda v: v >= 1, "a positive integer"))
+    steps: int = option(
+        2000, "decisions profiled (after 100 of warm-up)", check=(lambda v: v >= 1, "a positive integer")
+    )
+    top: int = option(
+        20,
+        "functions listed, costliest first (by own time; PROFILE_SORT=cumulative sorts by cumulative time)",
+        check=(lambda v: v >= 1, "a positive integer"),
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = cli.parse(ProfileConfig, argv, prog="profile_env.py", description=__doc__.split("\n\n")[0],
-                     examples=["level=4-2 num_envs=8 steps=500 top=30"])
+    args = cli.parse(
+        ProfileConfig,
+        argv,
+        prog="profile_env.py",
+        description=__doc__.split("\n\n")[0],
+        examples=["level=4-2 num_envs=8 steps=500 top=30"],
+    )
     torch.set_num_threads(1)
     env = evaaa.EvaaaEnv(args.level, num_envs=args.num_envs, seed=0, threads=1)
     generator = torch.Generator().manual_seed(0)

@@ -29,19 +29,24 @@ from evaaa_baselines.cli import option
 # ------------------------------------------------------------------------------------------------- main
 @dataclass
 class RenderConfig:
-    levels: list[str] = option(list(evaaa.LEVELS), "levels and testbeds to render",
-                               choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS])
+    levels: list[str] = option(
+        list(evaaa.LEVELS), "levels and testbeds to render", choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS]
+    )
     out: Path = option(Path("docs/images"), "output directory, created if missing")
     seed: int = option(0, "seed of the reset that lays out each world", check=cli.SEED)
 
 
 def main(argv=None) -> int:
-    args = cli.parse(RenderConfig, argv, prog="render_levels.py",
-                     description="Render pictures of evaaa levels after a reset: the agent's 64x64 eye (upscaled "
-                                 "x4), a 512x512 top-down view with the agent marked, the thermal field with "
-                                 "food/water/agent, and an overview combining the three. Writes "
-                                 "<level>_{eye,top,thermal,overview}.png.",
-                     examples=["levels=[1-1,1-2] out=docs/images seed=0", "levels=[two-resource-food,y-maze]"])
+    args = cli.parse(
+        RenderConfig,
+        argv,
+        prog="render_levels.py",
+        description="Render pictures of evaaa levels after a reset: the agent's 64x64 eye (upscaled "
+        "x4), a 512x512 top-down view with the agent marked, the thermal field with "
+        "food/water/agent, and an overview combining the three. Writes "
+        "<level>_{eye,top,thermal,overview}.png.",
+        examples=["levels=[1-1,1-2] out=docs/images seed=0", "levels=[two-resource-food,y-maze]"],
+    )
     levels = [evaaa.load_level(name) for name in args.levels]
     args.out.mkdir(parents=True, exist_ok=True)
     for level in levels:

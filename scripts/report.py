@@ -22,7 +22,6 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 
-
 from evaaa_baselines import cli  # noqa: E402
 from evaaa_baselines.cli import option  # noqa: E402
 from evaaa_baselines.reports import ReportError, build_report  # noqa: E402
@@ -30,36 +29,61 @@ from evaaa_baselines.reports import ReportError, build_report  # noqa: E402
 
 @dataclass
 class ReportConfig:
-    runs: list[str] = option([], "run directories of scripts/train.py, or folders holding them (searched "
-                                 "recursively)")
-    evals: list[str] = option([], "evaluate.py output directories (or folders of them, searched recursively) or "
-                                  "episode CSV files (incl. human play records of scripts/play.py); a checkpoint "
-                                  "evaluated there is tied to its run through the run directory it lies in")
+    runs: list[str] = option([], "run directories of scripts/train.py, or folders holding them (searched recursively)")
+    evals: list[str] = option(
+        [],
+        "evaluate.py output directories (or folders of them, searched recursively) or "
+        "episode CSV files (incl. human play records of scripts/play.py); a checkpoint "
+        "evaluated there is tied to its run through the run directory it lies in",
+    )
     out: str = option("outputs/report", "output directory")
-    survival: str = option("eval", "eval: a stage's survival is its last evaluation (eval.csv); train: the mean of "
-                                   "its last `window` training episodes (also the fallback for stages without "
-                                   "evaluations)", choices=["eval", "train"])
-    window: int = option(20, "training episodes averaged for survival=train", check=(lambda v: v >= 1,
-                                                                                      "a positive integer"))
+    survival: str = option(
+        "eval",
+        "eval: a stage's survival is its last evaluation (eval.csv); train: the mean of "
+        "its last `window` training episodes (also the fallback for stages without "
+        "evaluations)",
+        choices=["eval", "train"],
+    )
+    window: int = option(
+        20, "training episodes averaged for survival=train", check=(lambda v: v >= 1, "a positive integer")
+    )
     bins: int = option(20, "env-step bins of the training curves", check=(lambda v: v >= 1, "a positive integer"))
     title: str = option("evaaa report", "the report's title")
-    acting: str | None = option(None, "which evaluations of the checkpoints to report when one was evaluated in "
-                                      "several ways: mode, sample, mode+epsilon=0.05 ... (evaluate.py's acting "
-                                      "column; reference agents are always kept)")
+    acting: str | None = option(
+        None,
+        "which evaluations of the checkpoints to report when one was evaluated in "
+        "several ways: mode, sample, mode+epsilon=0.05 ... (evaluate.py's acting "
+        "column; reference agents are always kept)",
+    )
 
 
 def parse(argv: list[str] | None = None) -> ReportConfig:
     """The config from ``key=value`` arguments; ``--help`` lists the keys."""
-    return cli.parse(ReportConfig, argv, prog="report.py", description=__doc__.split("\n\n")[0],
-                     examples=["runs=[runs/sweep] evals=[outputs/eval-sweep] out=reports/sweep",
-                               "runs=[runs] evals=[outputs/eval,outputs/human/episodes.csv] survival=train"])
+    return cli.parse(
+        ReportConfig,
+        argv,
+        prog="report.py",
+        description=__doc__.split("\n\n")[0],
+        examples=[
+            "runs=[runs/sweep] evals=[outputs/eval-sweep] out=reports/sweep",
+            "runs=[runs] evals=[outputs/eval,outputs/human/episodes.csv] survival=train",
+        ],
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
     cfg = parse(argv)
     try:
-        report = build_report(cfg.runs, cfg.evals, cfg.out, survival=cfg.survival, window=cfg.window,
-                              bins=cfg.bins, title=cfg.title, acting=cfg.acting)
+        report = build_report(
+            cfg.runs,
+            cfg.evals,
+            cfg.out,
+            survival=cfg.survival,
+            window=cfg.window,
+            bins=cfg.bins,
+            title=cfg.title,
+            acting=cfg.acting,
+        )
     except ReportError as err:  # an input that does not hold what the key asks for: named in the message
         cli.fail("report.py", str(err))
     for problem in report.problems:

@@ -21,37 +21,71 @@ from pathlib import Path
 
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
-from evaaa_baselines.protocol import (REPO, Layout, ProtocolError, Scheduler, build_cells, keep_out_of_git,
-                                      load_protocol, plan_text, select, status)
+from evaaa_baselines.protocol import (
+    REPO,
+    Layout,
+    ProtocolError,
+    Scheduler,
+    build_cells,
+    keep_out_of_git,
+    load_protocol,
+    plan_text,
+    select,
+    status,
+)
 
 
 @dataclass
 class ReproduceConfig:
-    protocol: str = option("paper_cpu", "a protocol of conf/protocol/ (paper_cpu, smoke) or the path of a protocol "
-                                        "YAML file")
-    root: str | None = option(None, "folder of the runs, evaluations, logs and done-markers (default: the "
-                                    "protocol's root, else runs/protocol/<protocol name>)")
+    protocol: str = option(
+        "paper_cpu", "a protocol of conf/protocol/ (paper_cpu, smoke) or the path of a protocol YAML file"
+    )
+    root: str | None = option(
+        None,
+        "folder of the runs, evaluations, logs and done-markers (default: the "
+        "protocol's root, else runs/protocol/<protocol name>)",
+    )
     plan: bool = option(False, "print the cells, their status, estimated CPU-minutes and commands; run nothing")
-    jobs: int = option(1, "cells run at once (one core each: threads=1)", check=(lambda v: v >= 1,
-                                                                               "a positive integer"))
-    cells: list[str] = option([], "run only these cells (names as plan=true lists them, or shell patterns such as "
-                                  "eval/ppo/*); default: every cell not done")
-    redo: bool = option(False, "with cells=: run those cells again although done (a training run is moved aside by "
-                               "train.py's start_over=true, an evaluation's folder renamed <out>.old-<UTC time>)")
-    max_minutes: float | None = option(None, "start no new cell after this many minutes (running cells finish)",
-                                       check=(lambda v: v > 0, "a positive number"))
-    retries: int = option(1, "times a failed cell is tried again in the same session (a training continues from "
-                             "its checkpoint: the renderer crash of docs/training.md)",
-                          check=(lambda v: v >= 0, "0 or more"))
+    jobs: int = option(
+        1, "cells run at once (one core each: threads=1)", check=(lambda v: v >= 1, "a positive integer")
+    )
+    cells: list[str] = option(
+        [],
+        "run only these cells (names as plan=true lists them, or shell patterns such as "
+        "eval/ppo/*); default: every cell not done",
+    )
+    redo: bool = option(
+        False,
+        "with cells=: run those cells again although done (a training run is moved aside by "
+        "train.py's start_over=true, an evaluation's folder renamed <out>.old-<UTC time>)",
+    )
+    max_minutes: float | None = option(
+        None,
+        "start no new cell after this many minutes (running cells finish)",
+        check=(lambda v: v > 0, "a positive number"),
+    )
+    retries: int = option(
+        1,
+        "times a failed cell is tried again in the same session (a training continues from "
+        "its checkpoint: the renderer crash of docs/training.md)",
+        check=(lambda v: v >= 0, "0 or more"),
+    )
     out: str | None = option(None, "the report's folder (default: the protocol's report.out)")
     progress: bool = option(True, "a progress bar over the cells")
 
 
 def main(argv: list[str] | None = None) -> int:
-    cfg = cli.parse(ReproduceConfig, argv, prog="reproduce.py", description=__doc__.split("\n\n")[0],
-                    examples=["protocol=paper_cpu plan=true",
-                              "protocol=paper_cpu jobs=2",
-                              "protocol=paper_cpu cells=[eval/ppo/curriculum/seed0/*]"])
+    cfg = cli.parse(
+        ReproduceConfig,
+        argv,
+        prog="reproduce.py",
+        description=__doc__.split("\n\n")[0],
+        examples=[
+            "protocol=paper_cpu plan=true",
+            "protocol=paper_cpu jobs=2",
+            "protocol=paper_cpu cells=[eval/ppo/curriculum/seed0/*]",
+        ],
+    )
     if cfg.redo and not cfg.cells:
         cli.fail("reproduce.py", "redo=true needs cells=[...]: the cells to run again")
     try:
@@ -66,8 +100,10 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     todo = chosen if cfg.redo else [c for c in chosen if status(c, lay, cells) != "done"]
     if not todo:
-        print(f"reproduce.py: nothing to do: {'the cells asked for are' if cfg.cells else 'every cell is'} done "
-              f"({lay.root})")
+        print(
+            f"reproduce.py: nothing to do: {'the cells asked for are' if cfg.cells else 'every cell is'} done "
+            f"({lay.root})"
+        )
         return 0
     lay.root.mkdir(parents=True, exist_ok=True)
     keep_out_of_git(lay)
@@ -76,26 +112,42 @@ def main(argv: list[str] | None = None) -> int:
         fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
         lock.seek(0)
-        cli.fail("reproduce.py", f"another reproduce.py (pid {lock.read().strip() or '?'}) is running on {lay.root}; "
-                                 "nothing was started")
+        cli.fail(
+            "reproduce.py",
+            f"another reproduce.py (pid {lock.read().strip() or '?'}) is running on {lay.root}; nothing was started",
+        )
     lock.seek(0)
     lock.truncate()
     lock.write(str(os.getpid()))
     lock.flush()
-    print(f"reproduce.py: {len(todo)} of {len(cells)} cells to run under {lay.root}, {cfg.jobs} at a time; logs in "
-          f"{lay.logs}", flush=True)
-    scheduler = Scheduler(p, cells, lay, jobs=cfg.jobs, max_minutes=cfg.max_minutes, redo=cfg.redo,
-                          retries=cfg.retries, progress=cfg.progress,
-                          selects=" ".join(f"{k}={v}" for k, v in (("protocol", cfg.protocol), ("root", cfg.root),
-                                                                  ("out", cfg.out)) if v))
+    print(
+        f"reproduce.py: {len(todo)} of {len(cells)} cells to run under {lay.root}, {cfg.jobs} at a time; logs in "
+        f"{lay.logs}",
+        flush=True,
+    )
+    scheduler = Scheduler(
+        p,
+        cells,
+        lay,
+        jobs=cfg.jobs,
+        max_minutes=cfg.max_minutes,
+        redo=cfg.redo,
+        retries=cfg.retries,
+        progress=cfg.progress,
+        selects=" ".join(
+            f"{k}={v}" for k, v in (("protocol", cfg.protocol), ("root", cfg.root), ("out", cfg.out)) if v
+        ),
+    )
     try:
         rc = scheduler.run(todo)
     except KeyboardInterrupt:
         print("reproduce.py: stopped; the same command continues where it stopped", file=sys.stderr)
         return 130
     left = [c.name for c in cells if status(c, lay, cells) != "done"]
-    print(f"reproduce.py: {len(cells) - len(left)} of {len(cells)} cells done" +
-          (f"; not done: {', '.join(left[:10])}{' ...' if len(left) > 10 else ''}" if left else ""))
+    print(
+        f"reproduce.py: {len(cells) - len(left)} of {len(cells)} cells done"
+        + (f"; not done: {', '.join(left[:10])}{' ...' if len(left) > 10 else ''}" if left else "")
+    )
     return rc
 
 

@@ -37,8 +37,12 @@ def _stop_sweep(signum, frame):
     if _sweep_stopping:
         raise KeyboardInterrupt
     _sweep_stopping = True
-    print("train.py: Ctrl-C: the sweep stops once its running jobs have written their checkpoints (Ctrl-C again to "
-          "stop at once)", file=sys.stderr, flush=True)
+    print(
+        "train.py: Ctrl-C: the sweep stops once its running jobs have written their checkpoints (Ctrl-C again to "
+        "stop at once)",
+        file=sys.stderr,
+        flush=True,
+    )
 
 
 signal.signal(signal.SIGINT, _stop_before_start)  # first, so that even the imports below stop in one line
@@ -49,10 +53,9 @@ import hydra  # noqa: E402
 from hydra.core.hydra_config import HydraConfig  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
-
 import evaaa  # noqa: E402,F401  (sets MUJOCO_GL before mujoco loads)
-from evaaa_baselines import train  # noqa: E402
 from evaaa.records import DISK_ERRNOS, DiskError  # noqa: E402
+from evaaa_baselines import train  # noqa: E402
 from evaaa_baselines.checkpoint import CheckpointError  # noqa: E402
 from evaaa_baselines.config import CONF_DIR, check_command_line, register_levels  # noqa: E402
 from evaaa_baselines.runner import RunRefused, summary  # noqa: E402
@@ -69,8 +72,11 @@ def main(cfg: DictConfig) -> None:
         raise SystemExit(130)
     hydra_cfg = HydraConfig.get()
     # what Hydra would have written to .hydra/ itself (conf/config.yaml: output_subdir null)
-    records = {"config.yaml": cfg, "hydra.yaml": OmegaConf.create({"hydra": hydra_cfg}),
-               "overrides.yaml": OmegaConf.create(list(hydra_cfg.overrides.task))}
+    records = {
+        "config.yaml": cfg,
+        "hydra.yaml": OmegaConf.create({"hydra": hydra_cfg}),
+        "overrides.yaml": OmegaConf.create(list(hydra_cfg.overrides.task)),
+    }
     try:
         run_dir = train(cfg, hydra_cfg.runtime.output_dir, records=records)
         print(summary(cfg, run_dir), flush=True)
@@ -88,8 +94,12 @@ def main(cfg: DictConfig) -> None:
         if err.errno not in DISK_ERRNOS:
             raise
         where = err if isinstance(err, DiskError) else DiskError(err.filename or hydra_cfg.runtime.output_dir, err)
-        print(f"train.py: {where}; the run's earlier files are intact (resume=true continues from its last "
-              "checkpoint once the disk takes writes)", file=sys.stderr, flush=True)
+        print(
+            f"train.py: {where}; the run's earlier files are intact (resume=true continues from its last "
+            "checkpoint once the disk takes writes)",
+            file=sys.stderr,
+            flush=True,
+        )
         raise SystemExit(1) from None
 
 
@@ -100,6 +110,10 @@ if __name__ == "__main__":
     try:
         main()
     except KeyboardInterrupt:  # a second Ctrl-C in a sweep's parent process
-        print("train.py: sweep stopped at once; each job resumes from its last checkpoint, if it has one, with "
-              "resume=true", file=sys.stderr, flush=True)
+        print(
+            "train.py: sweep stopped at once; each job resumes from its last checkpoint, if it has one, with "
+            "resume=true",
+            file=sys.stderr,
+            flush=True,
+        )
         raise SystemExit(130) from None

@@ -17,20 +17,24 @@ from dataclasses import dataclass
 import numpy as np
 
 import evaaa
+from evaaa.sim import FORWARD, Simulator
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
-from evaaa.sim import FORWARD, Simulator
 
 
 @dataclass
 class WallHitsConfig:
-    angles: list[float] = option([0.0, 10.0, 20.0, 30.0], "headings off the wall's normal, in degrees",
-                                 check=(lambda v: 0.0 <= v < 90.0, "angles in [0, 90)"))
+    angles: list[float] = option(
+        [0.0, 10.0, 20.0, 30.0],
+        "headings off the wall's normal, in degrees",
+        check=(lambda v: 0.0 <= v < 90.0, "angles in [0, 90)"),
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
-    cfg = cli.parse(WallHitsConfig, argv, prog="wall_hits.py", description=__doc__.split("\n\n")[0],
-                    examples=["angles=[0,45]"])
+    cfg = cli.parse(
+        WallHitsConfig, argv, prog="wall_hits.py", description=__doc__.split("\n\n")[0], examples=["angles=[0,45]"]
+    )
     level = evaaa.load_level("1-1", {"resources.food.count": 0, "resources.water.count": 0, "agent.start": "fixed"})
     sim = Simulator(level, 1, ["collision"], seed=0, threads=1)
     sim.reset()

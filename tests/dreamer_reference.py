@@ -38,16 +38,40 @@ import torch
 RUNS = {
     "dreamer": ("dreamer", ()),
     "dreamer_xs": ("dreamer_xs", ()),
-    "aids": ("dreamer", ("algo.consume_share=0.25", "algo.terminal_share=0.25", "algo.critic.replay_scale=0.3",
-                         "algo.world_model.vector_scale=10", "algo.world_model.prior_vector_scale=1",
-                         "algo.world_model.raw_keys=[interoception]", "algo.reward_scale=2",
-                         "algo.buffer_on_disk=false")),
+    "aids": (
+        "dreamer",
+        (
+            "algo.consume_share=0.25",
+            "algo.terminal_share=0.25",
+            "algo.critic.replay_scale=0.3",
+            "algo.world_model.vector_scale=10",
+            "algo.world_model.prior_vector_scale=1",
+            "algo.world_model.raw_keys=[interoception]",
+            "algo.reward_scale=2",
+            "algo.buffer_on_disk=false",
+        ),
+    ),
 }
 TOTAL = 256
 #: what differs between two identical runs: wall-clock and CPU time, and where the run lived
-TIMING = {"seconds", "wall_seconds", "cpu_seconds", "time", "wall_time", "steps_per_second", "env_steps_per_second",
-          "updates_per_second", "seconds_per_update", "cpu_minutes", "wall_minutes", "timestamp", "date",
-          "update_seconds", "sps", "fps"}
+TIMING = {
+    "seconds",
+    "wall_seconds",
+    "cpu_seconds",
+    "time",
+    "wall_time",
+    "steps_per_second",
+    "env_steps_per_second",
+    "updates_per_second",
+    "seconds_per_update",
+    "cpu_minutes",
+    "wall_minutes",
+    "timestamp",
+    "date",
+    "update_seconds",
+    "sps",
+    "fps",
+}
 PLACES = {"on_disk", "run_dir", "dir", "path", "log_dir"}
 #: the logger's record of env steps per second (the checkpoint's copy of logs/scalars/time/)
 RATES = "time/"
@@ -59,8 +83,19 @@ def _cfg(algo: str, *overrides: str):
     from evaaa_baselines.config import CONF_DIR
 
     with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
-        return compose("config", overrides=[f"algo={algo}", "preset=debug", "logger=csv", "progress=false",
-                                            "threads=1", f"total_steps={TOTAL}", "seed=0", *overrides])
+        return compose(
+            "config",
+            overrides=[
+                f"algo={algo}",
+                "preset=debug",
+                "logger=csv",
+                "progress=false",
+                "threads=1",
+                f"total_steps={TOTAL}",
+                "seed=0",
+                *overrides,
+            ],
+        )
 
 
 def _trajectory(policy, env, steps: int) -> dict[str, torch.Tensor]:
@@ -134,20 +169,28 @@ def _probes(run: Path) -> dict[str, Any]:
         "imagined_action_values": probes.imagined_action_values(run, sequences=4, samples=2),
         "eat_success_readout": probes.eat_success_readout(run),
         # every row but its wall-clock seconds
-        "fit_world_model": [{k: v for k, v in row.items() if k != "seconds"} for row in probes.fit_world_model(
-            run, updates=4, every=2, overrides=["consume_share=0.5"], held_out=0.25)],
+        "fit_world_model": [
+            {k: v for k, v in row.items() if k != "seconds"}
+            for row in probes.fit_world_model(run, updates=4, every=2, overrides=["consume_share=0.5"], held_out=0.25)
+        ],
     }
 
 
 # ------------------------------------------------------------------------------------------------ comparison
 def _same(a: Any, b: Any, where: str, out: list[str]) -> None:
     if isinstance(a, torch.Tensor) or isinstance(b, torch.Tensor):
-        if not (isinstance(a, torch.Tensor) and isinstance(b, torch.Tensor) and a.dtype == b.dtype
-                and a.shape == b.shape and torch.equal(a, b)):
+        if not (
+            isinstance(a, torch.Tensor)
+            and isinstance(b, torch.Tensor)
+            and a.dtype == b.dtype
+            and a.shape == b.shape
+            and torch.equal(a, b)
+        ):
             out.append(f"{where}: tensors differ")
     elif isinstance(a, np.ndarray) or isinstance(b, np.ndarray):  # generator states kept by the checkpoint
-        if not (isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.dtype == b.dtype
-                and np.array_equal(a, b)):
+        if not (
+            isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.dtype == b.dtype and np.array_equal(a, b)
+        ):
             out.append(f"{where}: arrays differ")
     elif hasattr(a, "to_dict") and hasattr(b, "to_dict"):  # tensordicts
         _same(a.to_dict(), b.to_dict(), where, out)
@@ -203,11 +246,18 @@ def compare(a: Path, b: Path) -> list[str]:
                     out.append(f"{where}: pictures differ")
         if (ra / "replay").is_dir():
             for stage in sorted(p for p in (ra / "replay").iterdir() if p.is_dir()):
-                _same(TensorDict.load_memmap(stage).to_dict(),
-                      TensorDict.load_memmap(rb / "replay" / stage.name).to_dict(), f"{name}/replay/{stage.name}",
-                      out)
-    _same(torch.load(a / "trajectories.pt", weights_only=True), torch.load(b / "trajectories.pt", weights_only=True),
-          "trajectories", out)
+                _same(
+                    TensorDict.load_memmap(stage).to_dict(),
+                    TensorDict.load_memmap(rb / "replay" / stage.name).to_dict(),
+                    f"{name}/replay/{stage.name}",
+                    out,
+                )
+    _same(
+        torch.load(a / "trajectories.pt", weights_only=True),
+        torch.load(b / "trajectories.pt", weights_only=True),
+        "trajectories",
+        out,
+    )
     _same(json.loads((a / "probes.json").read_text()), json.loads((b / "probes.json").read_text()), "probes", out)
     return out
 

@@ -72,8 +72,7 @@ def _number(rng: random.Random, path: str, value: float) -> Any:
         return value * rng.uniform(0.0, 3.0) + rng.gauss(0.0, 1.0)
     if kind < 0.65:  # the edges of what the schema allows, and just past them
         return rng.choice([lo, hi, lo - abs(lo) * 0.5 - 1.0, hi + abs(hi) * 0.5 + 1.0, 0.0, -value])
-    return rng.choice([math.nan, math.inf, -math.inf, 1e308, -1e308, value * 10.0 ** rng.randint(-6, 12),
-                       "abc", None])
+    return rng.choice([math.nan, math.inf, -math.inf, 1e308, -1e308, value * 10.0 ** rng.randint(-6, 12), "abc", None])
 
 
 def _integer(rng: random.Random, path: str, value: int) -> Any:
@@ -138,8 +137,10 @@ def _special(rng: random.Random, base: str, tree: dict[str, Any]) -> dict[str, A
         near = rng.choice([0.3, 5.0, 100.0, 1e6])
         return {"sensors.vision.near": near, "sensors.vision.far": near * rng.choice([0.1, 1.0, 2.0])}
     if kind == 4:
-        return {"agent.collision_damage.rate": rng.choice([1.0, 5.0, 50.0]),
-                "agent.collision_damage.offset": rng.choice([-1e3, 0.0, 60.0])}
+        return {
+            "agent.collision_damage.rate": rng.choice([1.0, 5.0, 50.0]),
+            "agent.collision_damage.offset": rng.choice([-1e3, 0.0, 60.0]),
+        }
     return {"arena.size": [rng.choice([1.0, 2.0, 5.0, 1e4]), rng.choice([1.0, 3.0, 100.0])]}
 
 
@@ -167,9 +168,23 @@ def draw_case(seed: int) -> tuple[str, dict[str, Any]]:
 # ------------------------------------------------------------------------------------------------ hostile files
 #: fields a hostile value is put in: text, a number, a flag, an interval, a section, a named group
 _TARGETS = ("description", "agent.mass", "agent.auto_eat", "agent.spawn_x", "arena", "resources.food")
-_TAGS = ("!!python/object/apply:os.system ['touch /tmp/evaaa-pwned']", "!!python/name:os.system", "!!binary Mw==",
-         "!!set {1, 2}", "!!timestamp 2001-12-14", "!!omap [a: 1]", "!!pairs [a: 1]", "!custom 3", "!!str 3",
-         "!!int '3'", "!!float 3", "!!bool yes", "!!null ''", "!<tag:example.com,2000:x> 1", "!!merge 3")
+_TAGS = (
+    "!!python/object/apply:os.system ['touch /tmp/evaaa-pwned']",
+    "!!python/name:os.system",
+    "!!binary Mw==",
+    "!!set {1, 2}",
+    "!!timestamp 2001-12-14",
+    "!!omap [a: 1]",
+    "!!pairs [a: 1]",
+    "!custom 3",
+    "!!str 3",
+    "!!int '3'",
+    "!!float 3",
+    "!!bool yes",
+    "!!null ''",
+    "!<tag:example.com,2000:x> 1",
+    "!!merge 3",
+)
 
 
 def _nest(field: str, value: str) -> str:
@@ -188,8 +203,12 @@ def _deep(rng: random.Random) -> str:
         return "description: " + "{a: " * depth + "1" + "}" * depth + "\n"
     if style == 2:  # block mappings, one level per line
         depth = min(depth, 3000)
-        return "description:\n" + "".join(f"{' ' * (2 * i + 2)}k{i}:\n" for i in range(depth)) + " " * (
-            2 * depth + 2) + "x\n"
+        return (
+            "description:\n"
+            + "".join(f"{' ' * (2 * i + 2)}k{i}:\n" for i in range(depth))
+            + " " * (2 * depth + 2)
+            + "x\n"
+        )
     return "description: " + "- " * min(depth, 5000) + "1\n"  # block sequences on one line
 
 
@@ -228,7 +247,7 @@ def _encoding(rng: random.Random) -> bytes:
         data.insert(rng.randrange(len(data)), rng.choice([0, 1, 7, 27, 0x7F]))
         return bytes(data)
     if kind == 4:
-        return text.encode()[:rng.randint(1, len(text.encode()))]  # cut anywhere, even inside a character
+        return text.encode()[: rng.randint(1, len(text.encode()))]  # cut anywhere, even inside a character
     if kind == 5:
         return bytes(rng.randrange(256) for _ in range(rng.randint(1, 400)))
     if kind == 6:
@@ -253,14 +272,32 @@ def _sizes(rng: random.Random) -> str:
     if kind == 4:
         return "description: a\n---\ndescription: b\n"  # two documents
     if kind == 5:
-        return _nest(rng.choice(["agent.mass", "episode.max_steps", "resources.food.count"]),
-                     rng.choice(["1" + "0" * 400, "-1" + "0" * 400, ".inf", "-.inf", ".nan", "0x7fffffffffffffff",
-                                 "1e400", "0b101", "0o17", "1_000", "12:30:00", "+.5", "1e-400"]))
+        return _nest(
+            rng.choice(["agent.mass", "episode.max_steps", "resources.food.count"]),
+            rng.choice(
+                [
+                    "1" + "0" * 400,
+                    "-1" + "0" * 400,
+                    ".inf",
+                    "-.inf",
+                    ".nan",
+                    "0x7fffffffffffffff",
+                    "1e400",
+                    "0b101",
+                    "0o17",
+                    "1_000",
+                    "12:30:00",
+                    "+.5",
+                    "1e-400",
+                ]
+            ),
+        )
     if kind == 6:
         return _nest("agent.spawn_x", "[" + ", ".join(["1"] * many(300, 20_000, 90_000)) + "]")
     if kind == 7:
-        return rng.choice(["[1, 2]\n", "3\n", "'text'\n", "- a\n- b\n", "? [a, b]\n: 1\n", "{[1]: 2}\n",
-                           "a: {[1]: 2}\n"])
+        return rng.choice(
+            ["[1, 2]\n", "3\n", "'text'\n", "- a\n- b\n", "? [a, b]\n: 1\n", "{[1]: 2}\n", "a: {[1]: 2}\n"]
+        )
     return "agent: {mass: 5, mass: 6}\n" if rng.random() < 0.5 else "agent: {mass: 5}\nagent: {mass: 6}\n"
 
 

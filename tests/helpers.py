@@ -34,8 +34,12 @@ def play_server(workdir: Path, *args: str, participant: str = "tester", start_ti
     (``http://127.0.0.1:<port>/``).  On leaving, the server is sent SIGTERM and must exit cleanly (status 0)."""
     log_path = workdir / "play.log"
     with log_path.open("w") as log:
-        proc = subprocess.Popen([sys.executable, str(SCRIPTS / "play.py"), "level=1-1", f"participant={participant}",
-                                 "port=0", *args], cwd=workdir, stdout=log, stderr=subprocess.STDOUT)
+        proc = subprocess.Popen(
+            [sys.executable, str(SCRIPTS / "play.py"), "level=1-1", f"participant={participant}", "port=0", *args],
+            cwd=workdir,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+        )
     try:
         deadline = time.monotonic() + start_timeout
         while not (found := re.search(r"open (http://\S+/) ", log_path.read_text())):

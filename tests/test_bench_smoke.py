@@ -16,8 +16,9 @@ def load_bench():
 
 def test_bench_reports_ratios_reset_cost_and_memory(tmp_path):
     out = tmp_path / "bench.json"
-    code = load_bench().main(["steps=80", "num_envs=2", "resets=2", "memory_steps=2000", "skip_parallel=true",
-                              "peer=false", f"json={out}"])
+    code = load_bench().main(
+        ["steps=80", "num_envs=2", "resets=2", "memory_steps=2000", "skip_parallel=true", "peer=false", f"json={out}"]
+    )
     assert code == 0
     figures = json.loads(out.read_text())
     names = [row["setting"] for row in figures["settings"]]
@@ -58,8 +59,20 @@ echo '{{"steps_per_s": {rate}, "cores": 1.0}}'
 def test_the_peer_is_timed_in_the_same_run_and_given_as_ratios(tmp_path, capsys):
     out = tmp_path / "bench.json"
     venv = fake_peer_venv(tmp_path / "peer", rate=50.0)
-    assert load_bench().main(["steps=80", "num_envs=2", "resets=2", "memory_steps=2000", "skip_parallel=true",
-                              f"peer_venv={venv}", f"json={out}"]) == 0
+    assert (
+        load_bench().main(
+            [
+                "steps=80",
+                "num_envs=2",
+                "resets=2",
+                "memory_steps=2000",
+                "skip_parallel=true",
+                f"peer_venv={venv}",
+                f"json={out}",
+            ]
+        )
+        == 0
+    )
     figures = json.loads(out.read_text())
     peer = figures["peer"]
     assert peer["steps_per_s"] == 50.0
@@ -72,19 +85,34 @@ def test_a_peer_that_cannot_be_installed_is_skipped_with_the_reason(tmp_path, ca
     blocked = tmp_path / "file"
     blocked.write_text("not a directory")
     out = tmp_path / "bench.json"
-    assert load_bench().main(["steps=80", "num_envs=1", "resets=2", "memory_steps=2000", "skip_parallel=true",
-                              f"peer_venv={blocked}/venv", f"json={out}"]) == 0
+    assert (
+        load_bench().main(
+            [
+                "steps=80",
+                "num_envs=1",
+                "resets=2",
+                "memory_steps=2000",
+                "skip_parallel=true",
+                f"peer_venv={blocked}/venv",
+                f"json={out}",
+            ]
+        )
+        == 0
+    )
     reason = json.loads(out.read_text())["peer"]["skipped"]
     assert str(blocked) in reason
     assert f"peer MiniWorld-CollectHealth skipped: {reason}" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("args, message", [
-    (["steps=10"], "steps=10: expected more than 60"),
-    (["level=1-3"], "level=1-3: '1-3' is not allowed; allowed: 1-1, 1-2"),
-    (["steps=abc"], "steps=abc: expected an integer"),
-    (["--steps", "80"], "'--steps' is not of the form key=value"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["steps=10"], "steps=10: expected more than 60"),
+        (["level=1-3"], "level=1-3: '1-3' is not allowed; allowed: 1-1, 1-2"),
+        (["steps=abc"], "steps=abc: expected an integer"),
+        (["--steps", "80"], "'--steps' is not of the form key=value"),
+    ],
+)
 def test_bench_rejects_bad_arguments_in_one_line(args, message, capsys):
     with pytest.raises(SystemExit) as exit_:
         load_bench().main(args)

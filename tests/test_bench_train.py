@@ -10,7 +10,6 @@ import pytest
 from helpers import load_script
 
 
-
 def load_bench():
     return load_script("bench_train")
 
@@ -27,8 +26,9 @@ def write_log(run_dir: Path, rows: list[tuple[int, float]], updates: list[tuple[
 def test_rates_come_from_the_session_rate_log(tmp_path):
     # a fast warm-up (1,000 steps in 1 s) then 100 steps/s; the session rate column is steps / elapsed seconds
     times = {1000: 1.0, 2000: 11.0, 3000: 21.0, 4000: 31.0, 5000: 41.0}
-    write_log(tmp_path, [(s, s / t) for s, t in times.items()], [(1000, 0), (2000, 30), (3000, 60), (4000, 90),
-                                                               (5000, 120)])
+    write_log(
+        tmp_path, [(s, s / t) for s, t in times.items()], [(1000, 0), (2000, 30), (3000, 60), (4000, 90), (5000, 120)]
+    )
     got = load_bench().read_throughput(tmp_path, "dreamer_xs", skip=0.25)
     assert got.env_steps == 5000 and got.seconds == pytest.approx(41.0)
     assert got.env_steps_per_s == pytest.approx(5000 / 41.0)
@@ -52,15 +52,25 @@ def test_unknown_algorithm_names_the_allowed_ones(capsys):
     with pytest.raises(SystemExit) as exit_:
         load_bench().main(["algos=[ppo,a2c]"])
     assert exit_.value.code == 2
-    assert "algos=[ppo,a2c]: 'a2c' is not allowed; allowed: dqn, dreamer, dreamer_xs, ppo, ppo_lstm" in \
-        capsys.readouterr().err
+    assert (
+        "algos=[ppo,a2c]: 'a2c' is not allowed; allowed: dqn, dreamer, dreamer_xs, ppo, ppo_lstm"
+        in capsys.readouterr().err
+    )
 
 
 @pytest.mark.slow
 def test_a_short_real_run_reports_env_and_gradient_steps(tmp_path):
     out = tmp_path / "bench.json"
-    code = load_bench().main(["algos=[ppo]", "minutes=0.25", "threads=1", f"keep={tmp_path / 'runs'}", f"json={out}",
-                              "overrides=[preset=debug]"])
+    code = load_bench().main(
+        [
+            "algos=[ppo]",
+            "minutes=0.25",
+            "threads=1",
+            f"keep={tmp_path / 'runs'}",
+            f"json={out}",
+            "overrides=[preset=debug]",
+        ]
+    )
     assert code == 0
     row = json.loads(out.read_text())["rows"][0]
     assert row["algo"] == "ppo" and row["env_steps"] > 0 and row["steady_env_steps_per_s"] > 0
@@ -85,7 +95,9 @@ def test_a_resumed_run_adds_its_sessions_wall_time(tmp_path):
     # session 1: 1,000 steps at 10 steps/s (100 s); resumed at step 1000, session 2: 1,000 more at 20 steps/s (50 s)
     rows = [(500, 10.0), (1000, 10.0), (1500, 20.0), (2000, 20.0)]
     write_log(tmp_path, rows, [(500, 5), (1000, 10), (1500, 15), (2000, 20)])
-    (tmp_path / "train.log").write_text("[x][evaaa_baselines.runner][INFO] - resuming /r at stage 0 (1-1), env step 1000\n")
+    (tmp_path / "train.log").write_text(
+        "[x][evaaa_baselines.runner][INFO] - resuming /r at stage 0 (1-1), env step 1000\n"
+    )
     got = load_bench().read_throughput(tmp_path, "dqn", skip=0.0)
     assert got.seconds == pytest.approx(150.0) and got.env_steps_per_s == pytest.approx(2000 / 150)
     # steady from the first row (50 s) to the last (150 s): 1,500 steps and 15 updates in 100 s
@@ -114,7 +126,8 @@ def test_first_gradient_step_and_device_come_from_the_run_log(tmp_path):
         "[2026-11-25 08:00:05,000][evaaa_baselines.runtime][INFO] - dreamer on 1-1: 20,327,000 parameters on cpu (bf16 ...\n"
         "[2026-11-25 08:00:05,000][evaaa_baselines.dreamer][INFO] - prefill: 1,024 env steps of random actions before the "
         "first gradient step; then ...\n"
-        "[2026-11-25 08:00:41,500][evaaa_baselines.dreamer][INFO] - first gradient step at env step 1,032: 30 s (36 s ...)\n")
+        "[2026-11-25 08:00:41,500][evaaa_baselines.dreamer][INFO] - first gradient step at env step 1,032: 30 s (36 s ...)\n"
+    )
     bench = load_bench()
     launched = datetime(2026, 11, 25, 8, 0, 0).timestamp()
     assert bench.first_gradient_step(tmp_path, launched) == pytest.approx(41.5)
@@ -139,7 +152,8 @@ def test_a_run_too_slow_to_log_twice_reports_its_session_totals(tmp_path):
     (tmp_path / "train.log").write_text(
         "[2026-11-25 09:11:29,839][evaaa_baselines.runtime][INFO] - dreamer on 1-1: 20,306,279 parameters on cpu (bf16 ...\n"
         "[2026-11-25 09:22:25,542][evaaa_baselines.runtime][INFO] - dreamer on 1-1: 1064 env steps, 1.62 env steps/s this "
-        "session, 41 gradient steps\n")
+        "session, 41 gradient steps\n"
+    )
     got = load_bench().read_throughput(tmp_path, "dreamer")
     assert (got.env_steps, got.gradient_steps, got.device) == (1064, 41, "cpu")
     assert got.env_steps_per_s == pytest.approx(1.62) and got.seconds == pytest.approx(1064 / 1.62)

@@ -47,8 +47,10 @@ def test_a_falling_but_hard_levels_not_apart_is_not_resolvable():
 
 
 def test_a_claim_of_parts_is_reproduced_only_when_every_part_is():
-    mixed = frame(per_level("ppo", [900, 850, 800, 780, 700, 200, 150, 100])
-                  + per_level("dqn", [100, 150, 200, 250, 300, 800, 850, 900]))
+    mixed = frame(
+        per_level("ppo", [900, 850, 800, 780, 700, 200, 150, 100])
+        + per_level("dqn", [100, 150, 200, 250, 300, 800, 850, 900])
+    )
     assert c.survival_falls(mixed, LEVELS).verdict == c.UNRESOLVED  # one reproduces, one contradicts
     parts = [c.Verdict("x", c.CONTRADICTED, ""), c.Verdict("y", c.UNRESOLVED, "")]
     assert c.combine("z", parts, "").verdict == c.CONTRADICTED
@@ -60,8 +62,7 @@ def cmp_rows(algo, cur, direct, half=10.0):
 
 
 def test_b_curriculum_above_direct_on_most_levels_is_reproduced():
-    v = c.curriculum_beats_direct(frame(cmp_rows("ppo", [500] * 8, [500, 100, 100, 100, 100, 505, 495, 100])),
-                                  LEVELS)
+    v = c.curriculum_beats_direct(frame(cmp_rows("ppo", [500] * 8, [500, 100, 100, 100, 100, 505, 495, 100])), LEVELS)
     assert v.verdict == c.REPRODUCED
     assert "curriculum above on 5 of 7 levels" in v.parts[0].evidence[1]  # 1-1 is the same training: skipped
 
@@ -75,8 +76,7 @@ def test_b_direct_above_curriculum_is_contradicted_and_overlap_is_not_resolvable
 
 
 # ------------------------------------------------------------------------------------------------ (c)
-def survival_c(dreamer=None, dqn=(800, 700, 100, 100, 100, 100, 100, 100), ppo=(300,) * 8,
-               lstm=(100,) * 8):
+def survival_c(dreamer=None, dqn=(800, 700, 100, 100, 100, 100, 100, 100), ppo=(300,) * 8, lstm=(100,) * 8):
     rows = per_level("dqn", dqn) + per_level("ppo", ppo) + per_level("ppo_lstm", lstm)
     if dreamer is not None:
         rows += per_level("dreamer_xs", dreamer)
@@ -123,8 +123,13 @@ def gen(values):
 
 def seeds_of(values, spread=(0.0, 0.01, -0.01, 0.02), agent="ppo"):
     """Per-seed testbed success: seed k at level i is values[i] + spread[k]."""
-    return frame([{"agent": agent, "level": lv, "seed": k, "value": v + d}
-                  for lv, v in zip(LEVELS, values) for k, d in enumerate(spread)])
+    return frame(
+        [
+            {"agent": agent, "level": lv, "seed": k, "value": v + d}
+            for lv, v in zip(LEVELS, values)
+            for k, d in enumerate(spread)
+        ]
+    )
 
 
 def test_d_agents_below_humans_at_ceiling_and_a_drop_is_reproduced():
@@ -142,8 +147,13 @@ def test_d_a_drop_significant_once_but_not_after_holm_is_not_resolved():
     # smallest of the 28 pairs: no resolved drop (an uncorrected rule would find seven)
     first, later = [0.30, 0.30, 0.30, 0.30], [0.20, 0.26, 0.14, 0.22]
     values = [0.3] + [0.2] * 7
-    per_seed = frame([{"agent": "ppo", "level": lv, "seed": k, "value": (first if lv == "1-1" else later)[k]}
-                      for lv in LEVELS for k in range(4)])
+    per_seed = frame(
+        [
+            {"agent": "ppo", "level": lv, "seed": k, "value": (first if lv == "1-1" else later)[k]}
+            for lv in LEVELS
+            for k in range(4)
+        ]
+    )
     found, tested = c.drops(per_seed, LEVELS)
     p_first = [float(t.split("p = ")[1].split(" ")[0]) for t in tested if t.startswith("1-1→1-2")][0]
     assert len(tested) == 28 and 0.05 / 28 < p_first < 0.05
@@ -176,8 +186,14 @@ def ablation(values, half=10.0):
 
 
 def test_e_reproduced_contradicted_and_not_resolvable():
-    good = {"all": 900, "no_vision": 100, "no_interoception": 100, "no_olfaction": 800, "no_thermoception": 400,
-            "no_collision": 500}
+    good = {
+        "all": 900,
+        "no_vision": 100,
+        "no_interoception": 100,
+        "no_olfaction": 800,
+        "no_thermoception": 400,
+        "no_collision": 500,
+    }
     v = c.ablations(ablation(good), ablation({k: x / 1000 for k, x in good.items()}, 0.01))
     assert v.verdict == c.REPRODUCED, [(p.claim, p.verdict) for p in v.parts]
     bad = dict(good, no_vision=1500, no_olfaction=100)
@@ -198,9 +214,14 @@ def test_markdown_names_every_verdict_rule_and_number():
     assert "Spearman's rho" in text and "4-2: 100 [90, 110]" in text
 
 
-@pytest.mark.parametrize("a, b, expected", [({"low": 5, "high": 6}, {"low": 1, "high": 4}, True),
-                                            ({"low": 4, "high": 6}, {"low": 1, "high": 4}, False),
-                                            ({"low": float("nan"), "high": 6}, {"low": 1, "high": 4}, False)])
+@pytest.mark.parametrize(
+    "a, b, expected",
+    [
+        ({"low": 5, "high": 6}, {"low": 1, "high": 4}, True),
+        ({"low": 4, "high": 6}, {"low": 1, "high": 4}, False),
+        ({"low": float("nan"), "high": 6}, {"low": 1, "high": 4}, False),
+    ],
+)
 def test_above_needs_intervals_apart(a, b, expected):
     assert c.above(a, b) is expected
 
@@ -217,23 +238,41 @@ def test_no_part_is_decided_on_fewer_than_three_seeds():
     # a rising survival would contradict (a) on its points alone (Spearman's rho 1, p < 0.001); with two seeds per
     # cell there are no intervals and no verdict: "not resolvable: 2 seeds", with each seed's value
     nan = float("nan")
-    rising = frame([{"algo": "ppo", "level": lv, "value": 100.0 * (i + 1), "low": nan, "high": nan, "n": 2,
-                     "unit": "seeds", "points": (100.0 * (i + 1) - 5, 100.0 * (i + 1) + 5)}
-                    for i, lv in enumerate(LEVELS)])
+    rising = frame(
+        [
+            {
+                "algo": "ppo",
+                "level": lv,
+                "value": 100.0 * (i + 1),
+                "low": nan,
+                "high": nan,
+                "n": 2,
+                "unit": "seeds",
+                "points": (100.0 * (i + 1) - 5, 100.0 * (i + 1) + 5),
+            }
+            for i, lv in enumerate(LEVELS)
+        ]
+    )
     v = c.survival_falls(rising, LEVELS)
     assert v.verdict == "not resolvable: 2 seeds" and v.parts[0].verdict == "not resolvable: 2 seeds"
     assert "1-1: 100 (seeds 95, 105)" in v.parts[0].evidence[0]
     three = rising.assign(n=3, low=rising["value"] - 10, high=rising["value"] + 10)
     assert c.survival_falls(three, LEVELS).verdict == c.CONTRADICTED
     # the same for a part that compares with a reference agent, whose units are its episodes
-    short = frame([{"algo": "ppo_lstm", "level": lv, "value": 900.0, "low": 890.0, "high": 910.0, "n": 2,
-                    "unit": "seeds"} for lv in LEVELS[:3]])
+    short = frame(
+        [
+            {"algo": "ppo_lstm", "level": lv, "value": 900.0, "low": 890.0, "high": 910.0, "n": 2, "unit": "seeds"}
+            for lv in LEVELS[:3]
+        ]
+    )
     assert c._fails("ppo_lstm", LEVELS[:3], short, RANDOM).verdict == "not resolvable: 2 seeds"
 
 
 def test_agents_that_acted_differently_are_not_compared():
-    fast = frame([cell(900.0, algo="dqn", level=lv, acting="mode+epsilon=0.05") for lv in LEVELS[:4]]
-                 + [cell(100.0, algo="ppo", level=lv, acting="sample+epsilon=0.05") for lv in LEVELS[:4]])
+    fast = frame(
+        [cell(900.0, algo="dqn", level=lv, acting="mode+epsilon=0.05") for lv in LEVELS[:4]]
+        + [cell(100.0, algo="ppo", level=lv, acting="sample+epsilon=0.05") for lv in LEVELS[:4]]
+    )
     v = c._ordered("dqn", "ppo", fast, LEVELS)
     assert v.verdict == c.UNRESOLVED and "acting modes differ" in v.evidence[-1]
     same = fast.assign(acting="mode")
@@ -242,8 +281,7 @@ def test_agents_that_acted_differently_are_not_compared():
 
 def test_fails_is_not_reproduced_on_levels_without_an_interval():
     nan = float("nan")
-    one_seed = frame([{"algo": "ppo_lstm", "level": lv, "value": 900.0, "low": nan, "high": nan}
-                      for lv in LEVELS[:3]])
+    one_seed = frame([{"algo": "ppo_lstm", "level": lv, "value": 900.0, "low": nan, "high": nan} for lv in LEVELS[:3]])
     v = c._fails("ppo_lstm", LEVELS[:3], one_seed, RANDOM)
     assert v.verdict == c.UNRESOLVED
     assert "no interval on 1-1, 1-2, 2-1" in v.evidence[-1]

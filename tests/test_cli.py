@@ -17,18 +17,34 @@ from hydra import initialize_config_dir
 from hydra._internal.utils import get_args_parser
 
 from evaaa_baselines import cli
-from evaaa_baselines.config import (CONF_DIR, ConfigError, check_command_line, check_overrides, compose_checked,
-                              job_overrides, register_levels)
+from evaaa_baselines.config import (
+    CONF_DIR,
+    ConfigError,
+    check_command_line,
+    check_overrides,
+    compose_checked,
+    job_overrides,
+    register_levels,
+)
 
 register_levels()
 
 ROOT = Path(__file__).resolve().parents[1]
 #: each script's config dataclass (train.py's config is Hydra's, composed from conf/)
-SCHEMAS = {"evaluate": "EvalConfig", "report": "ReportConfig", "bench_env": "BenchConfig",
-           "bench_train": "BenchConfig", "demo": "DemoConfig", "profile_env": "ProfileConfig",
-           "render_levels": "RenderConfig", "play": "PlaySettings", "wall_hits": "WallHitsConfig",
-           "reproduce": "ReproduceConfig", "probe_dreamer": "ProbeConfig",
-           "fit_world_model": "FitConfig"}
+SCHEMAS = {
+    "evaluate": "EvalConfig",
+    "report": "ReportConfig",
+    "bench_env": "BenchConfig",
+    "bench_train": "BenchConfig",
+    "demo": "DemoConfig",
+    "profile_env": "ProfileConfig",
+    "render_levels": "RenderConfig",
+    "play": "PlaySettings",
+    "wall_hits": "WallHitsConfig",
+    "reproduce": "ReproduceConfig",
+    "probe_dreamer": "ProbeConfig",
+    "fit_world_model": "FitConfig",
+}
 
 
 def schema(name: str) -> type:
@@ -65,9 +81,15 @@ def test_train_help_lists_every_key_of_the_composed_config(capsys):
         check_command_line(["--help"])
     assert exit_.value.code == 0
     out = capsys.readouterr().out
-    for text in ("total_steps: int = 2000000", "env steps (decisions summed over the worlds)",
-                 "max_minutes: float or null = null", "eval.sample: bool = false", "algo.gamma: float = 0.99",
-                 "discount factor", "algo: dqn, dreamer, dreamer_xs, ppo, ppo_lstm (now ppo)"):
+    for text in (
+        "total_steps: int = 2000000",
+        "env steps (decisions summed over the worlds)",
+        "max_minutes: float or null = null",
+        "eval.sample: bool = false",
+        "algo.gamma: float = 0.99",
+        "discount factor",
+        "algo: dqn, dreamer, dreamer_xs, ppo, ppo_lstm (now ppo)",
+    ):
         assert text in out, text
     with pytest.raises(SystemExit):
         check_command_line(["--help", "algo=dqn"])  # the keys of the options chosen
@@ -76,18 +98,21 @@ def test_train_help_lists_every_key_of_the_composed_config(capsys):
 
 
 # ------------------------------------------------------------------------------------------------ bad input
-@pytest.mark.parametrize("name, args, message", [
-    ("bench_env", ["level=1-3"], "level=1-3: '1-3' is not allowed; allowed: 1-1, 1-2"),
-    ("bench_env", ["steps=many"], "steps=many: expected an integer"),
-    ("bench_train", ["minutes=0"], "minutes=0: expected a positive number"),
-    ("demo", ["num_envs=1.5"], "num_envs=1.5: expected an integer"),
-    ("render_levels", ["levels=[1-1,9-9]"], "levels=[1-1,9-9]: '9-9' is not allowed"),
-    ("profile_env", ["--level", "4-2"], "'--level' is not of the form key=value"),
-    ("evaluate", ["sample=maybe"], "sample=maybe: expected true or false"),
-    ("evaluate", ["episodes=[1,2]"], "episodes=[1,2]: expected an integer"),
-    ("report", ["window=2.5"], "window=2.5: expected an integer"),
-    ("report", ["colour=red"], "unknown key 'colour'; keys: runs, evals, out, survival"),
-])
+@pytest.mark.parametrize(
+    "name, args, message",
+    [
+        ("bench_env", ["level=1-3"], "level=1-3: '1-3' is not allowed; allowed: 1-1, 1-2"),
+        ("bench_env", ["steps=many"], "steps=many: expected an integer"),
+        ("bench_train", ["minutes=0"], "minutes=0: expected a positive number"),
+        ("demo", ["num_envs=1.5"], "num_envs=1.5: expected an integer"),
+        ("render_levels", ["levels=[1-1,9-9]"], "levels=[1-1,9-9]: '9-9' is not allowed"),
+        ("profile_env", ["--level", "4-2"], "'--level' is not of the form key=value"),
+        ("evaluate", ["sample=maybe"], "sample=maybe: expected true or false"),
+        ("evaluate", ["episodes=[1,2]"], "episodes=[1,2]: expected an integer"),
+        ("report", ["window=2.5"], "window=2.5: expected an integer"),
+        ("report", ["colour=red"], "unknown key 'colour'; keys: runs, evals, out, survival"),
+    ],
+)
 def test_a_malformed_argument_is_one_line_naming_the_key(name, args, message, capsys):
     with pytest.raises(SystemExit) as exit_:
         load_script(name).main(args)
@@ -104,36 +129,42 @@ def test_a_string_key_keeps_its_text_and_a_single_value_is_a_list():
     assert title == "level 1-1: DreamerV3, 75 minutes"  # YAML would have read a mapping
 
 
-@pytest.mark.parametrize("args, message", [
-    (["total_steps=abc"], "total_steps=abc: expected an integer (default 2000000)"),
-    (["eval.sample=maybe"], "eval.sample=maybe: expected true or false"),
-    (["max_minutes=soon"], "max_minutes=soon: expected a number"),
-    (["algo.encoder.cnn.channels=[a,b]"], "algo.encoder.cnn.channels=[a,b]: expected a list of integers"),
-    (["totl_steps=5"], "unknown key 'totl_steps'; keys here: seed, total_steps"),
-    (["+totl_steps=5"], "unknown key 'totl_steps'"),
-    (["algo.lrr=1"], "unknown key 'algo.lrr'; keys here: algo.name"),
-    (["algo=a2c"], "algo=a2c: no option 'a2c' in algo; allowed: dqn, dreamer, dreamer_xs, ppo, ppo_lstm"),
-    (["level=1-3"], "level=1-3: no option '1-3' in level (did you mean level=1-2?); allowed: 1-1, 1-2"),
-    (["env.overrides.episode.max_steps=5"], "add it with ++env.overrides.episode.max_steps=5"),
-    (["seed=0,1"], "seed=0,1: several values make a sweep: add -m"),
-    (["-m", "seed=0,x"], "seed=x: expected an integer"),
-    (["total_steps=[1"], "total_steps=[1"),
-    # what YAML makes of a newcomer's typing, budgets of zero or less, values only a running job used to check
-    (["level=3_2"], "level=3_2: no option '3_2' in level (did you mean level=3-2?); allowed: 1-1"),
-    (["total_steps=-5"], "total_steps=-5: expected an integer >= 1 (default 2000000)"),
-    (["total_steps=1e3"], "total_steps=1e3: expected an integer (default 2000000); YAML reads it as 1000.0: write it "
-                          "as an integer, e.g. total_steps=1000 or total_steps=1_000"),
-    (["progress=on"], "progress=on: expected true or false"),
-    (["run.name=3_2"], "run.name=3_2: expected a string"),
-    (["level=curriculum", "level.stages=[1-1,3_2]"], "level.stages=[1-1,3_2]: '3_2' is not a level"),
-    (["level=curriculum", "level.stage_steps=0"], "level.stage_steps=0: expected an integer >= 1"),
-    (["env.num_envs=0"], "env.num_envs=0: expected an integer >= 1"),
-    (["env.num_envs=3"], "algo.frames_per_batch=1024: expected a multiple of env.num_envs (3)"),
-    (["max_minutes=-1"], "max_minutes=-1: expected a number > 0"),
-    (["algo.lr=-1"], "algo.lr=-1: expected a number > 0"),
-    (["device=on"], "device=on: not a device; allowed: auto, cpu, cuda, cuda:N"),
-    (["protocol=smoke"], "protocol=smoke: protocol is not a key of train.py"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["total_steps=abc"], "total_steps=abc: expected an integer (default 2000000)"),
+        (["eval.sample=maybe"], "eval.sample=maybe: expected true or false"),
+        (["max_minutes=soon"], "max_minutes=soon: expected a number"),
+        (["algo.encoder.cnn.channels=[a,b]"], "algo.encoder.cnn.channels=[a,b]: expected a list of integers"),
+        (["totl_steps=5"], "unknown key 'totl_steps'; keys here: seed, total_steps"),
+        (["+totl_steps=5"], "unknown key 'totl_steps'"),
+        (["algo.lrr=1"], "unknown key 'algo.lrr'; keys here: algo.name"),
+        (["algo=a2c"], "algo=a2c: no option 'a2c' in algo; allowed: dqn, dreamer, dreamer_xs, ppo, ppo_lstm"),
+        (["level=1-3"], "level=1-3: no option '1-3' in level (did you mean level=1-2?); allowed: 1-1, 1-2"),
+        (["env.overrides.episode.max_steps=5"], "add it with ++env.overrides.episode.max_steps=5"),
+        (["seed=0,1"], "seed=0,1: several values make a sweep: add -m"),
+        (["-m", "seed=0,x"], "seed=x: expected an integer"),
+        (["total_steps=[1"], "total_steps=[1"),
+        # what YAML makes of a newcomer's typing, budgets of zero or less, values only a running job used to check
+        (["level=3_2"], "level=3_2: no option '3_2' in level (did you mean level=3-2?); allowed: 1-1"),
+        (["total_steps=-5"], "total_steps=-5: expected an integer >= 1 (default 2000000)"),
+        (
+            ["total_steps=1e3"],
+            "total_steps=1e3: expected an integer (default 2000000); YAML reads it as 1000.0: write it "
+            "as an integer, e.g. total_steps=1000 or total_steps=1_000",
+        ),
+        (["progress=on"], "progress=on: expected true or false"),
+        (["run.name=3_2"], "run.name=3_2: expected a string"),
+        (["level=curriculum", "level.stages=[1-1,3_2]"], "level.stages=[1-1,3_2]: '3_2' is not a level"),
+        (["level=curriculum", "level.stage_steps=0"], "level.stage_steps=0: expected an integer >= 1"),
+        (["env.num_envs=0"], "env.num_envs=0: expected an integer >= 1"),
+        (["env.num_envs=3"], "algo.frames_per_batch=1024: expected a multiple of env.num_envs (3)"),
+        (["max_minutes=-1"], "max_minutes=-1: expected a number > 0"),
+        (["algo.lr=-1"], "algo.lr=-1: expected a number > 0"),
+        (["device=on"], "device=on: not a device; allowed: auto, cpu, cuda, cuda:N"),
+        (["protocol=smoke"], "protocol=smoke: protocol is not a key of train.py"),
+    ],
+)
 def test_train_refuses_a_malformed_override_in_one_line(args, message, capsys):
     with pytest.raises(SystemExit) as exit_:
         check_command_line(args)
@@ -144,23 +175,41 @@ def test_train_refuses_a_malformed_override_in_one_line(args, message, capsys):
 
 def test_train_accepts_what_its_config_allows():
     with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
-        cfg = compose_checked(["algo=ppo_lstm", "max_minutes=5", "algo.lr=1e-3", "threads=2",
-                               "++env.overrides.episode.max_steps=50", "level=curriculum", "level.stages=[1-1,1-2]",
-                               "hydra/launcher=basic"])
+        cfg = compose_checked(
+            [
+                "algo=ppo_lstm",
+                "max_minutes=5",
+                "algo.lr=1e-3",
+                "threads=2",
+                "++env.overrides.episode.max_steps=50",
+                "level=curriculum",
+                "level.stages=[1-1,1-2]",
+                "hydra/launcher=basic",
+            ]
+        )
         assert (cfg.max_minutes, cfg.algo.lr, cfg.level.stages) == (5, 1e-3, ["1-1", "1-2"])
         with pytest.raises(ConfigError, match="level.stages"):
             compose_checked(["level=curriculum", "level.stages=1-1"])  # a list is written [a,b]
     jobs = job_overrides(["algo=dqn,ppo", "seed=0,1,2", "preset=debug"], multirun=True)
-    assert len(jobs) == 4 and ["algo=ppo", "seed=0", "preset=debug"] in jobs and ["algo=dqn", "seed=2",
-                                                                                  "preset=debug"] in jobs
+    assert (
+        len(jobs) == 4
+        and ["algo=ppo", "seed=0", "preset=debug"] in jobs
+        and ["algo=dqn", "seed=2", "preset=debug"] in jobs
+    )
 
 
 def test_train_script_refuses_before_hydra_writes_anything(tmp_path):
-    done = subprocess.run([sys.executable, str(ROOT / "scripts" / "train.py"), "total_steps=-5"], cwd=tmp_path,
-                          capture_output=True, text=True, timeout=120)
+    done = subprocess.run(
+        [sys.executable, str(ROOT / "scripts" / "train.py"), "total_steps=-5"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert done.returncode == 2
-    assert done.stderr.strip().splitlines() == ["train.py: error: total_steps=-5: expected an integer >= 1 (default "
-                                                "2000000)"]
+    assert done.stderr.strip().splitlines() == [
+        "train.py: error: total_steps=-5: expected an integer >= 1 (default 2000000)"
+    ]
     assert not list(tmp_path.iterdir())  # no run directory, no .hydra: the corrected command finds nothing in its way
 
 
@@ -200,8 +249,16 @@ def documented_commands() -> list[tuple[str, str, list[str]]]:
 
 
 def test_the_documentation_shows_commands_of_every_script():
-    assert {name for _, name, _ in documented_commands()} >= {"train", "evaluate", "report", "bench_env",
-                                                              "bench_train", "demo", "render_levels", "play"}
+    assert {name for _, name, _ in documented_commands()} >= {
+        "train",
+        "evaluate",
+        "report",
+        "bench_env",
+        "bench_train",
+        "demo",
+        "render_levels",
+        "play",
+    }
 
 
 def test_documented_commands_parse_as_written():
@@ -268,8 +325,9 @@ BAD_VALUES = [
 
 
 @pytest.mark.parametrize("name, arg, message", BAD_VALUES, ids=[f"{n}-{a}" for n, a, _ in BAD_VALUES])
-def test_every_script_refuses_a_bad_value_in_one_line_and_writes_nothing(name, arg, message, tmp_path, monkeypatch,
-                                                                        capsys):
+def test_every_script_refuses_a_bad_value_in_one_line_and_writes_nothing(
+    name, arg, message, tmp_path, monkeypatch, capsys
+):
     monkeypatch.chdir(tmp_path)  # where each script's default output folder would go
     module = load_script(name)
     if hasattr(module, "serve"):  # play.py: a value let through would start a server that never returns
@@ -289,12 +347,14 @@ def test_every_script_has_rows_of_bad_values():
 
 
 def test_setup_sh_help_prints_help_and_sets_nothing_up():
-    done = subprocess.run(["bash", str(ROOT / "scripts" / "setup.sh"), "--help"], capture_output=True, text=True,
-                          timeout=60)
+    done = subprocess.run(
+        ["bash", str(ROOT / "scripts" / "setup.sh"), "--help"], capture_output=True, text=True, timeout=60
+    )
     assert done.returncode == 0 and done.stdout.startswith("usage: bash scripts/setup.sh"), done.stderr
     assert "[setup]" not in done.stdout + done.stderr  # no step ran
-    wrong = subprocess.run(["bash", str(ROOT / "scripts" / "setup.sh"), "--bogus"], capture_output=True, text=True,
-                           timeout=60)
+    wrong = subprocess.run(
+        ["bash", str(ROOT / "scripts" / "setup.sh"), "--bogus"], capture_output=True, text=True, timeout=60
+    )
     assert wrong.returncode == 2 and wrong.stderr.strip() == "setup.sh: error: unknown argument --bogus (see --help)"
 
 

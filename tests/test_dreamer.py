@@ -17,8 +17,8 @@ from pathlib import Path
 
 import matplotlib.image
 import pytest
-from helpers import RESUME_DEVICE, load_script, read_csv, train_scalars
 import torch
+from helpers import RESUME_DEVICE, load_script, read_csv, train_scalars
 from hydra import compose, initialize_config_dir
 from tensordict import TensorDict
 
@@ -47,16 +47,22 @@ def make_cfg(*overrides: str):
 
 def debug_cfg(*extra: str, algo: str = "dreamer"):
     # one torch thread: these tiny networks gain nothing from more, and tests may share the machine
-    return make_cfg(f"algo={algo}", "preset=debug", "logger=csv", "progress=false", "threads=1",
-                    f"total_steps={TOTAL}", *extra)
+    return make_cfg(
+        f"algo={algo}", "preset=debug", "logger=csv", "progress=false", "threads=1", f"total_steps={TOTAL}", *extra
+    )
 
 
 # ------------------------------------------------------------------------------------------------ config and model
 def test_sizes_s_as_the_paper_xs_and_debug_smaller():
     s, xs, debug = make_cfg("algo=dreamer").algo, make_cfg("algo=dreamer_xs").algo, debug_cfg().algo
     assert (s.name, s.size, xs.name, xs.size) == ("dreamer", "S", "dreamer_xs", "XS")
-    assert (s.model.dense, s.model.mlp_layers, s.model.cnn.depth, s.model.recurrent, s.model.hidden) == \
-        (512, 2, 32, 512, 512)  # SPEC §12, size S
+    assert (s.model.dense, s.model.mlp_layers, s.model.cnn.depth, s.model.recurrent, s.model.hidden) == (
+        512,
+        2,
+        32,
+        512,
+        512,
+    )  # SPEC §12, size S
     assert (s.model.stochastic, s.model.classes, s.model.bins, s.horizon) == (32, 32, 255, 15)
     assert (s.batch_size, s.sequence_length, s.replay_ratio, s.buffer_size) == (16, 64, 1.0, 1_000_000)
     for small in (xs, debug):
@@ -111,8 +117,11 @@ def runs(tmp_path_factory):
     root = tmp_path_factory.mktemp("dreamer")
     train(debug_cfg(), root / "whole")
     at_kill = killed_and_resumed(root / "resumed", resume_with=(f"device={RESUME_DEVICE}",))
-    return {"whole": root / "whole", "resumed": root / "resumed",
-            "steps_at_kill_checkpoint": at_kill["counters"]["steps"]}
+    return {
+        "whole": root / "whole",
+        "resumed": root / "resumed",
+        "steps_at_kill_checkpoint": at_kill["counters"]["steps"],
+    }
 
 
 def replay_rows(run_dir: Path) -> TensorDict:
@@ -149,13 +158,23 @@ def test_smoke_run_trains_logs_finite_losses_and_checkpoints_the_buffer(runs):
     rows = replay_rows(run_dir)
     assert rows.shape == (TOTAL // 2, 2) and rows["next", "pixels"].dtype == torch.uint8  # every step of both worlds
     assert rows["next", "pixels"].float().std() > 0 and (rows["world"] == torch.arange(2)).all()
-    assert {"optimizer_world_model", "optimizer_actor", "optimizer_critic", "value_loss", "return_norm"} <= \
-        set(state["components"])
+    assert {"optimizer_world_model", "optimizer_actor", "optimizer_critic", "value_loss", "return_norm"} <= set(
+        state["components"]
+    )
     assert (run_dir / "model-0-1-1.pt").exists() and not list(run_dir.glob(".*.tmp"))
 
     scalars = train_scalars(run_dir)
-    for name in ("model_reco", "model_reward", "model_continue", "model_dynamic", "model_representation",
-                 "actor_loss", "actor_entropy", "critic_loss", "return_scale"):
+    for name in (
+        "model_reco",
+        "model_reward",
+        "model_continue",
+        "model_dynamic",
+        "model_representation",
+        "actor_loss",
+        "actor_entropy",
+        "critic_loss",
+        "return_scale",
+    ):
         assert scalars.get(name), f"{name} is not logged"
         assert all(math.isfinite(float(v)) for v in scalars[name].values()), name
     assert [int(r["env_steps"]) for r in read_csv(run_dir / "eval.csv")] == [128, 128, 256, 256]  # 2 episodes each
@@ -227,8 +246,11 @@ def test_only_memory_mapped_batches_go_to_a_gpu_through_pinned_memory(tmp_path):
 def test_a_buffer_larger_than_the_memory_is_refused_naming_both(tmp_path, monkeypatch):
     monkeypatch.setattr(dreamer_replay, "available_memory", lambda device: 10_000_000)
     where = resolve_device("auto").type  # a buffer in memory lives on the training device
-    with pytest.raises(ValueError, match=rf"algo.buffer_size=1,024 transitions need .* but {where} has 0.01 GB "
-                                         r"available: use algo.buffer_on_disk=true"):
+    with pytest.raises(
+        ValueError,
+        match=rf"algo.buffer_size=1,024 transitions need .* but {where} has 0.01 GB "
+        r"available: use algo.buffer_on_disk=true",
+    ):
         train(debug_cfg("algo.buffer_on_disk=false"), tmp_path / "run")
 
 
@@ -268,10 +290,18 @@ def test_loaded_policy_carries_its_recurrent_state(runs):
 
 
 def test_evaluate_script_runs_a_dreamer_checkpoint(runs, tmp_path):
-    cmd = [sys.executable, str(ROOT / "scripts" / "evaluate.py"), f"policy={runs['whole'] / 'checkpoint.pt'}",
-           "levels=[1-1]", "episodes=2", "num_envs=2", f"out={tmp_path}"]
-    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300,
-                          env={**os.environ, "OMP_NUM_THREADS": "1"})
+    cmd = [
+        sys.executable,
+        str(ROOT / "scripts" / "evaluate.py"),
+        f"policy={runs['whole'] / 'checkpoint.pt'}",
+        "levels=[1-1]",
+        "episodes=2",
+        "num_envs=2",
+        f"out={tmp_path}",
+    ]
+    done = subprocess.run(
+        cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300, env={**os.environ, "OMP_NUM_THREADS": "1"}
+    )
     assert done.returncode == 0, done.stderr[-3000:]
     rows = read_csv(tmp_path / "episodes.csv")
     assert len(rows) == 2 and all(r["level"] == "1-1" for r in rows)
@@ -285,8 +315,13 @@ def test_the_probe_decodes_the_evs_of_a_run_and_says_how_far_off_they_are(runs, 
     assert list(result["other"]) == list(EV_NAMES)
     assert all(math.isfinite(v) and v >= 0 for v in result["other"].values())
     assert result["eating_steps"] > 0 or all(math.isnan(v) for v in result["eating"].values())
-    assert list(result["linear_probe"]) == ["nothing", "embedding", "stochastic latent", "deterministic state",
-                                            "latent (both)"]
+    assert list(result["linear_probe"]) == [
+        "nothing",
+        "embedding",
+        "stochastic latent",
+        "deterministic state",
+        "latent (both)",
+    ]
     assert all(math.isfinite(v) and v <= 1 for shares in result["linear_probe"].values() for v in shares.values())
     values = dreamer_probes.imagined_action_values(runs["whole"], sequences=4, samples=2)
     assert list(values["groups"]) == ["every state", "ate or drank", "ate nothing", "1-5 steps before eating"]
@@ -312,8 +347,9 @@ def test_the_probe_reads_other_networks_of_the_run_on_its_replay(runs, capsys, t
     state["env_steps"] = 12
     flat = tmp_path / "model-flat.pt"
     checkpoint.save_checkpoint(state, flat)
-    own = dreamer_probes.imagined_action_values(runs["whole"], sequences=4,
-                                                samples=2)["groups"]["every state"]["policy"]
+    own = dreamer_probes.imagined_action_values(runs["whole"], sequences=4, samples=2)["groups"]["every state"][
+        "policy"
+    ]
     values = dreamer_probes.imagined_action_values(runs["whole"], sequences=4, samples=2, model_file=flat)
     assert values["env_steps"] == 12
     assert list(values["groups"]["every state"]["policy"].values()) == pytest.approx([0.2] * 5)
@@ -332,8 +368,9 @@ def test_the_probe_reads_other_networks_of_the_run_on_its_replay(runs, capsys, t
 
 def test_a_fresh_world_model_fits_a_runs_replay_and_measures_what_eating_does(runs, capsys, tmp_path):
     seen = []
-    rows = dreamer_probes.fit_world_model(runs["whole"], updates=6, every=3, overrides=["consume_share=0.5"],
-                                   held_out=0.25, report=seen.append)
+    rows = dreamer_probes.fit_world_model(
+        runs["whole"], updates=6, every=3, overrides=["consume_share=0.5"], held_out=0.25, report=seen.append
+    )
     assert [r["updates"] for r in rows] == [0, 3, 6] and seen == rows
     assert all(math.isfinite(r["eat_effect_nothing"]) or math.isnan(r["eat_effect_nothing"]) for r in rows)
     # with no held-out eating step there is nothing to measure: NaN, not a made-up 0
@@ -341,8 +378,9 @@ def test_a_fresh_world_model_fits_a_runs_replay_and_measures_what_eating_does(ru
     assert all("eat_effect_trained" in r for r in rows)  # the same on eating steps it trains on
     # the trained latent's read-out of "this press will eat" comes with the last measurement only
     assert {"latent_auc_embedding", "latent_auc_belief"} <= set(rows[-1]) and "latent_auc_belief" not in rows[0]
-    blind = dreamer_probes.fit_world_model(runs["whole"], updates=1, every=1, held_out=0.25,
-                                    keys=["interoception", "olfaction"])
+    blind = dreamer_probes.fit_world_model(
+        runs["whole"], updates=1, every=1, held_out=0.25, keys=["interoception", "olfaction"]
+    )
     assert len(blind) == 2  # without the pixels' encoder and decoder
     assert blind[0]["world_model_parameters"] < rows[0]["world_model_parameters"]
     with pytest.raises(ValueError, match="keys must include interoception"):
@@ -407,9 +445,14 @@ def test_imagining_each_action_takes_that_action_and_averages_the_draws():
         return None, torch.full_like(state, float(next(draws))), onehot
 
     state, belief = torch.zeros(3, 2), torch.zeros(3, 5)
-    out = dreamer_probes.imagine_each_action(prior, state, belief, samples=4,
-                                      paid=lambda s, b: b[:, evaaa.ACTION_NAMES.index("eat")] * 10,
-                                      drawn=lambda s, b: s[:, 0])
+    out = dreamer_probes.imagine_each_action(
+        prior,
+        state,
+        belief,
+        samples=4,
+        paid=lambda s, b: b[:, evaaa.ACTION_NAMES.index("eat")] * 10,
+        drawn=lambda s, b: s[:, 0],
+    )
     assert out["paid"].shape == (3, dreamer_model.NUM_ACTIONS)
     assert out["paid"][:, evaaa.ACTION_NAMES.index("eat")].eq(10).all()  # only eating pays, in every state
     assert out["paid"].sum(1).eq(10).all()

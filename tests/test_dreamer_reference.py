@@ -31,31 +31,47 @@ def test_dreamer_trains_acts_and_probes_exactly_as_the_recording(tmp_path):
     assert dreamer_reference.compare(Path(REFERENCE), tmp_path / "now") == []
 
 
-def fake_recording(root: Path, weight: float = 1.0, moment: float = 0.5, ret: str = "-0.12", action: int = 3,
-                   error: float = 0.25, seconds: float = 1.0, wall_time: str = "2026-11-27T16:10:08") -> Path:
+def fake_recording(
+    root: Path,
+    weight: float = 1.0,
+    moment: float = 0.5,
+    ret: str = "-0.12",
+    action: int = 3,
+    error: float = 0.25,
+    seconds: float = 1.0,
+    wall_time: str = "2026-11-27T16:10:08",
+) -> Path:
     """A recording of the shape :func:`dreamer_reference.record` writes, small enough to build in a test."""
     for name in dreamer_reference.RUNS:
         run = root / name
         (run / "openloop").mkdir(parents=True)
-        state = {"model": {"encoder.weight": torch.tensor([weight, 2.0])},
-                 "components": {"optimizer_world_model": {"state": {0: {"exp_avg": torch.tensor([moment])}}}},
-                 "time": {"seconds": seconds}}
+        state = {
+            "model": {"encoder.weight": torch.tensor([weight, 2.0])},
+            "components": {"optimizer_world_model": {"state": {0: {"exp_avg": torch.tensor([moment])}}}},
+            "time": {"seconds": seconds},
+        }
         save_checkpoint(state, run / "checkpoint.pt")
         (run / "episodes.csv").write_text(f"env_steps,return,wall_time\n96,{ret},{wall_time}\n")
         (run / "openloop" / "openloop-0-1-1-000000032.png").write_bytes(b"\x89PNG fake")
     torch.save({"loaded_deterministic": {"action": torch.tensor([action, 1])}}, root / "trajectories.pt")
-    (root / "probes.json").write_text(json.dumps({"ev_decoding_errors": {"eating": {"satiation": error}},
-                                                  "eat_success_readout": {"auc": float("nan")}}))
+    (root / "probes.json").write_text(
+        json.dumps(
+            {"ev_decoding_errors": {"eating": {"satiation": error}}, "eat_success_readout": {"auc": float("nan")}}
+        )
+    )
     return root
 
 
-@pytest.mark.parametrize(("change", "found"), [
-    ({"weight": 1.0 + 1e-7}, "dreamer/checkpoint.pt.model.encoder.weight: tensors differ"),
-    ({"moment": 0.25}, "dreamer/checkpoint.pt.components.optimizer_world_model.state.0.exp_avg: tensors differ"),
-    ({"ret": "-0.13"}, "dreamer/episodes.csv: rows differ"),
-    ({"action": 2}, "trajectories.loaded_deterministic.action: tensors differ"),
-    ({"error": 0.26}, "probes.ev_decoding_errors.eating.satiation: 0.25 != 0.26"),
-])
+@pytest.mark.parametrize(
+    ("change", "found"),
+    [
+        ({"weight": 1.0 + 1e-7}, "dreamer/checkpoint.pt.model.encoder.weight: tensors differ"),
+        ({"moment": 0.25}, "dreamer/checkpoint.pt.components.optimizer_world_model.state.0.exp_avg: tensors differ"),
+        ({"ret": "-0.13"}, "dreamer/episodes.csv: rows differ"),
+        ({"action": 2}, "trajectories.loaded_deterministic.action: tensors differ"),
+        ({"error": 0.26}, "probes.ev_decoding_errors.eating.satiation: 0.25 != 0.26"),
+    ],
+)
 def test_the_comparison_finds_each_kind_of_difference(tmp_path, change, found):
     reference = fake_recording(tmp_path / "a")
     assert dreamer_reference.compare(reference, fake_recording(tmp_path / "b")) == []  # NaN equals NaN here

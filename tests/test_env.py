@@ -8,9 +8,9 @@ from functools import partial
 import numpy as np
 import pytest
 import torch
+from helpers import decode_mp4
 from torchrl.envs import SerialEnv, TransformedEnv
 from torchrl.envs.transforms import StepCounter
-from helpers import decode_mp4
 from torchrl.envs.utils import check_env_specs
 
 import evaaa
@@ -67,9 +67,20 @@ def test_contract_shapes_and_dtypes():
     assert env.action_spec.n == 5
     out = env.rand_step(td)
     assert out["next", "reward"].shape == (2, 1)
-    assert set(out["next", "info"].keys()) >= {"position", "yaw", "satiation", "hydration", "temperature", "damage",
-                                               "food_eaten", "water_eaten", "collision", "damage_taken",
-                                               "step_count", "end_type"}
+    assert set(out["next", "info"].keys()) >= {
+        "position",
+        "yaw",
+        "satiation",
+        "hydration",
+        "temperature",
+        "damage",
+        "food_eaten",
+        "water_eaten",
+        "collision",
+        "damage_taken",
+        "step_count",
+        "end_type",
+    }
     env.close()
 
 
@@ -80,7 +91,9 @@ def test_info_is_emitted_only_as_asked():
     assert "info" not in plain.observation_spec.keys() and "info" not in plain.rollout(3).keys(True)
     some = evaaa.make_env("1-1", num_envs=2, seed=0, modalities=["interoception"], info=["end_type", "yaw"])
     full = evaaa.make_env("1-1", num_envs=2, seed=0, modalities=["interoception"], info=True)
-    assert list(some.observation_spec["info"].keys()) == ["yaw", "end_type"] and "info=['yaw', 'end_type']" in repr(some)
+    assert list(some.observation_spec["info"].keys()) == ["yaw", "end_type"] and "info=['yaw', 'end_type']" in repr(
+        some
+    )
     torch.manual_seed(0)
     a = some.rollout(20, break_when_any_done=False)
     torch.manual_seed(0)
@@ -88,8 +101,10 @@ def test_info_is_emitted_only_as_asked():
     assert set(a["next", "info"].keys()) == {"yaw", "end_type"}
     assert torch.equal(a["next", "info", "yaw"], b["next", "info", "yaw"])
     assert torch.equal(a["next", "interoception"], b["next", "interoception"])
-    for bad, match in [(["end_type", "hunger"], r"info names unknown fields \['hunger'\]; allowed: position, yaw"),
-                       (3, r"info must be True, False or a list of fields of position, yaw")]:
+    for bad, match in [
+        (["end_type", "hunger"], r"info names unknown fields \['hunger'\]; allowed: position, yaw"),
+        (3, r"info must be True, False or a list of fields of position, yaw"),
+    ]:
         with pytest.raises(ValueError, match=match):
             evaaa.make_env("1-1", info=bad)
     for env in (plain, some, full):
@@ -199,7 +214,7 @@ def test_the_sensors_read_the_world_only_through_the_protocol():
     for key, reading in obs.items():
         assert np.array_equal(SENSORS[key](seen).read(np.arange(2)), reading), key
     with pytest.raises(AttributeError, match="not part of the World protocol"):
-        seen.datas
+        _ = seen.datas
     sim.close()
 
 
@@ -225,12 +240,17 @@ def test_the_oracle_reads_the_world_only_through_the_protocol(name):
 
 
 def test_the_worlds_queries_agree_with_its_state():
-    sim = Simulator(evaaa.load_level("4-2", {"daynight.random_start": False, "daynight.start_angle": 200.0}), 2,
-                    ["interoception"], seed=3, threads=1)
+    sim = Simulator(
+        evaaa.load_level("4-2", {"daynight.random_start": False, "daynight.start_angle": 200.0}),
+        2,
+        ["interoception"],
+        seed=3,
+        threads=1,
+    )
     sim.reset()
     for w in range(2):
         # the floor under the thermal sensors is what they read
-        points = sim.sampler.sensor_points(sim.pos[w: w + 1], sim.heading_rad[w: w + 1])[0]
+        points = sim.sampler.sensor_points(sim.pos[w : w + 1], sim.heading_rad[w : w + 1])[0]
         assert np.array_equal(sim.ground_temperature(w, points), sim.thermal_readings[w])
         # what blocks the body: the placed obstacles and the present solid items, as floor rectangles
         centres, half, heading = sim.obstacle_slices(w)
@@ -267,8 +287,13 @@ def test_a_snapshot_holds_exactly_the_world_state_and_refuses_arrays_it_does_not
 
 @pytest.mark.parametrize(
     "column,value,end",
-    [(0, -14.999, "FoodOutOfRange"), (0, 14.5, "FoodOutOfRange"), (1, -14.995, "WaterOutOfRange"),
-     (2, -14.99, "TemperatureOutOfRange"), (3, 99.999, "DamageTooHigh")],
+    [
+        (0, -14.999, "FoodOutOfRange"),
+        (0, 14.5, "FoodOutOfRange"),
+        (1, -14.995, "WaterOutOfRange"),
+        (2, -14.99, "TemperatureOutOfRange"),
+        (3, 99.999, "DamageTooHigh"),
+    ],
 )
 def test_an_ev_pushed_past_its_bound_terminates_with_its_end_type(column, value, end):
     sim = bare_sim(["interoception"], **{"thermal.hotspots.count": 0})
@@ -310,8 +335,9 @@ def test_reward_equals_its_terms():
     env = evaaa.make_env("1-1", seed=3, info=True)
     data = env.rollout(60)
     info = data["next", "info"]
-    expected = -0.01 * (info["satiation"] ** 2 + info["hydration"] ** 2 + info["temperature"] ** 2
-                        + (0.15 * info["damage"]) ** 2)
+    expected = -0.01 * (
+        info["satiation"] ** 2 + info["hydration"] ** 2 + info["temperature"] ** 2 + (0.15 * info["damage"]) ** 2
+    )
     torch.testing.assert_close(data["next", "reward"], expected)
     env.close()
 
@@ -368,7 +394,7 @@ def test_turns_are_24_degrees():
 def _centre_colour(sim) -> np.ndarray:
     frame = sim.render_eye(np.arange(1))[0].astype(int)
     h, w = frame.shape[:2]
-    return frame[h // 2 - 4: h // 2 + 4, w // 2 - 4: w // 2 + 4].reshape(-1, 3).mean(axis=0)
+    return frame[h // 2 - 4 : h // 2 + 4, w // 2 - 4 : w // 2 + 4].reshape(-1, 3).mean(axis=0)
 
 
 def test_a_food_cube_ahead_makes_the_centre_red_and_water_blue():
@@ -622,8 +648,7 @@ def test_threads_give_the_same_trajectories(level):
     def trajectory(threads: int):
         env = evaaa.EvaaaEnv(level, num_envs=3, seed=3, threads=threads)
         assert env.sim.threads == threads and env.sim._renderer.threaded is (threads > 1)
-        td = env.rollout(40, policy=lambda td: td.set("action", torch.full((3,), FORWARD)),
-                         break_when_any_done=False)
+        td = env.rollout(40, policy=lambda td: td.set("action", torch.full((3,), FORWARD)), break_when_any_done=False)
         env.close()
         return td["next"]
 
@@ -641,8 +666,11 @@ def test_one_world_with_a_helper_gives_the_same_trajectory(level):
         env = evaaa.EvaaaEnv(level, num_envs=1, seed=5, threads=threads, info=True)
         assert env.sim.threads == threads and not env.sim._renderer.threaded
         generator = torch.Generator().manual_seed(0)
-        td = env.rollout(150, policy=lambda td: td.set("action", torch.randint(0, 5, (1,), generator=generator)),
-                         break_when_any_done=False)
+        td = env.rollout(
+            150,
+            policy=lambda td: td.set("action", torch.randint(0, 5, (1,), generator=generator)),
+            break_when_any_done=False,
+        )
         used_helper = env.sim.workers.started
         env.close()
         return td, used_helper
@@ -800,8 +828,12 @@ def test_threads_setting(monkeypatch):
 
 # ------------------------------------------------------------------------------------------------ level edge cases
 def test_a_level_without_resources_runs_with_a_random_start():
-    env = evaaa.make_env("1-2", seed=0, modalities=["interoception", "olfaction", "collision"],
-                         **{"resources.food.count": 0, "resources.water.count": 0, "agent.start": "random"})
+    env = evaaa.make_env(
+        "1-2",
+        seed=0,
+        modalities=["interoception", "olfaction", "collision"],
+        **{"resources.food.count": 0, "resources.water.count": 0, "agent.start": "random"},
+    )
     td = env.rollout(20, break_when_any_done=False)
     assert td["next", "interoception"].isfinite().all()
     assert (td["next", "olfaction"] == 0).all()  # nothing to smell
@@ -827,10 +859,13 @@ def test_a_steep_collision_damage_rule_saturates_at_its_cap_without_overflow():
     assert np.isfinite(sim.ev).all()
 
 
-@pytest.mark.parametrize("overrides, field", [
-    ({"agent.mass": 1e-20}, "agent.mass"),
-    ({"obstacles.bushes.scale": [[1e-12, 1e-12], [1, 1], [1, 1]]}, "obstacles.bushes"),
-])
+@pytest.mark.parametrize(
+    "overrides, field",
+    [
+        ({"agent.mass": 1e-20}, "agent.mass"),
+        ({"obstacles.bushes.scale": [[1e-12, 1e-12], [1, 1], [1, 1]]}, "obstacles.bushes"),
+    ],
+)
 def test_a_scene_mujoco_refuses_is_a_level_error_naming_the_field(overrides, field):
     with pytest.raises(evaaa.LevelError, match=rf"invalid level '2-1':\n  {re.escape(field)}.*MuJoCo cannot build it"):
         evaaa.make_env("2-1", modalities=["interoception"], **overrides)
@@ -867,8 +902,10 @@ def test_stepping_a_closed_env_is_an_error_and_rebuilds_nothing():
 
 def test_repr_says_what_the_env_is():
     env = evaaa.make_env("2-1", num_envs=3, seed=4, modalities=["olfaction", "pixels"], threads=1)
-    assert repr(env) == ("EvaaaEnv(level='2-1', num_envs=3, modalities=['pixels', 'olfaction'], info=False, device=cpu, "
-                         "seed=4, worlds=train, threads=1)")
+    assert repr(env) == (
+        "EvaaaEnv(level='2-1', num_envs=3, modalities=['pixels', 'olfaction'], info=False, device=cpu, "
+        "seed=4, worlds=train, threads=1)"
+    )
     env.close()
 
 
@@ -884,7 +921,8 @@ def test_mujoco_warnings_go_to_logging_not_to_a_file(tmp_path, monkeypatch, capl
 
     monkeypatch.chdir(tmp_path)
     model = mujoco.MjModel.from_xml_string(
-        '<mujoco><worldbody><body><freejoint/><geom size="1"/></body></worldbody></mujoco>')
+        '<mujoco><worldbody><body><freejoint/><geom size="1"/></body></worldbody></mujoco>'
+    )
     data = mujoco.MjData(model)
     data.qpos[0] = np.nan
     with caplog.at_level("WARNING", logger="mujoco"):
@@ -900,8 +938,9 @@ def test_a_torchrl_video_recorder_writes_a_playable_mp4(tmp_path):
     from evaaa.video import VideoLogger
 
     logger = VideoLogger(tmp_path / "videos", fps=10)
-    env = TransformedEnv(evaaa.make_env("1-1", seed=0, modalities=["pixels"]),
-                         VideoRecorder(logger, tag="eye", in_keys=["pixels"]))
+    env = TransformedEnv(
+        evaaa.make_env("1-1", seed=0, modalities=["pixels"]), VideoRecorder(logger, tag="eye", in_keys=["pixels"])
+    )
     td = env.rollout(12, break_when_any_done=False)
     env.transform.dump()
     env.close()

@@ -15,10 +15,20 @@ from helpers import load_script
 
 import evaaa
 from evaaa import daynight
-from evaaa.physiology import (END_DAMAGE, END_FOOD, END_MAX_STEPS, END_NONE, END_RESOURCE, END_TEMPERATURE,
-                              END_TYPES, END_WATER, ORIGINAL_END_TYPES, PhysiologyParams, reward)
-from evaaa.records import (EPISODE_FIELDS, STEP_FIELDS, EpisodeTracker, StepLog, append_rows, new_log_path,
-                           read_rows)
+from evaaa.physiology import (
+    END_DAMAGE,
+    END_FOOD,
+    END_MAX_STEPS,
+    END_NONE,
+    END_RESOURCE,
+    END_TEMPERATURE,
+    END_TYPES,
+    END_WATER,
+    ORIGINAL_END_TYPES,
+    PhysiologyParams,
+    reward,
+)
+from evaaa.records import EPISODE_FIELDS, STEP_FIELDS, EpisodeTracker, StepLog, append_rows, new_log_path, read_rows
 from evaaa.sim import EAT, FORWARD, LEFT, NONE, RIGHT, Simulator
 from evaaa.spec import LevelError
 from evaaa.worldgen import ObstaclePool, place_obstacles
@@ -78,9 +88,17 @@ def _tops(sim: Simulator) -> np.ndarray:
     return sim.obstacles.centre_z() + sim.obstacles.extents[:, 2] / 2
 
 
-@pytest.mark.parametrize("name, top", [("collision-avoidance", 0.55), ("goal-manipulation-food-to-water", 0.5),
-                                       ("two-resource-food", 4.0), ("risk-taking", 4.0), ("y-maze", 4.0),
-                                       ("multi-goal-planning", 4.0)])
+@pytest.mark.parametrize(
+    "name, top",
+    [
+        ("collision-avoidance", 0.55),
+        ("goal-manipulation-food-to-water", 0.5),
+        ("two-resource-food", 4.0),
+        ("risk-taking", 4.0),
+        ("y-maze", 4.0),
+        ("multi-goal-planning", 4.0),
+    ],
+)
 def test_testbed_blocks_stand_as_high_as_the_originals(name, top):
     sim = Simulator(evaaa.load_level(name), 1, ["collision"], seed=0, threads=1)
     sim.reset()
@@ -155,8 +173,10 @@ def evaaa_default_by_hand(ev, end, action):
     return squared_by_hand(*ev) - (100.0 if end in (END_FOOD, END_WATER, END_TEMPERATURE, END_DAMAGE) else 0.0)
 
 
-@pytest.mark.parametrize("option, by_hand", [("original", original_wrapper_by_hand), ("dqn", original_dqn_by_hand),
-                                             ("squared", evaaa_default_by_hand)])
+@pytest.mark.parametrize(
+    "option, by_hand",
+    [("original", original_wrapper_by_hand), ("dqn", original_dqn_by_hand), ("squared", evaaa_default_by_hand)],
+)
 def test_each_reward_option_follows_its_formula_on_hand_computed_steps(option, by_hand):
     p = params_for(option)
     after = np.array([ev for ev, _, _ in STEPS])
@@ -170,8 +190,15 @@ def test_each_reward_option_follows_its_formula_on_hand_computed_steps(option, b
 def test_the_default_reward_is_unchanged():
     level = evaaa.load_level("1-1")
     r = level.reward
-    assert (r.name, r.terminal_penalty, r.terminal_mode, r.penalize_truncation, r.penalize_consumption,
-            r.action_cost, r.clip) == ("squared", -100.0, "add", False, False, 0.0, None)
+    assert (
+        r.name,
+        r.terminal_penalty,
+        r.terminal_mode,
+        r.penalize_truncation,
+        r.penalize_consumption,
+        r.action_cost,
+        r.clip,
+    ) == ("squared", -100.0, "add", False, False, 0.0, None)
 
 
 def test_the_hand_shaped_reward_by_hand():
@@ -198,8 +225,13 @@ def test_clip_bounds_the_reward():
 @pytest.mark.parametrize("option, consumed, at_limit", [("original", -100.0, -100.0), ("dqn", -10.0, -10.0)])
 def test_the_original_penalty_replaces_the_reward_at_every_end_in_the_env(option, consumed, at_limit):
     # a single-trial consumption: the episode ends ResourceConsumed
-    sim = Simulator(evaaa.load_level("two-resource-food", {"reward": reward_option(option)}), 1, ["interoception"],
-                    seed=0, threads=1)
+    sim = Simulator(
+        evaaa.load_level("two-resource-food", {"reward": reward_option(option)}),
+        1,
+        ["interoception"],
+        seed=0,
+        threads=1,
+    )
     sim.reset()
     slot = int(np.flatnonzero(sim.res_is_food)[0])
     sim.set_agent_pose(0, sim.res_xy[0, slot] - (0.0, 0.9), 0.0)
@@ -207,9 +239,13 @@ def test_the_original_penalty_replaces_the_reward_at_every_end_in_the_env(option
     assert terminated[0] and END_TYPES[int(info["end_type"][0, 0])] == "ResourceConsumed"
     assert r[0] == pytest.approx(consumed)
     # the step limit: the last step's reward is the penalty, the ones before are the squared drive
-    sim = Simulator(evaaa.load_level("two-resource-food", {"reward": reward_option(option),
-                                                           "episode.max_steps": 3}), 1, ["interoception"], seed=0,
-                    threads=1)
+    sim = Simulator(
+        evaaa.load_level("two-resource-food", {"reward": reward_option(option), "episode.max_steps": 3}),
+        1,
+        ["interoception"],
+        seed=0,
+        threads=1,
+    )
     sim.reset()
     rewards = [sim.step(np.array([NONE]))[1][0] for _ in range(3)]
     assert rewards[2] == pytest.approx(at_limit)
@@ -218,8 +254,13 @@ def test_the_original_penalty_replaces_the_reward_at_every_end_in_the_env(option
 
 
 def test_the_shaped_reward_in_the_env_reads_the_senses_even_when_they_are_not_observed():
-    sim = Simulator(evaaa.load_level("two-resource-food", {"reward": reward_option("shaped")}), 1,
-                    ["interoception"], seed=0, threads=1)
+    sim = Simulator(
+        evaaa.load_level("two-resource-food", {"reward": reward_option("shaped")}),
+        1,
+        ["interoception"],
+        seed=0,
+        threads=1,
+    )
     sim.reset()
     _, r, *_ = sim.step(np.array([NONE]))
     odour = sim._shaping_senses[0].read(np.array([0]))
@@ -244,7 +285,9 @@ def test_risk_taking_success_is_the_food_by_default_and_any_consumption_under_th
     assert evaaa.load_level("risk-taking").episode.success.rule == "consume"
     assert _drink_in_risk_taking() == (False, "ResourceConsumed")
     assert _drink_in_risk_taking(**{"episode.success": {"rule": "consume_any", "resource": None}}) == (
-        True, "ResourceConsumed")
+        True,
+        "ResourceConsumed",
+    )
 
 
 def test_a_consume_rule_without_a_resource_is_refused_but_consume_any_needs_none():
@@ -257,10 +300,20 @@ def test_a_consume_rule_without_a_resource_is_refused_but_consume_any_needs_none
 # ------------------------------------------------------------------------------------------------ predator harm
 def _attacked_damage(attack: str) -> tuple[float, bool]:
     """Damage after 40 decisions of standing still, starting at 30, with one predator 10 m away that sees it."""
-    overrides = {"obstacles.bushes.count": 0, "obstacles.rocks.count": 0, "obstacles.bonfires.count": 0,
-                 "predators.p2.count": 0, "predators.p3.count": 0, "predators.p1.x": [0.0, 0.0],
-                 "predators.p1.y": [-6.0, -6.0], "predators.p1.heading": 0.0, "predators.p1.attack": attack,
-                 "agent.start": "fixed", "agent.start_position": [0.0, 4.0], "agent.start_heading": 0.0}
+    overrides = {
+        "obstacles.bushes.count": 0,
+        "obstacles.rocks.count": 0,
+        "obstacles.bonfires.count": 0,
+        "predators.p2.count": 0,
+        "predators.p3.count": 0,
+        "predators.p1.x": [0.0, 0.0],
+        "predators.p1.y": [-6.0, -6.0],
+        "predators.p1.heading": 0.0,
+        "predators.p1.attack": attack,
+        "agent.start": "fixed",
+        "agent.start_position": [0.0, 4.0],
+        "agent.start_heading": 0.0,
+    }
     sim = Simulator(evaaa.load_level("4-1", overrides), 1, ["interoception"], seed=0, threads=1)
     sim.reset()
     sim.ev[0, 3] = 30.0
@@ -291,12 +344,23 @@ def test_every_end_type_has_the_originals_name():
 
 
 def test_olfaction_clamp_is_a_field():
-    near = {"agent.start": "fixed", "agent.start_position": [0.0, 0.0], "resources.food.count": 1,
-            "resources.food.x": [0.0, 0.0], "resources.food.y": [0.1, 0.1], "resources.water.count": 0}
+    near = {
+        "agent.start": "fixed",
+        "agent.start_position": [0.0, 0.0],
+        "resources.food.count": 1,
+        "resources.food.x": [0.0, 0.0],
+        "resources.food.y": [0.1, 0.1],
+        "resources.water.count": 0,
+    }
     readings = []
     for clamp in (0.5, 0.05):
-        sim = Simulator(evaaa.load_level("1-1", {**near, "sensors.olfaction.min_distance": clamp}), 1,
-                        ["olfaction"], seed=0, threads=1)
+        sim = Simulator(
+            evaaa.load_level("1-1", {**near, "sensors.olfaction.min_distance": clamp}),
+            1,
+            ["olfaction"],
+            seed=0,
+            threads=1,
+        )
         readings.append(float(sim.reset()["olfaction"][0, 0]))
         sim.close()
     # the cube's centre is 0.1 m ahead and 0.2 m below the nose: 1/d = 1/0.5 clamped, 1/0.224 not
@@ -318,8 +382,9 @@ def test_night_fog_follows_evaaas_schedule_or_the_originals_table():
     # the level option reaches the renderer: at 23:00 the original's fog is thinner, so it ends farther away
     ends = {}
     for schedule in ("smooth", "original"):
-        level = evaaa.load_level("4-2", {"daynight.fog_schedule": schedule, "daynight.random_start": False,
-                                         "daynight.start_angle": 255.0})  # 23:00
+        level = evaaa.load_level(
+            "4-2", {"daynight.fog_schedule": schedule, "daynight.random_start": False, "daynight.start_angle": 255.0}
+        )  # 23:00
         sim = Simulator(level, 1, ["interoception"], seed=0, threads=1)
         sim.reset()
         sim.daynight.plan(sim.sun_angle[:1])
@@ -357,15 +422,20 @@ def _log_rows(path) -> list[dict]:
 
 
 def test_the_step_log_writes_one_row_per_decision_with_the_listed_columns(tmp_path):
-    sim = Simulator(evaaa.load_level("two-resource-food", {"episode.max_steps": 4}), 2, ["interoception"], seed=0,
-                    threads=1)
+    sim = Simulator(
+        evaaa.load_level("two-resource-food", {"episode.max_steps": 4}), 2, ["interoception"], seed=0, threads=1
+    )
     sim.reset()
     path = new_log_path(tmp_path)
     with StepLog(path, policy="scripted") as log:
         log.start("two-resource-food", sim.last_info, seed=0)
         start = sim.pos.copy()
-        actions = [np.array([FORWARD, LEFT]), np.array([FORWARD, NONE]), np.array([EAT, RIGHT]),
-                   np.array([NONE, FORWARD])]
+        actions = [
+            np.array([FORWARD, LEFT]),
+            np.array([FORWARD, NONE]),
+            np.array([EAT, RIGHT]),
+            np.array([NONE, FORWARD]),
+        ]
         for a in actions:
             _, r, term, trunc, info = sim.step(a)
             log.update(a, r, info, term | trunc)
@@ -395,12 +465,15 @@ def test_the_step_log_writes_one_row_per_decision_with_the_listed_columns(tmp_pa
 def test_evaluate_writes_a_step_log_only_when_asked(tmp_path):
     evaluate = load_script("evaluate")
     out = tmp_path / "eval"
-    assert evaluate.main(["policy=oracle", "levels=two-resource-water", "episodes=2", "num_envs=2",
-                          f"out={out}"]) == 0
+    assert evaluate.main(["policy=oracle", "levels=two-resource-water", "episodes=2", "num_envs=2", f"out={out}"]) == 0
     assert not list(out.glob("steps-*.csv"))
     out = tmp_path / "eval-logged"  # an out= holding an evaluation is refused
-    assert evaluate.main(["policy=oracle", "levels=two-resource-water", "episodes=2", "num_envs=2",
-                          f"out={out}", "step_log=true"]) == 0
+    assert (
+        evaluate.main(
+            ["policy=oracle", "levels=two-resource-water", "episodes=2", "num_envs=2", f"out={out}", "step_log=true"]
+        )
+        == 0
+    )
     logs = list(out.glob("steps-*.csv"))
     assert len(logs) == 1
     rows = _log_rows(logs[0])
@@ -421,8 +494,9 @@ def test_evaluate_writes_a_step_log_only_when_asked(tmp_path):
 def test_play_writes_a_step_log_when_asked(tmp_path):
     from evaaa.play import PlaySession, PlaySettings
 
-    session = PlaySession(PlaySettings(level="two-resource-food", out=tmp_path, step_log=True,
-                                       overrides={"episode.max_steps": 3}))
+    session = PlaySession(
+        PlaySettings(level="two-resource-food", out=tmp_path, step_log=True, overrides={"episode.max_steps": 3})
+    )
     try:
         for action in (FORWARD, LEFT, FORWARD):
             session.step(action)
@@ -436,9 +510,19 @@ def test_play_writes_a_step_log_when_asked(tmp_path):
 def test_an_episode_file_from_before_the_new_columns_is_widened_not_refused(tmp_path):
     path = tmp_path / "episodes.csv"
     tracker = EpisodeTracker(1, "two-resource-water", "random")
-    done = {"food_eaten": [[0]], "water_eaten": [[1]], "collision": [[False]], "damage_taken": [[0.0]],
-            "step_count": [[2]], "end_type": [[END_RESOURCE]], "success": [[True]], "satiation": [[7.0]],
-            "hydration": [[-4.0]], "temperature": [[0.0]], "damage": [[0.0]]}
+    done = {
+        "food_eaten": [[0]],
+        "water_eaten": [[1]],
+        "collision": [[False]],
+        "damage_taken": [[0.0]],
+        "step_count": [[2]],
+        "end_type": [[END_RESOURCE]],
+        "success": [[True]],
+        "satiation": [[7.0]],
+        "hydration": [[-4.0]],
+        "temperature": [[0.0]],
+        "damage": [[0.0]],
+    }
     row = tracker.update([0.5], done, [True], actions=[EAT])[0]
     old = {k: row[k] for k in EPISODE_FIELDS}
     append_rows(path, [old])  # a file as earlier versions wrote it

@@ -47,7 +47,7 @@ def _run(level, seed: int, modalities, steps: int = STEPS) -> str | None:
             for key, value in obs.items():
                 if value.dtype.kind == "f" and not np.isfinite(value).all():
                     return f"observation {key} not finite at step {t}: {value}"
-            obs, reward, terminated, truncated, _ = sim.step(actions[t: t + 1])
+            obs, reward, terminated, truncated, _ = sim.step(actions[t : t + 1])
             if not np.isfinite(reward).all():
                 return f"reward not finite at step {t}: {reward}"
             if terminated[0] or truncated[0]:

@@ -108,20 +108,23 @@ def test_extends_reaches_packaged_levels_and_the_users_folder_only(tmp_path):
 
 
 # ------------------------------------------------------------------------------------------------ 5. types and text
-@pytest.mark.parametrize("text, message", [
-    (b"description: caf\xe9\n", "is not UTF-8 text: byte 0xe9 at offset 16"),
-    ("description: x\n".encode("utf-16"), "is not UTF-8 text"),
-    ("extends: ''\n", "extends must name a packaged level"),
-    ("extends: null\n", "extends must name a packaged level .* got null"),
-    ("agent: {mass: true}\n", "agent.mass: Input should be a valid number"),
-    ("agent: {mass: '3'}\n", "agent.mass: Input should be a valid number"),
-    ("agent: {mass: !!binary Mw==}\n", "!!binary is not level data"),
-    ("episode: {max_steps: 100.0}\n", "episode.max_steps: Input should be a valid integer"),
-    ("agent: {auto_eat: 1}\n", "agent.auto_eat: Input should be a valid boolean"),
-    ("agent: {spawn_x: !!set {1, 2}}\n", "!!set is not level data"),
-    ("agent: {mass: 5}\nagent: {mass: 6}\n", "the key 'agent' is repeated \\(line 2"),
-    ("agent: {mass: 5, mass: 6}\n", "the key 'mass' is repeated"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        (b"description: caf\xe9\n", "is not UTF-8 text: byte 0xe9 at offset 16"),
+        ("description: x\n".encode("utf-16"), "is not UTF-8 text"),
+        ("extends: ''\n", "extends must name a packaged level"),
+        ("extends: null\n", "extends must name a packaged level .* got null"),
+        ("agent: {mass: true}\n", "agent.mass: Input should be a valid number"),
+        ("agent: {mass: '3'}\n", "agent.mass: Input should be a valid number"),
+        ("agent: {mass: !!binary Mw==}\n", "!!binary is not level data"),
+        ("episode: {max_steps: 100.0}\n", "episode.max_steps: Input should be a valid integer"),
+        ("agent: {auto_eat: 1}\n", "agent.auto_eat: Input should be a valid boolean"),
+        ("agent: {spawn_x: !!set {1, 2}}\n", "!!set is not level data"),
+        ("agent: {mass: 5}\nagent: {mass: 6}\n", "the key 'agent' is repeated \\(line 2"),
+        ("agent: {mass: 5, mass: 6}\n", "the key 'mass' is repeated"),
+    ],
+)
 def test_strict_types_duplicate_keys_and_encodings(tmp_path, text, message):
     path = level_file(tmp_path, text)
     got = refused(path)
@@ -170,9 +173,11 @@ class _Disk(io.RawIOBase):
 
 def filling(room: int, code: int = errno.ENOSPC):
     """An ``open`` whose binary files opened for writing hold at most ``room`` bytes more."""
+
     def fake_open(file, mode="r", *args, **kwargs):
         f = builtins.open(file, mode, *args, **kwargs)
         return _Disk(f, room, code) if "w" in mode and "b" in mode else f
+
     return fake_open
 
 
@@ -195,8 +200,9 @@ class _HalfWrites:
         return getattr(self.f, name)
 
 
-@pytest.mark.parametrize("code, cause", [(errno.ENOSPC, "No space left on device"),
-                                         (errno.EROFS, "Read-only file system")])
+@pytest.mark.parametrize(
+    "code, cause", [(errno.ENOSPC, "No space left on device"), (errno.EROFS, "Read-only file system")]
+)
 def test_a_checkpoint_the_disk_refuses_leaves_the_previous_one_and_no_temporary(tmp_path, monkeypatch, code, cause):
     path = tmp_path / "checkpoint.pt"
     save_checkpoint({"w": torch.arange(10.0)}, path, keep_previous=True)
@@ -222,8 +228,9 @@ def test_a_training_log_row_the_disk_refuses_leaves_the_earlier_rows_whole(tmp_p
         log.write({"step": 2, "value": 0.25})
     log.close()
     assert path.read_bytes() == before  # no half row
-    monkeypatch.setattr(runtime, "open", lambda *a, **k: (_ for _ in ()).throw(OSError(errno.EACCES,
-                                                                                       "Permission denied")))
+    monkeypatch.setattr(
+        runtime, "open", lambda *a, **k: (_ for _ in ()).throw(OSError(errno.EACCES, "Permission denied"))
+    )
     with pytest.raises(DiskError, match=f"^cannot write {tmp_path / 'eval.csv'}: Permission denied$"):
         CsvLog(tmp_path / "eval.csv", ["step"])
 
@@ -243,8 +250,9 @@ def test_episode_records_and_step_logs_the_disk_refuses(tmp_path, monkeypatch):
     assert path.read_bytes() == before and len(read_rows(path)) == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["episodes.csv"]
     with pytest.raises(DiskError, match="cannot write .*steps.csv: Read-only file system"):
-        monkeypatch.setattr(Path, "open", lambda *a, **k: (_ for _ in ()).throw(OSError(errno.EROFS, "Read-only "
-                                                                                        "file system")))
+        monkeypatch.setattr(
+            Path, "open", lambda *a, **k: (_ for _ in ()).throw(OSError(errno.EROFS, "Read-only file system"))
+        )
         StepLog(tmp_path / "steps.csv")
 
 
@@ -254,8 +262,11 @@ def test_an_evaluation_the_disk_stops_says_so_and_the_same_command_completes_it(
     out = tmp_path / "eval"
     args = ["policy=random", "levels=[two-resource-food]", "episodes=2", "num_envs=2", f"out={out}"]
     real_plot = script.plot_outcomes
-    monkeypatch.setattr(script, "plot_outcomes", lambda rows, path: (_ for _ in ()).throw(
-        OSError(errno.ENOSPC, "No space left on device", str(path))))
+    monkeypatch.setattr(
+        script,
+        "plot_outcomes",
+        lambda rows, path: (_ for _ in ()).throw(OSError(errno.ENOSPC, "No space left on device", str(path))),
+    )
     with pytest.raises(SystemExit) as info:
         script.main(args)
     message = str(info.value.code)

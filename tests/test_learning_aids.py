@@ -27,8 +27,15 @@ register_levels()
 
 def batch(rewards: np.ndarray, dones: np.ndarray) -> TensorDict:
     """A ``[worlds, steps]`` batch of rewards and done flags, shaped like a collected PPO batch."""
-    return TensorDict({"next": {"reward": torch.as_tensor(rewards, dtype=torch.float32).unsqueeze(-1),
-                                "done": torch.as_tensor(dones).unsqueeze(-1)}}, list(rewards.shape))
+    return TensorDict(
+        {
+            "next": {
+                "reward": torch.as_tensor(rewards, dtype=torch.float32).unsqueeze(-1),
+                "done": torch.as_tensor(dones).unsqueeze(-1),
+            }
+        },
+        list(rewards.shape),
+    )
 
 
 # ------------------------------------------------------------------------------------------------ PPO
@@ -96,23 +103,39 @@ def model():
 
 def test_diagnostics_say_what_the_heads_and_the_actor_do(model):
     batch_size, time = 2, 3
-    latents = {"state": torch.randn(batch_size, time, model.state_dim),
-               "belief": torch.randn(batch_size, time, model.belief_dim)}
+    latents = {
+        "state": torch.randn(batch_size, time, model.state_dim),
+        "belief": torch.randn(batch_size, time, model.belief_dim),
+    }
     true = torch.tensor([[0.0, 5.0, 0.0], [0.0, 0.0, 3.0]]).unsqueeze(-1)
     pred = torch.tensor([[0.5, 1.0, 0.0], [0.1, 0.0, 3.0]]).unsqueeze(-1)
     eaten = true > 0
     logits = torch.tensor([[2.0, 0.0, 0.0], [0.0, -3.0, 1.0]]).unsqueeze(-1)
     ended = torch.tensor([[False, False, False], [False, True, False]]).unsqueeze(-1)
-    posterior = TensorDict({"next": {**latents, "reward": pred, "true_reward": true, "consumed": eaten,
-                                     "continue_pred": logits, "terminated": ended}}, [batch_size, time])
+    posterior = TensorDict(
+        {
+            "next": {
+                **latents,
+                "reward": pred,
+                "true_reward": true,
+                "consumed": eaten,
+                "continue_pred": logits,
+                "terminated": ended,
+            }
+        },
+        [batch_size, time],
+    )
     horizon, n = 4, 6
     actions = torch.tensor([0, 1, 1, 4, 4, 4])  # "left" and "right" never taken
-    imagined = TensorDict({"state": torch.randn(n, horizon, model.state_dim),
-                           "belief": torch.randn(n, horizon, model.belief_dim),
-                           "action": torch.nn.functional.one_hot(actions, len(ACTION_NAMES)).unsqueeze(1)
-                           .expand(n, horizon, -1),
-                           "lambda_target": torch.arange(n * horizon, dtype=torch.float32).reshape(n, horizon, 1)},
-                          [n, horizon])
+    imagined = TensorDict(
+        {
+            "state": torch.randn(n, horizon, model.state_dim),
+            "belief": torch.randn(n, horizon, model.belief_dim),
+            "action": torch.nn.functional.one_hot(actions, len(ACTION_NAMES)).unsqueeze(1).expand(n, horizon, -1),
+            "lambda_target": torch.arange(n * horizon, dtype=torch.float32).reshape(n, horizon, 1),
+        },
+        [n, horizon],
+    )
     critic = dreamer_model.value_model(model)
     out = dreamer_losses.diagnostics(model, critic, posterior, imagined, torch.tensor(2.0))
 
@@ -142,8 +165,9 @@ def test_the_replay_value_loss_targets_the_real_rewards_after_each_state(model):
     with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
         cfg = compose("config", overrides=["algo=dreamer", "preset=debug"]).algo
     critic = dreamer_model.value_model(model)
-    loss = DreamerV3ValueLoss(critic, value_loss="two_hot", num_value_bins=cfg.model.bins,
-                              slow_critic_regularization=0.0)
+    loss = DreamerV3ValueLoss(
+        critic, value_loss="two_hot", num_value_bins=cfg.model.bins, slow_critic_regularization=0.0
+    )
     torch.manual_seed(1)
     time = 3
     latents = {"state": torch.randn(1, time, model.state_dim), "belief": torch.randn(1, time, model.belief_dim)}
@@ -168,9 +192,19 @@ def test_the_replay_stores_the_scaled_reward_and_the_episodes_keep_the_envs(tmp_
 
     def run(scale: float):
         with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
-            cfg = compose("config", overrides=["algo=dreamer", "preset=debug", "logger=csv", "progress=false",
-                                               "threads=1", "total_steps=96", "algo.learning_starts=1000",
-                                               f"algo.reward_scale={scale}"])
+            cfg = compose(
+                "config",
+                overrides=[
+                    "algo=dreamer",
+                    "preset=debug",
+                    "logger=csv",
+                    "progress=false",
+                    "threads=1",
+                    "total_steps=96",
+                    "algo.learning_starts=1000",
+                    f"algo.reward_scale={scale}",
+                ],
+            )
         train(cfg, tmp_path / str(scale))
         rows = TensorDict.load_memmap(tmp_path / str(scale) / "replay" / "0-1-1")
         episodes = [line.split(",")[:-1] for line in (tmp_path / str(scale) / "episodes.csv").read_text().splitlines()]
@@ -190,8 +224,9 @@ def test_a_ppo_run_made_without_reward_scaling_resumes_only_with_it_off(tmp_path
 
     def cfg(*extra):
         with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
-            return compose("config", overrides=["algo=ppo", "preset=debug", "logger=csv", "progress=false",
-                                                "threads=1", *extra])
+            return compose(
+                "config", overrides=["algo=ppo", "preset=debug", "logger=csv", "progress=false", "threads=1", *extra]
+            )
 
     train(cfg("total_steps=64", "algo.normalize_reward=false"), tmp_path / "run")
     with pytest.raises(ValueError, match="no state for return_scale.*algo.normalize_reward=false"):
@@ -205,8 +240,15 @@ def fill_replay(share: float, *, rows: int, eaten_at: list[tuple[int, int]], cap
     ``("next", "consumed")`` set at (row, world) for ``eaten_at``."""
     replay = dreamer_replay.SequenceReplay(capacity or 2 * rows, 2, 8, 10, consume_share=share)
     for t in range(rows):
-        replay.extend(TensorDict({"step": torch.full((2,), t), "next": {
-            "consumed": torch.tensor([(t, w) in eaten_at for w in range(2)]).unsqueeze(-1)}}, [2]))
+        replay.extend(
+            TensorDict(
+                {
+                    "step": torch.full((2,), t),
+                    "next": {"consumed": torch.tensor([(t, w) in eaten_at for w in range(2)]).unsqueeze(-1)},
+                },
+                [2],
+            )
+        )
     return replay
 
 
@@ -235,9 +277,18 @@ def test_a_share_of_the_replayed_sequences_hold_a_death_beside_those_around_eati
     replay = dreamer_replay.SequenceReplay(240, 2, 8, 10, consume_share=0.2, terminal_share=0.3)
     assert (replay.consume_sequences, replay.terminal_sequences) == (2, 3)
     for t in range(120):
-        replay.extend(TensorDict({"step": torch.full((2,), t), "next": {
-            "consumed": torch.tensor([(t, w) == (40, 0) for w in range(2)]).unsqueeze(-1),
-            "terminated": torch.tensor([(t, w) in [(70, 1), (100, 0)] for w in range(2)]).unsqueeze(-1)}}, [2]))
+        replay.extend(
+            TensorDict(
+                {
+                    "step": torch.full((2,), t),
+                    "next": {
+                        "consumed": torch.tensor([(t, w) == (40, 0) for w in range(2)]).unsqueeze(-1),
+                        "terminated": torch.tensor([(t, w) in [(70, 1), (100, 0)] for w in range(2)]).unsqueeze(-1),
+                    },
+                },
+                [2],
+            )
+        )
     seen = []
     for _ in range(20):
         batch = replay.sample()
@@ -250,8 +301,9 @@ def test_a_share_of_the_replayed_sequences_hold_a_death_beside_those_around_eati
     assert float(torch.stack(seen).mean()) < 0.5  # the first five are uniform
     with pytest.raises(ValueError, match=r"algo.terminal_share must lie in \[0, 1\], got -0.1"):
         dreamer_replay.SequenceReplay(100, 2, 8, 10, terminal_share=-0.1)
-    with pytest.raises(ValueError,
-                       match=r"algo.consume_share \+ algo.terminal_share must be at most 1, got 0.6 \+ 0.5"):
+    with pytest.raises(
+        ValueError, match=r"algo.consume_share \+ algo.terminal_share must be at most 1, got 0.6 \+ 0.5"
+    ):
         dreamer_replay.SequenceReplay(100, 2, 8, 10, consume_share=0.6, terminal_share=0.5)
 
 
@@ -274,21 +326,24 @@ def test_sequences_around_eating_never_run_across_the_writers_cursor():
 
 
 def test_the_vector_reconstruction_is_the_symlog_squared_error_summed_per_key():
-    truth = torch.tensor([[[3.0, -1.0], [0.0, 0.0]]])            # [batch 1, time 2, 2 entries]
-    reco = torch.tensor([[[math.e - 1, -1.0], [0.0, 1.0]]])      # symlog(e - 1) = 1, symlog(3) = log 4
+    truth = torch.tensor([[[3.0, -1.0], [0.0, 0.0]]])  # [batch 1, time 2, 2 entries]
+    reco = torch.tensor([[[math.e - 1, -1.0], [0.0, 1.0]]])  # symlog(e - 1) = 1, symlog(3) = log 4
     smell = torch.tensor([[[2.0], [2.0]]])
-    posterior = TensorDict({"next": {"interoception": truth, "reco_interoception": reco,
-                                     "olfaction": smell, "reco_olfaction": smell}}, [1, 2])
-    first = (math.log(4.0) - 1.0) ** 2                           # step 0: one entry off
-    second = math.log(2.0) ** 2                                  # step 1: symlog(1) = log 2
+    posterior = TensorDict(
+        {"next": {"interoception": truth, "reco_interoception": reco, "olfaction": smell, "reco_olfaction": smell}},
+        [1, 2],
+    )
+    first = (math.log(4.0) - 1.0) ** 2  # step 0: one entry off
+    second = math.log(2.0) ** 2  # step 1: symlog(1) = log 2
     expected = (first + second) / 2
     got = dreamer_losses.vector_reconstruction(posterior, ["interoception", "olfaction"])
     assert float(got) == pytest.approx(expected, rel=1e-5)
     assert float(dreamer_losses.vector_reconstruction(posterior, ["olfaction"])) == 0.0
     # in raw units: step 0 is off by 3 - (e - 1), step 1 by 1
     raw = ((3.0 - (math.e - 1)) ** 2 + 1.0) / 2
-    assert float(dreamer_losses.vector_reconstruction(posterior, ["interoception"], raw=["interoception"])) == \
-        pytest.approx(raw, rel=1e-5)
+    assert float(
+        dreamer_losses.vector_reconstruction(posterior, ["interoception"], raw=["interoception"])
+    ) == pytest.approx(raw, rel=1e-5)
 
 
 def test_raw_keys_must_be_vector_keys_of_the_run():
@@ -309,18 +364,30 @@ def test_vector_scale_changes_what_the_world_model_learns(tmp_path):
 
     def run(scale: float) -> dict[str, list[float]]:
         with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
-            cfg = compose("config", overrides=["algo=dreamer", "preset=debug", "logger=csv", "progress=false",
-                                               "threads=1", "total_steps=64",
-                                               f"algo.world_model.vector_scale={scale}"])
+            cfg = compose(
+                "config",
+                overrides=[
+                    "algo=dreamer",
+                    "preset=debug",
+                    "logger=csv",
+                    "progress=false",
+                    "threads=1",
+                    "total_steps=64",
+                    f"algo.world_model.vector_scale={scale}",
+                ],
+            )
         train(cfg, tmp_path / str(scale))
         scalars = tmp_path / str(scale) / "logs" / "scalars" / "train"
-        return {name: [float(line.split(",")[1]) for line in (scalars / f"{name}.csv").read_text().splitlines()]
-                for name in ("model_grad_norm", "model_reco_vector", "model_loss")}
+        return {
+            name: [float(line.split(",")[1]) for line in (scalars / f"{name}.csv").read_text().splitlines()]
+            for name in ("model_grad_norm", "model_reco_vector", "model_loss")
+        }
 
     plain, weighted = run(1.0), run(10.0)
     assert weighted["model_reco_vector"][0] == pytest.approx(plain["model_reco_vector"][0])  # the same batch
-    assert weighted["model_loss"][0] == pytest.approx(plain["model_loss"][0] + 9 * plain["model_reco_vector"][0],
-                                                      rel=1e-4)
+    assert weighted["model_loss"][0] == pytest.approx(
+        plain["model_loss"][0] + 9 * plain["model_reco_vector"][0], rel=1e-4
+    )
     assert weighted["model_grad_norm"][0] != pytest.approx(plain["model_grad_norm"][0], rel=1e-3)
 
 
@@ -332,9 +399,16 @@ def test_the_prior_term_trains_the_transition_to_predict_the_evs_and_a_negative_
     shapes = {"interoception": (4,), "olfaction": (10,)}
     torch.manual_seed(0)
     model = dreamer.make_model(cfg.algo, shapes)
-    batch = TensorDict({"action": torch.randint(5, (2, 6)), "is_init": torch.zeros(2, 6, 1, dtype=torch.bool),
-                        "state": torch.zeros(2, 6, model.state_dim), "belief": torch.zeros(2, 6, model.belief_dim),
-                        "next": {"interoception": torch.randn(2, 6, 4), "olfaction": torch.rand(2, 6, 10)}}, [2, 6])
+    batch = TensorDict(
+        {
+            "action": torch.randint(5, (2, 6)),
+            "is_init": torch.zeros(2, 6, 1, dtype=torch.bool),
+            "state": torch.zeros(2, 6, model.state_dim),
+            "belief": torch.zeros(2, 6, model.belief_dim),
+            "next": {"interoception": torch.randn(2, 6, 4), "olfaction": torch.rand(2, 6, 10)},
+        },
+        [2, 6],
+    )
     out = dreamer_model.world_model(model)(batch)
     head = list(model.prior.rnn_to_prior_projector.parameters())
 

@@ -35,8 +35,13 @@ def test_random_rollout_of_500_steps_is_finite(level):
 
 # ------------------------------------------------------------------------------------------------ heat and obstacles
 def one_bonfire(at=(0.0, 10.0)) -> dict:
-    return {**NO_SCRUB, "obstacles.bonfires.count": 1, "obstacles.bonfires.x": [at[0], at[0]],
-            "obstacles.bonfires.y": [at[1], at[1]], **FIXED}
+    return {
+        **NO_SCRUB,
+        "obstacles.bonfires.count": 1,
+        "obstacles.bonfires.x": [at[0], at[0]],
+        "obstacles.bonfires.y": [at[1], at[1]],
+        **FIXED,
+    }
 
 
 def test_a_bonfire_warms_the_body_nearby_and_the_cold_cools_it_far_away():
@@ -75,8 +80,13 @@ def test_random_obstacles_keep_their_padding():
 
 
 def test_driving_into_a_rock_adds_damage():
-    rock = {**NO_SCRUB, "obstacles.rocks.count": 1, "obstacles.rocks.x": [0.0, 0.0], "obstacles.rocks.y": [8.0, 8.0],
-            **FIXED}
+    rock = {
+        **NO_SCRUB,
+        "obstacles.rocks.count": 1,
+        "obstacles.rocks.x": [0.0, 0.0],
+        "obstacles.rocks.y": [8.0, 8.0],
+        **FIXED,
+    }
     sim = make_sim("2-1", modalities=("collision",), **rock)
     total, events = 0.0, 0
     for _ in range(5):
@@ -156,9 +166,17 @@ def test_apples_in_2_2_regrow_under_their_own_tree():
 
 # ------------------------------------------------------------------------------------------------ predators
 def lone_predator(**extra) -> dict:
-    return {**NO_SCRUB, "predators.p2.count": 0, "predators.p3.count": 0, "predators.p1.x": [0.0, 0.0],
-            "predators.p1.y": [-6.0, -6.0], "predators.p1.heading": 0.0, **FIXED,
-            "agent.start_position": [0.0, 4.0], **extra}
+    return {
+        **NO_SCRUB,
+        "predators.p2.count": 0,
+        "predators.p3.count": 0,
+        "predators.p1.x": [0.0, 0.0],
+        "predators.p1.y": [-6.0, -6.0],
+        "predators.p1.heading": 0.0,
+        **FIXED,
+        "agent.start_position": [0.0, 4.0],
+        **extra,
+    }
 
 
 def test_a_predator_that_sees_the_agent_chases_it_and_contact_adds_damage():
@@ -180,8 +198,16 @@ def test_a_predator_that_sees_the_agent_chases_it_and_contact_adds_damage():
 
 def test_a_predator_behind_the_agent_only_chases_what_it_sees():
     # the predator faces south, away from the agent: it does not see it
-    sim = make_sim("4-1", **lone_predator(**{"predators.p1.heading": 180.0, "predators.p1.search_interval": 1000,
-                                            "predators.p1.max_searching_steps": 1000}))
+    sim = make_sim(
+        "4-1",
+        **lone_predator(
+            **{
+                "predators.p1.heading": 180.0,
+                "predators.p1.search_interval": 1000,
+                "predators.p1.max_searching_steps": 1000,
+            }
+        ),
+    )
     for _ in range(20):
         sim.step(np.array([NONE]))
         assert sim.predators.state[0, 0] not in (CHASING, ATTACKING)
@@ -227,8 +253,11 @@ def test_day_night_clock():
 def test_night_is_darker_than_day_in_the_pixels():
     frames = {}
     for name, angle in [("noon", 90.0), ("midnight", 270.0)]:
-        sim = make_sim("4-2", modalities=("pixels",), **lone_predator(
-            **{"daynight.random_start": False, "daynight.start_angle": angle}))
+        sim = make_sim(
+            "4-2",
+            modalities=("pixels",),
+            **lone_predator(**{"daynight.random_start": False, "daynight.start_angle": angle}),
+        )
         frames[name] = sim.last_obs["pixels"][0].astype(float).mean()
     assert frames["midnight"] < 0.6 * frames["noon"]
 
@@ -266,8 +295,20 @@ def test_collision_rays_agree_with_mujoco_ray_casting(level, overrides):
             data = sim.datas[w]
             angles = sim.heading_rad[w] + sensor.offsets
             vec[:, 0], vec[:, 1] = np.sin(angles), np.cos(angles)
-            mujoco.mj_multiRay(sim.model, data, data.xpos[sim.index.agent_body], vec.reshape(-1), groups, 1,
-                               sim.index.agent_body, geom, dist, None, 100, 1.5)
+            mujoco.mj_multiRay(
+                sim.model,
+                data,
+                data.xpos[sim.index.agent_body],
+                vec.reshape(-1),
+                groups,
+                1,
+                sim.index.agent_body,
+                geom,
+                dist,
+                None,
+                100,
+                1.5,
+            )
             expected = ((dist >= 0) & (dist <= 1.5)).reshape(10, 10).any(axis=1)
             assert np.array_equal(sim.last_obs["collision"][w] > 0, expected), w
             seen += expected.any()

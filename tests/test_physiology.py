@@ -184,8 +184,14 @@ def test_batched_worlds_are_independent(params):
     damage = np.array([0.0, 0.0, 2.5])
     batch = step_evs(ev, params, food_eaten=food, water_eaten=water, thermal_sum=thermal, damage_taken=damage)
     for i in range(3):
-        single = step_evs(ev[i : i + 1], params, food_eaten=food[i : i + 1], water_eaten=water[i : i + 1],
-                          thermal_sum=thermal[i : i + 1], damage_taken=damage[i : i + 1])
+        single = step_evs(
+            ev[i : i + 1],
+            params,
+            food_eaten=food[i : i + 1],
+            water_eaten=water[i : i + 1],
+            thermal_sum=thermal[i : i + 1],
+            damage_taken=damage[i : i + 1],
+        )
         np.testing.assert_array_equal(batch[i : i + 1], single)
 
     after = np.array([[0.0, 0.0, 0.0, 0.0], [16.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 101.0]])
@@ -195,8 +201,14 @@ def test_batched_worlds_are_independent(params):
     np.testing.assert_array_equal(ends, [END_RESOURCE, END_FOOD, END_DAMAGE])
     rewards = reward(ev, after, ends, params)
     for i in range(3):
-        single_end = end_types(after[i : i + 1], params, resource_consumed=consumed[i : i + 1], single_trial=True,
-                               steps=steps[i : i + 1], max_steps=5000)
+        single_end = end_types(
+            after[i : i + 1],
+            params,
+            resource_consumed=consumed[i : i + 1],
+            single_trial=True,
+            steps=steps[i : i + 1],
+            max_steps=5000,
+        )
         assert single_end[0] == ends[i]
         assert reward(ev[i : i + 1], after[i : i + 1], single_end, params)[0] == rewards[i]
 

@@ -77,9 +77,13 @@ def wait_for_step(page: Page, n: int) -> None:
 def shown_evs(page: Page) -> dict[str, tuple[float, str]]:
     """Each EV bar's value and the number it displays."""
     rows = page.locator(".ev")
-    return {rows.nth(i).get_attribute("data-name"): (float(rows.nth(i).get_attribute("data-value")),
-                                                     rows.nth(i).locator(".value").text_content())
-            for i in range(rows.count())}
+    return {
+        rows.nth(i).get_attribute("data-name"): (
+            float(rows.nth(i).get_attribute("data-value")),
+            rows.nth(i).locator(".value").text_content(),
+        )
+        for i in range(rows.count())
+    }
 
 
 def test_a_person_plays_an_episode_in_the_browser_and_it_is_recorded(page, tmp_path):
@@ -91,8 +95,9 @@ def test_a_person_plays_an_episode_in_the_browser_and_it_is_recorded(page, tmp_p
         assert page.locator("#participant").text_content() == "tester"
         assert page.locator("#max-steps").text_content() == "5"
         # the 64x64 frame is shown at 384x384 with its pixels kept square
-        size = page.eval_on_selector("#frame", "e => [e.naturalWidth, e.getBoundingClientRect().width, "
-                                               "getComputedStyle(e).imageRendering]")
+        size = page.eval_on_selector(
+            "#frame", "e => [e.naturalWidth, e.getBoundingClientRect().width, getComputedStyle(e).imageRendering]"
+        )
         assert size == [64, 384, "pixelated"]
         evs = shown_evs(page)
         assert set(evs) == {"satiation", "hydration", "temperature", "damage"}
@@ -134,8 +139,13 @@ def test_a_person_plays_an_episode_in_the_browser_and_it_is_recorded(page, tmp_p
         rows = read_rows(tmp_path / "outputs" / "human" / "episodes.csv")
         assert len(rows) == 1
         row = rows[0]
-        assert (row["policy"], row["participant"], row["level"], row["episode"], row["seed"]) == \
-            ("human", "tester", "1-1", "0", "0")
+        assert (row["policy"], row["participant"], row["level"], row["episode"], row["seed"]) == (
+            "human",
+            "tester",
+            "1-1",
+            "0",
+            "0",
+        )
         assert (row["steps"], row["end_type"]) == ("5", "MaxStepReached")
         assert float(row["final_satiation"]) == pytest.approx(shown_evs(page)["satiation"][0])
 
@@ -166,8 +176,9 @@ def test_at_a_fixed_rate_the_agent_does_nothing_without_a_key(page, tmp_path):
         time.sleep(0.5)
         assert page.locator("#step").text_content() == "0", "the clock must wait for the player's first key"
         page.keyboard.press("ArrowLeft")  # one key; the five decisions after it are "do nothing"
-        page.wait_for_function("document.getElementById('message').textContent.includes('MaxStepReached')",
-                               timeout=20_000)
+        page.wait_for_function(
+            "document.getElementById('message').textContent.includes('MaxStepReached')", timeout=20_000
+        )
     rows = read_rows(tmp_path / "records" / "episodes.csv")
     assert [(r["steps"], r["end_type"], r["policy"]) for r in rows] == [("6", "MaxStepReached", "human")]
 
@@ -212,8 +223,9 @@ def test_the_api_refuses_bad_requests_and_keeps_serving(tmp_path):
         got, answer = request(url + "api/step", "POST", b'{"action": 1}')
         assert got == 409 and "POST /api/reset" in answer["error"]
         rows = read_rows(out / "episodes.csv")
-        assert [(r["policy"], r["participant"], r["level"], r["seed"], r["steps"]) for r in rows] == \
-            [("human", "tester", "1-1", "7", "3")]
+        assert [(r["policy"], r["participant"], r["level"], r["seed"], r["steps"]) for r in rows] == [
+            ("human", "tester", "1-1", "7", "3")
+        ]
 
         with urllib.request.urlopen(url + "map.png", timeout=30) as response:
             assert response.headers["Content-Type"] == "image/png"
@@ -236,29 +248,54 @@ def load_play():
 
 def test_the_command_line_reads_key_value_arguments():
     play = load_play()
-    options = play.parse_args(["level=1-2", "participant=07", "seed=3", "rate=5", "port=0", "host=::1",
-                               "out=somewhere", "overrides.episode.max_steps=5", "+overrides.agent.move_speed=10"])
-    assert (options.level, options.participant, options.seed, options.rate, options.port, options.host) == \
-        ("1-2", "07", 3, 5.0, 0, "::1")  # participant 07 stays a string, as typed
+    options = play.parse_args(
+        [
+            "level=1-2",
+            "participant=07",
+            "seed=3",
+            "rate=5",
+            "port=0",
+            "host=::1",
+            "out=somewhere",
+            "overrides.episode.max_steps=5",
+            "+overrides.agent.move_speed=10",
+        ]
+    )
+    assert (options.level, options.participant, options.seed, options.rate, options.port, options.host) == (
+        "1-2",
+        "07",
+        3,
+        5.0,
+        0,
+        "::1",
+    )  # participant 07 stays a string, as typed
     assert options.out == Path("somewhere")
     assert options.overrides == {"episode.max_steps": 5, "agent.move_speed": 10}
     assert play.parse_args([]) == PlaySettings()
 
 
-@pytest.mark.parametrize("args, expected", [
-    (["level=no-such-level"], ["level=no-such-level: 'no-such-level' is not allowed", "allowed: 1-1, 1-2"]),
-    (["colour=red"], ["unknown key 'colour'",
-                      "keys: level, level_dir, participant, host, port, seed, rate, out, step_log, overrides"]),
-    (["level"], ["'level' is not of the form key=value"]),
-    (["port=http"], ["port=http: expected an integer"]),
-    (["port=70000"], ["port=70000: expected a port in [0, 65535]"]),
-    (["rate=-1"], ["rate=-1: expected a number in [0, 30]"]),
-    (["participant=a b"], ["participant=a b: expected letters"]),
-    (["step_log=maybe"], ["step_log=maybe: expected true or false"]),
-    (["overrides.episode.max_steps=0"], ["overrides:", "episode.max_steps", "greater than or equal to 1"]),
-    (["overrides.episode.nothing=1"], ["overrides:", "episode.nothing: unknown field"]),
-    (["episode.max_steps=5"], ["unknown key 'episode.max_steps'"]),
-])
+@pytest.mark.parametrize(
+    "args, expected",
+    [
+        (["level=no-such-level"], ["level=no-such-level: 'no-such-level' is not allowed", "allowed: 1-1, 1-2"]),
+        (
+            ["colour=red"],
+            [
+                "unknown key 'colour'",
+                "keys: level, level_dir, participant, host, port, seed, rate, out, step_log, overrides",
+            ],
+        ),
+        (["level"], ["'level' is not of the form key=value"]),
+        (["port=http"], ["port=http: expected an integer"]),
+        (["port=70000"], ["port=70000: expected a port in [0, 65535]"]),
+        (["rate=-1"], ["rate=-1: expected a number in [0, 30]"]),
+        (["participant=a b"], ["participant=a b: expected letters"]),
+        (["step_log=maybe"], ["step_log=maybe: expected true or false"]),
+        (["overrides.episode.max_steps=0"], ["overrides:", "episode.max_steps", "greater than or equal to 1"]),
+        (["overrides.episode.nothing=1"], ["overrides:", "episode.nothing: unknown field"]),
+        (["episode.max_steps=5"], ["unknown key 'episode.max_steps'"]),
+    ],
+)
 def test_the_command_line_refuses_bad_arguments_before_serving(args, expected, capsys):
     assert load_play().main(args) == 2
     err = capsys.readouterr().err
@@ -270,6 +307,12 @@ def test_the_command_line_refuses_bad_arguments_before_serving(args, expected, c
 def test_help_lists_the_keys_and_levels(capsys):
     assert load_play().main(["--help"]) == 0
     out = capsys.readouterr().out
-    for text in ("level: str = 1-1", "participant: str = anonymous", "rate: float = 0.0", "port: int = 8000",
-                 "overrides.episode.max_steps=200", "1-1, 1-2"):
+    for text in (
+        "level: str = 1-1",
+        "participant: str = anonymous",
+        "rate: float = 0.0",
+        "port: int = 8000",
+        "overrides.episode.max_steps=200",
+        "1-1, 1-2",
+    ):
         assert text in out

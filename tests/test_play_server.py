@@ -31,8 +31,14 @@ def server(workdir: Path, *args: str) -> Iterator[tuple[str, int]]:
         yield address.hostname, address.port
 
 
-def call(address: tuple[str, int], method: str, path: str, body: bytes | None = None,
-         headers: dict[str, str] | None = None, timeout: float = 30) -> tuple[int, dict[str, str], bytes]:
+def call(
+    address: tuple[str, int],
+    method: str,
+    path: str,
+    body: bytes | None = None,
+    headers: dict[str, str] | None = None,
+    timeout: float = 30,
+) -> tuple[int, dict[str, str], bytes]:
     """One request with exactly these headers (http.client adds Host unless one is given)."""
     connection = http.client.HTTPConnection(*address, timeout=timeout)
     headers = dict(headers or {})
@@ -60,8 +66,9 @@ def test_requests_from_other_sites_are_refused_and_change_nothing(tmp_path):
     with server(tmp_path, "overrides.episode.max_steps=2", f"out={out}") as address:
         host, port = address
         own = f"http://{host}:{port}"
-        status, _, _ = call(address, "POST", "/api/step", b'{"action": 1}',
-                            {"Origin": own, "Content-Type": "application/json"})
+        status, _, _ = call(
+            address, "POST", "/api/step", b'{"action": 1}', {"Origin": own, "Content-Type": "application/json"}
+        )
         assert status == 200  # the page's own requests pass
         before = state(address)
         assert before["step"] == 1
@@ -77,8 +84,12 @@ def test_requests_from_other_sites_are_refused_and_change_nothing(tmp_path):
             {"Host": f"{host}:{port + 1}"},
         ]
         for headers in attacks:
-            for path, body in (("/api/step", b'{"action": 1}'), ("/api/reset", b'{"level": "1-2"}'),
-                               ("/api/state", None), ("/", None)):
+            for path, body in (
+                ("/api/step", b'{"action": 1}'),
+                ("/api/reset", b'{"level": "1-2"}'),
+                ("/api/state", None),
+                ("/", None),
+            ):
                 status, _, payload = call(address, "POST" if body else "GET", path, body, headers)
                 assert status == 403, (headers, path, status, payload)
                 assert "refused" in json.loads(payload)["error"]
@@ -92,8 +103,9 @@ def test_requests_from_other_sites_are_refused_and_change_nothing(tmp_path):
         assert call(address, "GET", "/", headers={**navigate, "Sec-Fetch-Dest": "iframe"})[0] == 403
         # names of this machine are fine, and the episode goes on where it was
         assert call(address, "GET", "/api/state", headers={"Host": f"localhost:{port}"})[0] == 200
-        status, _, payload = call(address, "POST", "/api/step", b'{"action": 0}',
-                                  {"Origin": f"http://localhost:{port}"})
+        status, _, payload = call(
+            address, "POST", "/api/step", b'{"action": 0}', {"Origin": f"http://localhost:{port}"}
+        )
         assert status == 200 and json.loads(payload)["done"] is True
 
 
@@ -210,8 +222,9 @@ def test_a_level_request_is_a_name_and_the_server_keeps_answering(tmp_path):
             thread.start()
         try:
             for level in (str(bomb), str(secret), "../../../../" + str(secret)[1:], str(secret)[:-5], "1-1/x.yaml"):
-                status, _, payload = call(address, "POST", "/api/reset", json.dumps({"level": level}).encode(),
-                                          timeout=10)
+                status, _, payload = call(
+                    address, "POST", "/api/reset", json.dumps({"level": level}).encode(), timeout=10
+                )
                 error = json.loads(payload)["error"]
                 assert status == 400 and error.startswith("unknown level"), (level, status, error)
                 assert "the-secret-value" not in error

@@ -6,15 +6,23 @@ not done; a tiny real protocol runs end to end into a report and a second run do
 from __future__ import annotations
 
 import re
-import sys
 from pathlib import Path
 
 import pytest
 import yaml
 from helpers import load_script
 
-from evaaa_baselines.protocol import (Cell, Command, Layout, ProtocolError, Scheduler, build_cells, load_protocol,
-                                      provenance, status)
+from evaaa_baselines.protocol import (
+    Cell,
+    Command,
+    Layout,
+    ProtocolError,
+    Scheduler,
+    build_cells,
+    load_protocol,
+    provenance,
+    status,
+)
 
 reproduce = load_script("reproduce")
 
@@ -40,7 +48,8 @@ def test_paper_cpu_expands_into_the_issue_cells(tmp_path):
                 assert f"train/{a}/direct-{lv}/seed{seed}" in got and f"eval/{a}/direct-{lv}/seed{seed}" in got
     ablations = ("no_vision", "no_interoception", "no_olfaction", "no_thermoception", "no_collision")
     assert {n for n in got if "ablation" in n and n.startswith("train/")} == {
-        f"train/ppo/ablation-{m}/seed{s}" for m in ablations for s in (0, 1)}
+        f"train/ppo/ablation-{m}/seed{s}" for m in ablations for s in (0, 1)
+    }
     assert not any("dreamer" in n for n in got)  # listed, not enabled
     assert {"ref/oracle", "ref/random"} <= set(got) and got[-1] == "report"
     refs = {c.name: " ".join(c.commands[0].argv) for c in cells if c.kind == "ref"}
@@ -111,20 +120,31 @@ def test_plan_lists_every_cell_its_status_estimate_total_and_command(tmp_path, c
     assert f"S = **{load_protocol('paper_cpu').stage_steps:,}** env steps" in docs
 
 
-@pytest.mark.parametrize("change, message", [
-    ({"algorithms": {"ppo2": {"steps_per_second": 1}}}, "field algorithms: 'ppo2' is not an algorithm; allowed: "),
-    ({"stage_steps": 0}, "field stage_steps: Input should be greater than 0"),
-    ({"speed": 3}, "field speed: unknown field; allowed: name, description, stage_steps"),
-    ({"ablations": {"algorithm": "ppo", "level": "1-1", "modalities": ["no_smell"]}},
-     "field ablations.modalities: 'no_smell' is not a modality option (conf/modality); allowed: all, no_collision"),
-    ({"ablations": {"algorithm": "dqn", "level": "1-1", "modalities": ["all"]}},
-     "'dqn' is not an enabled algorithm of this protocol; allowed: ppo"),
-    ({"evaluation": {"steps_per_second": 1, "testbeds": {"levels": ["maze"], "episodes": 1}}},
-     "field evaluation.testbeds.levels: 'maze' is not a level, testbed or group"),
-    ({"report": {"out": "x", "survival": "best"}}, "field report.survival: Input should be 'eval' or 'train'"),
-    ({"references": {"steps_per_second": 1, "levels_of": {"oracle": ["maze"]}}},
-     "field references.levels_of: 'maze' is not a level, testbed or group"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"algorithms": {"ppo2": {"steps_per_second": 1}}}, "field algorithms: 'ppo2' is not an algorithm; allowed: "),
+        ({"stage_steps": 0}, "field stage_steps: Input should be greater than 0"),
+        ({"speed": 3}, "field speed: unknown field; allowed: name, description, stage_steps"),
+        (
+            {"ablations": {"algorithm": "ppo", "level": "1-1", "modalities": ["no_smell"]}},
+            "field ablations.modalities: 'no_smell' is not a modality option (conf/modality); allowed: all, no_collision",
+        ),
+        (
+            {"ablations": {"algorithm": "dqn", "level": "1-1", "modalities": ["all"]}},
+            "'dqn' is not an enabled algorithm of this protocol; allowed: ppo",
+        ),
+        (
+            {"evaluation": {"steps_per_second": 1, "testbeds": {"levels": ["maze"], "episodes": 1}}},
+            "field evaluation.testbeds.levels: 'maze' is not a level, testbed or group",
+        ),
+        ({"report": {"out": "x", "survival": "best"}}, "field report.survival: Input should be 'eval' or 'train'"),
+        (
+            {"references": {"steps_per_second": 1, "levels_of": {"oracle": ["maze"]}}},
+            "field references.levels_of: 'maze' is not a level, testbed or group",
+        ),
+    ],
+)
 def test_a_bad_field_is_refused_naming_it(tmp_path, change, message):
     base = yaml.safe_load((Path(__file__).parents[1] / "conf/protocol/smoke.yaml").read_text())
     base.update(change)
@@ -158,8 +178,9 @@ def test_an_unknown_protocol_name_and_a_bad_key_are_one_line_errors(capsys):
     with pytest.raises(SystemExit) as stop:
         reproduce.main(["protocol=paper_nowhere", "plan=true"])
     assert stop.value.code == 2
-    assert "protocol=paper_nowhere: no such protocol; allowed: paper_cpu, paper_learned, smoke" in \
-        capsys.readouterr().err
+    assert (
+        "protocol=paper_nowhere: no such protocol; allowed: paper_cpu, paper_learned, smoke" in capsys.readouterr().err
+    )
     with pytest.raises(SystemExit):
         reproduce.main(["protocol=smoke", "cells=[train/nothing]", "plan=true"])
     assert "no cell named 'train/nothing'" in capsys.readouterr().err
@@ -176,16 +197,23 @@ def _fake(tmp_path: Path, fail_train: bool = False):
     run_dir = lay.runs / "a"
     model = run_dir / "model-0-1-1.pt"
     out = lay.evals / "a"
-    code = (f"import pathlib,time; d=pathlib.Path({str(run_dir)!r}); d.mkdir(parents=True, exist_ok=True); "
-            f"time.sleep(0.3); (d/'model-0-1-1.pt').write_text('m')" + ("; raise SystemExit(3)" if fail_train else ""))
+    code = (
+        f"import pathlib,time; d=pathlib.Path({str(run_dir)!r}); d.mkdir(parents=True, exist_ok=True); "
+        f"time.sleep(0.3); (d/'model-0-1-1.pt').write_text('m')" + ("; raise SystemExit(3)" if fail_train else "")
+    )
     train = Cell("train/a", "train", [Command(_py(code))], 1.0, "a", run_dir=run_dir, final_model=model)
-    ev_code = (f"import pathlib; m=pathlib.Path({str(model)!r}); assert m.exists(); o=pathlib.Path({str(out)!r}); "
-               "o.mkdir(parents=True, exist_ok=True); (o/'episodes.csv').write_text('x')")
+    ev_code = (
+        f"import pathlib; m=pathlib.Path({str(model)!r}); assert m.exists(); o=pathlib.Path({str(out)!r}); "
+        "o.mkdir(parents=True, exist_ok=True); (o/'episodes.csv').write_text('x')"
+    )
     ev = Cell("eval/a", "eval", [Command(_py(ev_code), out)], 1.0, "e", needs=[model], needs_cells=["train/a"])
     report_out = tmp_path / "report"
-    rep_code = f"import pathlib; o=pathlib.Path({str(report_out)!r}); o.mkdir(exist_ok=True); (o/'report.md').write_text('r')"
-    rep = Cell("report", "report", [Command(_py(rep_code))], 1.0, "r", needs_cells=["train/a", "eval/a"],
-               report_out=report_out)
+    rep_code = (
+        f"import pathlib; o=pathlib.Path({str(report_out)!r}); o.mkdir(exist_ok=True); (o/'report.md').write_text('r')"
+    )
+    rep = Cell(
+        "report", "report", [Command(_py(rep_code))], 1.0, "r", needs_cells=["train/a", "eval/a"], report_out=report_out
+    )
     return lay, [train, ev, rep]
 
 
@@ -205,13 +233,17 @@ def test_cells_run_when_what_they_need_exists_and_a_second_run_has_nothing_to_do
 
 def test_every_finished_cell_records_the_wall_time_it_took_and_the_plan_sums_them(tmp_path):
     import json
+
     from evaaa_baselines.protocol import plan_text
+
     lay, cells = _fake(tmp_path)
     train = cells[0]
     # half a second of work, then half a second asleep, then the model
-    code = (f"import pathlib,time; t=time.process_time(); exec('while time.process_time() - t < 0.5: pass'); "
-            f"time.sleep(0.5); d=pathlib.Path({str(train.run_dir)!r}); d.mkdir(parents=True, exist_ok=True); "
-            f"(d/'model-0-1-1.pt').write_text('m')")
+    code = (
+        f"import pathlib,time; t=time.process_time(); exec('while time.process_time() - t < 0.5: pass'); "
+        f"time.sleep(0.5); d=pathlib.Path({str(train.run_dir)!r}); d.mkdir(parents=True, exist_ok=True); "
+        f"(d/'model-0-1-1.pt').write_text('m')"
+    )
     train.commands = [Command(_py(code))]
     assert _scheduler(lay, cells).run(cells) == 0
     markers = {c.name: json.loads(lay.marker(c.name).read_text()) for c in cells}
@@ -258,6 +290,7 @@ def test_a_started_training_run_continues_with_resume_and_redo_starts_over(tmp_p
     lay, cells = _fake(tmp_path)
     train = cells[0]
     from evaaa_baselines.protocol import command_now
+
     assert command_now(train, lay)[0].argv == train.commands[0].argv
     train.run_dir.mkdir(parents=True)
     (train.run_dir / "checkpoint.pt").write_text("c")
@@ -278,6 +311,7 @@ def test_max_minutes_starts_nothing_new(tmp_path):
     lay, cells = _fake(tmp_path)
     sched = _scheduler(lay, cells, max_minutes=1e-9)
     import time
+
     time.sleep(0.01)
     assert sched.run(cells) == 1
     assert [status(c, lay, cells) for c in cells] == ["todo"] * 3
@@ -309,12 +343,19 @@ report: {out: null}
 
 def test_the_report_ends_with_the_commands_that_remake_it_and_the_time_its_cells_took(tmp_path):
     import json
+
     lay, cells = _fake(tmp_path)
     train = cells[0]
-    train.commands = [Command(_py(f"import pathlib,time; t=time.process_time(); "
-                                  f"exec('while time.process_time() - t < 0.4: pass'); "
-                                  f"d=pathlib.Path({str(train.run_dir)!r}); d.mkdir(parents=True, exist_ok=True); "
-                                  f"(d/'model-0-1-1.pt').write_text('m')"))]
+    train.commands = [
+        Command(
+            _py(
+                f"import pathlib,time; t=time.process_time(); "
+                f"exec('while time.process_time() - t < 0.4: pass'); "
+                f"d=pathlib.Path({str(train.run_dir)!r}); d.mkdir(parents=True, exist_ok=True); "
+                f"(d/'model-0-1-1.pt').write_text('m')"
+            )
+        )
+    ]
     assert _scheduler(lay, cells, selects="protocol=smoke root=/some/where").run(cells) == 0
     text = (tmp_path / "report" / "report.md").read_text()
     assert text.startswith("r\n## How this report was made")  # appended to what report.py wrote
@@ -329,8 +370,11 @@ def test_the_report_ends_with_the_commands_that_remake_it_and_the_time_its_cells
     # a done cell without a time (run before cells were timed) is named, with its estimate
     lay.marker("eval/a").write_text(json.dumps({"finished": "x", "seconds": None, "cpu_seconds": None}))
     lines = provenance(load_protocol("smoke"), cells, lay)
-    assert "1 done cells were not timed (run before cells were): eval/a; the protocol file estimates them at 0.02" \
-        in "\n".join(lines) and "python scripts/reproduce.py protocol=smoke plan=true" in "\n".join(lines)
+    assert (
+        "1 done cells were not timed (run before cells were): eval/a; the protocol file estimates them at 0.02"
+        in "\n".join(lines)
+        and "python scripts/reproduce.py protocol=smoke plan=true" in "\n".join(lines)
+    )
 
 
 def test_a_tiny_protocol_runs_end_to_end_and_a_second_run_does_nothing(tmp_path, capsys):
@@ -349,8 +393,9 @@ def test_a_tiny_protocol_runs_end_to_end_and_a_second_run_does_nothing(tmp_path,
     assert (root / "evals/ppo/direct-1-1/seed0/testbeds/episodes.csv").is_file()
     # keep_checkpoints: false: the finished run's checkpoints are gone, the run is reported finished all the same
     assert not list((root / "runs/ppo/direct-1-1/seed0").glob("checkpoint*.pt"))
-    assert re.search(r"\| \S*runs/ppo/direct-1-1/seed0 \| ppo \| all \| original \| 1-1 \| 0 \| 128 / 128 \| finished \|",
-                     report)
+    assert re.search(
+        r"\| \S*runs/ppo/direct-1-1/seed0 \| ppo \| all \| original \| 1-1 \| 0 \| 128 / 128 \| finished \|", report
+    )
     log = (root / "logs/train/ppo/direct-1-1/seed0.log").read_text()
     assert "EVAAA_THREADS=1 python scripts/train.py algo=ppo level=1-1 total_steps=128 seed=0 threads=1" in log
     before = {p: p.stat().st_mtime for p in root.rglob("*") if p.is_file()}
@@ -366,8 +411,9 @@ def test_a_killed_protocol_continues_only_what_is_not_done(tmp_path, capsys):
     root = tmp_path / "root"
     args = [f"protocol={spec}", f"root={root}", "progress=false"]
     assert reproduce.main(args) == 0
-    logs = {n: root / "logs" / f"{n}.log" for n in ("train/ppo/direct-1-1/seed0", "eval/ppo/direct-1-1/seed0",
-                                                     "report")}
+    logs = {
+        n: root / "logs" / f"{n}.log" for n in ("train/ppo/direct-1-1/seed0", "eval/ppo/direct-1-1/seed0", "report")
+    }
     # a lost done-marker and an evaluation killed mid-way: both cells run again, and the report after them
     (root / "done/train/ppo/direct-1-1/seed0.done").unlink()
     out = root / "evals/ppo/direct-1-1/seed0/testbeds"
@@ -398,8 +444,14 @@ def test_the_smoke_protocol_produces_every_kind_of_cell_and_the_report(tmp_path)
     assert {c.kind for c in cells} == {"train", "eval", "ref", "report"}
     assert all(status(c, lay, cells) == "done" for c in cells)
     report = (root / "report" / "report.md").read_text()
-    for heading in ("Fig. 4a, left", "Fig. 4a, right", "Fig. 4b, left", "Fig. 4b, right", "Fig. 26",
-                    "The paper's claims"):
+    for heading in (
+        "Fig. 4a, left",
+        "Fig. 4a, right",
+        "Fig. 4b, left",
+        "Fig. 4b, right",
+        "Fig. 26",
+        "The paper's claims",
+    ):
         assert heading in report
 
 
@@ -407,10 +459,12 @@ def test_a_failed_cell_is_tried_again_once_and_continues(tmp_path):
     lay, cells = _fake(tmp_path)
     flag = tmp_path / "crashed"
     # the first try dies (as the renderer's crash does) after writing part of its run; the retry finishes it
-    code = (f"import pathlib; d=pathlib.Path({str(cells[0].run_dir)!r}); d.mkdir(parents=True, exist_ok=True); "
-            f"f=pathlib.Path({str(flag)!r}); (d/'checkpoint.pt').write_text('c')\n"
-            "if not f.exists(): f.write_text('1'); raise SystemExit(-11)\n"
-            "(d/'model-0-1-1.pt').write_text('m')")
+    code = (
+        f"import pathlib; d=pathlib.Path({str(cells[0].run_dir)!r}); d.mkdir(parents=True, exist_ok=True); "
+        f"f=pathlib.Path({str(flag)!r}); (d/'checkpoint.pt').write_text('c')\n"
+        "if not f.exists(): f.write_text('1'); raise SystemExit(-11)\n"
+        "(d/'model-0-1-1.pt').write_text('m')"
+    )
     cells[0].commands = [Command(_py(code))]
     messages = []
     sched = Scheduler(load_protocol("smoke"), cells, lay, progress=False, echo=messages.append, retries=1)
@@ -425,12 +479,14 @@ def test_a_failed_cell_is_tried_again_once_and_continues(tmp_path):
 # ------------------------------------------------------------------------------------------------ committed results
 def test_a_finished_training_whose_models_are_gone_is_trained_again_only_for_evaluations_left(tmp_path):
     from evaaa_baselines.protocol import command_now
+
     lay, cells = _fake(tmp_path)
     train, ev, _ = cells
     assert _scheduler(lay, cells).run(cells) == 0
     train.final_model.unlink()  # a clone of the committed results: no models
-    assert status(train, lay, cells) == "done" and command_now(train, lay) == [Command([*train.commands[0].argv,
-                                                                                        "start_over=true"])]
+    assert status(train, lay, cells) == "done" and command_now(train, lay) == [
+        Command([*train.commands[0].argv, "start_over=true"])
+    ]
     (ev.commands[0].out / "episodes.csv").unlink()  # an evaluation still to make needs the model again
     assert status(train, lay, cells) == "partial"
     todo = [c for c in cells if status(c, lay, cells) != "done"]
@@ -444,11 +500,14 @@ def test_a_training_from_zero_has_its_earlier_evaluations_made_again_from_the_ne
     # a curriculum: two stage evaluations of one training, one made before the models were lost, one still to make
     lay, (train, ev, rep) = _fake(tmp_path)
     out2 = lay.evals / "b"
-    ev2_code = (f"import pathlib; m=pathlib.Path({str(train.final_model)!r}); assert m.exists(); "
-                f"o=pathlib.Path({str(out2)!r}); o.mkdir(parents=True, exist_ok=True); "
-                "(o/'episodes.csv').write_text('x')")
-    ev2 = Cell("eval/b", "eval", [Command(_py(ev2_code), out2)], 1.0, "e", needs=[train.final_model],
-               needs_cells=["train/a"])
+    ev2_code = (
+        f"import pathlib; m=pathlib.Path({str(train.final_model)!r}); assert m.exists(); "
+        f"o=pathlib.Path({str(out2)!r}); o.mkdir(parents=True, exist_ok=True); "
+        "(o/'episodes.csv').write_text('x')"
+    )
+    ev2 = Cell(
+        "eval/b", "eval", [Command(_py(ev2_code), out2)], 1.0, "e", needs=[train.final_model], needs_cells=["train/a"]
+    )
     rep.needs_cells.append("eval/b")
     cells = [train, ev, ev2, rep]
     assert _scheduler(lay, cells).run(cells) == 0
@@ -481,6 +540,7 @@ def test_a_training_from_zero_has_its_earlier_evaluations_made_again_from_the_ne
 
 def test_commands_name_files_inside_the_repository_relative_to_it(tmp_path):
     from evaaa_baselines.protocol import REPO
+
     inside = REPO / "runs" / "protocol" / "named-relative"
     for root, prefix in ((inside, "runs/protocol/named-relative/"), (tmp_path, f"{tmp_path.resolve()}/")):
         cells = build_cells(load_protocol("smoke"), root, report_out=root / "report")
@@ -496,6 +556,7 @@ def test_a_root_inside_the_repository_keeps_models_and_logs_out_of_git(tmp_path)
     import subprocess
 
     from evaaa_baselines.protocol import GITIGNORE, REPO, keep_out_of_git
+
     assert keep_out_of_git(Layout(tmp_path / "outside")) is None and not (tmp_path / "outside").exists()
     inside = REPO / "runs" / "protocol" / "gitignore-test"
     try:
@@ -511,14 +572,27 @@ def test_a_root_inside_the_repository_keeps_models_and_logs_out_of_git(tmp_path)
     (repo / ".gitignore").write_text((REPO / ".gitignore").read_text())  # which leaves every runs/ folder out
     (repo / "record" / ".gitignore").write_text(GITIGNORE)
     run = "record/runs/ppo/curriculum/seed0"
-    ignored = [f"{run}/model-0-1-1.pt", f"{run}/checkpoint.pt", f"{run}/train.log", "record/logs/train/ppo.log",
-               "record/evals/ppo/a/testbeds/survival.png", "record/evals/ppo/a/testbeds.partial-20261125/episodes.csv",
-               "record/evals/ppo/a/testbeds.old-20261125/episodes.csv", "record/.reproduce.lock",
-               "record/done/train/ppo/curriculum/seed1.seconds",
-               "record/runs/ppo/curriculum/.seed0.replaced-20261125-101010/eval.csv"]
-    kept = [f"{run}/.hydra/config.yaml", f"{run}/episodes.csv", f"{run}/eval.csv", f"{run}/logs/scalars/train/lr.csv",
-            "record/evals/ppo/a/testbeds/episodes.csv", "record/evals/ppo/a/testbeds/summary.md",
-            "record/done/train/ppo/curriculum/seed0.done"]
+    ignored = [
+        f"{run}/model-0-1-1.pt",
+        f"{run}/checkpoint.pt",
+        f"{run}/train.log",
+        "record/logs/train/ppo.log",
+        "record/evals/ppo/a/testbeds/survival.png",
+        "record/evals/ppo/a/testbeds.partial-20261125/episodes.csv",
+        "record/evals/ppo/a/testbeds.old-20261125/episodes.csv",
+        "record/.reproduce.lock",
+        "record/done/train/ppo/curriculum/seed1.seconds",
+        "record/runs/ppo/curriculum/.seed0.replaced-20261125-101010/eval.csv",
+    ]
+    kept = [
+        f"{run}/.hydra/config.yaml",
+        f"{run}/episodes.csv",
+        f"{run}/eval.csv",
+        f"{run}/logs/scalars/train/lr.csv",
+        "record/evals/ppo/a/testbeds/episodes.csv",
+        "record/evals/ppo/a/testbeds/summary.md",
+        "record/done/train/ppo/curriculum/seed0.done",
+    ]
     for path in ignored + kept:
         (repo / path).parent.mkdir(parents=True, exist_ok=True)
         (repo / path).write_text("x")
@@ -531,11 +605,14 @@ def test_a_stopped_protocol_passes_one_ctrl_c_to_each_cell_and_keeps_its_time(tm
     import os
     import signal
     import threading
+
     lay, cells = _fake(tmp_path)
     train = cells[0]
-    code = (f"import pathlib,signal,sys,time; d=pathlib.Path({str(train.run_dir)!r}); d.mkdir(parents=True); "
-            "signal.signal(signal.SIGINT, lambda *a: ((d/'stopped').write_text('1'), sys.exit(130))); "
-            "(d/'ready').write_text('1'); time.sleep(60)")
+    code = (
+        f"import pathlib,signal,sys,time; d=pathlib.Path({str(train.run_dir)!r}); d.mkdir(parents=True); "
+        "signal.signal(signal.SIGINT, lambda *a: ((d/'stopped').write_text('1'), sys.exit(130))); "
+        "(d/'ready').write_text('1'); time.sleep(60)"
+    )
     train.commands = [Command(_py(code))]
     stopper = threading.Timer(1.5, os.kill, (os.getpid(), signal.SIGTERM))  # as `kill` of reproduce.py does
     stopper.start()
@@ -550,10 +627,16 @@ def test_a_stopped_protocol_passes_one_ctrl_c_to_each_cell_and_keeps_its_time(tm
     assert 1.0 <= account["seconds"] < 30 and 0 <= account["cpu_seconds"] < account["seconds"]
     # where nothing of the cell is left (a clone without the unfinished run), it is timed from zero again
     import shutil
+
     shutil.rmtree(train.run_dir)
-    train.commands = [Command(_py(
-        f"import pathlib; d=pathlib.Path({str(train.run_dir)!r}); d.mkdir(parents=True); "
-        "(d/'model-0-1-1.pt').write_text('m')"))]
+    train.commands = [
+        Command(
+            _py(
+                f"import pathlib; d=pathlib.Path({str(train.run_dir)!r}); d.mkdir(parents=True); "
+                "(d/'model-0-1-1.pt').write_text('m')"
+            )
+        )
+    ]
     assert _scheduler(lay, cells).run(cells) == 0
     assert json.loads(lay.marker("train/a").read_text())["seconds"] < 1.0
 
@@ -572,8 +655,9 @@ def test_paper_learned_compute_matches_1_1_and_gives_direct_runs_the_curriculum_
     assert first[0] == "train/ppo/direct-1-1/seed0" and first[3].startswith("train/ppo/ablation-")
     matched = [n for n in first if "matched" in n]
     assert matched[:4] == [f"train/{a}/matched-1-1/seed0" for a in ("ppo", "dqn", "ppo_lstm", "dreamer_xs")]
-    assert first.index(matched[-1]) < first.index("train/ppo/curriculum/seed0") < \
-        first.index("train/ppo/direct-1-2/seed0")
+    assert (
+        first.index(matched[-1]) < first.index("train/ppo/curriculum/seed0") < first.index("train/ppo/direct-1-2/seed0")
+    )
     # curriculum and direct runs are PPO's alone; direct runs at the env steps the curriculum had seen by then
     assert not [n for n in first if ("curriculum" in n or "direct" in n) and not n.startswith("train/ppo/")]
     register_levels()
@@ -597,11 +681,12 @@ def test_paper_learned_compute_matches_1_1_and_gives_direct_runs_the_curriculum_
 
 
 def test_docs_quote_the_paper_learned_plan(tmp_path, capsys):
-    assert reproduce.main(["protocol=paper_learned", "plan=true", f"root={tmp_path}",
-                           f"out={tmp_path / 'report'}"]) == 0
+    assert (
+        reproduce.main(["protocol=paper_learned", "plan=true", f"root={tmp_path}", f"out={tmp_path / 'report'}"]) == 0
+    )
     out = capsys.readouterr().out
     docs = (Path(__file__).parents[1] / "docs/reports.md").read_text()
-    docs = docs[docs.index("## The paper's claims between agents that learned"):]
+    docs = docs[docs.index("## The paper's claims between agents that learned") :]
     total = float(re.search(r"^  total\s+(\d+\.\d+)", out, re.M).group(1))
     assert f"| **total** | | | | | | **{total:.2f}** |" in docs and "WARNING" not in out
     for algo in ("ppo", "dqn", "ppo_lstm", "dreamer_xs"):

@@ -8,11 +8,18 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from evaaa_baselines.reports import (markdown_table, outcome, plot_outcomes, plot_summary, read_episodes, short_labels,
-                                     summarize)
-from evaaa_baselines.reports.stats import interval
 from evaaa.physiology import END_TYPES
 from evaaa.records import EPISODE_FIELDS, EpisodeTracker, append_rows, read_rows
+from evaaa_baselines.reports import (
+    markdown_table,
+    outcome,
+    plot_outcomes,
+    plot_summary,
+    read_episodes,
+    short_labels,
+    summarize,
+)
+from evaaa_baselines.reports.stats import interval
 
 
 def info(n, *, step, end=0, food=0, water=0, collision=False, damage=0.0, success=False, near_heat=False):
@@ -20,11 +27,20 @@ def info(n, *, step, end=0, food=0, water=0, collision=False, damage=0.0, succes
         return np.full((n, 1), value, dtype=dtype)
 
     return {
-        "food_eaten": col(food, np.int64), "water_eaten": col(water, np.int64), "collision": col(collision, bool),
-        "damage_taken": col(damage, np.float32), "attacked": col(False, bool), "step_count": col(step, np.int64),
-        "end_type": col(end, np.int64), "success": col(success, bool), "trigger_crossed": col(False, bool),
-        "near_heat": col(near_heat, bool), "satiation": col(-1.0, np.float32), "hydration": col(2.0, np.float32),
-        "temperature": col(0.5, np.float32), "damage": col(3.0, np.float32),
+        "food_eaten": col(food, np.int64),
+        "water_eaten": col(water, np.int64),
+        "collision": col(collision, bool),
+        "damage_taken": col(damage, np.float32),
+        "attacked": col(False, bool),
+        "step_count": col(step, np.int64),
+        "end_type": col(end, np.int64),
+        "success": col(success, bool),
+        "trigger_crossed": col(False, bool),
+        "near_heat": col(near_heat, bool),
+        "satiation": col(-1.0, np.float32),
+        "hydration": col(2.0, np.float32),
+        "temperature": col(0.5, np.float32),
+        "damage": col(3.0, np.float32),
     }
 
 
@@ -66,23 +82,29 @@ def test_append_rows_writes_the_header_once_and_refuses_other_columns(tmp_path):
 
 
 def test_summary_numbers_match_the_inputs(tmp_path):
-    rows = pd.DataFrame({
-        "level": ["two-resource-food"] * 4 + ["1-1"] * 3,
-        "policy": ["a", "a", "a", "a", "a", "a", "a"],
-        "success": [True, False, True, True, np.nan, np.nan, np.nan],
-        "steps": [10, 20, 30, 40, 100, 200, 600],
-        "collisions": [0, 1, 2, 3, 0, 0, 0],
-        "end_type": ["ResourceConsumed"] * 4 + ["FoodOutOfRange"] * 3,
-        "food_eaten": [1, 0, 1, 1, 0, 0, 0],
-    })
+    rows = pd.DataFrame(
+        {
+            "level": ["two-resource-food"] * 4 + ["1-1"] * 3,
+            "policy": ["a", "a", "a", "a", "a", "a", "a"],
+            "success": [True, False, True, True, np.nan, np.nan, np.nan],
+            "steps": [10, 20, 30, 40, 100, 200, 600],
+            "collisions": [0, 1, 2, 3, 0, 0, 0],
+            "end_type": ["ResourceConsumed"] * 4 + ["FoodOutOfRange"] * 3,
+            "food_eaten": [1, 0, 1, 1, 0, 0, 0],
+        }
+    )
     summary = summarize(rows).set_index("level")
     # Wilson score interval of 3 successes in 4, by its formula
     k, n, z = 3, 4, 1.959963984540054
-    centre, half = (k / n + z * z / (2 * n)) / (1 + z * z / n), z / (1 + z * z / n) * np.sqrt(
-        k / n * (1 - k / n) / n + z * z / (4 * n * n))
+    centre, half = (
+        (k / n + z * z / (2 * n)) / (1 + z * z / n),
+        z / (1 + z * z / n) * np.sqrt(k / n * (1 - k / n) / n + z * z / (4 * n * n)),
+    )
     assert summary.loc["two-resource-food", "success_rate"] == pytest.approx(0.75)
-    assert (summary.loc["two-resource-food", "success_low"], summary.loc["two-resource-food", "success_high"]) \
-        == pytest.approx((centre - half, centre + half))
+    assert (
+        summary.loc["two-resource-food", "success_low"],
+        summary.loc["two-resource-food", "success_high"],
+    ) == pytest.approx((centre - half, centre + half))
     # interquartile mean of 100, 200, 600: a quarter of 3 rounds down to none cut, so all three
     assert summary.loc["1-1", "survival_iqm"] == pytest.approx(300.0)
     assert summary.loc["1-1", "survival_mean"] == pytest.approx(300.0)
@@ -93,22 +115,31 @@ def test_summary_numbers_match_the_inputs(tmp_path):
     assert 100 <= low < 300 < high <= 600
     assert np.isnan(summary.loc["1-1", "success_rate"])
     table = markdown_table(summarize(rows))
-    assert (f"| two-resource-food | 75.0% [{100 * (centre - half):.1f}, {100 * (centre + half):.1f}] (n=4 ep.) |"
-            in table)
+    assert (
+        f"| two-resource-food | 75.0% [{100 * (centre - half):.1f}, {100 * (centre + half):.1f}] (n=4 ep.) |" in table
+    )
     assert f"| 1-1 | 300.0 [{low:.1f}, {high:.1f}]; 300.0 ± 152.8 (n=3 ep.) |" in table
     assert [outcome(r) for _, r in rows.iloc[:2].iterrows()] == ["success", "drank water (wrong)"]
 
 
 def test_summary_survival_is_the_interquartile_mean_and_rates_are_never_plus_minus_zero():
     # 8 episodes: the IQM drops 2 at each end and averages 30, 40, 50, 60; an outlier does not move it
-    rows = pd.DataFrame({"level": ["1-1"] * 8 + ["y-maze"] * 5, "policy": ["a"] * 13,
-                         "success": [np.nan] * 8 + [False] * 5, "steps": [10, 20, 30, 40, 50, 60, 70, 5000] + [9] * 5,
-                         "collisions": [0] * 13, "end_type": ["FoodOutOfRange"] * 13, "food_eaten": [0] * 13})
+    rows = pd.DataFrame(
+        {
+            "level": ["1-1"] * 8 + ["y-maze"] * 5,
+            "policy": ["a"] * 13,
+            "success": [np.nan] * 8 + [False] * 5,
+            "steps": [10, 20, 30, 40, 50, 60, 70, 5000] + [9] * 5,
+            "collisions": [0] * 13,
+            "end_type": ["FoodOutOfRange"] * 13,
+            "food_eaten": [0] * 13,
+        }
+    )
     summary = summarize(rows).set_index("level")
     assert summary.loc["1-1", "survival_iqm"] == pytest.approx(45.0)
     assert summary.loc["1-1", "survival_mean"] == pytest.approx(660.0)
     assert summary.loc["y-maze", "success_rate"] == 0 and summary.loc["y-maze", "success_low"] == 0
-    z2 = 1.959963984540054 ** 2
+    z2 = 1.959963984540054**2
     assert summary.loc["y-maze", "success_high"] == pytest.approx(z2 / (5 + z2))  # Wilson's upper end at 0 of n
     assert "| y-maze | 0.0% [0.0, 43.4] (n=5 ep.) |" in markdown_table(summarize(rows))
 
@@ -170,9 +201,18 @@ def test_figures_label_checkpoints_by_what_differs_in_their_paths(tmp_path, monk
         return real_savefig(fig, *args, **kwargs)
 
     monkeypatch.setattr(matplotlib.figure.Figure, "savefig", savefig)
-    rows = pd.DataFrame({"level": ["two-resource-food"] * 3, "policy": [a, b, "random"], "success": [True, False, True],
-                         "steps": [10, 20, 30], "collisions": [0, 1, 2], "end_type": ["ResourceConsumed"] * 3,
-                         "food_eaten": [1, 0, 1], "water_eaten": [0, 1, 0]})
+    rows = pd.DataFrame(
+        {
+            "level": ["two-resource-food"] * 3,
+            "policy": [a, b, "random"],
+            "success": [True, False, True],
+            "steps": [10, 20, 30],
+            "collisions": [0, 1, 2],
+            "end_type": ["ResourceConsumed"] * 3,
+            "food_eaten": [1, 0, 1],
+            "water_eaten": [0, 1, 0],
+        }
+    )
     plot_summary(summarize(rows), tmp_path / "s.png", success=True, title="t")
     plot_outcomes(rows, tmp_path / "o.png")
     assert {"ppo", "dqn", "random"} <= set(shown)
@@ -184,9 +224,18 @@ def test_summary_of_human_play_has_the_participants_as_units():
     # p01 survived 10, 20, 30 decisions, p02 1000 and 40: the participants are the units, mean ± se over the five
     # episodes, the IQM (one cut at each end of 10, 20, 30, 40, 1000) is the mean of 20, 30, 40; two participants
     # are too few for an interval
-    rows = pd.DataFrame({"level": ["1-1"] * 5, "policy": ["human"] * 5, "participant": ["p01"] * 3 + ["p02"] * 2,
-                         "success": [np.nan] * 5, "steps": [10, 20, 30, 1000, 40], "collisions": [0] * 5,
-                         "end_type": ["FoodOutOfRange"] * 5, "food_eaten": [0] * 5})
+    rows = pd.DataFrame(
+        {
+            "level": ["1-1"] * 5,
+            "policy": ["human"] * 5,
+            "participant": ["p01"] * 3 + ["p02"] * 2,
+            "success": [np.nan] * 5,
+            "steps": [10, 20, 30, 1000, 40],
+            "collisions": [0] * 5,
+            "end_type": ["FoodOutOfRange"] * 5,
+            "food_eaten": [0] * 5,
+        }
+    )
     row = summarize(rows).iloc[0]
     assert (row["units"], row["unit"], row["episodes"]) == (2, "participants", 5)
     assert row["survival_iqm"] == pytest.approx(30.0) and row["survival_mean"] == pytest.approx(220.0)

@@ -18,16 +18,16 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from helpers import load_script
 import yaml
+from helpers import load_script
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 import evaaa
+from evaaa.records import TRAINING_EPISODE_FIELDS, append_rows
 from evaaa_baselines.config import CONF_DIR, observation_keys, register_levels
 from evaaa_baselines.reports import ReportError, build_report
-from evaaa_baselines.reports.stats import binomial_interval, clustered_rate, interval
-from evaaa.records import TRAINING_EPISODE_FIELDS, append_rows
+from evaaa_baselines.reports.stats import clustered_rate, interval
 
 register_levels()
 
@@ -36,11 +36,28 @@ STAGES = ("1-1", "1-2")
 BUDGET = 100  # env steps per stage
 TESTBEDS = ("two-resource-food", "y-maze")
 #: eval.csv as training runs wrote it before evaluations kept one row per episode: one mean per evaluation
-OLD_EVAL_COLUMNS = ("env_steps", "stage", "level", "episodes", "survival_mean", "survival_min", "survival_max",
-                    "return_mean", "end_types", "wall_time")
-FIGURES = ("fig4a_survival_per_level.png", "fig4a_curriculum_vs_direct.png", "fig4b_success_per_testbed.png",
-           "fig4b_generalisation.png", "fig_training_curves.png", "fig_evaluation_curves.png",
-           "fig25_ablation_curves.png", "fig26_ablation_success.png")
+OLD_EVAL_COLUMNS = (
+    "env_steps",
+    "stage",
+    "level",
+    "episodes",
+    "survival_mean",
+    "survival_min",
+    "survival_max",
+    "return_mean",
+    "end_types",
+    "wall_time",
+)
+FIGURES = (
+    "fig4a_survival_per_level.png",
+    "fig4a_curriculum_vs_direct.png",
+    "fig4b_success_per_testbed.png",
+    "fig4b_generalisation.png",
+    "fig_training_curves.png",
+    "fig_evaluation_curves.png",
+    "fig25_ablation_curves.png",
+    "fig26_ablation_success.png",
+)
 
 
 # ------------------------------------------------------------------------------------------------ inputs
@@ -64,21 +81,50 @@ class Sim:
         self.root, self.rng = root, np.random.default_rng(seed)
         self.runs: dict[Path, dict] = {}
 
-    def run(self, algo: str, seed: int, *, level: str = "curriculum", modality: str = "all", finish: int = 2,
-            partial_steps: int = 0, files: bool = True, overrides: tuple[str, ...] = (), budget: int = BUDGET) -> Path:
+    def run(
+        self,
+        algo: str,
+        seed: int,
+        *,
+        level: str = "curriculum",
+        modality: str = "all",
+        finish: int = 2,
+        partial_steps: int = 0,
+        files: bool = True,
+        overrides: tuple[str, ...] = (),
+        budget: int = BUDGET,
+    ) -> Path:
         """``finish``: stages finished (a curriculum has two, a direct run one); ``partial_steps``: env steps the
         next, unfinished stage got to; ``files``: False leaves the config alone (a run that never started);
         ``budget``: a direct run's env steps."""
-        extra = ([f"level.stage_steps={BUDGET}", f"level.stages=[{','.join(STAGES)}]"] if level == "curriculum"
-                 else [f"total_steps={budget}"])
-        cfg = make_cfg(f"algo={algo}", f"seed={seed}", f"level={level}", f"modality={modality}", "preset=debug",
-                       "logger=csv", *extra, *overrides)
+        extra = (
+            [f"level.stage_steps={BUDGET}", f"level.stages=[{','.join(STAGES)}]"]
+            if level == "curriculum"
+            else [f"total_steps={budget}"]
+        )
+        cfg = make_cfg(
+            f"algo={algo}",
+            f"seed={seed}",
+            f"level={level}",
+            f"modality={modality}",
+            "preset=debug",
+            "logger=csv",
+            *extra,
+            *overrides,
+        )
         run_dir = self.root / OmegaConf.to_container(cfg, resolve=True)["run"]["name"]
         (run_dir / ".hydra").mkdir(parents=True)
         OmegaConf.save(cfg, run_dir / ".hydra" / "config.yaml")  # as Hydra saves it: interpolations kept
         stages = STAGES if level == "curriculum" else (level,)
-        info = {"algo": algo, "seed": seed, "modality": modality, "level": level, "stages": stages,
-                "final": {}, "episodes": []}
+        info = {
+            "algo": algo,
+            "seed": seed,
+            "modality": modality,
+            "level": level,
+            "stages": stages,
+            "final": {},
+            "episodes": [],
+        }
         self.runs[run_dir] = info
         if not files:
             return run_dir
@@ -87,21 +133,44 @@ class Sim:
             if index > finish:
                 break
             end = (BUDGET if level == "curriculum" else budget) if index < finish else partial_steps
-            for step in np.linspace(end / 5, end, 5).astype(int)[:-1 if index == finish else None]:
+            for step in np.linspace(end / 5, end, 5).astype(int)[: -1 if index == finish else None]:
                 survival = int(self.rng.integers(10, 400))
-                episodes.append({"env_steps": step, "stage": index, "level": name, "episode": len(episodes) + 1,
-                                 "world": 0, "steps": survival, "return": -1.5, "end_type": "FoodOutOfRange",
-                                 "final_satiation": -15.1, "final_hydration": 0.0, "final_temperature": 0.0,
-                                 "final_damage": 0.0,
-                                 "wall_time": "2026-01-01T00:00:00"})
+                episodes.append(
+                    {
+                        "env_steps": step,
+                        "stage": index,
+                        "level": name,
+                        "episode": len(episodes) + 1,
+                        "world": 0,
+                        "steps": survival,
+                        "return": -1.5,
+                        "end_type": "FoodOutOfRange",
+                        "final_satiation": -15.1,
+                        "final_hydration": 0.0,
+                        "final_temperature": 0.0,
+                        "final_damage": 0.0,
+                        "wall_time": "2026-01-01T00:00:00",
+                    }
+                )
                 info["episodes"].append((index * BUDGET + step, survival))
             for step in (end // 2, end):
                 if step == 0:
                     continue
                 value = round(float(self.rng.uniform(20, 300)), 2)
-                evals.append({"env_steps": step, "stage": index, "level": name, "episodes": 2,
-                              "survival_mean": value, "survival_min": 1, "survival_max": 400, "return_mean": -1,
-                              "end_types": "FoodOutOfRange;FoodOutOfRange", "wall_time": "2026-01-01T00:00:00"})
+                evals.append(
+                    {
+                        "env_steps": step,
+                        "stage": index,
+                        "level": name,
+                        "episodes": 2,
+                        "survival_mean": value,
+                        "survival_min": 1,
+                        "survival_max": 400,
+                        "return_mean": -1,
+                        "end_types": "FoodOutOfRange;FoodOutOfRange",
+                        "wall_time": "2026-01-01T00:00:00",
+                    }
+                )
                 if index < finish and step == end:
                     info["final"][name] = value
             if index < finish:
@@ -116,11 +185,28 @@ class Sim:
         rows = []
         for i in range(episodes):
             success = bool(self.rng.random() < 0.5) if level in evaaa.TESTBEDS else ""
-            rows.append({"policy": policy, "participant": participant, "level": level, "episode": i, "seed": 0,
-                         "steps": int(self.rng.integers(5, 300)), "return": -1.0, "end_type": "MaxStepReached",
-                         "success": success, "food_eaten": 0, "water_eaten": 0, "collisions": 0,
-                         "damage_taken": 0.0, "attacks": 0, "final_satiation": 0.0, "final_hydration": 0.0,
-                         "final_temperature": 0.0, "final_damage": 0.0})
+            rows.append(
+                {
+                    "policy": policy,
+                    "participant": participant,
+                    "level": level,
+                    "episode": i,
+                    "seed": 0,
+                    "steps": int(self.rng.integers(5, 300)),
+                    "return": -1.0,
+                    "end_type": "MaxStepReached",
+                    "success": success,
+                    "food_eaten": 0,
+                    "water_eaten": 0,
+                    "collisions": 0,
+                    "damage_taken": 0.0,
+                    "attacks": 0,
+                    "final_satiation": 0.0,
+                    "final_hydration": 0.0,
+                    "final_temperature": 0.0,
+                    "final_damage": 0.0,
+                }
+            )
         return rows
 
 
@@ -163,14 +249,25 @@ def world(tmp_path_factory):
     gone = base / "runs" / "deleted" / "seed0" / "model-0-1-1.pt"
     rows += sim.evaluate(str(gone), "y-maze", 3)
     append_rows(base / "eval" / "episodes.csv", rows)
-    human = (sim.evaluate("human", "two-resource-food", 3, participant="p01")
-             + sim.evaluate("human", "two-resource-food", 2, participant="p02"))
+    human = sim.evaluate("human", "two-resource-food", 3, participant="p01") + sim.evaluate(
+        "human", "two-resource-food", 2, participant="p02"
+    )
     append_rows(base / "human.csv", human)
 
     report = build_report([base / "runs"], [base / "eval", base / "human.csv"], base / "out", bins=4)
     text = report.markdown.read_text()
-    return {"sim": sim, "base": base, "report": report, "text": text, "partial": partial, "missing": missing,
-            "evaluated": evaluated, "eval_rows": rows, "human": human, "gone": gone}
+    return {
+        "sim": sim,
+        "base": base,
+        "report": report,
+        "text": text,
+        "partial": partial,
+        "missing": missing,
+        "evaluated": evaluated,
+        "eval_rows": rows,
+        "human": human,
+        "gone": gone,
+    }
 
 
 def stats(values) -> tuple[float, float, int]:
@@ -183,7 +280,7 @@ def hand_iqm(values) -> float:
     """Interquartile mean by its definition: sort, drop a quarter (rounded down) at each end, average the rest."""
     v = np.sort(np.asarray(values, dtype=float))
     cut = len(v) // 4
-    return float(v[cut:len(v) - cut].mean())
+    return float(v[cut : len(v) - cut].mean())
 
 
 def wilson(k: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
@@ -241,11 +338,11 @@ def expect_rate(samples, unit: str = "seeds") -> str:
 
 def table(text: str, heading: str) -> dict[str, dict[str, str]]:
     """The first Markdown table after ``heading`` as {row: {column: cell}}."""
-    lines = text[text.index(heading):].splitlines()
+    lines = text[text.index(heading) :].splitlines()
     start = next(i for i, line in enumerate(lines) if line.startswith("|"))
     header = [c.strip() for c in lines[start].strip("|").split("|")]
     out = {}
-    for line in lines[start + 2:]:
+    for line in lines[start + 2 :]:
         if not line.startswith("|"):
             break
         cells = [c.strip() for c in line.strip("|").split("|")]
@@ -254,8 +351,11 @@ def table(text: str, heading: str) -> dict[str, dict[str, str]]:
 
 
 def runs_of(world, **match):
-    return [(d, info) for d, info in world["sim"].runs.items()
-            if all(info[k] == v for k, v in match.items()) and d != world["missing"]]
+    return [
+        (d, info)
+        for d, info in world["sim"].runs.items()
+        if all(info[k] == v for k, v in match.items()) and d != world["missing"]
+    ]
 
 
 # ------------------------------------------------------------------------------------------------ figures
@@ -271,24 +371,30 @@ def test_every_figure_is_written_as_a_png_and_linked(world):
 # ------------------------------------------------------------------------------------------------ Fig. 4a
 def test_survival_per_level_is_the_mean_and_se_across_seeds_of_each_stage_final_evaluation(world):
     got = table(world["text"], "## Survival per training level")
-    for label, algo, modality in (("ppo · all", "ppo", "all"), ("dqn · all", "dqn", "all"),
-                                  ("ppo · no_vision", "ppo", "no_vision")):
+    for label, algo, modality in (
+        ("ppo · all", "ppo", "all"),
+        ("dqn · all", "dqn", "all"),
+        ("ppo · no_vision", "ppo", "no_vision"),
+    ):
         for level in STAGES:
-            values = [[info["final"][level]] for _, info in runs_of(world, algo=algo, modality=modality,
-                                                                    level="curriculum") if level in info["final"]]
+            values = [
+                [info["final"][level]]
+                for _, info in runs_of(world, algo=algo, modality=modality, level="curriculum")
+                if level in info["final"]
+            ]
             assert got[level][label] == expect(values, per_seed=2), (label, level)
     # the run killed in stage 2 counts for the level it finished, not for the one it did not
     assert "(n=4 seeds × mean of 2 ep.)" in got["1-1"]["dqn · all"]
     assert "(n=3 seeds × mean of 2 ep.)" in got["1-2"]["dqn · all"]
-    section = world["text"][world["text"].index("## Survival per training level"):]
-    assert "means only" in section[:section.index("| level |")]  # eval.csv of the older format: said so
+    section = world["text"][world["text"].index("## Survival per training level") :]
+    assert "means only" in section[: section.index("| level |")]  # eval.csv of the older format: said so
     assert set(got["1-1"]) == {"ppo · all", "dqn · all", "ppo · no_vision"}  # direct ppo runs are in 4a right
 
 
 def test_the_tables_say_how_the_in_training_evaluations_acted(world, tmp_path):
     def title(text: str) -> str:
-        section = text[text.index("## Survival per training level"):]
-        return section[:section.index("| level |")]
+        section = text[text.index("## Survival per training level") :]
+        return section[: section.index("| level |")]
 
     assert "Acting: `mode`" in title(world["text"])  # eval.sample is false by default: the greedy action
     sim = Sim(tmp_path / "runs")
@@ -323,11 +429,13 @@ def test_survival_from_training_episodes_on_request(world, tmp_path):
 # ------------------------------------------------------------------------------------------------ Fig. 4b
 def success_labels():
     """(algo, modality, level) of the runs -> their label: what differs among the evaluated runs is named."""
-    return {("ppo", "all", "curriculum"): "ppo · all · curriculum",
-            ("dqn", "all", "curriculum"): "dqn · all · curriculum",
-            ("ppo", "no_vision", "curriculum"): "ppo · no_vision · curriculum",
-            ("ppo", "all", "1-1"): "ppo · all · trained on 1-1",
-            ("ppo", "all", "1-2"): "ppo · all · trained on 1-2"}
+    return {
+        ("ppo", "all", "curriculum"): "ppo · all · curriculum",
+        ("dqn", "all", "curriculum"): "dqn · all · curriculum",
+        ("ppo", "no_vision", "curriculum"): "ppo · no_vision · curriculum",
+        ("ppo", "all", "1-1"): "ppo · all · trained on 1-1",
+        ("ppo", "all", "1-2"): "ppo · all · trained on 1-2",
+    }
 
 
 def test_success_per_testbed_uses_each_run_final_checkpoint_and_the_references(world):
@@ -357,9 +465,11 @@ def test_generalisation_averages_testbeds_per_checkpoint_then_seeds(world):
     ev = world["evaluated"]
     for (algo, modality, level), label in success_labels().items():
         for trained_to in STAGES:
-            values = [[x for tb in TESTBEDS for x in ev[(d, trained_to, tb)]]
-                      for d, _ in runs_of(world, algo=algo, modality=modality, level=level)
-                      if (d, trained_to, TESTBEDS[0]) in ev]
+            values = [
+                [x for tb in TESTBEDS for x in ev[(d, trained_to, tb)]]
+                for d, _ in runs_of(world, algo=algo, modality=modality, level=level)
+                if (d, trained_to, TESTBEDS[0]) in ev
+            ]
             expected = expect_rate(values) if values else "–"
             assert got[trained_to][label] == expected, (label, trained_to)
 
@@ -403,13 +513,17 @@ def test_training_curves_have_a_line_per_algorithm_and_settings_per_training_set
     curves = pd.read_csv(world["base"] / "out" / "data" / "training_curves.csv")
     ablation = pd.read_csv(world["base"] / "out" / "data" / "ablation_curves.csv")
     # the curriculum PPO runs with all modalities are the same binned means in both figures
-    mine = curves[(curves["group"] == "trained on curriculum") & (curves["label"].str.startswith("ppo"))
-                  & ~curves["label"].str.contains("no_vision")].set_index("bin")
+    mine = curves[
+        (curves["group"] == "trained on curriculum")
+        & (curves["label"].str.startswith("ppo"))
+        & ~curves["label"].str.contains("no_vision")
+    ].set_index("bin")
     theirs = ablation[(ablation["group"] == "ppo · curriculum") & (ablation["label"] == "all")].set_index("bin")
     assert len(mine) and list(mine.index) == list(theirs.index)
     assert np.allclose(mine["mean"], theirs["mean"]) and (mine["n"] == theirs["n"]).all()
-    assert set(curves["group"]) == {f"trained on {info['level']}" for d, info in world["sim"].runs.items()
-                                    if d != world["missing"]}
+    assert set(curves["group"]) == {
+        f"trained on {info['level']}" for d, info in world["sim"].runs.items() if d != world["missing"]
+    }
     assert "## Training curves" in world["text"] and "fig_training_curves.png" in world["text"]
 
 
@@ -426,15 +540,16 @@ def test_ablation_success_per_modality(world):
     ev = world["evaluated"]
     for modality in ("all", "no_vision"):
         for testbed in TESTBEDS:
-            outcomes = [ev[(d, "1-2", testbed)] for d, _ in runs_of(world, algo="ppo", modality=modality,
-                                                                    level="curriculum")]
+            outcomes = [
+                ev[(d, "1-2", testbed)] for d, _ in runs_of(world, algo="ppo", modality=modality, level="curriculum")
+            ]
             assert got[testbed][f"ppo · curriculum · {modality}"] == expect_rate(outcomes)
 
 
 # ------------------------------------------------------------------------------------------------ what is missing
 def test_missing_partial_and_orphaned_inputs_are_listed(world):
-    section = world["text"][world["text"].index("## Missing and partial runs"):]
-    section = section[:section.index("\n## ", 5)]
+    section = world["text"][world["text"].index("## Missing and partial runs") :]
+    section = section[: section.index("\n## ", 5)]
     rel = lambda p: str(Path(p).resolve())  # noqa: E731  (tmp paths are outside the current directory)
     assert f"{rel(world['missing'])}: missing: no episodes.csv" in section
     assert f"{rel(world['partial'])}: partial: 140 of 200 env steps (unfinished: 1-2)" in section
@@ -444,9 +559,11 @@ def test_missing_partial_and_orphaned_inputs_are_listed(world):
     assert len(runs) == len(world["sim"].runs)
 
 
-def test_the_testbed_figures_show_the_curriculum_agents_with_every_sense_and_the_tables_every_run(world, tmp_path,
-                                                                                                  monkeypatch):
+def test_the_testbed_figures_show_the_curriculum_agents_with_every_sense_and_the_tables_every_run(
+    world, tmp_path, monkeypatch
+):
     from evaaa_baselines.reports import sections
+
     drawn, original = {}, sections.plot_bars
 
     def spy(stats, path, **kw):
@@ -474,15 +591,16 @@ def test_the_testbed_figures_show_the_curriculum_agents_with_every_sense_and_the
     assert set(next(iter(table(text, "## Generalisation by training level").values()))) > agents
 
 
-def test_the_ablation_figures_have_a_panel_only_where_several_modality_sets_were_trained(world, tmp_path,
-                                                                                        monkeypatch):
+def test_the_ablation_figures_have_a_panel_only_where_several_modality_sets_were_trained(world, tmp_path, monkeypatch):
     from evaaa_baselines.reports import sections
+
     drawn, bars, lines = {}, sections.plot_bars, sections.plot_lines
 
     def spy(original):
         def draw(stats, path, **kw):
             drawn[path.name] = set(stats[kw["panel"]]) if kw.get("panel") else set()
             return original(stats, path, **kw)
+
         return draw
 
     monkeypatch.setattr(sections, "plot_bars", spy(bars))
@@ -539,8 +657,9 @@ def test_a_checkpoint_evaluated_in_two_ways_is_reported_both_ways_labelled_never
     append_rows(tmp_path / "sampled" / "episodes.csv", sampled)
     append_rows(tmp_path / "random.csv", sim.evaluate("random", "1-1", 4))
     evals = [tmp_path / "greedy", tmp_path / "sampled", tmp_path / "random.csv"]
-    both = table(build_report([run], evals, tmp_path / "both").markdown.read_text(),
-                 "## Evaluation on training levels")["1-1"]
+    both = table(
+        build_report([run], evals, tmp_path / "both").markdown.read_text(), "## Evaluation on training levels"
+    )["1-1"]
     label = next(k for k in both if k.endswith("[mode]")).removesuffix(" [mode]")
     assert both[f"{label} [mode]"] == expect([[r["steps"] for r in greedy]])
     assert both[f"{label} [sample]"] == expect([[r["steps"] for r in sampled]])
@@ -564,8 +683,10 @@ def test_a_stage_best_model_is_tied_to_its_stage_and_the_final_model_is_preferre
     best, final = str(run / f"model-best-{stage}-{level}.pt"), str(run / f"model-{stage}-{level}.pt")
     rows = pd.DataFrame(sim.evaluate(best, "1-1", 2) + sim.evaluate(final, "1-1", 2)).assign(file="episodes.csv")
     ckpts = attach(rows, {run.resolve(): load_run(run)}).checkpoints
-    assert set(zip(ckpts["policy"], ckpts["ckpt_stage"], ckpts["ckpt_level"])) == {(best, stage, level),
-                                                                                  (final, stage, level)}
+    assert set(zip(ckpts["policy"], ckpts["ckpt_stage"], ckpts["ckpt_level"])) == {
+        (best, stage, level),
+        (final, stage, level),
+    }
     assert set(final_checkpoints(ckpts)["policy"]) == {final}
     only_best = ckpts[ckpts["policy"] == best]
     assert set(final_checkpoints(only_best)["policy"]) == {best}
@@ -586,23 +707,30 @@ def load_report():
 def test_command_line_writes_the_report(world, tmp_path, capsys):
     script = load_report()
     out = tmp_path / "cli"
-    assert script.main([f"runs=[{world['base'] / 'runs'}]", f"evals={world['base'] / 'eval'}", f"out={out}",
-                        "title=Sweep"]) == 0
+    assert (
+        script.main(
+            [f"runs=[{world['base'] / 'runs'}]", f"evals={world['base'] / 'eval'}", f"out={out}", "title=Sweep"]
+        )
+        == 0
+    )
     assert (out / "report.md").read_text().startswith("# Sweep\n")
     printed = capsys.readouterr().out
     assert "note: " in printed and "fig26_ablation_success.png" in printed
 
 
-@pytest.mark.parametrize("args, message", [
-    ([], "nothing to report"),
-    (["runs=[/no/such/dir]"], "is not a directory"),
-    (["colour=red"], "unknown key 'colour'; keys: runs, evals, out"),
-    (["runs"], "'runs' is not of the form key=value"),
-    (["bins=many"], "bins=many: expected an integer"),
-    (["survival=best", "evals=[EVAL]"], "survival=best: 'best' is not allowed; allowed: eval, train"),
-    (["evals=[RUN_CSV]"], "is not an episode file"),
-    (["runs=[EMPTY]"], "no run directory"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        ([], "nothing to report"),
+        (["runs=[/no/such/dir]"], "is not a directory"),
+        (["colour=red"], "unknown key 'colour'; keys: runs, evals, out"),
+        (["runs"], "'runs' is not of the form key=value"),
+        (["bins=many"], "bins=many: expected an integer"),
+        (["survival=best", "evals=[EVAL]"], "survival=best: 'best' is not allowed; allowed: eval, train"),
+        (["evals=[RUN_CSV]"], "is not an episode file"),
+        (["runs=[EMPTY]"], "no run directory"),
+    ],
+)
 def test_command_line_rejects_bad_input(world, tmp_path, args, message, capsys):
     script = load_report()
     (tmp_path / "empty").mkdir()
@@ -622,11 +750,13 @@ def test_how_a_run_was_started_does_not_split_its_group(tmp_path):
     sim = Sim(tmp_path / "runs")
     dirs = [sim.run("ppo", 0, level="1-1", finish=1), sim.run("ppo", 1, level="1-1", finish=1)]
     config = dirs[1] / ".hydra" / "config.yaml"
-    config.write_text(config.read_text().replace("start_over: false", "start_over: true")
-                      .replace("resume: false", "resume: true"))
+    config.write_text(
+        config.read_text().replace("start_over: false", "start_over: true").replace("resume: false", "resume: true")
+    )
     older = dirs[0] / ".hydra" / "config.yaml"  # a run made before the deterministic key existed
-    older.write_text("".join(line for line in older.read_text().splitlines(keepends=True)
-                             if not line.startswith("deterministic:")))
+    older.write_text(
+        "".join(line for line in older.read_text().splitlines(keepends=True) if not line.startswith("deterministic:"))
+    )
     runs = [load_run(d) for d in dirs]
     assert runs[1].config["start_over"] and runs[1].config["resume"]
     assert runs[1].config["deterministic"] and "deterministic" not in runs[0].config  # a run made before the key
@@ -639,10 +769,13 @@ def test_a_number_spelled_two_ways_or_another_time_budget_does_not_split_a_group
     from evaaa_baselines.reports.load import labels
 
     sim = Sim(tmp_path / "runs")
-    dirs = [sim.run("ppo", 0, level="1-1", finish=1, overrides=("algo.value_coef=1", "max_minutes=75")),
-            sim.run("ppo", 1, level="1-1", finish=1, overrides=("algo.value_coef=1.0", "max_minutes=33",
-                                                                  "max_cpu_minutes=110")),
-            sim.run("ppo", 2, level="1-1", finish=1, overrides=("algo.value_coef=0.25",))]
+    dirs = [
+        sim.run("ppo", 0, level="1-1", finish=1, overrides=("algo.value_coef=1", "max_minutes=75")),
+        sim.run(
+            "ppo", 1, level="1-1", finish=1, overrides=("algo.value_coef=1.0", "max_minutes=33", "max_cpu_minutes=110")
+        ),
+        sim.run("ppo", 2, level="1-1", finish=1, overrides=("algo.value_coef=0.25",)),
+    ]
     runs = [load_run(d) for d in dirs]
     assert [r.config["algo"]["value_coef"] for r in runs] == [1, 1.0, 0.25]
     assert isinstance(runs[0].config["algo"]["value_coef"], int)
@@ -718,10 +851,18 @@ def test_launcher_presets_compose_with_hydra_config():
 
 
 def test_train_script_prints_the_launcher_config(tmp_path):
-    cmd = [sys.executable, str(ROOT / "scripts" / "train.py"), "hydra.launcher.n_jobs=3",
-           "--cfg", "hydra", "--package", "hydra.launcher"]
-    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=120,
-                          env={**os.environ, "HYDRA_FULL_ERROR": "1"})
+    cmd = [
+        sys.executable,
+        str(ROOT / "scripts" / "train.py"),
+        "hydra.launcher.n_jobs=3",
+        "--cfg",
+        "hydra",
+        "--package",
+        "hydra.launcher",
+    ]
+    done = subprocess.run(
+        cmd, cwd=tmp_path, capture_output=True, text=True, timeout=120, env={**os.environ, "HYDRA_FULL_ERROR": "1"}
+    )
     assert done.returncode == 0, done.stderr[-2000:]
     printed = yaml.safe_load(done.stdout.split("\n", 1)[1])  # after the "# @package hydra.launcher" line
     assert printed["_target_"].endswith("JoblibLauncher") and printed["n_jobs"] == 3
@@ -763,12 +904,46 @@ def test_known_scores_give_their_iqm_and_old_training_files_still_read(tmp_path)
     episode fields (survival_steps, satiation, ...): the IQM of 10, 20, 30, 1000 (seed 0) and 40, 50, 60, 70 (seed 1)
     is the mean of 30, 40, 50, 60 = 45; the seeds' means are 265 and 55: 160 ± 105."""
     sim = Sim(tmp_path / "runs")
-    old = ["env_steps", "stage", "level", "episode", "world", "survival_steps", "return", "end_type", "satiation",
-           "hydration", "temperature", "damage", "wall_time"]
+    old = [
+        "env_steps",
+        "stage",
+        "level",
+        "episode",
+        "world",
+        "survival_steps",
+        "return",
+        "end_type",
+        "satiation",
+        "hydration",
+        "temperature",
+        "damage",
+        "wall_time",
+    ]
     for seed, scores in ((0, (10, 20, 30, 1000)), (1, (40, 50, 60, 70))):
         run_dir = sim.run("ppo", seed, level="1-1", finish=1)
-        rows = [dict(zip(old, (10 * (i + 1), 0, "1-1", i + 1, 0, v, -1.0, "FoodOutOfRange", -15.0, 0, 0, 0,
-                               "2026-01-01T00:00:00"))) for i, v in enumerate(scores)]
+        rows = [
+            dict(
+                zip(
+                    old,
+                    (
+                        10 * (i + 1),
+                        0,
+                        "1-1",
+                        i + 1,
+                        0,
+                        v,
+                        -1.0,
+                        "FoodOutOfRange",
+                        -15.0,
+                        0,
+                        0,
+                        0,
+                        "2026-01-01T00:00:00",
+                    ),
+                )
+            )
+            for i, v in enumerate(scores)
+        ]
         write_csv(run_dir / "episodes.csv", old, rows)
     report = build_report([tmp_path / "runs"], [], tmp_path / "out", survival="train", window=4)
     got = table(report.markdown.read_text(), "## Survival per training level")["1-1"]["ppo"]
@@ -796,11 +971,15 @@ def test_the_claims_are_judged_on_the_numbers_of_the_report(world):
     from evaaa_baselines.reports.sections import claim_verdicts, read_inputs
 
     text = world["text"]
-    claims = text[text.index("## The paper's claims"):]
+    claims = text[text.index("## The paper's claims") :]
     for letter in "abcde":
         assert f"- **({letter}) " in claims
-    verdicts = {v.claim[:3]: v for v in claim_verdicts(read_inputs([world["base"] / "runs"],
-                                                                   [world["base"] / "eval", world["base"] / "human.csv"]))}
+    verdicts = {
+        v.claim[:3]: v
+        for v in claim_verdicts(
+            read_inputs([world["base"] / "runs"], [world["base"] / "eval", world["base"] / "human.csv"])
+        )
+    }
     tables = world["report"].tables
 
     def fmt(frame, **match):
@@ -810,8 +989,10 @@ def test_the_claims_are_judged_on_the_numbers_of_the_report(world):
     # (b) compares exactly the cells of Fig. 4a right, on the levels after the first
     cmp = tables["curriculum_vs_direct"]
     (ppo,) = [p for p in verdicts["(b)"].parts if p.claim == "ppo"]
-    assert ppo.evidence[0] == (f"1-2: curriculum {fmt(cmp, label='ppo · curriculum', level='1-2')} vs direct "
-                               f"{fmt(cmp, label='ppo · direct', level='1-2')}")
+    assert ppo.evidence[0] == (
+        f"1-2: curriculum {fmt(cmp, label='ppo · curriculum', level='1-2')} vs direct "
+        f"{fmt(cmp, label='ppo · direct', level='1-2')}"
+    )
     # (d) finds the human records
     assert verdicts["(d)"].parts[0].claim == "humans ≈ ceiling (the oracle)"
     # (e) compares each modality set with `all` among runs of one algorithm and set-up (here ppo's curricula)
@@ -819,8 +1000,10 @@ def test_the_claims_are_judged_on_the_numbers_of_the_report(world):
     assert ablation.claim.endswith("(ppo, trained on curriculum)")
     final = tables["ablation_final_survival"]
     part = next(p for p in ablation.parts if p.claim == "no_vision fails (survival)")
-    assert part.evidence == [f"no_vision {fmt(final, label='no_vision', group='ppo · curriculum')} vs all "
-                             f"{fmt(final, label='all', group='ppo · curriculum')}"]
+    assert part.evidence == [
+        f"no_vision {fmt(final, label='no_vision', group='ppo · curriculum')} vs all "
+        f"{fmt(final, label='all', group='ppo · curriculum')}"
+    ]
 
 
 # ------------------------------------------------------------------------------------------------ issue 42
@@ -837,7 +1020,7 @@ def test_survival_cells_come_from_per_episode_evaluations_where_there_are_any(tm
     append_rows(tmp_path / "eval" / "episodes.csv", rows)
     text = build_report([tmp_path / "runs"], [tmp_path / "eval"], tmp_path / "out").markdown.read_text()
     assert table(text, "## Survival per training level")["1-1"]["ppo"] == expect(per_seed)
-    section = text[text.index("## Survival per training level"):]
+    section = text[text.index("## Survival per training level") :]
     assert "**Survival per training level (decisions).** Acting: `mode`. Worlds: test." in section
     assert "evaluated by evaluate.py on its level" in section.split("\n\n")[1]
 
@@ -878,16 +1061,47 @@ def test_figures_fit_a_page_width(world, tmp_path):
         assert png_width(world["base"] / "out" / name) <= 1600, name
     # many agents on every level, many panels, many policies: wrapped into rows, never wider
     levels = list(evaaa.LEVELS)
-    many = pd.DataFrame([{"label": f"ppo · setting {i} · a long label", "level": lv, "value": 100.0 + i,
-                          "low": 90.0, "high": 120.0 + i, "statistic": "iqm", "n": 3, "unit": "seeds"}
-                         for i in range(30) for lv in levels])
+    many = pd.DataFrame(
+        [
+            {
+                "label": f"ppo · setting {i} · a long label",
+                "level": lv,
+                "value": 100.0 + i,
+                "low": 90.0,
+                "high": 120.0 + i,
+                "statistic": "iqm",
+                "n": 3,
+                "unit": "seeds",
+            }
+            for i in range(30)
+            for lv in levels
+        ]
+    )
     assert png_width(plot_bars(many, tmp_path / "bars.png", ylabel="survival", title="t")) <= 1600
     panels = many.assign(panel=many["label"].str[:14], steps=many["level"].map(levels.index) * 100.0)
-    assert png_width(plot_lines(panels, tmp_path / "lines.png", x="steps", panel="panel", ylabel="y", xlabel="x",
-                                title="t", band=True)) <= 1600
-    rows = pd.DataFrame([{"policy": f"runs/{i}/seed0/model-0-1-1.pt", "acting": "mode", "level": lv,
-                          "success": np.nan, "end_type": "FoodOutOfRange", "food_eaten": 0, "collisions": 1}
-                         for i in range(12) for lv in (*levels, *evaaa.TESTBEDS)])
+    assert (
+        png_width(
+            plot_lines(
+                panels, tmp_path / "lines.png", x="steps", panel="panel", ylabel="y", xlabel="x", title="t", band=True
+            )
+        )
+        <= 1600
+    )
+    rows = pd.DataFrame(
+        [
+            {
+                "policy": f"runs/{i}/seed0/model-0-1-1.pt",
+                "acting": "mode",
+                "level": lv,
+                "success": np.nan,
+                "end_type": "FoodOutOfRange",
+                "food_eaten": 0,
+                "collisions": 1,
+            }
+            for i in range(12)
+            for lv in (*levels, *evaaa.TESTBEDS)
+        ]
+    )
     assert png_width(plot_outcomes(rows, tmp_path / "outcomes.png")) <= 1600
 
 
@@ -927,11 +1141,11 @@ def test_one_colour_per_algorithm_and_per_modality_across_figures(world, tmp_pat
 
 
 def learned_rows(text: str) -> list[dict[str, str]]:
-    lines = text[text.index("## What each agent learned"):].splitlines()
+    lines = text[text.index("## What each agent learned") :].splitlines()
     start = next(i for i, line in enumerate(lines) if line.startswith("| level"))
     header = [c.strip() for c in lines[start].strip("|").split("|")]
     rows = []
-    for line in lines[start + 2:]:
+    for line in lines[start + 2 :]:
         if not line.startswith("|"):
             break
         rows.append(dict(zip(header, (c.strip() for c in line.strip("|").split("|")))))
@@ -945,12 +1159,24 @@ def test_what_it_learned_sets_every_agent_beside_random_and_stand_still(tmp_path
     for algo, steps, food in (("ppo", 1200, 0), ("dqn", 900, 2), ("ppo_lstm", 500, 0)):
         for seed in (0, 1, 2):
             run = sim.run(algo, seed, level="1-1", finish=1)
-            rows += [r | {"acting": "mode", "worlds": "test", "steps": steps + seed, "food_eaten": food,
-                          "end_type": "FoodOutOfRange"} for r in sim.evaluate(str(run / "model-0-1-1.pt"), "1-1", 4)]
-    rows += [r | {"worlds": "test", "steps": 1112, "end_type": "FoodOutOfRange"}
-             for r in sim.evaluate("still", "1-1", 5)]
-    rows += [r | {"worlds": "test", "steps": 300, "food_eaten": 1, "collisions": 28, "end_type": "DamageTooHigh"}
-             for r in sim.evaluate("random", "1-1", 5)]
+            rows += [
+                r
+                | {
+                    "acting": "mode",
+                    "worlds": "test",
+                    "steps": steps + seed,
+                    "food_eaten": food,
+                    "end_type": "FoodOutOfRange",
+                }
+                for r in sim.evaluate(str(run / "model-0-1-1.pt"), "1-1", 4)
+            ]
+    rows += [
+        r | {"worlds": "test", "steps": 1112, "end_type": "FoodOutOfRange"} for r in sim.evaluate("still", "1-1", 5)
+    ]
+    rows += [
+        r | {"worlds": "test", "steps": 300, "food_eaten": 1, "collisions": 28, "end_type": "DamageTooHigh"}
+        for r in sim.evaluate("random", "1-1", 5)
+    ]
     append_rows(tmp_path / "eval" / "episodes.csv", rows)
     text = build_report([tmp_path / "runs"], [tmp_path / "eval"], tmp_path / "out").markdown.read_text()
     got = {r["agent"]: r for r in learned_rows(text)}
@@ -963,18 +1189,24 @@ def test_what_it_learned_sets_every_agent_beside_random_and_stand_still(tmp_path
     assert got["dqn"]["n"] == "3 seeds × 4 ep."
     top = text.split("\n\n")[1]
     assert top.startswith("**What the agents learned**")
-    assert ("ppo ate more food and water per episode than random and stand-still on 0 of 1 levels and survived "
-            "longer than the better of random and stand-still on 1 of 1") in top
-    assert ("dqn ate more food and water per episode than random and stand-still on 1 of 1 levels (1-1: 2.0) and "
-            "survived longer than the better of random and stand-still on 0 of 1") in top
-    assert "ppo_lstm ate more food and water per episode than random and stand-still on 0 of 1 levels and " \
-           "survived longer than the better of random and stand-still on 0 of 1" in top
+    assert (
+        "ppo ate more food and water per episode than random and stand-still on 0 of 1 levels and survived "
+        "longer than the better of random and stand-still on 1 of 1"
+    ) in top
+    assert (
+        "dqn ate more food and water per episode than random and stand-still on 1 of 1 levels (1-1: 2.0) and "
+        "survived longer than the better of random and stand-still on 0 of 1"
+    ) in top
+    assert (
+        "ppo_lstm ate more food and water per episode than random and stand-still on 0 of 1 levels and "
+        "survived longer than the better of random and stand-still on 0 of 1" in top
+    )
     assert "Stand-still survives 1112 decisions on 1-1" in top
 
 
 def test_curriculum_and_direct_are_shown_with_the_env_steps_each_has_seen(world, tmp_path):
-    section = world["text"][world["text"].index("## With and without curriculum"):]
-    section = section[:section.index("\n## ")]
+    section = world["text"][world["text"].index("## With and without curriculum") :]
+    section = section[: section.index("\n## ")]
     assert f"1-2: curriculum {2 * BUDGET:,}; direct {BUDGET:,}" in section  # stage 2 has seen both stages
     assert f"no direct run here has as many env steps as the curriculum stage on 1-2 ({2 * BUDGET:,})" in section
     # direct runs of the curriculum stage's total on 1-2: the matched view, and claim (b) on it
@@ -989,8 +1221,9 @@ def test_curriculum_and_direct_are_shown_with_the_env_steps_each_has_seen(world,
     assert matched["1-2"]["ppo · direct"] == expect(want, per_seed=2)
     assert matched["1-2"]["ppo · curriculum"] == expect([[sim.runs[d]["final"]["1-2"]] for d in cur], per_seed=2)
     equal = table(text, "Curriculum vs direct at equal env steps per stage")
-    assert equal["1-2"]["ppo · direct"] == expect([[sim.runs[d]["final"]["1-2"]] for d in direct]
-                                                   + [[other.runs[d]["final"]["1-2"]] for d in short], per_seed=2)
+    assert equal["1-2"]["ppo · direct"] == expect(
+        [[sim.runs[d]["final"]["1-2"]] for d in direct] + [[other.runs[d]["final"]["1-2"]] for d in short], per_seed=2
+    )
     from evaaa_baselines.reports import claims as rules
     from evaaa_baselines.reports.sections import claim_verdicts, read_inputs
 
@@ -1013,8 +1246,22 @@ def test_a_dqn_checkpoint_evaluated_with_sample_is_shown_acting_greedily(tmp_pat
 
 
 #: eval.csv as training runs write it now: one row per episode of each periodic evaluation
-EVAL_EPISODE_COLUMNS = ("env_steps", "stage", "level", "worlds", "acting", "episode", "steps", "return", "end_type",
-                        "food_eaten", "water_eaten", "collisions", "damage_taken", "wall_time")
+EVAL_EPISODE_COLUMNS = (
+    "env_steps",
+    "stage",
+    "level",
+    "worlds",
+    "acting",
+    "episode",
+    "steps",
+    "return",
+    "end_type",
+    "food_eaten",
+    "water_eaten",
+    "collisions",
+    "damage_taken",
+    "wall_time",
+)
 
 
 def test_per_episode_in_training_evaluations_give_cells_and_curves_over_episodes(tmp_path):
@@ -1028,9 +1275,30 @@ def test_per_episode_in_training_evaluations_give_cells_and_curves_over_episodes
         for steps in (BUDGET // 2, BUDGET):
             survival = [int(v) for v in sim.rng.integers(10, 400, 4)]
             (last if steps == BUDGET else first).append(survival)
-            rows += [dict(zip(EVAL_EPISODE_COLUMNS, (steps, 0, "1-1", "validation", "mode", i, v, -1.0,
-                                                     "FoodOutOfRange", 0, 0, 0, 0.0, "2026-01-01T00:00:00")))
-                     for i, v in enumerate(survival)]
+            rows += [
+                dict(
+                    zip(
+                        EVAL_EPISODE_COLUMNS,
+                        (
+                            steps,
+                            0,
+                            "1-1",
+                            "validation",
+                            "mode",
+                            i,
+                            v,
+                            -1.0,
+                            "FoodOutOfRange",
+                            0,
+                            0,
+                            0,
+                            0.0,
+                            "2026-01-01T00:00:00",
+                        ),
+                    )
+                )
+                for i, v in enumerate(survival)
+            ]
         write_csv(run / "eval.csv", EVAL_EPISODE_COLUMNS, rows)
     text = build_report([tmp_path / "runs"], [], tmp_path / "out").markdown.read_text()
     assert table(text, "## Survival per training level")["1-1"]["ppo"] == expect(last)
@@ -1045,14 +1313,18 @@ def test_a_folder_of_evaluations_is_searched_for_their_episode_files(world, tmp_
     # a protocol's evals folder: one evaluate.py output per cell, an evaluation moved aside that must not count
     rows = pd.read_csv(world["base"] / "eval" / "episodes.csv", dtype=str, keep_default_na=False)
     half = len(rows) // 2
-    for name, part in (("a/testbeds", rows.iloc[:half]), ("b/level", rows.iloc[half:]),
-                       ("b/level.old-20260101T000000Z", rows.iloc[:3])):
+    for name, part in (
+        ("a/testbeds", rows.iloc[:half]),
+        ("b/level", rows.iloc[half:]),
+        ("b/level.old-20260101T000000Z", rows.iloc[:3]),
+    ):
         (tmp_path / "evals" / name).mkdir(parents=True)
         part.to_csv(tmp_path / "evals" / name / "episodes.csv", index=False)
     whole = build_report([world["base"] / "runs"], [world["base"] / "eval"], tmp_path / "one")
     found = build_report([world["base"] / "runs"], [tmp_path / "evals"], tmp_path / "many")
-    assert table(found.markdown.read_text(), "## Success per testbed") == table(whole.markdown.read_text(),
-                                                                               "## Success per testbed")
+    assert table(found.markdown.read_text(), "## Success per testbed") == table(
+        whole.markdown.read_text(), "## Success per testbed"
+    )
     (tmp_path / "empty").mkdir()
     with pytest.raises(ReportError, match="holds no episodes.csv"):
         build_report([], [tmp_path / "empty"], tmp_path / "none")
@@ -1061,10 +1333,16 @@ def test_a_folder_of_evaluations_is_searched_for_their_episode_files(world, tmp_
 def test_the_claims_compare_agents_in_the_acting_mode_they_all_have():
     from evaaa_baselines.reports.sections import _one_mode
 
-    rows = pd.DataFrame({"run": ["ppo0", "ppo0", "dqn0", "ppo1", "ppo1"],
-                         "acting": ["mode", "sample", "mode", "sample", "mode"], "steps": [1, 2, 3, 4, 5]})
+    rows = pd.DataFrame(
+        {
+            "run": ["ppo0", "ppo0", "dqn0", "ppo1", "ppo1"],
+            "acting": ["mode", "sample", "mode", "sample", "mode"],
+            "steps": [1, 2, 3, 4, 5],
+        }
+    )
     assert _one_mode(rows)["acting"].tolist() == ["mode"] * 3  # the deterministic action: every agent has it
-    apart = pd.DataFrame({"run": ["a", "a", "b", "c", "c", "c"],
-                          "acting": ["sample", "sample", "mode", "sample", "mode", "mode"]})
+    apart = pd.DataFrame(
+        {"run": ["a", "a", "b", "c", "c", "c"], "acting": ["sample", "sample", "mode", "sample", "mode", "mode"]}
+    )
     # no mode shared by every run: each run's most frequent (such agents are then not compared)
     assert _one_mode(apart)["acting"].tolist() == ["sample", "sample", "mode", "mode", "mode"]

@@ -26,8 +26,8 @@ from tensordict import TensorDict
 
 from evaaa_baselines import checkpoint, load_policy
 from evaaa_baselines.checkpoint import CheckpointError, load_checkpoint, load_latest, save_checkpoint
-from evaaa_baselines.evaluation import EvaluatedPolicy, EvaluationError
 from evaaa_baselines.config import CONF_DIR, register_levels
+from evaaa_baselines.evaluation import EvaluatedPolicy, EvaluationError
 from evaaa_baselines.runner import RunExists, train
 
 register_levels()
@@ -55,7 +55,7 @@ def zero_inside(path: Path, tensor: torch.Tensor, count: int = 1024) -> None:
     data = bytearray(path.read_bytes())
     start = data.find(tensor.detach().contiguous().numpy().tobytes()[:256])
     assert start >= 0, "the tensor's bytes are stored as they are"
-    data[start + 256: start + 256 + count] = bytes(count)
+    data[start + 256 : start + 256 + count] = bytes(count)
     path.write_bytes(bytes(data))
 
 
@@ -65,9 +65,16 @@ def test_a_checkpoint_gives_back_numpy_arrays_tensordicts_rng_states_and_metadat
     td.set_non_tensor("note", "kept")
     module_state = torch.nn.BatchNorm1d(3).state_dict()  # an OrderedDict with a _metadata attribute (its version)
     dtypes = ("uint32", "float16", "bool", "int64")
-    state = {"arrays": {dt: (np.arange(6) % 3).astype(dt).reshape(2, 3) for dt in dtypes},
-             "scalar": np.float32(0.25), "td": td, "rng": checkpoint.rng_state(), "bn": module_state,
-             "config": OmegaConf.create({"algo": {"lr": 1e-4}}), "big": 2**100, "pair": (1, None)}
+    state = {
+        "arrays": {dt: (np.arange(6) % 3).astype(dt).reshape(2, 3) for dt in dtypes},
+        "scalar": np.float32(0.25),
+        "td": td,
+        "rng": checkpoint.rng_state(),
+        "bn": module_state,
+        "config": OmegaConf.create({"algo": {"lr": 1e-4}}),
+        "big": 2**100,
+        "pair": (1, None),
+    }
     path = tmp_path / "state.pt"
     save_checkpoint(state, path)
     back = load_checkpoint(path, map_location=torch.device("cpu"))
@@ -76,8 +83,9 @@ def test_a_checkpoint_gives_back_numpy_arrays_tensordicts_rng_states_and_metadat
     assert type(back["scalar"]) is np.float32 and back["scalar"] == np.float32(0.25)
     assert back["td"].batch_size == (2,) and torch.equal(back["td"]["next", "reward"], td["next", "reward"])
     assert back["td"]["note"] == "kept"
-    assert back["rng"]["python"] == state["rng"]["python"] and np.array_equal(back["rng"]["numpy"][1],
-                                                                                state["rng"]["numpy"][1])
+    assert back["rng"]["python"] == state["rng"]["python"] and np.array_equal(
+        back["rng"]["numpy"][1], state["rng"]["numpy"][1]
+    )
     assert back["bn"]._metadata == module_state._metadata
     assert back["config"] == {"algo": {"lr": 1e-4}} and back["big"] == 2**100 and back["pair"] == (1, None)
     with pytest.raises(TypeError, match=r"state\.fn: .*cannot be stored"):
@@ -213,8 +221,15 @@ def interrupt(cmd: list[str], cwd: Path, ready, delay: float) -> subprocess.Comp
 @pytest.mark.slow  # two training processes: about a minute on a busy 2-core box
 def test_ctrl_c_while_training_leaves_a_checkpoint_that_resume_continues(tmp_path):
     rng = random.Random(os.getpid())  # a different moment on each run of the suite
-    cmd = [*TRAIN, "algo=ppo", "preset=debug", "logger=csv", "progress=false", "total_steps=100000",
-           f"run.root={tmp_path}"]
+    cmd = [
+        *TRAIN,
+        "algo=ppo",
+        "preset=debug",
+        "logger=csv",
+        "progress=false",
+        "total_steps=100000",
+        f"run.root={tmp_path}",
+    ]
     run_dir = tmp_path / "1-1" / "ppo" / "all-squared-debug" / "seed0"
     delay = rng.uniform(0.0, 3.0)
     done = interrupt(cmd, tmp_path, lambda: (run_dir / "episodes.csv").exists(), delay)
@@ -224,8 +239,13 @@ def test_ctrl_c_while_training_leaves_a_checkpoint_that_resume_continues(tmp_pat
     steps = int(re.search(r"env step ([\d,]+)", lines[0]).group(1).replace(",", ""))
     assert load_checkpoint(run_dir / checkpoint.CHECKPOINT)["counters"]["steps"] == steps
 
-    resumed = subprocess.run([*cmd[:-2], f"total_steps={steps + 64}", "resume=true", cmd[-1]], cwd=tmp_path,
-                             capture_output=True, text=True, timeout=300)
+    resumed = subprocess.run(
+        [*cmd[:-2], f"total_steps={steps + 64}", "resume=true", cmd[-1]],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert resumed.returncode == 0, resumed.stderr[-3000:]
     assert f"resuming {run_dir} from checkpoint.pt at stage 0 (1-1), env step {steps}" in resumed.stdout
     assert load_checkpoint(run_dir / checkpoint.CHECKPOINT)["counters"]["steps"] >= steps + 64
@@ -235,15 +255,27 @@ def test_ctrl_c_while_training_leaves_a_checkpoint_that_resume_continues(tmp_pat
 def test_a_second_ctrl_c_stops_a_dreamer_s_run_within_seconds_inside_a_gradient_step(tmp_path):
     # one world and a 64-step prefill: once the first gradient step is logged (with its duration), the second is
     # under way within milliseconds, and both Ctrl-Cs arrive inside it, where Python runs no handler until it ends
-    cmd = [*TRAIN, "algo=dreamer", "device=cpu", "env.num_envs=1", "algo.learning_starts=64", "logger=csv",
-           "progress=false", "eval.every=0", "threads=1", "total_steps=100000", f"run.root={tmp_path}"]
+    cmd = [
+        *TRAIN,
+        "algo=dreamer",
+        "device=cpu",
+        "env.num_envs=1",
+        "algo.learning_starts=64",
+        "logger=csv",
+        "progress=false",
+        "eval.every=0",
+        "threads=1",
+        "total_steps=100000",
+        f"run.root={tmp_path}",
+    ]
     log = tmp_path / "1-1" / "dreamer" / "all-squared" / "seed0" / "train.log"
     proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline, first = time.monotonic() + 600, None
     while first is None and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.1)
-        first = re.search(r"first gradient step at env step [\d,]+: ([\d.]+) s", log.read_text()) \
-            if log.exists() else None
+        first = (
+            re.search(r"first gradient step at env step [\d,]+: ([\d.]+) s", log.read_text()) if log.exists() else None
+        )
     assert first is not None, "no gradient step was logged"
     step = float(first.group(1))  # what one gradient step takes here
     time.sleep(0.5)

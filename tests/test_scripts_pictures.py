@@ -4,12 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import pytest
 from helpers import load_script
 
 import evaaa  # noqa: F401  (sets MUJOCO_GL before mujoco, and so cv2's users, load)
-import cv2
-
 
 
 def read_png(path: Path):

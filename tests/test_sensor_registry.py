@@ -51,8 +51,7 @@ def test_the_packaged_sensors_are_found_in_their_canonical_order():
 
 def test_a_sensor_of_ones_own_is_one_class(compass):
     assert SENSORS["compass"] is compass and "compass" not in MODALITIES  # asked for by name, not on by default
-    env = evaaa.make_env("1-1", num_envs=2, seed=0, modalities=["compass", "interoception"], threads=1,
-                         info=["yaw"])
+    env = evaaa.make_env("1-1", num_envs=2, seed=0, modalities=["compass", "interoception"], threads=1, info=["yaw"])
     assert list(env.sim.modalities) == ["interoception", "compass"]  # canonical order: by `order`
     assert env.observation_spec["compass"].shape == (2, 2)
     td = env.rollout(5, break_when_any_done=False)
@@ -75,8 +74,9 @@ def test_training_configs_may_enable_a_sensor_of_ones_own(compass):
 
     from evaaa_baselines.config import observation_keys
 
-    cfg = OmegaConf.create({"modality": {"name": "with_compass",
-                                         "enabled": {"interoception": True, "compass": True, "pixels": False}}})
+    cfg = OmegaConf.create(
+        {"modality": {"name": "with_compass", "enabled": {"interoception": True, "compass": True, "pixels": False}}}
+    )
     assert observation_keys(cfg) == ("interoception", "compass")
     cfg.modality.enabled["sonar"] = True
     with pytest.raises(ValueError, match=r"unknown keys \['sonar'\]; known: pixels, .*compass"):

@@ -142,8 +142,10 @@ def test_wrong_type(overrides, pattern):
         ({"agent.move_speed": -1}, r"agent\.move_speed: .*greater than 0"),
         ({"agent.turn_degrees": 180}, r"agent\.turn_degrees: .*less than 180"),
         ({"sensors.collision.rays": 15}, r"sensors\.collision: rays \(15\) must be a multiple of sectors \(10\)"),
-        ({"physiology.start.satiation": 20},
-         r"start\.satiation = 20\.0 lies outside bounds\.satiation = \[-15\.0, 15\.0\]"),
+        (
+            {"physiology.start.satiation": 20},
+            r"start\.satiation = 20\.0 lies outside bounds\.satiation = \[-15\.0, 15\.0\]",
+        ),
         ({"physiology.start.damage": -1}, r"start\.damage = -1\.0 lies outside bounds\.damage"),
         ({"agent.spawn_x": [10, -10]}, r"agent\.spawn_x: expected \[low, high\] with low <= high"),
         ({"physiology.bounds.temperature": [5, -5]}, r"physiology\.bounds\.temperature: .*low <= high"),
@@ -229,15 +231,21 @@ def test_the_default_smoothing_stays_allowed():
 @pytest.mark.parametrize(
     "overrides, pattern",
     [
-        ({"agent.start": "fixed", "agent.start_position": [60, 0]},
-         r"agent\.start_position = \[60, 0\] is off the floor.*x in \[-49\.5, 49\.5\]"),
+        (
+            {"agent.start": "fixed", "agent.start_position": [60, 0]},
+            r"agent\.start_position = \[60, 0\] is off the floor.*x in \[-49\.5, 49\.5\]",
+        ),
         # a random start falls back to the fixed position when its box is full: that must be on the floor too
         ({"agent.start_position": [0, -50]}, r"agent\.start_position = \[0, -50\] is off the floor"),
         ({"agent.spawn_y": [60, 70]}, r"agent\.spawn_y = \[60, 70\] misses the floor"),
-        ({"sensors.vision.near": 5, "sensors.vision.far": 1},
-         r"sensors\.vision: near \(5\) must be less than far \(1\)"),
-        ({"daynight.enabled": True, "daynight.night_far": 0.2},
-         r"daynight\.night_far \(0\.2\) must exceed sensors\.vision\.near \(0\.3\)"),
+        (
+            {"sensors.vision.near": 5, "sensors.vision.far": 1},
+            r"sensors\.vision: near \(5\) must be less than far \(1\)",
+        ),
+        (
+            {"daynight.enabled": True, "daynight.night_far": 0.2},
+            r"daynight\.night_far \(0\.2\) must exceed sensors\.vision\.near \(0\.3\)",
+        ),
     ],
 )
 def test_rules_across_fields_are_checked_at_load_time(overrides, pattern):
@@ -261,8 +269,15 @@ def test_bodies_in_all_are_bounded():
 
 def test_hotspots_and_landmarks_are_bounded_in_all():
     with pytest.raises(LevelError, match=r"hotspots\.count = 1000 squares of hotspots\.size = 999 cells paint"):
-        load_level("1-1", {"thermal.grid": [1000, 1000], "thermal.sigma": 0, "thermal.hotspots.count": 1000,
-                           "thermal.hotspots.size": 999})
+        load_level(
+            "1-1",
+            {
+                "thermal.grid": [1000, 1000],
+                "thermal.sigma": 0,
+                "thermal.hotspots.count": 1000,
+                "thermal.hotspots.size": 999,
+            },
+        )
     with pytest.raises(LevelError, match=r"landmarks: pattern places 12100 landmark points; at most 10000"):
         load_level("4-1", {"landmarks.pattern": [[10] * 11] * 11})
 
@@ -271,11 +286,15 @@ def test_hotspots_and_landmarks_are_bounded_in_all():
 def test_level_lists_come_from_the_files_kind_and_order():
     for names, kind in ((evaaa.LEVELS, "training"), (evaaa.TESTBEDS, "testbed")):
         assert [evaaa.load_level(n).kind for n in names] == [kind] * len(names)
-        orders = [yaml.safe_load(resources.files("evaaa.levels").joinpath(f"{n}.yaml").read_text())["order"]
-                  for n in names]
+        orders = [
+            yaml.safe_load(resources.files("evaaa.levels").joinpath(f"{n}.yaml").read_text())["order"] for n in names
+        ]
         assert orders == list(range(1, len(names) + 1))
-    listed = {p.name[:-5] for p in resources.files("evaaa.levels").iterdir()
-              if p.name.endswith(".yaml") and not p.name.startswith("_")}
+    listed = {
+        p.name[:-5]
+        for p in resources.files("evaaa.levels").iterdir()
+        if p.name.endswith(".yaml") and not p.name.startswith("_")
+    }
     assert listed == set(evaaa.LEVELS + evaaa.TESTBEDS)
 
 
@@ -284,7 +303,7 @@ def test_a_users_level_file_extends_a_packaged_level_and_registers_by_name(tmp_p
     base.parent.mkdir()
     base.write_text('extends: "1-1"\nthermal: {base_temperature: 10.0}\n')
     mine = tmp_path / "hot-and-bare.yaml"
-    mine.write_text('extends: bases/hot-field.yaml\nresources: {water: null}\n')
+    mine.write_text("extends: bases/hot-field.yaml\nresources: {water: null}\n")
     level = evaaa.load_level(mine, {"episode.max_steps": 7})
     assert level.name == "hot-and-bare" and level.kind == "training"
     assert level.thermal.base_temperature == 10.0 and list(level.resources) == ["food"]
@@ -297,12 +316,15 @@ def test_a_users_level_file_extends_a_packaged_level_and_registers_by_name(tmp_p
         evaaa.register_level(clash)
 
 
-@pytest.mark.parametrize("text, message", [
-    ("extends: no-such-level\n", "extends: 'no-such-level' is not a packaged level"),
-    ("[1, 2]\n", "must hold a mapping"),
-    ("agent: {move_speed: [\n", "not valid YAML"),
-    ("agent: {move_sped: 3}\n", "agent.move_sped: unknown field"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("extends: no-such-level\n", "extends: 'no-such-level' is not a packaged level"),
+        ("[1, 2]\n", "must hold a mapping"),
+        ("agent: {move_speed: [\n", "not valid YAML"),
+        ("agent: {move_sped: 3}\n", "agent.move_sped: unknown field"),
+    ],
+)
 def test_a_bad_users_level_file_is_refused_naming_the_problem(tmp_path, text, message):
     path = tmp_path / "bad.yaml"
     path.write_text(text)

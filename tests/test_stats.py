@@ -9,8 +9,16 @@ import numpy as np
 import pytest
 from scipy import stats as sps
 
-from evaaa_baselines.reports.stats import (MIN_SEEDS, TooFewSeeds, binomial_interval, clustered_rate, holm,
-                                           interval, iqm, replicates)
+from evaaa_baselines.reports.stats import (
+    MIN_SEEDS,
+    TooFewSeeds,
+    binomial_interval,
+    clustered_rate,
+    holm,
+    interval,
+    iqm,
+    replicates,
+)
 
 
 def test_iqm_is_the_mean_of_the_middle_half():
@@ -107,7 +115,7 @@ def test_success_intervals_are_clustered_by_seed():
     deff = 1.5 * (25 + 4 + 9) / 900 / (0.21 / 30)
     n_eff, z = 30 / deff, 1.959963984540054
     centre = (0.3 + z * z / (2 * n_eff)) / (1 + z * z / n_eff)
-    half = z / (1 + z * z / n_eff) * math.sqrt(0.21 / n_eff + z * z / (4 * n_eff ** 2))
+    half = z / (1 + z * z / n_eff) * math.sqrt(0.21 / n_eff + z * z / (4 * n_eff**2))
     assert (lumped.low, lumped.high) == pytest.approx((centre - half, centre + half))
     nothing = clustered_rate([[0.0] * 10] * 3)
     assert nothing.value == 0 and nothing.low == 0 and 0.05 < nothing.high < 0.15  # not "0 % ± 0"

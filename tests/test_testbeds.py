@@ -16,7 +16,6 @@ from evaaa.records import read_rows
 from evaaa.sim import EAT, FORWARD, NONE, Simulator
 
 
-
 def make_sim(name: str, **overrides) -> Simulator:
     sim = Simulator(evaaa.load_level(name, overrides), 1, ["interoception"], seed=0)
     sim.reset()
@@ -49,8 +48,9 @@ def test_the_testbed_list():
         assert level.episode.success.rule != "none"
 
 
-@pytest.mark.parametrize("name,right,wrong", [("two-resource-food", "food", "water"),
-                                              ("two-resource-water", "water", "food")])
+@pytest.mark.parametrize(
+    "name,right,wrong", [("two-resource-food", "food", "water"), ("two-resource-water", "water", "food")]
+)
 def test_two_resource_choice(name, right, wrong):
     assert outcome(eat(make_sim(name), right)) == (True, True, "ResourceConsumed")
     assert outcome(eat(make_sim(name), wrong)) == (False, True, "ResourceConsumed")
@@ -95,8 +95,10 @@ def test_risk_taking_fires_overheat_the_body():
     assert outcome(step) == (False, True, "TemperatureOutOfRange")
 
 
-@pytest.mark.parametrize("name,first,then", [("goal-manipulation-food-to-water", "food", "water"),
-                                             ("goal-manipulation-water-to-food", "water", "food")])
+@pytest.mark.parametrize(
+    "name,first,then",
+    [("goal-manipulation-food-to-water", "food", "water"), ("goal-manipulation-water-to-food", "water", "food")],
+)
 def test_goal_manipulation(name, first, then):
     # walking across the trigger swaps the needs; then eating the newly needed resource succeeds
     sim = make_sim(name)
@@ -165,8 +167,16 @@ def load_evaluate():
 
 def test_evaluate_writes_records_table_and_figures(tmp_path):
     out = tmp_path / "eval"
-    code = load_evaluate().main(["policy=[oracle,random]", "levels=[two-resource-water,1-2]", "episodes=3",
-                                 "num_envs=2", f"out={out}", "episodes=3"])
+    code = load_evaluate().main(
+        [
+            "policy=[oracle,random]",
+            "levels=[two-resource-water,1-2]",
+            "episodes=3",
+            "num_envs=2",
+            f"out={out}",
+            "episodes=3",
+        ]
+    )
     assert code == 0
     rows = read_rows(out / "episodes.csv")
     assert len(rows) == 12
@@ -192,14 +202,20 @@ def test_evaluate_plays_test_worlds_and_stand_still_never_moves(tmp_path):
     assert "test worlds of seed 0" in (out / "summary.md").read_text()
 
 
-@pytest.mark.parametrize("args,message", [
-    (["worlds=train"], "worlds=train: 'train' is not allowed; allowed: test, validation"),
-    (["levels=[no-such-testbed]"], "levels=[no-such-testbed]: 'no-such-testbed' is not allowed; allowed: 1-1"),
-    (["policy=missing/checkpoint.pt"], "policy=missing/checkpoint.pt: expected oracle, random, still or an existing"),
-    (["episodes=0"], "episodes=0: expected a positive integer"),
-    (["episodes=abc"], "episodes=abc: expected an integer"),
-    (["colour=red"], "unknown key 'colour'; keys: policy, levels, episodes"),
-])
+@pytest.mark.parametrize(
+    "args,message",
+    [
+        (["worlds=train"], "worlds=train: 'train' is not allowed; allowed: test, validation"),
+        (["levels=[no-such-testbed]"], "levels=[no-such-testbed]: 'no-such-testbed' is not allowed; allowed: 1-1"),
+        (
+            ["policy=missing/checkpoint.pt"],
+            "policy=missing/checkpoint.pt: expected oracle, random, still or an existing",
+        ),
+        (["episodes=0"], "episodes=0: expected a positive integer"),
+        (["episodes=abc"], "episodes=abc: expected an integer"),
+        (["colour=red"], "unknown key 'colour'; keys: policy, levels, episodes"),
+    ],
+)
 def test_evaluate_rejects_bad_input(args, message, tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_:
         load_evaluate().main([*args, f"out={tmp_path / 'eval'}"])

@@ -22,17 +22,17 @@ import time
 from pathlib import Path
 
 import pytest
-from helpers import RESUME_DEVICE, read_csv, train_scalars
 import torch
+from helpers import RESUME_DEVICE, read_csv, train_scalars
 from hydra import compose, initialize_config_dir
 
 import evaaa
-from evaaa_baselines import checkpoint, evaluate, load_policy, runner, runtime
-from evaaa_baselines.evaluation import EvaluatedPolicy, EvaluationError
-from evaaa_baselines.runtime import DeviceError, Progress, resolve_device
-from evaaa_baselines.config import CONF_DIR, Stage, env_overrides, observation_keys, register_levels, stages
-from evaaa_baselines.runner import make_logger, summary, train
 from evaaa.records import TRAINING_EPISODE_FIELDS
+from evaaa_baselines import checkpoint, evaluate, load_policy, runner, runtime
+from evaaa_baselines.config import CONF_DIR, Stage, env_overrides, observation_keys, register_levels, stages
+from evaaa_baselines.evaluation import EvaluatedPolicy, EvaluationError
+from evaaa_baselines.runner import make_logger, summary, train
+from evaaa_baselines.runtime import DeviceError, Progress, resolve_device
 
 register_levels()
 
@@ -52,8 +52,9 @@ def make_cfg(*overrides: str):
 
 
 def debug_cfg(algo: str, *extra: str, total_steps: int = TOTAL):
-    return make_cfg(f"algo={algo}", "preset=debug", "logger=csv", "progress=false", f"total_steps={total_steps}",
-                    *extra)
+    return make_cfg(
+        f"algo={algo}", "preset=debug", "logger=csv", "progress=false", f"total_steps={total_steps}", *extra
+    )
 
 
 # ------------------------------------------------------------------------------------------------ config
@@ -72,8 +73,9 @@ def check_composed(cfg, algo: str, level: str, modality: str, reward: str, logge
 
 def test_group_options_are_the_documented_ones():
     assert options("algo") == sorted([*ALGOS, "dreamer", "dreamer_xs"])  # DreamerV3: tests/test_dreamer.py
-    assert options("modality") == sorted(["all", "no_interoception", "no_vision", "no_olfaction", "no_thermoception",
-                                          "no_collision"])
+    assert options("modality") == sorted(
+        ["all", "no_interoception", "no_vision", "no_olfaction", "no_thermoception", "no_collision"]
+    )
     assert options("reward") == sorted([*evaaa.REWARDS, "original", "dqn", "squared_death"])
     assert options("logger") == ["csv", "tensorboard", "wandb"]
 
@@ -147,8 +149,11 @@ def runs(tmp_path_factory):
                 run_killed(debug_cfg(algo), root / "resumed", KILL_AT, patch)
             at_kill = checkpoint.load_checkpoint(root / "resumed" / checkpoint.CHECKPOINT)
             train(debug_cfg(algo, "resume=true", f"device={RESUME_DEVICE}"), root / "resumed")
-            made[algo] = {"whole": root / "whole", "resumed": root / "resumed",
-                          "steps_at_kill_checkpoint": at_kill["counters"]["steps"]}
+            made[algo] = {
+                "whole": root / "whole",
+                "resumed": root / "resumed",
+                "steps_at_kill_checkpoint": at_kill["counters"]["steps"],
+            }
         return made[algo]
 
     return get
@@ -175,8 +180,12 @@ def test_smoke_run_writes_checkpoint_csvs_and_final_model(runs, algo):
         assert (int(row["steps"]) == 48) == (row["end_type"] == "MaxStepReached")
     evaluations = read_csv(run_dir / "eval.csv")
     # one row per episode (eval.episodes=2) of every evaluation: every eval.every, and at the end
-    assert [(int(r["env_steps"]), r["episode"]) for r in evaluations] == [(128, "0"), (128, "1"), (256, "0"),
-                                                                          (256, "1")]
+    assert [(int(r["env_steps"]), r["episode"]) for r in evaluations] == [
+        (128, "0"),
+        (128, "1"),
+        (256, "0"),
+        (256, "1"),
+    ]
     assert {(r["worlds"], r["acting"]) for r in evaluations} == {("validation", "mode")}
     assert all(0 < int(r["steps"]) <= 48 and r["end_type"] in evaaa.END_TYPES[1:] for r in evaluations)
     assert all(int(r["food_eaten"]) >= 0 and int(r["collisions"]) >= 0 for r in evaluations)
@@ -366,7 +375,7 @@ def test_a_damaged_latest_checkpoint_resumes_exactly_from_the_previous_one(runs,
     weight = max(checkpoint.load_checkpoint(latest)["model"].values(), key=torch.Tensor.numel)
     data = bytearray(latest.read_bytes())
     start = data.find(weight.numpy().tobytes()[:256])
-    data[start + 256: start + 1280] = bytes(1024)  # 1 KB zeroed inside a weight
+    data[start + 256 : start + 1280] = bytes(1024)  # 1 KB zeroed inside a weight
     latest.write_bytes(bytes(data))
     (run_dir / ".checkpoint.pt.tmp").write_bytes(b"cut short by a kill")
     with caplog.at_level(logging.INFO, logger="evaaa_baselines.runner"):
@@ -427,10 +436,21 @@ def test_other_loggers_write_under_the_run_directory(tmp_path, backend):
 
 
 def test_train_script_multirun_sweeps_seeds(tmp_path):
-    cmd = [sys.executable, str(ROOT / "scripts" / "train.py"), "-m", "algo=ppo", "preset=debug", "logger=csv",
-           "progress=false", "total_steps=64", "seed=0,1", f"run.root={tmp_path}"]
-    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300,
-                          env={**os.environ, "HYDRA_FULL_ERROR": "1"})
+    cmd = [
+        sys.executable,
+        str(ROOT / "scripts" / "train.py"),
+        "-m",
+        "algo=ppo",
+        "preset=debug",
+        "logger=csv",
+        "progress=false",
+        "total_steps=64",
+        "seed=0,1",
+        f"run.root={tmp_path}",
+    ]
+    done = subprocess.run(
+        cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300, env={**os.environ, "HYDRA_FULL_ERROR": "1"}
+    )
     assert done.returncode == 0, done.stderr[-3000:]
     for seed in (0, 1):
         run_dir = tmp_path / "1-1" / "ppo" / "all-squared-debug" / f"seed{seed}"  # the preset has its own folders
@@ -454,8 +474,17 @@ def test_time_budgets_count_every_session_of_a_stage(tmp_path, monkeypatch):
     first = checkpoint.load_checkpoint(tmp_path / "run" / checkpoint.CHECKPOINT)["time"]
     assert first["seconds"] > 0 and first["cpu_seconds"] > 0
     budget = first["cpu_seconds"] / 60 / 2
-    train(debug_cfg("ppo", "eval.every=100000", "checkpoint.every=64", "resume=true", f"max_cpu_minutes={budget}",
-                    total_steps=10 * TOTAL), tmp_path / "run")
+    train(
+        debug_cfg(
+            "ppo",
+            "eval.every=100000",
+            "checkpoint.every=64",
+            "resume=true",
+            f"max_cpu_minutes={budget}",
+            total_steps=10 * TOTAL,
+        ),
+        tmp_path / "run",
+    )
     final = checkpoint.load_checkpoint(tmp_path / "run" / "model-0-1-1.pt")
     # one iteration of the resumed session, then the stage ends: its earlier session counted
     assert final["env_steps"] < 10 * TOTAL
@@ -509,13 +538,21 @@ def test_a_checkpoint_written_on_cuda_resumes_on_the_cpu(runs, tmp_path, monkeyp
 
 @pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has CUDA")
 def test_train_script_without_cuda_refuses_device_cuda_in_one_line(tmp_path):
-    cmd = [sys.executable, str(ROOT / "scripts" / "train.py"), "algo=ppo", "preset=debug", "logger=csv",
-           "device=cuda", f"run.root={tmp_path}"]
+    cmd = [
+        sys.executable,
+        str(ROOT / "scripts" / "train.py"),
+        "algo=ppo",
+        "preset=debug",
+        "logger=csv",
+        "device=cuda",
+        f"run.root={tmp_path}",
+    ]
     done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert done.returncode == 2
     lines = done.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("train.py: error: device=cuda: no CUDA device is available "
-                                                   "here"), done.stderr
+    assert len(lines) == 1 and lines[0].startswith("train.py: error: device=cuda: no CUDA device is available here"), (
+        done.stderr
+    )
     assert "Traceback" not in done.stdout + done.stderr
     assert not list(tmp_path.iterdir())  # refused before Hydra made the run folder
 
@@ -549,7 +586,7 @@ def test_progress_rate_is_smoothed_over_ppo_like_bursts():
         now += 0.4
         meter.add(steps, updates=12, update_seconds=0.4, now=now)
         rates.append(meter.env_rate)
-    late = rates[len(rates) // 2:]
+    late = rates[len(rates) // 2 :]
     assert 0.97 * 512 < min(late) and max(late) < 1.03 * 512  # steady within 3 %, where tqdm's swung 30-fold
     assert meter.session_rate == pytest.approx(512)
     assert meter.seconds_per_update == pytest.approx(0.4 / 12)
@@ -585,8 +622,18 @@ def test_a_level_from_the_users_own_file_trains(tmp_path):
     assert env.level.name == "few-cubes" and env.level.resources["food"].count == 3
     assert env.rollout(4).shape == (2, 4)
     env.close()
-    cmd = [sys.executable, str(ROOT / "scripts" / "train.py"), "algo=ppo", "preset=debug", "logger=csv",
-           "progress=false", "total_steps=64", "level=file", f"level.file={level_file}", f"run.root={tmp_path}"]
+    cmd = [
+        sys.executable,
+        str(ROOT / "scripts" / "train.py"),
+        "algo=ppo",
+        "preset=debug",
+        "logger=csv",
+        "progress=false",
+        "total_steps=64",
+        "level=file",
+        f"level.file={level_file}",
+        f"run.root={tmp_path}",
+    ]
     done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-3000:]
     run_dir = tmp_path / "few-cubes" / "ppo" / "all-squared-debug" / "seed0"  # named after the file's stem
@@ -680,8 +727,14 @@ def test_a_new_algorithm_is_one_module_and_its_config(tmp_path, monkeypatch):
     with pytest.raises(ValueError, match="lacks make_model"):
         algos.register("broken", object())
 
-    cfg = make_cfg("algo=coin_flip", "preset=debug", "logger=csv", "progress=false", f"total_steps={TOTAL}",
-                   f"hydra.searchpath=[file://{tmp_path / 'conf'}]")
+    cfg = make_cfg(
+        "algo=coin_flip",
+        "preset=debug",
+        "logger=csv",
+        "progress=false",
+        f"total_steps={TOTAL}",
+        f"hydra.searchpath=[file://{tmp_path / 'conf'}]",
+    )
     assert cfg.algo.name == "coin_flip"
     run_dir = train(cfg, tmp_path / "run")
     episodes = read_csv(run_dir / "episodes.csv")
@@ -700,15 +753,19 @@ def test_a_run_states_its_budget_and_ends_with_its_folder_and_final_evaluation(t
     cfg = debug_cfg("ppo", "progress=true", "eval.every=64", total_steps=100)
     with caplog.at_level(logging.INFO, logger="evaaa_baselines.runtime"):
         run_dir = train(cfg, tmp_path / "run")
-    assert "100 env steps asked: 128 trained, as the stage ends with the iteration that reaches its budget and one " \
-           "iteration is 32 env steps (2 worlds x 16 steps, then an update)" in caplog.text
+    assert (
+        "100 env steps asked: 128 trained, as the stage ends with the iteration that reaches its budget and one "
+        "iteration is 32 env steps (2 worlds x 16 steps, then an update)" in caplog.text
+    )
     assert "128 env steps (100 asked, in whole iterations of 32)" in caplog.text
     assert "step/s" not in capsys.readouterr().err  # tqdm drew nothing
     final = [r for r in read_csv(run_dir / "eval.csv") if r["env_steps"] == "128"]  # one row per episode
     lines = summary(cfg, run_dir).splitlines()
     assert lines[0] == f"run folder: {run_dir}"
-    assert lines[1].startswith(f"final evaluation on 1-1 at env step 128 (validation worlds): mean survival "
-                               f"{sum(int(r['steps']) for r in final) / 2:.0f} steps over 2 episodes")
+    assert lines[1].startswith(
+        f"final evaluation on 1-1 at env step 128 (validation worlds): mean survival "
+        f"{sum(int(r['steps']) for r in final) / 2:.0f} steps over 2 episodes"
+    )
     assert lines[2].startswith(f"final model: {run_dir / 'model-0-1-1.pt'}")
 
 
@@ -726,8 +783,10 @@ def test_the_time_estimate_comes_from_the_run_s_own_speed(caplog, monkeypatch):
             run.meter.add(steps)
             run._estimate()
     lines = [r.getMessage() for r in caplog.records if "time estimate" in r.getMessage()]
-    assert lines == ["time estimate for ppo on 1-1: about 80 seconds more for the 1,000 env steps (200 done), from "
-                     "this run's speed over its first 20 s here (10 env steps/s)"]
+    assert lines == [
+        "time estimate for ppo on 1-1: about 80 seconds more for the 1,000 env steps (200 done), from "
+        "this run's speed over its first 20 s here (10 env steps/s)"
+    ]
 
 
 def test_two_ctrl_c_inside_one_long_call_still_stop_the_run_at_once(tmp_path, monkeypatch, capsys):

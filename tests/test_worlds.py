@@ -49,15 +49,15 @@ def test_a_world_is_the_same_whatever_the_number_of_worlds_beside_it():
 
 def test_training_worlds_are_the_worlds_a_plain_seed_always_gave():
     plain = np.random.SeedSequence(7).spawn(4)
-    assert [s.generate_state(4).tolist() for s in world_seeds(7, "train", 4)] == \
-        [s.generate_state(4).tolist() for s in plain]
+    assert [s.generate_state(4).tolist() for s in world_seeds(7, "train", 4)] == [
+        s.generate_state(4).tolist() for s in plain
+    ]
 
 
 def test_make_env_steps_the_set_it_is_asked_for_and_refuses_another_name():
     first = {}
     for worlds in WORLD_SETS:
-        env = evaaa.make_env("1-1", num_envs=2, seed=3, modalities=["interoception"], info=["position"],
-                             worlds=worlds)
+        env = evaaa.make_env("1-1", num_envs=2, seed=3, modalities=["interoception"], info=["position"], worlds=worlds)
         assert env.worlds == worlds
         first[worlds] = env.reset()["info", "position"].clone()
         env.set_seed(3)  # torchrl's set_seed keeps the env's set of worlds

@@ -70,13 +70,26 @@ def train(run: Run) -> None:
     model_loss = WorldModelLoss(cfg, model)
     critic = value_model(model)
     actor_loss = DreamerV3ActorLoss(
-        model.actor, critic, imagination_env(model, device), continuation_model=continuation_model(model),
-        imagination_horizon=cfg.horizon, use_reinforce=True, entropy_bonus=cfg.actor.entropy,
-        return_normalization=True, return_normalization_rate=1 - cfg.actor.return_decay,
-        return_normalization_quantiles=tuple(cfg.actor.return_percentiles), return_normalization_min_scale=1.0)
+        model.actor,
+        critic,
+        imagination_env(model, device),
+        continuation_model=continuation_model(model),
+        imagination_horizon=cfg.horizon,
+        use_reinforce=True,
+        entropy_bonus=cfg.actor.entropy,
+        return_normalization=True,
+        return_normalization_rate=1 - cfg.actor.return_decay,
+        return_normalization_quantiles=tuple(cfg.actor.return_percentiles),
+        return_normalization_min_scale=1.0,
+    )
     actor_loss.make_value_estimator(ValueEstimators.TDLambda, gamma=cfg.gamma, lmbda=cfg.lmbda)
-    value_loss = DreamerV3ValueLoss(critic, value_loss="two_hot", num_value_bins=cfg.model.bins,
-                                    actor_loss=actor_loss, slow_critic_regularization=cfg.critic.slow_regularizer)
+    value_loss = DreamerV3ValueLoss(
+        critic,
+        value_loss="two_hot",
+        num_value_bins=cfg.model.bins,
+        actor_loss=actor_loss,
+        slow_critic_regularization=cfg.critic.slow_regularizer,
+    )
     model_loss.to(device), actor_loss.to(device), value_loss.to(device)
     slow_critic = SoftUpdate(value_loss, tau=cfg.critic.tau)
     replay_scale = float(cfg.critic.get("replay_scale", 0.0))
@@ -85,9 +98,11 @@ def train(run: Run) -> None:
     def adam(params, section: DictConfig) -> torch.optim.Adam:
         return torch.optim.Adam(params, lr=section.lr, eps=section.eps, fused=True)  # fused: ~5x faster on CPU
 
-    optimizers = {"world_model": adam(model.world_model_parameters(), cfg.world_model),
-                  "actor": adam(model.actor.parameters(), cfg.actor),
-                  "critic": adam(model.value.parameters(), cfg.critic)}
+    optimizers = {
+        "world_model": adam(model.world_model_parameters(), cfg.world_model),
+        "actor": adam(model.actor.parameters(), cfg.actor),
+        "critic": adam(model.value.parameters(), cfg.critic),
+    }
     stored = ["action", "is_init", *_next(*keys, "reward", "done", "terminated", "consumed")]
     row_bytes = transition_bytes(env, stored)
     replay = make_replay(run, num_envs, row_bytes)
@@ -98,15 +113,31 @@ def train(run: Run) -> None:
     def world_model_parameters() -> int:
         return sum(p.numel() for p in model.world_model_parameters())
 
-    log.info("DreamerV3 size %s on %s: %s parameters (world model %s, actor %s, critic %s)", cfg.size, device,
-             f"{parameter_count(model):,}", f"{world_model_parameters():,}", f"{parameter_count(model.actor):,}",
-             f"{parameter_count(model.value):,}")
-    log.info("replay: %s transitions (%s when full, %s each), %s", f"{cfg.buffer_size:,}",
-             _gb(cfg.buffer_size * row_bytes), f"{row_bytes / 1e3:.3g} kB", replay.place)
-    log.info("prefill: %s env steps of %s before the first gradient step; then %g gradient steps per env step, "
-             "each on %d sequences of %d steps", f"{start:,}",
-             "random actions" if cfg.prefill_random else "the untrained policy", cfg.replay_ratio, cfg.batch_size,
-             cfg.sequence_length)
+    log.info(
+        "DreamerV3 size %s on %s: %s parameters (world model %s, actor %s, critic %s)",
+        cfg.size,
+        device,
+        f"{parameter_count(model):,}",
+        f"{world_model_parameters():,}",
+        f"{parameter_count(model.actor):,}",
+        f"{parameter_count(model.value):,}",
+    )
+    log.info(
+        "replay: %s transitions (%s when full, %s each), %s",
+        f"{cfg.buffer_size:,}",
+        _gb(cfg.buffer_size * row_bytes),
+        f"{row_bytes / 1e3:.3g} kB",
+        replay.place,
+    )
+    log.info(
+        "prefill: %s env steps of %s before the first gradient step; then %g gradient steps per env step, "
+        "each on %d sequences of %d steps",
+        f"{start:,}",
+        "random actions" if cfg.prefill_random else "the untrained policy",
+        cfg.replay_ratio,
+        cfg.batch_size,
+        cfg.sequence_length,
+    )
 
     def step(name: str, loss: torch.Tensor, params: list[nn.Parameter], clip: float) -> torch.Tensor:
         optimizer = optimizers[name]
@@ -127,8 +158,11 @@ def train(run: Run) -> None:
             wm_loss, losses, posterior, vector_reco = model_loss(batch)
         wm_norm = step("world_model", wm_loss, model.world_model_parameters(), cfg.world_model.grad_clip)
         # behaviour learning starts from every posterior latent of the batch, without gradient into the model
-        latents = TensorDict({k: posterior["next", k].reshape(-1, posterior["next", k].shape[-1]).float()
-                              for k in LATENT}, [batch.numel()], device=device)
+        latents = TensorDict(
+            {k: posterior["next", k].reshape(-1, posterior["next", k].shape[-1]).float() for k in LATENT},
+            [batch.numel()],
+            device=device,
+        )
         with run.autocast():
             actor_out, imagined = actor_loss(latents)
         actor_norm = step("actor", actor_out["loss_actor"], list(model.actor.parameters()), cfg.actor.grad_clip)
@@ -142,26 +176,43 @@ def train(run: Run) -> None:
         slow_critic.step()
         # tensors, not floats: run.log reads them (a host sync on a GPU) only when a log is due
         metrics = {f"model_{k.removeprefix('loss_model_')}": v.detach() for k, v in losses.items()}
-        metrics |= {"model_loss": wm_loss.detach(), "model_grad_norm": wm_norm,
-                    "actor_loss": actor_out["loss_actor"].detach(), "actor_entropy": actor_out["actor_entropy"],
-                    "return_scale": actor_out["return_scale"], "actor_grad_norm": actor_norm,
-                    "imagined_reward": imagined["next", "reward"].mean(),
-                    "imagined_continuation": actor_out["continuation_mean"],
-                    "critic_loss": critic_loss.detach(), "critic_grad_norm": critic_norm,
-                    "imagined_return": imagined["lambda_target"].mean()}
+        metrics |= {
+            "model_loss": wm_loss.detach(),
+            "model_grad_norm": wm_norm,
+            "actor_loss": actor_out["loss_actor"].detach(),
+            "actor_entropy": actor_out["actor_entropy"],
+            "return_scale": actor_out["return_scale"],
+            "actor_grad_norm": actor_norm,
+            "imagined_reward": imagined["next", "reward"].mean(),
+            "imagined_continuation": actor_out["continuation_mean"],
+            "critic_loss": critic_loss.detach(),
+            "critic_grad_norm": critic_norm,
+            "imagined_return": imagined["lambda_target"].mean(),
+        }
         if replay_scale:
             metrics["critic_replay_loss"] = replay_loss.detach()
         if vector_reco is not None:
             metrics["model_reco_vector"] = vector_reco.detach()
         if "interoception" in keys:  # how well the latent knows the EVs the reward is computed from (raw units)
-            metrics["interoception_error"] = (posterior["next", "reco_interoception"].detach().float()
-                                              - posterior["next", "interoception"].float()).abs().mean()
+            metrics["interoception_error"] = (
+                (posterior["next", "reco_interoception"].detach().float() - posterior["next", "interoception"].float())
+                .abs()
+                .mean()
+            )
         if run.log_due:
             metrics |= diagnostics(model, critic, posterior, imagined, actor_out["return_scale"])
         return metrics
 
-    td = run.start(model, {**{f"optimizer_{k}": v for k, v in optimizers.items()}, "value_loss": value_loss,
-                           "return_norm": actor_loss.retnorm, "replay": replay, "counters": counters})
+    td = run.start(
+        model,
+        {
+            **{f"optimizer_{k}": v for k, v in optimizers.items()},
+            "value_loss": value_loss,
+            "return_norm": actor_loss.retnorm,
+            "replay": replay,
+            "counters": counters,
+        },
+    )
     run.updates = counters["updates"]  # a resumed run's bar counts on from its checkpoint
     first_update = counters["updates"] == 0
     # a gradient step of size S takes a minute on a CPU: a Ctrl-C stops between two of them (Run.stop_now), and the
@@ -190,11 +241,19 @@ def train(run: Run) -> None:
             run.updated(1, seconds, counters["updates"], counters["updates"] / max(run.steps - start + 1, 1))
             if first_update:
                 first_update = False
-                log.info("first gradient step at env step %s: %.3g s (%.0f s after the stage began)",
-                         f"{run.steps:,}", seconds, run.session_seconds())
+                log.info(
+                    "first gradient step at env step %s: %.3g s (%.0f s after the stage began)",
+                    f"{run.steps:,}",
+                    seconds,
+                    run.session_seconds(),
+                )
             if cfg.openloop.every and counters["updates"] % cfg.openloop.every == 0:
-                save_openloop(model, replay, cfg, run.dir / "openloop" /
-                              f"openloop-{run.stage.index}-{run.stage.level}-{run.steps:09d}.png")
+                save_openloop(
+                    model,
+                    replay,
+                    cfg,
+                    run.dir / "openloop" / f"openloop-{run.stage.index}-{run.stage.level}-{run.steps:09d}.png",
+                )
         if metrics is not None:
             run.log(metrics | {"updates": counters["updates"], "replay_steps": len(replay.buffer)})
         run.end_iteration(td)

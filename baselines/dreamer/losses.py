@@ -26,20 +26,27 @@ def vector_reconstruction(posterior: TensorDictBase, keys: Sequence[str], raw: S
     in raw units for the keys in ``raw``, summed over each key's entries, averaged over the replayed steps), summed
     over ``keys``.  With pixels it is a small part of the loss (4 EVs against 12,288 pixel values):
     ``algo.world_model.vector_scale`` weighs it more."""
-    return _vector_error({k: posterior["next", k] for k in keys}, {k: posterior["next", f"reco_{k}"] for k in keys},
-                         raw)
+    return _vector_error(
+        {k: posterior["next", k] for k in keys}, {k: posterior["next", f"reco_{k}"] for k in keys}, raw
+    )
 
 
-def _vector_error(target: Mapping[str, torch.Tensor], predicted: Mapping[str, torch.Tensor],
-                  raw: Sequence[str] = ()) -> torch.Tensor:
+def _vector_error(
+    target: Mapping[str, torch.Tensor], predicted: Mapping[str, torch.Tensor], raw: Sequence[str] = ()
+) -> torch.Tensor:
     def space(k: str, x: torch.Tensor) -> torch.Tensor:
         return x.float() if k in raw else symlog(x.float())
 
     return sum(((space(k, target[k]) - space(k, predicted[k])) ** 2).sum(-1).mean() for k in target)
 
 
-def prior_vector_reconstruction(posterior: TensorDictBase, decoder: DreamerDecoder, keys: Sequence[str],
-                                raw: Sequence[str] = (), unimix: float = 0.01) -> torch.Tensor:
+def prior_vector_reconstruction(
+    posterior: TensorDictBase,
+    decoder: DreamerDecoder,
+    keys: Sequence[str],
+    raw: Sequence[str] = (),
+    unimix: float = 0.01,
+) -> torch.Tensor:
     """The vector keys of each next observation decoded from the *prior* (a straight-through draw of its latent,
     with the deterministic state the action led to) instead of the posterior that saw it, scored as
     :func:`vector_reconstruction`: a one-step latent overshooting term (``algo.world_model.prior_vector_scale``)
@@ -69,32 +76,46 @@ class WorldModelLoss(nn.Module):
         self.vector_extra = float(cfg.world_model.get("vector_scale", 1.0)) - 1.0
         self.prior_scale = float(cfg.world_model.get("prior_vector_scale", 0.0))
         if self.prior_scale < 0 or (self.prior_scale and not self.vector_keys):
-            raise ValueError(f"algo.world_model.prior_vector_scale must be >= 0, and 0 without vector observation "
-                             f"keys (this run has {self.vector_keys}), got {self.prior_scale}")
+            raise ValueError(
+                f"algo.world_model.prior_vector_scale must be >= 0, and 0 without vector observation "
+                f"keys (this run has {self.vector_keys}), got {self.prior_scale}"
+            )
         self.decoder, self.unimix = model.decoder, float(cfg.model.unimix)
         raw = cfg.world_model.get("raw_keys", ())
         self.raw_keys = (raw,) if isinstance(raw, str) else tuple(raw)  # one key may come as a plain string
         if not set(self.raw_keys) <= set(self.vector_keys):
-            raise ValueError(f"algo.world_model.raw_keys must name vector observation keys of this run "
-                             f"({self.vector_keys}), got {list(self.raw_keys)}")
+            raise ValueError(
+                f"algo.world_model.raw_keys must name vector observation keys of this run "
+                f"({self.vector_keys}), got {list(self.raw_keys)}"
+            )
         symlogged = [k != "pixels" and k not in self.raw_keys for k in keys]
         self.loss = DreamerV3ModelLoss(
-            world_model(model), kl_mode="separate", lambda_dynamic=cfg.world_model.kl_dynamic,
-            lambda_representation=cfg.world_model.kl_representation, free_bits=cfg.world_model.free_nats,
-            unimix=cfg.model.unimix, lambda_continue=cfg.world_model.continue_scale, reco_loss="l2",
-            reco_symlog=symlogged, reward_two_hot=True, num_reward_bins=cfg.model.bins,
+            world_model(model),
+            kl_mode="separate",
+            lambda_dynamic=cfg.world_model.kl_dynamic,
+            lambda_representation=cfg.world_model.kl_representation,
+            free_bits=cfg.world_model.free_nats,
+            unimix=cfg.model.unimix,
+            lambda_continue=cfg.world_model.continue_scale,
+            reco_loss="l2",
+            reco_symlog=symlogged,
+            reward_two_hot=True,
+            num_reward_bins=cfg.model.bins,
             # the vector keys' extra reconstruction term needs the graph; everything else reads the output detached
-            detach_output=not (self.vector_extra or self.prior_scale))
+            detach_output=not (self.vector_extra or self.prior_scale),
+        )
         self.loss.set_keys(pixels=list(keys), reco_pixels=[f"reco_{k}" for k in keys])
 
-    def forward(self, batch: TensorDictBase) -> tuple[torch.Tensor, TensorDictBase, TensorDictBase,
-                                                       torch.Tensor | None]:
+    def forward(
+        self, batch: TensorDictBase
+    ) -> tuple[torch.Tensor, TensorDictBase, TensorDictBase, torch.Tensor | None]:
         losses, posterior = self.loss(batch)
         total = sum(v for k, v in losses.items() if k.startswith("loss_")).squeeze()
         vector_reco = None
         if self.prior_scale:
-            total = total + self.prior_scale * prior_vector_reconstruction(posterior, self.decoder, self.vector_keys,
-                                                                           self.raw_keys, self.unimix)
+            total = total + self.prior_scale * prior_vector_reconstruction(
+                posterior, self.decoder, self.vector_keys, self.raw_keys, self.unimix
+            )
         if self.vector_extra:
             vector_reco = vector_reconstruction(posterior, self.vector_keys, self.raw_keys)
             total = total + self.vector_extra * vector_reco
@@ -106,8 +127,9 @@ class WorldModelLoss(nn.Module):
         return total, losses, posterior, vector_reco
 
 
-def replay_value_loss(value_loss: DreamerV3ValueLoss, posterior: TensorDictBase, imagined: TensorDictBase,
-                      cfg: DictConfig) -> torch.Tensor:
+def replay_value_loss(
+    value_loss: DreamerV3ValueLoss, posterior: TensorDictBase, imagined: TensorDictBase, cfg: DictConfig
+) -> torch.Tensor:
     """The critic's loss on the replayed sequences themselves (DreamerV3's ``repval``, ``algo.critic.replay_scale``):
     each posterior state's λ-return from the real rewards and episode ends that follow it in the sequence,
     bootstrapped from its first imagined return, so that the critic also learns what really followed — a death
@@ -127,8 +149,13 @@ def _masked_mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
 
 
 @torch.no_grad()
-def diagnostics(model: DreamerModel, critic: TensorDictSequential, posterior: TensorDictBase,
-                imagined: TensorDictBase, return_scale: torch.Tensor) -> dict[str, torch.Tensor]:
+def diagnostics(
+    model: DreamerModel,
+    critic: TensorDictSequential,
+    posterior: TensorDictBase,
+    imagined: TensorDictBase,
+    return_scale: torch.Tensor,
+) -> dict[str, torch.Tensor]:
     """What tells a collapsing DreamerV3 from a learning one, from one gradient step's replayed batch
     (``posterior``: the world model's outputs) and imagination (``imagined``):
 
@@ -145,9 +172,13 @@ def diagnostics(model: DreamerModel, critic: TensorDictSequential, posterior: Te
     nxt = posterior["next"]
     error = (nxt["reward"] - nxt["true_reward"]).abs()
     event = nxt["consumed"]
-    out = {"reward_error_consume": _masked_mean(error, event), "reward_error_other": _masked_mean(error, ~event),
-           "reward_true_consume": _masked_mean(nxt["true_reward"], event),
-           "reward_pred_consume": _masked_mean(nxt["reward"], event), "consume_share": event.float().mean()}
+    out = {
+        "reward_error_consume": _masked_mean(error, event),
+        "reward_error_other": _masked_mean(error, ~event),
+        "reward_true_consume": _masked_mean(nxt["true_reward"], event),
+        "reward_pred_consume": _masked_mean(nxt["reward"], event),
+        "consume_share": event.float().mean(),
+    }
     go_on = torch.sigmoid(nxt["continue_pred"].float())
     ended = nxt["terminated"]
     out["continue_terminal"] = _masked_mean(go_on, ended)

@@ -39,7 +39,6 @@ from evaaa import ACTION_NAMES
 
 from ..nets import symlog
 
-
 NUM_ACTIONS = len(ACTION_NAMES)
 LATENT = ("state", "belief")  # the stochastic sample z (flattened one-hots) and the GRU's deterministic state h
 
@@ -60,13 +59,19 @@ class DreamerEncoder(nn.Module):
         self.out_features = 0
         if "pixels" in obs_shapes:
             height, width, channels = obs_shapes["pixels"]
-            self.cnn = DreamerV3ImageEncoder(in_channels=channels, depth=cfg.cnn.depth, mults=tuple(cfg.cnn.mults),
-                                             kernel_size=cfg.cnn.kernel, norm_eps=cfg.norm_eps)
+            self.cnn = DreamerV3ImageEncoder(
+                in_channels=channels,
+                depth=cfg.cnn.depth,
+                mults=tuple(cfg.cnn.mults),
+                kernel_size=cfg.cnn.kernel,
+                norm_eps=cfg.norm_eps,
+            )
             self.out_features += self.cnn.output_features((channels, height, width))
         vector_features = sum(shape[-1] for key, shape in obs_shapes.items() if key != "pixels")
         if vector_features:
-            self.mlp = DreamerV3MLP(vector_features, None, depth=cfg.mlp_layers, num_cells=cfg.dense,
-                                    norm_eps=cfg.norm_eps)
+            self.mlp = DreamerV3MLP(
+                vector_features, None, depth=cfg.mlp_layers, num_cells=cfg.dense, norm_eps=cfg.norm_eps
+            )
             self.out_features += cfg.dense
 
     def forward(self, *obs: torch.Tensor) -> torch.Tensor:
@@ -95,9 +100,15 @@ class DreamerDecoder(nn.Module):
         self.keys = tuple(obs_shapes)
         if "pixels" in obs_shapes:
             height, width, channels = obs_shapes["pixels"]
-            self.cnn = DreamerV3ImageDecoder(latent, (channels, height, width), depth=cfg.cnn.depth,
-                                             mults=tuple(cfg.cnn.mults), kernel_size=cfg.cnn.kernel, num_blocks=1,
-                                             norm_eps=cfg.norm_eps)
+            self.cnn = DreamerV3ImageDecoder(
+                latent,
+                (channels, height, width),
+                depth=cfg.cnn.depth,
+                mults=tuple(cfg.cnn.mults),
+                kernel_size=cfg.cnn.kernel,
+                num_blocks=1,
+                norm_eps=cfg.norm_eps,
+            )
         vectors = {key: shape[-1] for key, shape in obs_shapes.items() if key != "pixels"}
         if vectors:
             self.mlp = DreamerV3MLP(latent, None, depth=cfg.mlp_layers, num_cells=cfg.dense, norm_eps=cfg.norm_eps)
@@ -118,8 +129,9 @@ class DreamerDecoder(nn.Module):
         """One vector key's reconstruction alone (raw units), without decoding the pixels."""
         return self.vectors(state, belief, (key,))[key]
 
-    def vectors(self, state: torch.Tensor, belief: torch.Tensor,
-                keys: Sequence[str] | None = None) -> dict[str, torch.Tensor]:
+    def vectors(
+        self, state: torch.Tensor, belief: torch.Tensor, keys: Sequence[str] | None = None
+    ) -> dict[str, torch.Tensor]:
         """The vector keys' reconstructions (raw units; all of them by default), without decoding the pixels."""
         hidden = self.mlp(torch.cat([state, belief], dim=-1))
         return {key: self._symexp(self.heads[key](hidden)) for key in (self.heads if keys is None else keys)}
@@ -142,26 +154,47 @@ class DreamerModel(nn.Module):
         self.belief_dim = m.recurrent
         latent = self.state_dim + self.belief_dim
         self.encoder = DreamerEncoder(obs_shapes, m)
-        self.prior = RSSMPriorV3(action_shape=(NUM_ACTIONS,), action_dim=NUM_ACTIONS, hidden_dim=m.hidden,
-                                 rnn_hidden_dim=m.recurrent, num_categoricals=m.stochastic, num_classes=m.classes,
-                                 recurrent_model=m.recurrent_model, norm_eps=m.norm_eps, unimix=m.unimix)
-        self.posterior = RSSMPosteriorV3(hidden_dim=m.hidden, num_categoricals=m.stochastic, num_classes=m.classes,
-                                         rnn_hidden_dim=m.recurrent, obs_embed_dim=self.encoder.out_features,
-                                         use_rms_norm=True, norm_eps=m.norm_eps, unimix=m.unimix)
+        self.prior = RSSMPriorV3(
+            action_shape=(NUM_ACTIONS,),
+            action_dim=NUM_ACTIONS,
+            hidden_dim=m.hidden,
+            rnn_hidden_dim=m.recurrent,
+            num_categoricals=m.stochastic,
+            num_classes=m.classes,
+            recurrent_model=m.recurrent_model,
+            norm_eps=m.norm_eps,
+            unimix=m.unimix,
+        )
+        self.posterior = RSSMPosteriorV3(
+            hidden_dim=m.hidden,
+            num_categoricals=m.stochastic,
+            num_classes=m.classes,
+            rnn_hidden_dim=m.recurrent,
+            obs_embed_dim=self.encoder.out_features,
+            use_rms_norm=True,
+            norm_eps=m.norm_eps,
+            unimix=m.unimix,
+        )
         self.decoder = DreamerDecoder(obs_shapes, latent, m)
         # reward and critic: two-hot over symexp-spaced bins, zero-initialised outputs (DreamerV3's outscale 0)
-        self.reward = DreamerV3MLP(latent, m.bins, depth=m.mlp_layers, num_cells=m.dense, outscale=0.0,
-                                   norm_eps=m.norm_eps)
+        self.reward = DreamerV3MLP(
+            latent, m.bins, depth=m.mlp_layers, num_cells=m.dense, outscale=0.0, norm_eps=m.norm_eps
+        )
         self.two_hot = SymExpTwoHot(m.bins)
         self.cont = DreamerV3MLP(latent, 1, depth=m.mlp_layers, num_cells=m.dense, norm_eps=m.norm_eps)
-        self.actor = DreamerV3DiscreteActor(latent, NUM_ACTIONS, depth=m.mlp_layers, num_cells=m.dense,
-                                            norm_eps=m.norm_eps, unimix=m.unimix)
-        self.value = DreamerV3MLP(latent, m.bins, depth=m.mlp_layers, num_cells=m.dense, outscale=0.0,
-                                  norm_eps=m.norm_eps)
+        self.actor = DreamerV3DiscreteActor(
+            latent, NUM_ACTIONS, depth=m.mlp_layers, num_cells=m.dense, norm_eps=m.norm_eps, unimix=m.unimix
+        )
+        self.value = DreamerV3MLP(
+            latent, m.bins, depth=m.mlp_layers, num_cells=m.dense, outscale=0.0, norm_eps=m.norm_eps
+        )
 
     def world_model_parameters(self) -> list[nn.Parameter]:
-        return [p for name in ("encoder", "prior", "posterior", "decoder", "reward", "cont")
-                for p in getattr(self, name).parameters()]
+        return [
+            p
+            for name in ("encoder", "prior", "posterior", "decoder", "reward", "cont")
+            for p in getattr(self, name).parameters()
+        ]
 
 
 def make_model(cfg: DictConfig, obs_shapes: Mapping[str, Sequence[int]]) -> DreamerModel:
@@ -184,10 +217,12 @@ def world_model(model: DreamerModel) -> TensorDictSequential:
     ``is_init`` marks an episode's first step (``RSSMRolloutV3``)."""
     keys = model.obs_keys
     rollout = RSSMRolloutV3(
-        TensorDictModule(model.prior, in_keys=["state", "belief", "action_onehot"],
-                         out_keys=_next("prior_logits", "state", "belief")),
-        TensorDictModule(model.posterior, in_keys=_next("belief", "encoded_latents"),
-                         out_keys=_next("posterior_logits", "state")),
+        TensorDictModule(
+            model.prior, in_keys=["state", "belief", "action_onehot"], out_keys=_next("prior_logits", "state", "belief")
+        ),
+        TensorDictModule(
+            model.posterior, in_keys=_next("belief", "encoded_latents"), out_keys=_next("posterior_logits", "state")
+        ),
         reset_key="is_init",
     )
     return TensorDictSequential(
@@ -209,10 +244,17 @@ def imagination_env(model: DreamerModel, device: torch.device | str = "cpu") -> 
         TensorDictModule(model.reward, in_keys=list(LATENT), out_keys=["reward_logits"]),
         TensorDictModule(model.two_hot, in_keys=["reward_logits"], out_keys=["reward"]),
     )
-    env = DreamerEnv(WorldModelWrapper(transition, reward), prior_shape=(model.state_dim,),
-                     belief_shape=(model.belief_dim,), device=device)
-    env.observation_spec = Composite(state=Unbounded(model.state_dim, device=device),
-                                     belief=Unbounded(model.belief_dim, device=device), device=device)
+    env = DreamerEnv(
+        WorldModelWrapper(transition, reward),
+        prior_shape=(model.state_dim,),
+        belief_shape=(model.belief_dim,),
+        device=device,
+    )
+    env.observation_spec = Composite(
+        state=Unbounded(model.state_dim, device=device),
+        belief=Unbounded(model.belief_dim, device=device),
+        device=device,
+    )
     env.state_spec = env.observation_spec.clone()
     env.action_spec = OneHot(NUM_ACTIONS, device=device)
     env.reward_spec = Unbounded((1,), device=device)
@@ -255,8 +297,9 @@ def acting_policy(model: DreamerModel) -> TensorDictSequential:
     next step and zeroes them at a reset."""
     return TensorDictSequential(
         TensorDictModule(model.encoder, in_keys=list(model.obs_keys), out_keys=["embed"]),
-        RSSMStateEstimatorV3(model.prior, model.posterior,
-                             in_keys=[*LATENT, "prev_action", "embed", "is_init"], out_keys=list(LATENT)),
+        RSSMStateEstimatorV3(
+            model.prior, model.posterior, in_keys=[*LATENT, "prev_action", "embed", "is_init"], out_keys=list(LATENT)
+        ),
         model.actor,
         TensorDictModule(_carry, in_keys=["action"], out_keys=["prev_action", "action"]),
     )
@@ -288,7 +331,12 @@ def make_transforms(cfg: DictConfig, obs_keys: Sequence[str], model: DreamerMode
     """Episode-start flags and the carried latent and previous action, zeroed at every reset."""
     return [
         InitTracker(),
-        TensorDictPrimer(random=False, default_value=0.0, expand_specs=True,
-                         state=Unbounded(model.state_dim), belief=Unbounded(model.belief_dim),
-                         prev_action=Unbounded(NUM_ACTIONS)),
+        TensorDictPrimer(
+            random=False,
+            default_value=0.0,
+            expand_specs=True,
+            state=Unbounded(model.state_dim),
+            belief=Unbounded(model.belief_dim),
+            prev_action=Unbounded(NUM_ACTIONS),
+        ),
     ]

@@ -53,9 +53,9 @@ def openloop_grid(truth: torch.Tensor, predicted: torch.Tensor, context: int) ->
         for r, frames in enumerate((truth, predicted, error)):
             for t in range(length):
                 y, x = top + r * cell_h, t * cell_w
-                grid[y:y + height, x:x + width] = frames[i, t].numpy()
+                grid[y : y + height, x : x + width] = frames[i, t].numpy()
         bar = top + 3 * cell_h
-        grid[bar:bar + gap, : context * cell_w - gap] = 255
+        grid[bar : bar + gap, : context * cell_w - gap] = 255
     return grid
 
 

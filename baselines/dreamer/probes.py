@@ -41,8 +41,9 @@ def _run_replay(run_dir: str | Path) -> tuple[dict, TensorDictBase, int, int]:
     return state, TensorDict.load_memmap(replay["on_disk"])[:rows], num_envs, rows
 
 
-def _probe_replay(run_dir: str | Path, sequences: int, model_file: str | Path | None = None
-                  ) -> tuple[dict, DictConfig, DreamerModel, TensorDictBase, int]:
+def _probe_replay(
+    run_dir: str | Path, sequences: int, model_file: str | Path | None = None
+) -> tuple[dict, DictConfig, DreamerModel, TensorDictBase, int]:
     """A DreamerV3 run's last checkpoint (its state, config and model; with ``model_file``, the networks of that file
     instead, e.g. ``model-best-0-1-1.pt``), ``sequences`` replayed sequences of 32 steps from its memory-mapped
     replay, around the last eating steps stored (spread over the replay where there are too few), with the zero
@@ -53,8 +54,10 @@ def _probe_replay(run_dir: str | Path, sequences: int, model_file: str | Path | 
     if model_file is not None:
         networks = load_checkpoint(Path(model_file))
         if networks.get("algo") != state["algo"] or networks.get("obs_shapes") != state["obs_shapes"]:
-            raise ValueError(f"model={model_file}: not the networks of this run's algorithm and observations "
-                             f"({state['algo']}, {sorted(state['obs_shapes'])})")
+            raise ValueError(
+                f"model={model_file}: not the networks of this run's algorithm and observations "
+                f"({state['algo']}, {sorted(state['obs_shapes'])})"
+            )
         steps = int(networks.get("env_steps") or networks.get("counters", {}).get("steps", 0))
     cfg = OmegaConf.create(networks["config"])
     model = make_model(cfg.algo, {k: tuple(v) for k, v in state["obs_shapes"].items()})
@@ -71,8 +74,9 @@ def _probe_replay(run_dir: str | Path, sequences: int, model_file: str | Path | 
     return state, cfg, model, batch, steps
 
 
-def ev_decoding_errors(run_dir: str | Path, sequences: int = 64, model_file: str | Path | None = None
-                       ) -> dict[str, Any]:
+def ev_decoding_errors(
+    run_dir: str | Path, sequences: int = 64, model_file: str | Path | None = None
+) -> dict[str, Any]:
     """How well a DreamerV3 run's world model knows the EVs: the mean absolute error, in raw units, of the
     interoception decoded from the posterior, on the eating steps and on the other steps of ``sequences`` replayed
     sequences of 32 steps around the last eating steps stored (spread over the replay where there are too few),
@@ -85,8 +89,7 @@ def ev_decoding_errors(run_dir: str | Path, sequences: int = 64, model_file: str
         out = world_model(model)(batch)
     error = (out["next", "reco_interoception"] - out["next", "interoception"]).abs()
     at = out["next", "consumed"].reshape(batch.shape)
-    result: dict[str, Any] = {"env_steps": steps, "sequences": len(batch),
-                              "eating_steps": int(at.sum())}
+    result: dict[str, Any] = {"env_steps": steps, "sequences": len(batch), "eating_steps": int(at.sum())}
     for name, mask in (("eating", at), ("other", ~at)):
         per_ev = error[mask].mean(0) if mask.any() else torch.full((len(EV_NAMES),), float("nan"))
         result[name] = dict(zip(EV_NAMES, per_ev.tolist()))
@@ -97,18 +100,35 @@ def ev_decoding_errors(run_dir: str | Path, sequences: int = 64, model_file: str
     fit = (torch.arange(len(batch)) % 2 == 0)[:, None].expand(batch.shape).reshape(-1)
     nxt = out["next"]
     # "nothing": a constant feature (the fitted rows' mean, about 0 by construction): the check of the read-out
-    sources = {"nothing": torch.zeros(*batch.shape, 1), "embedding": nxt["encoded_latents"],
-               "stochastic latent": nxt["state"],
-               "deterministic state": nxt["belief"], "latent (both)": torch.cat([nxt["state"], nxt["belief"]], -1)}
-    result["linear_probe"] = {
-        name: dict(zip(EV_NAMES, linear_probe_r2(x.float().reshape(len(target), -1), target, fit).tolist()))
-        for name, x in sources.items()} if bool(fit.any()) and bool((~fit).any()) else {}
+    sources = {
+        "nothing": torch.zeros(*batch.shape, 1),
+        "embedding": nxt["encoded_latents"],
+        "stochastic latent": nxt["state"],
+        "deterministic state": nxt["belief"],
+        "latent (both)": torch.cat([nxt["state"], nxt["belief"]], -1),
+    }
+    result["linear_probe"] = (
+        {
+            name: dict(zip(EV_NAMES, linear_probe_r2(x.float().reshape(len(target), -1), target, fit).tolist()))
+            for name, x in sources.items()
+        }
+        if bool(fit.any()) and bool((~fit).any())
+        else {}
+    )
     return result
 
 
-def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Sequence[str] = (),
-                    held_out: float = 0.1, seed: int = 0, report: Any = None, keys: Sequence[str] | None = None,
-                    device: str | torch.device = "cpu") -> list[dict[str, float]]:
+def fit_world_model(
+    run_dir: str | Path,
+    updates: int,
+    every: int,
+    overrides: Sequence[str] = (),
+    held_out: float = 0.1,
+    seed: int = 0,
+    report: Any = None,
+    keys: Sequence[str] | None = None,
+    device: str | torch.device = "cpu",
+) -> list[dict[str, float]]:
     """How fast a fresh world model learns what eating does, from a DreamerV3 run's stored replay alone: no env,
     no actor, no critic, so world-model settings can be compared in minutes on the same data.
 
@@ -133,8 +153,9 @@ def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Se
     shapes = {k: tuple(v) for k, v in state["obs_shapes"].items()}
     if keys is not None:
         if "interoception" not in keys or not set(keys) <= set(shapes):
-            raise ValueError(f"keys must include interoception and come from the run's {sorted(shapes)}, got "
-                             f"{list(keys)}")
+            raise ValueError(
+                f"keys must include interoception and come from the run's {sorted(shapes)}, got {list(keys)}"
+            )
         shapes = {k: v for k, v in shapes.items() if k in keys}
     torch.manual_seed(seed)
     model = make_model(cfg, shapes).to(device)
@@ -180,13 +201,22 @@ def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Se
         nxt = world_model(model)(batch)["next"]
         # the posterior after the step before the action; the action's own step is the last row
         before = {k: nxt[k][:, -2] for k in LATENT}
-        step = imagine_each_action(model.prior, before["state"], before["belief"], 8,
-                                   ev=lambda st, be: model.decoder.vector("interoception", st, be)[..., :2])
+        step = imagine_each_action(
+            model.prior,
+            before["state"],
+            before["belief"],
+            8,
+            ev=lambda st, be: model.decoder.vector("interoception", st, be)[..., :2],
+        )
         change = step["ev"].sum(-1) - decoded(before)[:, None]
         others = [i for i in range(NUM_ACTIONS) if i != eat]
         effect = float((change[:, eat] - change[:, others].mean(1)).mean())
-        real = float((batch["next", "interoception"][:, -1, :2] - batch["next", "interoception"][:, -2, :2])
-                     .float().sum(-1).mean())
+        real = float(
+            (batch["next", "interoception"][:, -1, :2] - batch["next", "interoception"][:, -2, :2])
+            .float()
+            .sum(-1)
+            .mean()
+        )
         # the same change read from the posteriors, which saw the observation after eating: what the latent holds
         seen = float((decoded({k: nxt[k][:, -1] for k in LATENT}) - decoded(before)).mean())
         return effect, real, seen
@@ -199,11 +229,17 @@ def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Se
             effect, real, seen = eat_effect(test_eaten)
             nothing, _, _ = eat_effect(pressed)
             trained, _, _ = eat_effect(seen_eaten, 0)
-            row = {"updates": update, "seconds": time.perf_counter() - began, "eat_effect": effect,
-                   "eat_effect_nothing": nothing, "eat_effect_trained": trained, "real_effect": real,
-                   "posterior_effect": seen,
-                   "held_out_eating_steps": len(test_eaten),
-                   "world_model_parameters": sum(p.numel() for p in model.world_model_parameters())}
+            row = {
+                "updates": update,
+                "seconds": time.perf_counter() - began,
+                "eat_effect": effect,
+                "eat_effect_nothing": nothing,
+                "eat_effect_trained": trained,
+                "real_effect": real,
+                "posterior_effect": seen,
+                "held_out_eating_steps": len(test_eaten),
+                "world_model_parameters": sum(p.numel() for p in model.world_model_parameters()),
+            }
             rows_out.append(row)
             if report is not None:
                 report(row)
@@ -240,8 +276,10 @@ def fit_world_model(run_dir: str | Path, updates: int, every: int, overrides: Se
             features["state"].append(nxt["state"][:, -2])  # the posterior on the observation pressed on
             features["belief"].append(nxt["belief"][:, -2])
             features["belief_after_eat"].append(nxt["belief"][:, -1])  # the eat action taken, its outcome unseen
-    rows_out[-1] |= {f"latent_auc_{name}": logistic_readout_auc(torch.cat(x).cpu(), labels, presses[:, 0] < split)
-                     for name, x in features.items()}
+    rows_out[-1] |= {
+        f"latent_auc_{name}": logistic_readout_auc(torch.cat(x).cpu(), labels, presses[:, 0] < split)
+        for name, x in features.items()
+    }
     return rows_out
 
 
@@ -295,8 +333,9 @@ def eat_success_readout(run_dir: str | Path, held_out: float = 0.2) -> dict[str,
     return {"presses": len(where), "ate": int(ate.sum()), "held_out_ate": int(ate[~fit].sum()), "auc": auc}
 
 
-def linear_probe_r2(features: torch.Tensor, target: torch.Tensor, fit: torch.Tensor,
-                    ridge: float = 1e-3) -> torch.Tensor:
+def linear_probe_r2(
+    features: torch.Tensor, target: torch.Tensor, fit: torch.Tensor, ridge: float = 1e-3
+) -> torch.Tensor:
     """Per target column, the share of ``symlog(target)``'s variance (as the model codes the EVs) that a ridge
     regression from ``features`` explains on the rows where ``fit`` is false, fitted on the rows where it is true:
     1 holds it all, 0 nothing beyond the fitted mean (below 0: worse than that mean).  Features are standardised on
@@ -313,8 +352,9 @@ def linear_probe_r2(features: torch.Tensor, target: torch.Tensor, fit: torch.Ten
     return (1 - residual / spread).float()
 
 
-def imagine_each_action(prior: Any, state: torch.Tensor, belief: torch.Tensor, samples: int = 8,
-                        **heads: Any) -> dict[str, torch.Tensor]:
+def imagine_each_action(
+    prior: Any, state: torch.Tensor, belief: torch.Tensor, samples: int = 8, **heads: Any
+) -> dict[str, torch.Tensor]:
     """Every action taken once from each latent ``[N, ...]`` through ``prior`` (``(state, belief, one-hot) ->
     (logits, state, belief)``), the next latent drawn ``samples`` times: each head ``(state, belief) -> [N, ...]``
     read on it, averaged over the draws, as ``[N, actions, ...]``.  What imagination believes one action does."""
@@ -332,8 +372,9 @@ def imagine_each_action(prior: Any, state: torch.Tensor, belief: torch.Tensor, s
 
 
 @torch.no_grad()
-def imagined_action_values(run_dir: str | Path, sequences: int = 64, samples: int = 8,
-                           model_file: str | Path | None = None) -> dict[str, Any]:
+def imagined_action_values(
+    run_dir: str | Path, sequences: int = 64, samples: int = 8, model_file: str | Path | None = None
+) -> dict[str, Any]:
     """What a DreamerV3 run's world model and critic say each action is worth, from the posterior states of
     ``sequences`` replayed sequences (as :func:`ev_decoding_errors` picks them): one imagined step of every action,
     then the critic, ``r + γ·c·v`` (``samples`` draws of the next latent), beside the actor's probabilities and the
@@ -366,8 +407,16 @@ def imagined_action_values(run_dir: str | Path, sequences: int = 64, samples: in
     def interoception(s: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
         return model.decoder.vector("interoception", s, b)
 
-    step = imagine_each_action(model.prior, latent["state"], latent["belief"], samples, reward=reward,
-                               value=value, going_on=going_on, interoception=interoception)
+    step = imagine_each_action(
+        model.prior,
+        latent["state"],
+        latent["belief"],
+        samples,
+        reward=reward,
+        value=value,
+        going_on=going_on,
+        interoception=interoception,
+    )
     q = step["reward"] + cfg.algo.gamma * step["going_on"] * step["value"]
     now = interoception(latent["state"], latent["belief"])
     ev_change = step["interoception"] - now[:, None]
@@ -379,8 +428,12 @@ def imagined_action_values(run_dir: str | Path, sequences: int = 64, samples: in
         before[:, :-d] |= ate[:, d:]
     ate, before = ate.reshape(-1), before.reshape(-1)
     eat = ACTION_NAMES.index("eat")
-    groups = {"every state": ~fresh, "ate or drank": ate & ~fresh,
-              "ate nothing": (action == eat) & ~ate & ~fresh, "1-5 steps before eating": before & ~ate & ~fresh}
+    groups = {
+        "every state": ~fresh,
+        "ate or drank": ate & ~fresh,
+        "ate nothing": (action == eat) & ~ate & ~fresh,
+        "1-5 steps before eating": before & ~ate & ~fresh,
+    }
     result: dict[str, Any] = {"env_steps": steps, "sequences": len(batch), "return_scale": scale, "groups": {}}
     for name, mask in groups.items():
         if not bool(mask.any()):
@@ -390,10 +443,12 @@ def imagined_action_values(run_dir: str | Path, sequences: int = 64, samples: in
             "states": int(mask.sum()),
             "policy": dict(zip(ACTION_NAMES, probs[mask].mean(0).tolist())),
             "value_over_mean": dict(zip(ACTION_NAMES, (q[mask] - q[mask].mean(1, keepdim=True)).mean(0).tolist())),
-            "best_share": dict(zip(ACTION_NAMES, (torch.bincount(q[mask].argmax(1), minlength=NUM_ACTIONS)
-                                                  / int(mask.sum())).tolist())),
-            "ev_change": {a: dict(zip(EV_NAMES, ev_change[mask][:, i].mean(0).tolist()))
-                          for i, a in enumerate(ACTION_NAMES)},
+            "best_share": dict(
+                zip(ACTION_NAMES, (torch.bincount(q[mask].argmax(1), minlength=NUM_ACTIONS) / int(mask.sum())).tolist())
+            ),
+            "ev_change": {
+                a: dict(zip(EV_NAMES, ev_change[mask][:, i].mean(0).tolist())) for i, a in enumerate(ACTION_NAMES)
+            },
             "real_ev_change": dict(zip(EV_NAMES, real_change[mask].mean(0).tolist())),
         }
     return result

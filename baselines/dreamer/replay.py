@@ -46,20 +46,33 @@ class SequenceReplay:
     writes have reached the files, resumes on exactly the rows it checkpointed.
     """
 
-    def __init__(self, capacity: int, num_envs: int, sequence_length: int, batch_size: int, *,
-                 directory: Path | None = None, device: torch.device | str = "cpu", guard_rows: int = 0,
-                 consume_share: float = 0.0, terminal_share: float = 0.0):
+    def __init__(
+        self,
+        capacity: int,
+        num_envs: int,
+        sequence_length: int,
+        batch_size: int,
+        *,
+        directory: Path | None = None,
+        device: torch.device | str = "cpu",
+        guard_rows: int = 0,
+        consume_share: float = 0.0,
+        terminal_share: float = 0.0,
+    ):
         if capacity // num_envs < sequence_length:
-            raise ValueError(f"algo.buffer_size ({capacity}) holds fewer than algo.sequence_length "
-                             f"({sequence_length}) steps of each of the {num_envs} worlds")
+            raise ValueError(
+                f"algo.buffer_size ({capacity}) holds fewer than algo.sequence_length "
+                f"({sequence_length}) steps of each of the {num_envs} worlds"
+            )
         self.num_envs, self.sequence_length, self.batch_size = num_envs, sequence_length, batch_size
         self.directory, self.device, self.guard_rows = directory, torch.device(device), guard_rows
         for name, share in (("consume_share", consume_share), ("terminal_share", terminal_share)):
             if not 0.0 <= share <= 1.0:
                 raise ValueError(f"algo.{name} must lie in [0, 1], got {share}")
         if consume_share + terminal_share > 1.0:
-            raise ValueError(f"algo.consume_share + algo.terminal_share must be at most 1, got {consume_share} + "
-                             f"{terminal_share}")
+            raise ValueError(
+                f"algo.consume_share + algo.terminal_share must be at most 1, got {consume_share} + {terminal_share}"
+            )
         #: sequences of each training batch drawn around a step that ate or drank (the rest: uniformly)
         self.consume_sequences = round(consume_share * batch_size)
         #: sequences of each training batch drawn around a step that ended an episode (``terminated``)
@@ -104,9 +117,14 @@ class SequenceReplay:
     def sample(self, sequences: int | None = None, length: int | None = None) -> TensorDictBase:
         """``[sequences, length]`` consecutive steps of random worlds (default: the training batch), on the device."""
         if sequences is None and length is None:
-            around = [part for key, count in ((("next", "terminated"), self.terminal_sequences),
-                                              (("next", "consumed"), self.consume_sequences))
-                      if count and (part := self._around(key, count)) is not None]
+            around = [
+                part
+                for key, count in (
+                    (("next", "terminated"), self.terminal_sequences),
+                    (("next", "consumed"), self.consume_sequences),
+                )
+                if count and (part := self._around(key, count)) is not None
+            ]
             if not around:
                 batch = self.buffer.sample()
                 return self._to_device(batch.reshape(self.batch_size, self.sequence_length))
@@ -162,13 +180,21 @@ class SequenceReplay:
             return {"rows": rows, "writer": writer}
         guard = self._overwritten_next() if self.rows else torch.zeros(0, dtype=torch.long)
         self.flush()
-        return {"on_disk": str(self.directory), "length": len(self.buffer), "writer": writer,
-                "guard_index": guard, "guard_rows": storage._storage[guard].clone() if len(guard) else None}
+        return {
+            "on_disk": str(self.directory),
+            "length": len(self.buffer),
+            "writer": writer,
+            "guard_index": guard,
+            "guard_rows": storage._storage[guard].clone() if len(guard) else None,
+        }
 
     def load_state_dict(self, state: Mapping) -> None:
         if ("on_disk" in state) != (self.directory is not None):
-            raise ValueError("the checkpoint's replay buffer was " + ("on disk" if "on_disk" in state else "in memory")
-                             + f"; this run's is {self.place}: resume with the algo.buffer_on_disk it was made with")
+            raise ValueError(
+                "the checkpoint's replay buffer was "
+                + ("on disk" if "on_disk" in state else "in memory")
+                + f"; this run's is {self.place}: resume with the algo.buffer_on_disk it was made with"
+            )
         self.buffer.empty()
         if self.directory is None:
             if state["rows"] is not None:
@@ -177,8 +203,10 @@ class SequenceReplay:
             return
         if state["length"]:
             if not (self.directory / "meta.json").exists():
-                raise FileNotFoundError(f"the checkpoint's replay buffer is memory-mapped in {self.directory}, which "
-                                        "is missing: this run cannot resume exactly")
+                raise FileNotFoundError(
+                    f"the checkpoint's replay buffer is memory-mapped in {self.directory}, which "
+                    "is missing: this run cannot resume exactly"
+                )
             storage = self.buffer.storage
             storage._storage = TensorDict.load_memmap(self.directory, mode="r+")
             storage.initialized = True
@@ -250,16 +278,38 @@ def make_replay(run: Run, num_envs: int, row_bytes: int) -> SequenceReplay:
                 shutil.rmtree(stale)
         free = shutil.disk_usage(directory).free
         if full > free:
-            log.warning("replay: a full buffer (algo.buffer_size=%s, %s) needs more than the %s free on the disk of "
-                        "%s; lower algo.buffer_size before it fills", f"{cfg.buffer_size:,}", _gb(full), _gb(free),
-                        directory)
-        return SequenceReplay(cfg.buffer_size, num_envs, cfg.sequence_length, cfg.batch_size, directory=directory,
-                              device=run.device, guard_rows=guard, consume_share=cfg.get("consume_share", 0.0),
-                              terminal_share=cfg.get("terminal_share", 0.0))
+            log.warning(
+                "replay: a full buffer (algo.buffer_size=%s, %s) needs more than the %s free on the disk of "
+                "%s; lower algo.buffer_size before it fills",
+                f"{cfg.buffer_size:,}",
+                _gb(full),
+                _gb(free),
+                directory,
+            )
+        return SequenceReplay(
+            cfg.buffer_size,
+            num_envs,
+            cfg.sequence_length,
+            cfg.batch_size,
+            directory=directory,
+            device=run.device,
+            guard_rows=guard,
+            consume_share=cfg.get("consume_share", 0.0),
+            terminal_share=cfg.get("terminal_share", 0.0),
+        )
     free = available_memory(run.device)
     if free is not None and full > free:
-        raise ValueError(f"algo.buffer_size={cfg.buffer_size:,} transitions need {_gb(full)} when full, but "
-                         f"{run.device} has {_gb(free)} available: use algo.buffer_on_disk=true (memory-mapped under "
-                         f"the run directory) or algo.buffer_size<={free // row_bytes:,}")
-    return SequenceReplay(cfg.buffer_size, num_envs, cfg.sequence_length, cfg.batch_size, device=run.device,
-                          consume_share=cfg.get("consume_share", 0.0), terminal_share=cfg.get("terminal_share", 0.0))
+        raise ValueError(
+            f"algo.buffer_size={cfg.buffer_size:,} transitions need {_gb(full)} when full, but "
+            f"{run.device} has {_gb(free)} available: use algo.buffer_on_disk=true (memory-mapped under "
+            f"the run directory) or algo.buffer_size<={free // row_bytes:,}"
+        )
+    return SequenceReplay(
+        cfg.buffer_size,
+        num_envs,
+        cfg.sequence_length,
+        cfg.batch_size,
+        device=run.device,
+        consume_share=cfg.get("consume_share", 0.0),
+        terminal_share=cfg.get("terminal_share", 0.0),
+    )

@@ -36,8 +36,19 @@ def mean_se(values: Iterable[float]) -> tuple[float, float, int]:
 
 
 #: columns of :func:`final_survival`
-FINAL_COLUMNS = ["run", "stage", "level", "survival", "source", "last", "scores", "episodes", "acting", "worlds",
-                 "means_only"]
+FINAL_COLUMNS = [
+    "run",
+    "stage",
+    "level",
+    "survival",
+    "source",
+    "last",
+    "scores",
+    "episodes",
+    "acting",
+    "worlds",
+    "means_only",
+]
 
 
 def _checkpoint_rank(policy: str) -> int:
@@ -46,8 +57,9 @@ def _checkpoint_rank(policy: str) -> int:
     return 0 if MODEL_FILE.match(name) else 1 if BEST_MODEL_FILE.match(name) else 2
 
 
-def final_survival(runs: Sequence[RunRecord], source: str = "eval", window: int = 20,
-                   checkpoints: pd.DataFrame | None = None) -> pd.DataFrame:
+def final_survival(
+    runs: Sequence[RunRecord], source: str = "eval", window: int = 20, checkpoints: pd.DataFrame | None = None
+) -> pd.DataFrame:
     """One row per finished stage of every run (and per acting mode): the survival the stage ended with, with its
     episodes' scores.
 
@@ -73,37 +85,84 @@ def final_survival(runs: Sequence[RunRecord], source: str = "eval", window: int 
                     best = min(hits["policy"].unique(), key=_checkpoint_rank)
                     for acting, part in hits[hits["policy"] == best].groupby("acting", sort=False):
                         scores = tuple(part["steps"].astype(float))
-                        found.append(base | {"survival": float(np.mean(scores)), "source": "evaluate.py",
-                                             "scores": scores, "episodes": len(scores), "acting": acting,
-                                             "worlds": " / ".join(dict.fromkeys(part["worlds"])),
-                                             "means_only": False})
+                        found.append(
+                            base
+                            | {
+                                "survival": float(np.mean(scores)),
+                                "source": "evaluate.py",
+                                "scores": scores,
+                                "episodes": len(scores),
+                                "acting": acting,
+                                "worlds": " / ".join(dict.fromkeys(part["worlds"])),
+                                "means_only": False,
+                            }
+                        )
             ev = r.evals[r.evals["stage"] == index] if r.evals is not None else None
             if source == "eval" and not found and ev is not None and len(ev):
                 last = ev[ev["env_steps"] == ev["env_steps"].max()]
                 if r.eval_means_only:
                     value = float(last["survival_mean"].iloc[-1])
-                    n = int(last["episodes"].iloc[-1]) if "episodes" in last and pd.notna(
-                        last["episodes"].iloc[-1]) else 1
-                    found.append(base | {"survival": value, "source": "eval.csv (means only)", "scores": (value,),
-                                         "episodes": n, "acting": r.eval_acting, "worlds": r.eval_worlds,
-                                         "means_only": True})
+                    n = (
+                        int(last["episodes"].iloc[-1])
+                        if "episodes" in last and pd.notna(last["episodes"].iloc[-1])
+                        else 1
+                    )
+                    found.append(
+                        base
+                        | {
+                            "survival": value,
+                            "source": "eval.csv (means only)",
+                            "scores": (value,),
+                            "episodes": n,
+                            "acting": r.eval_acting,
+                            "worlds": r.eval_worlds,
+                            "means_only": True,
+                        }
+                    )
                 else:
                     for acting, part in last.groupby("acting", sort=False):
                         scores = tuple(part["steps"].astype(float))
-                        found.append(base | {"survival": float(np.mean(scores)), "source": "eval.csv",
-                                             "scores": scores, "episodes": len(scores), "acting": acting,
-                                             "worlds": " / ".join(dict.fromkeys(part["worlds"].astype(str))),
-                                             "means_only": False})
+                        found.append(
+                            base
+                            | {
+                                "survival": float(np.mean(scores)),
+                                "source": "eval.csv",
+                                "scores": scores,
+                                "episodes": len(scores),
+                                "acting": acting,
+                                "worlds": " / ".join(dict.fromkeys(part["worlds"].astype(str))),
+                                "means_only": False,
+                            }
+                        )
             if not found and r.episodes is not None:
                 eps = r.episodes[r.episodes["stage"] == index]
                 if len(eps):
                     scores = tuple(float(v) for v in eps["steps"].iloc[-window:])
-                    found.append(base | {"survival": float(np.mean(scores)), "source": "training episodes",
-                                         "scores": scores, "episodes": len(scores), "acting": "exploring (training)",
-                                         "worlds": "training worlds", "means_only": False})
+                    found.append(
+                        base
+                        | {
+                            "survival": float(np.mean(scores)),
+                            "source": "training episodes",
+                            "scores": scores,
+                            "episodes": len(scores),
+                            "acting": "exploring (training)",
+                            "worlds": "training worlds",
+                            "means_only": False,
+                        }
+                    )
             if not found:
-                found.append(base | {"survival": float("nan"), "source": "none", "scores": (), "episodes": 0,
-                                     "acting": "", "worlds": "", "means_only": False})
+                found.append(
+                    base
+                    | {
+                        "survival": float("nan"),
+                        "source": "none",
+                        "scores": (),
+                        "episodes": 0,
+                        "acting": "",
+                        "worlds": "",
+                        "means_only": False,
+                    }
+                )
             rows += found
     return pd.DataFrame(rows, columns=FINAL_COLUMNS)
 
@@ -123,9 +182,18 @@ def curves(runs: Sequence[RunRecord], bins: int = 20) -> pd.DataFrame:
         survival = r.episodes["steps"].to_numpy(dtype=float)
         for i in np.unique(b):
             scores = tuple(survival[b == i].tolist())
-            rows.append({"run": r.dir, "bin": int(i), "steps": (i + 0.5) * width, "survival": float(np.mean(scores)),
-                         "scores": scores, "episodes": len(scores), "acting": "exploring (training)",
-                         "worlds": "training worlds"})
+            rows.append(
+                {
+                    "run": r.dir,
+                    "bin": int(i),
+                    "steps": (i + 0.5) * width,
+                    "survival": float(np.mean(scores)),
+                    "scores": scores,
+                    "episodes": len(scores),
+                    "acting": "exploring (training)",
+                    "worlds": "training worlds",
+                }
+            )
     return pd.DataFrame(rows, columns=["run", "bin", "steps", "survival", "scores", "episodes", "acting", "worlds"])
 
 
@@ -144,11 +212,24 @@ def evaluation_points(runs: Sequence[RunRecord]) -> pd.DataFrame:
                 n = int(part["episodes"].sum()) if "episodes" in part else len(scores)
             else:
                 scores, n = tuple(part["steps"].astype(float)), len(part)
-            rows.append({"run": r.dir, "stage": int(stage), "steps": x, "survival": float(np.mean(scores)),
-                         "scores": scores, "episodes": n, "means_only": r.eval_means_only, "acting": acting,
-                         "worlds": " / ".join(dict.fromkeys(part["worlds"].astype(str))), "source": "eval.csv"})
-    return pd.DataFrame(rows, columns=["run", "stage", "steps", "survival", "scores", "episodes", "means_only",
-                                       "acting", "worlds", "source"])
+            rows.append(
+                {
+                    "run": r.dir,
+                    "stage": int(stage),
+                    "steps": x,
+                    "survival": float(np.mean(scores)),
+                    "scores": scores,
+                    "episodes": n,
+                    "means_only": r.eval_means_only,
+                    "acting": acting,
+                    "worlds": " / ".join(dict.fromkeys(part["worlds"].astype(str))),
+                    "source": "eval.csv",
+                }
+            )
+    return pd.DataFrame(
+        rows,
+        columns=["run", "stage", "steps", "survival", "scores", "episodes", "means_only", "acting", "worlds", "source"],
+    )
 
 
 #: Columns of the statistics frames (:func:`across_seeds`), after the grouping columns.  ``statistic`` says what
@@ -158,12 +239,32 @@ def evaluation_points(runs: Sequence[RunRecord]) -> pd.DataFrame:
 #: (none under three seeds); ``n``: units, ``episodes``: episodes behind the numbers; ``points``: each seed's value
 #: (where there are fewer than three seeds, the cell's only spread); ``means_only``: the seeds gave evaluation means,
 #: not episodes; ``acting``, ``worlds``, ``source``: how the networks acted, on which worlds, from which files.
-STAT_COLUMNS = ("value", "low", "high", "statistic", "mean", "se", "n", "episodes", "unit", "points", "means_only",
-                "acting", "worlds", "source")
+STAT_COLUMNS = (
+    "value",
+    "low",
+    "high",
+    "statistic",
+    "mean",
+    "se",
+    "n",
+    "episodes",
+    "unit",
+    "points",
+    "means_only",
+    "acting",
+    "worlds",
+    "source",
+)
 
 
-def estimate(samples: Sequence[Sequence[float]], success: bool = False, seed: int = 0,
-             episodes: int | None = None, unit: str = "seeds", means_only: bool = False) -> dict[str, Any]:
+def estimate(
+    samples: Sequence[Sequence[float]],
+    success: bool = False,
+    seed: int = 0,
+    episodes: int | None = None,
+    unit: str = "seeds",
+    means_only: bool = False,
+) -> dict[str, Any]:
     """The statistics of one table cell from ``samples``: one sequence of episode scores per unit (seed,
     participant; a success is 1.0, a failure 0.0); ``unit="episodes"``: one sequence whose every episode is a unit
     (a reference agent).  Under three units: no interval, the units' values as ``points``.  ``episodes``: the
@@ -172,14 +273,24 @@ def estimate(samples: Sequence[Sequence[float]], success: bool = False, seed: in
     samples = [s for s in samples if s.size]
     if unit == "episodes":
         samples = [np.concatenate(samples)] if samples else []
-        units = [s[i:i + 1] for s in samples for i in range(s.size)]
+        units = [s[i : i + 1] for s in samples for i in range(s.size)]
     else:
         units = samples
     scored = int(sum(s.size for s in samples))
     episodes = scored if episodes is None else int(episodes)
     nan = float("nan")
-    out = {"value": nan, "low": nan, "high": nan, "statistic": "rate" if success else "iqm", "mean": nan, "se": nan,
-           "n": len(units), "episodes": episodes, "points": (), "means_only": means_only}
+    out = {
+        "value": nan,
+        "low": nan,
+        "high": nan,
+        "statistic": "rate" if success else "iqm",
+        "mean": nan,
+        "se": nan,
+        "n": len(units),
+        "episodes": episodes,
+        "points": (),
+        "means_only": means_only,
+    }
     if not units:
         return out
     pooled = np.concatenate(samples)
@@ -191,8 +302,11 @@ def estimate(samples: Sequence[Sequence[float]], success: bool = False, seed: in
         return out
     out["se"] = se
     if success:
-        est = (binomial_interval(int(round(pooled.sum())), int(pooled.size)) if unit == "episodes"
-               else clustered_rate(units))
+        est = (
+            binomial_interval(int(round(pooled.sum())), int(pooled.size))
+            if unit == "episodes"
+            else clustered_rate(units)
+        )
     else:
         est = interval(units, "iqm", seed=seed)
     out["low"], out["high"] = est.low, est.high
@@ -203,8 +317,9 @@ def _joined(values: pd.Series) -> str:
     return " / ".join(str(v) for v in dict.fromkeys(values.fillna("").astype(str)) if v)
 
 
-def across_seeds(values: pd.DataFrame, by: Sequence[str], value: str, *, success: bool = False,
-                 unit: str = "seeds") -> pd.DataFrame:
+def across_seeds(
+    values: pd.DataFrame, by: Sequence[str], value: str, *, success: bool = False, unit: str = "seeds"
+) -> pd.DataFrame:
     """Per group of ``by``: the statistics of :data:`STAT_COLUMNS` over the group's rows (one row per seed, its
     episodes' scores in a ``scores`` column, or ``value`` alone where there is none); ``acting``, ``worlds`` and
     ``source`` name what the rows say (joined where they differ)."""
@@ -215,8 +330,13 @@ def across_seeds(values: pd.DataFrame, by: Sequence[str], value: str, *, success
         else:
             samples = [(v,) for v in part[value].astype(float).dropna()]
         means_only = bool(part["means_only"].any()) if "means_only" in part else False
-        est = estimate(samples, success, episodes=int(part["episodes"].sum()) if "episodes" in part else None,
-                       unit=unit, means_only=means_only)
+        est = estimate(
+            samples,
+            success,
+            episodes=int(part["episodes"].sum()) if "episodes" in part else None,
+            unit=unit,
+            means_only=means_only,
+        )
         named = {c: _joined(part[c]) if c in part else "" for c in ("acting", "worlds", "source")}
         out.append({**dict(zip(by, key if isinstance(key, tuple) else (key,))), **est, "unit": unit, **named})
     return pd.DataFrame(out, columns=[*by, *STAT_COLUMNS])
@@ -239,13 +359,25 @@ def reference_stats(refs: pd.DataFrame, value: str) -> pd.DataFrame:
     out = []
     for (policy, level), part in refs.groupby(["policy", "level"], sort=False):
         vals = part[value].astype(float)
-        if "participant" in part and part["participant"].astype(str).str.len().gt(0).all() \
-                and part["participant"].nunique() > 1:
+        if (
+            "participant" in part
+            and part["participant"].astype(str).str.len().gt(0).all()
+            and part["participant"].nunique() > 1
+        ):
             unit = "participants"
             samples = [tuple(v.dropna()) for _, v in part.assign(_v=vals).groupby("participant")["_v"]]
         else:
             unit, samples = "episodes", [tuple(vals.dropna())]
         est = estimate(samples, success=value == "success", unit=unit)
-        out.append({"label": policy, "level": level, **est, "unit": unit, "acting": "",
-                    "worlds": _joined(part["worlds"]) if "worlds" in part else "", "source": "evaluate.py"})
+        out.append(
+            {
+                "label": policy,
+                "level": level,
+                **est,
+                "unit": unit,
+                "acting": "",
+                "worlds": _joined(part["worlds"]) if "worlds" in part else "",
+                "source": "evaluate.py",
+            }
+        )
     return pd.DataFrame(out, columns=["label", "level", *STAT_COLUMNS])

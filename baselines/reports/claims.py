@@ -49,6 +49,8 @@ def seeds_short(*cells) -> int | None:
         counts += [int(n) for n in agents["n"].dropna()]
     short = [n for n in counts if n < MIN_SEEDS]
     return min(short) if short else None
+
+
 #: levels the paper calls hard: survival drops sharply from 3-2 on
 HARD_FROM = "3-2"
 
@@ -96,10 +98,16 @@ def spearman(x, y) -> tuple[float, float]:
     def rho(v, axis=-1):
         rv = sps.rankdata(v, axis=axis)
         rv = rv - rv.mean(axis=axis, keepdims=True)
-        return (rv * r0).sum(axis=axis) / np.sqrt((rv ** 2).sum(axis=axis) * (r0 ** 2).sum())
+        return (rv * r0).sum(axis=axis) / np.sqrt((rv**2).sum(axis=axis) * (r0**2).sum())
 
-    res = sps.permutation_test((y,), rho, permutation_type="pairings", vectorized=True,
-                               n_resamples=math.factorial(len(y)), alternative="two-sided")
+    res = sps.permutation_test(
+        (y,),
+        rho,
+        permutation_type="pairings",
+        vectorized=True,
+        n_resamples=math.factorial(len(y)),
+        alternative="two-sided",
+    )
     return float(res.statistic), float(res.pvalue)
 
 
@@ -114,8 +122,11 @@ def combine(claim: str, parts: Sequence[Verdict], rule: str) -> Verdict:
     else:
         # every part with data short of seeds in the same way: the claim says so
         with_data = {v for v, p in zip(verdicts, parts) if p.rule != "no data"}
-        verdict = with_data.pop() if len(with_data) == 1 and next(iter(with_data)).startswith("not resolvable: ") \
+        verdict = (
+            with_data.pop()
+            if len(with_data) == 1 and next(iter(with_data)).startswith("not resolvable: ")
             else UNRESOLVED
+        )
     return Verdict(claim, verdict, rule, parts=list(parts))
 
 
@@ -145,8 +156,10 @@ def survival_falls(survival: pd.DataFrame, order: Sequence[str], hard_from: str 
     Reproduced: rho < 0 with p < 0.05 and the hard levels apart below; contradicted: rho > 0 with p < 0.05, or the
     hard levels apart above; otherwise not resolvable."""
     claim = f"(a) survival falls with level difficulty, sharply from {hard_from} on"
-    rule = (f"per algorithm: Spearman's rho of survival IQM against level order (p < 0.05), and every level from "
-            f"{hard_from} on below every earlier level (95 % intervals apart)")
+    rule = (
+        f"per algorithm: Spearman's rho of survival IQM against level order (p < 0.05), and every level from "
+        f"{hard_from} on below every earlier level (95 % intervals apart)"
+    )
     if not len(survival):
         return missing(claim, "no survival per training level")
     cut = list(order).index(hard_from)
@@ -156,16 +169,24 @@ def survival_falls(survival: pd.DataFrame, order: Sequence[str], hard_from: str 
         rank = part["level"].map({n: i for i, n in enumerate(order)})
         evidence = ["; ".join(f"{r.level}: {_fmt(r._asdict())}" for r in part.itertuples())]
         if len(part) < 3 or part["value"].nunique() < 2:
-            parts.append(_gate(Verdict(f"{algo}", UNRESOLVED, rule, evidence + ["fewer than 3 levels, or all equal"]),
-                               part))
+            parts.append(
+                _gate(Verdict(f"{algo}", UNRESOLVED, rule, evidence + ["fewer than 3 levels, or all equal"]), part)
+            )
             continue
         rho, p = spearman(rank, part["value"])
         early, late = part[rank < cut], part[rank >= cut]
         apart_below = len(early) and len(late) and late["high"].max() < early["low"].min()
         apart_above = len(early) and len(late) and late["low"].min() > early["high"].max()
-        evidence.append(f"Spearman's rho {rho:.2f} (p = {p:.3g}, {len(part)} levels); levels from {hard_from} on "
-                        + ("apart below the earlier ones" if apart_below else "apart above the earlier ones"
-                           if apart_above else "not apart from the earlier ones (intervals overlap)"))
+        evidence.append(
+            f"Spearman's rho {rho:.2f} (p = {p:.3g}, {len(part)} levels); levels from {hard_from} on "
+            + (
+                "apart below the earlier ones"
+                if apart_below
+                else "apart above the earlier ones"
+                if apart_above
+                else "not apart from the earlier ones (intervals overlap)"
+            )
+        )
         if rho < 0 and p < 0.05 and apart_below:
             verdict = REPRODUCED
         elif (rho > 0 and p < 0.05) or apart_above:
@@ -184,8 +205,10 @@ def curriculum_beats_direct(cmp: pd.DataFrame, order: Sequence[str], skip: Seque
     contradicted when direct's lies above on at least half and curriculum's above on none; otherwise not
     resolvable."""
     claim = "(b) curriculum beats direct training"
-    rule = ("per algorithm, levels after the first: curriculum's 95 % interval above direct's (no overlap) on at least "
-            "half of the levels and below on none")
+    rule = (
+        "per algorithm, levels after the first: curriculum's 95 % interval above direct's (no overlap) on at least "
+        "half of the levels and below on none"
+    )
     if not len(cmp) or set(cmp["setup"]) != {"curriculum", "direct"}:
         return missing(claim, "no algorithm with both curriculum and direct runs")
     parts = []
@@ -198,9 +221,11 @@ def curriculum_beats_direct(cmp: pd.DataFrame, order: Sequence[str], skip: Seque
             continue
         up = [lv for lv in levels if above(cur.loc[lv], dire.loc[lv])]
         down = [lv for lv in levels if above(dire.loc[lv], cur.loc[lv])]
-        evidence = ["; ".join(f"{lv}: curriculum {_fmt(cur.loc[lv])} vs direct {_fmt(dire.loc[lv])}" for lv in levels),
-                    f"curriculum above on {len(up)} of {len(levels)} levels ({', '.join(up) or 'none'}), below on "
-                    f"{len(down)} ({', '.join(down) or 'none'})"]
+        evidence = [
+            "; ".join(f"{lv}: curriculum {_fmt(cur.loc[lv])} vs direct {_fmt(dire.loc[lv])}" for lv in levels),
+            f"curriculum above on {len(up)} of {len(levels)} levels ({', '.join(up) or 'none'}), below on "
+            f"{len(down)} ({', '.join(down) or 'none'})",
+        ]
         if 2 * len(up) >= len(levels) and not down:
             verdict = REPRODUCED
         elif 2 * len(down) >= len(levels) and not up:
@@ -222,10 +247,17 @@ def _ordered(a: str, b: str, survival: pd.DataFrame, order: Sequence[str]) -> Ve
     levels = [lv for lv in order if lv in sa.index and lv in sb.index]
     up = [lv for lv in levels if above(sa.loc[lv], sb.loc[lv])]
     down = [lv for lv in levels if above(sb.loc[lv], sa.loc[lv])]
-    evidence = [f"{a} above {b} on {len(up)} of {len(levels)} levels ({', '.join(up) or 'none'}), below on "
-                f"{len(down)} ({', '.join(down) or 'none'})"]
-    verdict = (REPRODUCED if levels and 2 * len(up) >= len(levels) and not down else
-               CONTRADICTED if levels and 2 * len(down) >= len(levels) and not up else UNRESOLVED)
+    evidence = [
+        f"{a} above {b} on {len(up)} of {len(levels)} levels ({', '.join(up) or 'none'}), below on "
+        f"{len(down)} ({', '.join(down) or 'none'})"
+    ]
+    verdict = (
+        REPRODUCED
+        if levels and 2 * len(up) >= len(levels) and not down
+        else CONTRADICTED
+        if levels and 2 * len(down) >= len(levels) and not up
+        else UNRESOLVED
+    )
     modes = [" / ".join(dict.fromkeys(x.loc[levels, "acting"].astype(str))) if "acting" in x else "" for x in (sa, sb)]
     if all(modes) and modes[0] != modes[1]:  # greedy against sampled actions says nothing about the algorithms
         verdict = UNRESOLVED
@@ -233,14 +265,18 @@ def _ordered(a: str, b: str, survival: pd.DataFrame, order: Sequence[str]) -> Ve
     return _gate(Verdict(f"{a} > {b} in survival", verdict, rule, evidence), sa.loc[levels], sb.loc[levels])
 
 
-def _fails(algo: str, levels: Sequence[str], survival: pd.DataFrame, random: pd.DataFrame,
-           learns_on: Sequence[str] = ()) -> Verdict:
+def _fails(
+    algo: str, levels: Sequence[str], survival: pd.DataFrame, random: pd.DataFrame, learns_on: Sequence[str] = ()
+) -> Verdict:
     """``algo`` fails on ``levels`` (its survival interval not above random's there) — and, where ``learns_on`` is
     given, does not fail on at least one of those."""
     name = f"{algo} fails" + (f" beyond {learns_on[-1]}" if learns_on else "")
-    rule = ("fails on a level: its 95 % interval not above the random agent's; reproduced when it fails on every "
-            "level" + (f" beyond {learns_on[-1]} and is above random on {' or '.join(learns_on)}" if learns_on else "")
-            + "; contradicted when it is above random on most of those levels")
+    rule = (
+        "fails on a level: its 95 % interval not above the random agent's; reproduced when it fails on every "
+        "level"
+        + (f" beyond {learns_on[-1]} and is above random on {' or '.join(learns_on)}" if learns_on else "")
+        + "; contradicted when it is above random on most of those levels"
+    )
     s = survival[survival["algo"] == algo].set_index("level")
     r = random.set_index("level")
     if not len(s):
@@ -251,8 +287,10 @@ def _fails(algo: str, levels: Sequence[str], survival: pd.DataFrame, random: pd.
     beats = [lv for lv in checked if above(s.loc[lv], r.loc[lv])]
     # a level without an interval (one seed's single number) shows neither failing nor learning there
     unknown = [lv for lv in checked if math.isnan(s.loc[lv]["low"]) or math.isnan(r.loc[lv]["high"])]
-    evidence = ["; ".join(f"{lv}: {_fmt(s.loc[lv])} vs random {_fmt(r.loc[lv])}" for lv in checked),
-                f"above random on {len(beats)} of {len(checked)} ({', '.join(beats) or 'none'})"]
+    evidence = [
+        "; ".join(f"{lv}: {_fmt(s.loc[lv])} vs random {_fmt(r.loc[lv])}" for lv in checked),
+        f"above random on {len(beats)} of {len(checked)} ({', '.join(beats) or 'none'})",
+    ]
     if unknown:
         evidence.append(f"no interval on {', '.join(unknown)}: failing there is not shown")
     early_ok = True
@@ -260,8 +298,13 @@ def _fails(algo: str, levels: Sequence[str], survival: pd.DataFrame, random: pd.
         early = [lv for lv in learns_on if lv in s.index and lv in r.index]
         early_ok = any(above(s.loc[lv], r.loc[lv]) for lv in early)
         evidence.append(f"above random on {' or '.join(learns_on)}: {'yes' if early_ok else 'no'}")
-    verdict = (REPRODUCED if not beats and not unknown and early_ok else CONTRADICTED if 2 * len(beats) > len(checked)
-               else UNRESOLVED)
+    verdict = (
+        REPRODUCED
+        if not beats and not unknown and early_ok
+        else CONTRADICTED
+        if 2 * len(beats) > len(checked)
+        else UNRESOLVED
+    )
     return _gate(Verdict(name, verdict, rule, evidence), s.loc[checked])
 
 
@@ -272,10 +315,12 @@ def algorithm_ordering(survival: pd.DataFrame, random: pd.DataFrame, order: Sequ
     claim = "(c) DreamerV3 > DQN > PPO in survival; DQN fails beyond 1-2; PPO+LSTM fails"
     algos = set(survival["algo"]) if len(survival) else set()
     dreamer = next((a for a in ("dreamer", "dreamer_xs") if a in algos), None)
-    parts = [_ordered(dreamer, "dqn", survival, order) if dreamer else missing("DreamerV3 > DQN", "no DreamerV3 runs"),
-             _ordered("dqn", "ppo", survival, order),
-             _fails("dqn", [lv for lv in order if list(order).index(lv) > 1], survival, random, learns_on=order[:2]),
-             _fails("ppo_lstm", list(order), survival, random)]
+    parts = [
+        _ordered(dreamer, "dqn", survival, order) if dreamer else missing("DreamerV3 > DQN", "no DreamerV3 runs"),
+        _ordered("dqn", "ppo", survival, order),
+        _fails("dqn", [lv for lv in order if list(order).index(lv) > 1], survival, random, learns_on=order[:2]),
+        _fails("ppo_lstm", list(order), survival, random),
+    ]
     return combine(claim, parts, "each part by its rule")
 
 
@@ -289,7 +334,7 @@ def drops(per_seed: pd.DataFrame, order: Sequence[str], alpha: float = 0.05) -> 
     wide = per_seed.pivot_table(index="seed", columns="level", values="value", aggfunc="mean")
     pairs, pvalues, lines = [], [], []
     for i, a in enumerate(levels):
-        for b in levels[i + 1:]:
+        for b in levels[i + 1 :]:
             d = (wide[a] - wide[b]).dropna().to_numpy()
             if len(d) < MIN_SEEDS:
                 continue
@@ -305,8 +350,13 @@ def drops(per_seed: pd.DataFrame, order: Sequence[str], alpha: float = 0.05) -> 
     return [pair for pair, r in zip(pairs, rejected) if r], lines
 
 
-def testbeds_below_ceiling(success: pd.DataFrame, references: pd.DataFrame, generalisation: pd.DataFrame,
-                           order: Sequence[str], per_seed: pd.DataFrame | None = None) -> Verdict:
+def testbeds_below_ceiling(
+    success: pd.DataFrame,
+    references: pd.DataFrame,
+    generalisation: pd.DataFrame,
+    order: Sequence[str],
+    per_seed: pd.DataFrame | None = None,
+) -> Verdict:
     """(d) On the testbeds humans are near the ceiling, agents far below, and more training difficulty does not give
     monotonic gains.  ``success``: agents' testbed success (agent, level, value, low, high, n, unit);
     ``references``: the same for oracle, random and human (column agent); ``generalisation``: per agent the mean
@@ -320,10 +370,14 @@ def testbeds_below_ceiling(success: pd.DataFrame, references: pd.DataFrame, gene
         human = refs["human"]
         tb = [lv for lv in human.index if lv in oracle.index]
         below = [lv for lv in tb if above(oracle.loc[lv], human.loc[lv])]
-        parts.append(Verdict("humans ≈ ceiling (the oracle)", REPRODUCED if tb and not below else
-                             CONTRADICTED if tb and 2 * len(below) > len(tb) else UNRESOLVED,
-                             "humans' 95 % interval not below the oracle's on any testbed",
-                             [f"humans below the oracle on {len(below)} of {len(tb)} testbeds"]))
+        parts.append(
+            Verdict(
+                "humans ≈ ceiling (the oracle)",
+                REPRODUCED if tb and not below else CONTRADICTED if tb and 2 * len(below) > len(tb) else UNRESOLVED,
+                "humans' 95 % interval not below the oracle's on any testbed",
+                [f"humans below the oracle on {len(below)} of {len(tb)} testbeds"],
+            )
+        )
     else:
         parts.append(missing("humans ≈ ceiling", "no human play records (scripts/play.py) among the evaluations"))
     if oracle is None or not len(success):
@@ -334,13 +388,26 @@ def testbeds_below_ceiling(success: pd.DataFrame, references: pd.DataFrame, gene
             tb = [lv for lv in p.index if lv in oracle.index]
             below = [lv for lv in tb if above(oracle.loc[lv], p.loc[lv])]
             near = [lv for lv in tb if p.loc[lv]["value"] >= oracle.loc[lv]["low"]]
-            verdict = (REPRODUCED if tb and 2 * len(below) >= len(tb) else
-                       CONTRADICTED if tb and 2 * len(near) > len(tb) else UNRESOLVED)
-            parts.append(_gate(Verdict(f"{agent} far below the oracle", verdict,
-                                       "below: its 95 % interval under the oracle's; reproduced when below on at "
-                                       "least half of the testbeds, contradicted when its rate reaches the oracle's "
-                                       "lower bound on most", [f"below on {len(below)} of {len(tb)} testbeds; at the "
-                                                               f"oracle's level on {len(near)}"]), part))
+            verdict = (
+                REPRODUCED
+                if tb and 2 * len(below) >= len(tb)
+                else CONTRADICTED
+                if tb and 2 * len(near) > len(tb)
+                else UNRESOLVED
+            )
+            parts.append(
+                _gate(
+                    Verdict(
+                        f"{agent} far below the oracle",
+                        verdict,
+                        "below: its 95 % interval under the oracle's; reproduced when below on at "
+                        "least half of the testbeds, contradicted when its rate reaches the oracle's "
+                        "lower bound on most",
+                        [f"below on {len(below)} of {len(tb)} testbeds; at the oracle's level on {len(near)}"],
+                    ),
+                    part,
+                )
+            )
     if not len(generalisation):
         parts.append(missing("no monotonic gain", "no checkpoint of several training levels evaluated on testbeds"))
     else:
@@ -351,16 +418,28 @@ def testbeds_below_ceiling(success: pd.DataFrame, references: pd.DataFrame, gene
                 continue
             mine = per_seed[per_seed["agent"] == agent] if per_seed is not None and len(per_seed) else None
             found, tested = drops(mine, order) if mine is not None and len(mine) else ([], [])
-            rises = all(part.loc[i + 1, "value"] >= part.loc[i, "value"] for i in range(len(part) - 1)) \
-                and above(part.iloc[-1], part.iloc[0])
-            evidence = ["; ".join(f"{r.level}: {_fmt(r._asdict())}" for r in part.itertuples()),
-                        f"resolved drops (one-sided paired t-tests over seeds, Holm-corrected over the {len(tested)} "
-                        f"pairs of levels): {', '.join(f'{a}→{b}' for a, b in found) or 'none'}"]
+            rises = all(part.loc[i + 1, "value"] >= part.loc[i, "value"] for i in range(len(part) - 1)) and above(
+                part.iloc[-1], part.iloc[0]
+            )
+            evidence = [
+                "; ".join(f"{r.level}: {_fmt(r._asdict())}" for r in part.itertuples()),
+                f"resolved drops (one-sided paired t-tests over seeds, Holm-corrected over the {len(tested)} "
+                f"pairs of levels): {', '.join(f'{a}→{b}' for a, b in found) or 'none'}",
+            ]
             verdict = REPRODUCED if found else CONTRADICTED if rises else UNRESOLVED
-            parts.append(_gate(Verdict(f"{agent}: no monotonic gain with training level", verdict,
-                                       "reproduced by a resolved drop (a later level below an earlier one, Holm-"
-                                       "corrected over every pair of levels); contradicted by a rise at every step "
-                                       "whose last level's interval lies above the first's", evidence), part))
+            parts.append(
+                _gate(
+                    Verdict(
+                        f"{agent}: no monotonic gain with training level",
+                        verdict,
+                        "reproduced by a resolved drop (a later level below an earlier one, Holm-"
+                        "corrected over every pair of levels); contradicted by a rise at every step "
+                        "whose last level's interval lies above the first's",
+                        evidence,
+                    ),
+                    part,
+                )
+            )
     return combine(claim, parts, "each part by its rule")
 
 
@@ -381,23 +460,47 @@ def ablations(survival: pd.DataFrame, success: pd.DataFrame) -> Verdict:
             if mod not in t.index:
                 parts.append(missing(f"{mod} fails ({name})", f"no {mod} run"))
                 continue
-            v = (REPRODUCED if above(base, t.loc[mod]) else CONTRADICTED if above(t.loc[mod], base) else UNRESOLVED)
-            parts.append(_gate(Verdict(f"{mod} fails ({name})", v, "its 95 % interval below all's (contradicted: "
-                                       "above)", [f"{mod} {_fmt(t.loc[mod])} vs all {_fmt(base)}"]),
-                               t.loc[mod], base))
+            v = REPRODUCED if above(base, t.loc[mod]) else CONTRADICTED if above(t.loc[mod], base) else UNRESOLVED
+            parts.append(
+                _gate(
+                    Verdict(
+                        f"{mod} fails ({name})",
+                        v,
+                        "its 95 % interval below all's (contradicted: above)",
+                        [f"{mod} {_fmt(t.loc[mod])} vs all {_fmt(base)}"],
+                    ),
+                    t.loc[mod],
+                    base,
+                )
+            )
         need = ("no_olfaction", "no_thermoception", "no_collision")
         if not all(m in t.index for m in need):
-            parts.append(missing(f"olfaction matters least ({name})", "no_olfaction, no_thermoception and "
-                                 "no_collision runs"))
+            parts.append(
+                missing(f"olfaction matters least ({name})", "no_olfaction, no_thermoception and no_collision runs")
+            )
             continue
         olf = t.loc["no_olfaction"]
         others = {m: t.loc[m] for m in need[1:]}
-        v = (REPRODUCED if all(above(olf, o) for o in others.values()) else
-             CONTRADICTED if any(above(o, olf) for o in others.values()) else UNRESOLVED)
-        parts.append(_gate(Verdict(f"olfaction matters least ({name})", v,
-                                   "no_olfaction's 95 % interval above no_thermoception's and no_collision's "
-                                   "(contradicted: below either)", [f"no_olfaction {_fmt(olf)}; " + "; ".join(
-                                       f"{m} {_fmt(o)}" for m, o in others.items())]), olf, *others.values()))
+        v = (
+            REPRODUCED
+            if all(above(olf, o) for o in others.values())
+            else CONTRADICTED
+            if any(above(o, olf) for o in others.values())
+            else UNRESOLVED
+        )
+        parts.append(
+            _gate(
+                Verdict(
+                    f"olfaction matters least ({name})",
+                    v,
+                    "no_olfaction's 95 % interval above no_thermoception's and no_collision's "
+                    "(contradicted: below either)",
+                    [f"no_olfaction {_fmt(olf)}; " + "; ".join(f"{m} {_fmt(o)}" for m, o in others.items())],
+                ),
+                olf,
+                *others.values(),
+            )
+        )
     return combine(claim, parts, "each part by its rule")
 
 

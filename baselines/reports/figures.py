@@ -49,6 +49,7 @@ def short_labels(names: Sequence[str]) -> tuple[dict[str, str], str]:
     ``dqn``), how it acted (`` [sample]``) kept; other names (oracle, random, human) unchanged.  Also returns a note
     that says what the labels stand for (``checkpoints: runs/1-1/<label>/all-squared/seed0/model-0-1-1.pt``), or
     ``""`` when nothing was shortened.  Full paths made legends wider than the plot and pushed labels off the image."""
+
     def split(name: str) -> tuple[str, str]:
         base, bracket, rest = name.partition(" [")
         return base, bracket + rest
@@ -70,10 +71,10 @@ def short_labels(names: Sequence[str]) -> tuple[dict[str, str], str]:
         tail = 0
         while tail < shortest - head - 1 and len({p[len(p) - 1 - tail] for p in parts}) == 1:
             tail += 1
-        labels = {p: "/".join(q[head:len(q) - tail]) for p, q in zip(paths, parts)}
+        labels = {p: "/".join(q[head : len(q) - tail]) for p, q in zip(paths, parts)}
         if len(set(labels.values())) == len(labels) and all(labels.values()):
             short = labels
-            note = "checkpoints: " + "/".join([*parts[0][:head], "<label>", *parts[0][len(parts[0]) - tail:]])
+            note = "checkpoints: " + "/".join([*parts[0][:head], "<label>", *parts[0][len(parts[0]) - tail :]])
     out = {}
     for name in names:
         base, acting = split(name)
@@ -97,11 +98,22 @@ MAX_WIDTH_IN = (MAX_WIDTH_PX - 40) / DPI  # less what bbox_inches="tight" may ad
 
 #: One colour per algorithm, per reference agent and per modality set, the same in every figure (tab10/Dark2
 #: colours; references in greys and black, so that agents stand out against them)
-ALGO_COLOURS = {"ppo": "#1f77b4", "dqn": "#ff7f0e", "ppo_lstm": "#2ca02c", "dreamer": "#9467bd",
-                "dreamer_xs": "#8c564b"}
+ALGO_COLOURS = {
+    "ppo": "#1f77b4",
+    "dqn": "#ff7f0e",
+    "ppo_lstm": "#2ca02c",
+    "dreamer": "#9467bd",
+    "dreamer_xs": "#8c564b",
+}
 REFERENCE_COLOURS = {"oracle": "#000000", "random": "#7f7f7f", "still": "#bcbcbc", "human": "#e377c2"}
-MODALITY_COLOURS = {"all": "#1b9e77", "no_vision": "#d95f02", "no_interoception": "#7570b3",
-                    "no_olfaction": "#e7298a", "no_thermoception": "#66a61e", "no_collision": "#e6ab02"}
+MODALITY_COLOURS = {
+    "all": "#1b9e77",
+    "no_vision": "#d95f02",
+    "no_interoception": "#7570b3",
+    "no_olfaction": "#e7298a",
+    "no_thermoception": "#66a61e",
+    "no_collision": "#e6ab02",
+}
 HATCHES = ("", "//", "..", "xx", "\\\\", "oo", "++", "--")
 OTHER_COLOURS = ("#17becf", "#d62728", "#aec7e8", "#98df8a", "#c5b0d5", "#c49c94")
 
@@ -185,6 +197,7 @@ def how_measured(stats: pd.DataFrame) -> str:
         agents = stats[stats["acting"].fillna("").astype(str) != ""] if column == "acting" else stats
         ways = [w for w in dict.fromkeys(agents[column].fillna("").astype(str)) if w]
         return " / ".join(ways) or "not recorded"
+
     return f"acting: {named('acting')} · worlds: {named('worlds')}"
 
 
@@ -192,12 +205,23 @@ def _chunks(items: Sequence, size: int) -> list[list]:
     """``items`` in rows of at most ``size``, as even as they go (8 levels by 6: two rows of 4, not 6 and 2)."""
     rows = -(-len(items) // max(1, size)) if len(items) else 1
     even = -(-len(items) // rows) if len(items) else 1
-    return [list(items[i:i + even]) for i in range(0, len(items), even)] or [[]]
+    return [list(items[i : i + even]) for i in range(0, len(items), even)] or [[]]
 
 
-def plot_bars(stats: pd.DataFrame, path: Path, *, ylabel: str, title: str, panel: str | None = None,
-              scale: float = 1.0, levels: Sequence[str] | None = None, top: float | None = None,
-              note: str = "", panel_height: float = 3.0, colour_by: str = "algo") -> Path:
+def plot_bars(
+    stats: pd.DataFrame,
+    path: Path,
+    *,
+    ylabel: str,
+    title: str,
+    panel: str | None = None,
+    scale: float = 1.0,
+    levels: Sequence[str] | None = None,
+    top: float | None = None,
+    note: str = "",
+    panel_height: float = 3.0,
+    colour_by: str = "algo",
+) -> Path:
     """Grouped bars — one group per ``level``, one bar per ``label`` (``value``, its interval as whiskers, the
     seeds' ``points`` as dots where there is no interval) — in one panel per ``panel`` value (or a single panel),
     levels wrapped into further rows so that the figure stays within :data:`MAX_WIDTH_PX`; the y axis starts at 0
@@ -225,14 +249,29 @@ def plot_bars(stats: pd.DataFrame, path: Path, *, ylabel: str, title: str, panel
             heights, yerr = whiskers(one, scale)
             xs = np.arange(len(order)) + (i - (len(names) - 1) / 2) * bar
             colour, hatch = style[label]
-            ax.bar(xs, heights, bar, yerr=yerr, capsize=2, label=label, color=colour, hatch=hatch,
-                   edgecolor="white" if hatch else None, linewidth=0)
+            ax.bar(
+                xs,
+                heights,
+                bar,
+                yerr=yerr,
+                capsize=2,
+                label=label,
+                color=colour,
+                hatch=hatch,
+                edgecolor="white" if hatch else None,
+                linewidth=0,
+            )
             if "points" in one:
                 for x, pts in zip(xs, one["points"]):
                     if isinstance(pts, tuple) and pts:
                         ax.plot([x] * len(pts), [scale * p for p in pts], "o", ms=2.5, color="0.15", zorder=3)
-        ax.set_xticks(range(len(order)), order, rotation=30 if len(order) > 2 else 0,
-                      ha="right" if len(order) > 2 else "center", fontsize=8)
+        ax.set_xticks(
+            range(len(order)),
+            order,
+            rotation=30 if len(order) > 2 else 0,
+            ha="right" if len(order) > 2 else "center",
+            fontsize=8,
+        )
         ax.set_xlim(-0.5, slots - 0.5)
         ax.set_ylabel(ylabel, fontsize=8)
         ax.set_ylim(0, top)
@@ -242,9 +281,22 @@ def plot_bars(stats: pd.DataFrame, path: Path, *, ylabel: str, title: str, panel
     return _finish(fig, axes[:, 0], path, "\n".join(line for line in lines if line))
 
 
-def plot_lines(stats: pd.DataFrame, path: Path, *, x: str, panel: str | None, ylabel: str, xlabel: str,
-               title: str, band: bool, scale: float = 1.0, order: Sequence[str] | None = None,
-               hlines: pd.DataFrame | None = None, top: float | None = None, colour_by: str = "algo") -> Path:
+def plot_lines(
+    stats: pd.DataFrame,
+    path: Path,
+    *,
+    x: str,
+    panel: str | None,
+    ylabel: str,
+    xlabel: str,
+    title: str,
+    band: bool,
+    scale: float = 1.0,
+    order: Sequence[str] | None = None,
+    hlines: pd.DataFrame | None = None,
+    top: float | None = None,
+    colour_by: str = "algo",
+) -> Path:
     """Lines of ``value`` per ``label`` (one panel per ``panel`` value, two panels a row), with its interval as a
     band or whiskers; ``order``: categorical x values in this order (labels drawn side by side, slightly apart, so
     that equal values stay visible); ``hlines``: (label, value) rows drawn as dashed lines; the y axis starts at 0,
@@ -256,7 +308,7 @@ def plot_lines(stats: pd.DataFrame, path: Path, *, x: str, panel: str | None, yl
     style = styles(list(dict.fromkeys(stats["label"])), colour_by)
     dashes = ("-", "--", ":", "-.")
     fig, axes = plt.subplots(nrows, cols, figsize=(min(MAX_WIDTH_IN, 6.0 * cols), 3.4 * nrows + 0.8), squeeze=False)
-    for ax in axes.flat[len(panels):]:
+    for ax in axes.flat[len(panels) :]:
         ax.set_visible(False)
     for ax, name in zip(axes.flat, panels):
         part = stats if name is None else stats[stats[panel] == name]
@@ -276,11 +328,17 @@ def plot_lines(stats: pd.DataFrame, path: Path, *, x: str, panel: str | None, yl
                 ax.fill_between(xs, m - yerr[0], m + yerr[1], alpha=0.25, color=colour, linewidth=0)
             else:
                 ax.errorbar(xs, m, yerr=yerr, marker="o", capsize=3, label=label, color=colour, linestyle=dash)
-        for style_, (_, ref) in zip(("--", ":", "-.", (0, (5, 1))), (hlines if hlines is not None else
-                                                                     pd.DataFrame()).iterrows()):
+        for style_, (_, ref) in zip(
+            ("--", ":", "-.", (0, (5, 1))), (hlines if hlines is not None else pd.DataFrame()).iterrows()
+        ):
             base = str(ref["label"]).split(" (")[0]
-            ax.axhline(scale * ref["value"], linestyle=style_, linewidth=1,
-                       color=REFERENCE_COLOURS.get(base, "0.35"), label=ref["label"])
+            ax.axhline(
+                scale * ref["value"],
+                linestyle=style_,
+                linewidth=1,
+                color=REFERENCE_COLOURS.get(base, "0.35"),
+                label=ref["label"],
+            )
         if order is not None:
             ax.set_xticks(range(len(order)), order, fontsize=8)
             ax.set_xlim(-0.3, len(order) - 0.7)
@@ -295,7 +353,7 @@ def plot_lines(stats: pd.DataFrame, path: Path, *, x: str, panel: str | None, yl
             ax.set_title(str(name), fontsize=9)
     note = interval_note(stats, "band" if band else "whiskers")
     lines = [title, f"({note})", how_measured(stats)]
-    return _finish(fig, list(axes.flat[:len(panels)]), path, "\n".join(line for line in lines if line))
+    return _finish(fig, list(axes.flat[: len(panels)]), path, "\n".join(line for line in lines if line))
 
 
 def plot_summary(summary: pd.DataFrame, path: str | Path, *, success: bool, title: str) -> Path:
@@ -304,13 +362,27 @@ def plot_summary(summary: pd.DataFrame, path: str | Path, *, success: bool, titl
     checkpoint paths shortened to the parts in which they differ (the title's last line says how)."""
     names, note = short_labels(list(dict.fromkeys(summary["policy"])))
     kind = "success" if success else "survival"
-    stats = pd.DataFrame({"label": summary["policy"].map(names), "level": summary["level"],
-                          "value": summary["success_rate" if success else "survival_iqm"],
-                          "low": summary[f"{kind}_low"], "high": summary[f"{kind}_high"],
-                          "statistic": "rate" if success else "iqm"})
-    return plot_bars(stats, Path(path), levels=list(dict.fromkeys(summary["level"])), scale=100 if success else 1.0,
-                     top=105 if success else None, ylabel="success rate (%)" if success else "survival (decisions)",
-                     title=title, note=note, panel_height=4.2)
+    stats = pd.DataFrame(
+        {
+            "label": summary["policy"].map(names),
+            "level": summary["level"],
+            "value": summary["success_rate" if success else "survival_iqm"],
+            "low": summary[f"{kind}_low"],
+            "high": summary[f"{kind}_high"],
+            "statistic": "rate" if success else "iqm",
+        }
+    )
+    return plot_bars(
+        stats,
+        Path(path),
+        levels=list(dict.fromkeys(summary["level"])),
+        scale=100 if success else 1.0,
+        top=105 if success else None,
+        ylabel="success rate (%)" if success else "survival (decisions)",
+        title=title,
+        note=note,
+        panel_height=4.2,
+    )
 
 
 def plot_outcomes(rows: pd.DataFrame, path: str | Path, *, title: str = "What happened in each episode") -> Path:
@@ -326,16 +398,21 @@ def plot_outcomes(rows: pd.DataFrame, path: str | Path, *, title: str = "What ha
     per_panel = max(1.6, 0.65 * len(policies))
     cols = max(1, min(len(levels), 5, int((MAX_WIDTH_IN - 1.0) // per_panel)))
     nrows = -(-len(levels) // cols)
-    fig, axes = plt.subplots(nrows, cols, figsize=(min(MAX_WIDTH_IN, 1.0 + cols * per_panel), 3.2 * nrows + 0.9),
-                             sharey=True, squeeze=False)
-    for ax in axes.flat[len(levels):]:
+    fig, axes = plt.subplots(
+        nrows, cols, figsize=(min(MAX_WIDTH_IN, 1.0 + cols * per_panel), 3.2 * nrows + 0.9), sharey=True, squeeze=False
+    )
+    for ax in axes.flat[len(levels) :]:
         ax.set_visible(False)
     for ax, level in zip(axes.flat, levels):
         part = rows[rows["level"] == level]
         bottom = np.zeros(len(policies))
         for name, colour in zip(OUTCOMES, OUTCOME_COLOURS):
-            share = np.array([(part[part["policy"] == p]["outcome"] == name).mean() if (part["policy"] == p).any()
-                              else 0.0 for p in policies])
+            share = np.array(
+                [
+                    (part[part["policy"] == p]["outcome"] == name).mean() if (part["policy"] == p).any() else 0.0
+                    for p in policies
+                ]
+            )
             ax.bar(range(len(policies)), share, bottom=bottom, color=colour, label=name)
             bottom += share
         for i, p in enumerate(policies):

@@ -35,9 +35,26 @@ MODEL_FILE = re.compile(r"^model-(\d+)-(.+)\.pt$")
 BEST_MODEL_FILE = re.compile(r"^model-best-(\d+)-(.+)\.pt$")
 #: Settings that do not change what is trained: runs differing only in these (and the seed) are pooled
 #: (``deterministic`` picks CUDA kernels that repeat; runs made before it existed have no such key).
-BOOKKEEPING = ("seed", "resume", "start_over", "threads", "progress", "progress_window", "log_every", "total_steps",
-               "max_minutes", "max_cpu_minutes", "deterministic", "stages", "run.", "logger.", "checkpoint.", "eval.",
-               "level.", "hydra.")
+BOOKKEEPING = (
+    "seed",
+    "resume",
+    "start_over",
+    "threads",
+    "progress",
+    "progress_window",
+    "log_every",
+    "total_steps",
+    "max_minutes",
+    "max_cpu_minutes",
+    "deterministic",
+    "stages",
+    "run.",
+    "logger.",
+    "checkpoint.",
+    "eval.",
+    "level.",
+    "hydra.",
+)
 RUN_COLUMNS = ("env_steps", "stage", "level", "steps")
 #: eval.csv: one row per episode (``steps``), or, in files written before, one row per evaluation (its mean)
 EVAL_RUN_COLUMNS = ("env_steps", "stage", "level", "steps")
@@ -170,8 +187,9 @@ def load_run(run_dir: str | Path) -> RunRecord:
         run.eval_episodes = None if run.eval_means_only else run.evals
     for index, level, budget in run.stages:
         later = any(df is not None and (df["stage"] > index).any() for df in (run.episodes, run.evals))
-        evaluated_at_end = run.evals is not None and ((run.evals["stage"] == index)
-                                                      & (run.evals["env_steps"] >= budget)).any()
+        evaluated_at_end = (
+            run.evals is not None and ((run.evals["stage"] == index) & (run.evals["env_steps"] >= budget)).any()
+        )
         if (run.dir / f"model-{index}-{level}.pt").is_file() or later or evaluated_at_end:
             run.complete.add(index)
     # env steps reached: the furthest logged step (a stage ended by `max_minutes` is complete short of its budget);
@@ -187,8 +205,10 @@ def load_run(run_dir: str | Path) -> RunRecord:
         run.problem, run.usable = "missing: no episodes.csv (the run never started, or its files are gone)", False
     elif len(run.complete) < len(run.stages):
         unfinished = [level for i, level, _ in run.stages if i not in run.complete]
-        run.problem = (f"partial: {run.steps:,} of {run.total:,} env steps (unfinished: {', '.join(unfinished)}); "
-                       "its curves are drawn, its unfinished stages are left out of the final-survival tables")
+        run.problem = (
+            f"partial: {run.steps:,} of {run.total:,} env steps (unfinished: {', '.join(unfinished)}); "
+            "its curves are drawn, its unfinished stages are left out of the final-survival tables"
+        )
     if run.episodes is not None and not len(run.episodes) and run.problem is None:
         run.problem = "no finished training episode (the budget is shorter than an episode)"
     return run
@@ -205,13 +225,16 @@ def csv_text(path: Path, notes: list[str]) -> io.StringIO:
     text = data.decode("utf-8", errors="replace")
     if not text.endswith("\n") and "\n" in text.rstrip("\r"):
         text = text[: text.rindex("\n") + 1]
-        notes.append(f"{path}: its last row was cut short (the file was being written when its process stopped); "
-                     "that row is skipped")
+        notes.append(
+            f"{path}: its last row was cut short (the file was being written when its process stopped); "
+            "that row is skipped"
+        )
     return io.StringIO(text)
 
 
-def _read_run_csv(path: Path, needed: Sequence[str], notes: list[str],
-                  older: Sequence[str] = ()) -> pd.DataFrame | None:
+def _read_run_csv(
+    path: Path, needed: Sequence[str], notes: list[str], older: Sequence[str] = ()
+) -> pd.DataFrame | None:
     """A training CSV with the columns ``needed`` (or, for files of an older format, ``older``)."""
     if not path.is_file():
         return None
@@ -234,10 +257,14 @@ def describe_extras(runs: Sequence[RunRecord]) -> None:
         by_algo.setdefault(r.algo, []).append(r)
     for same in by_algo.values():
         keys = sorted({k for r in same for k in flat[id(r)]})
-        varying = [k for k in keys if not k.startswith(BOOKKEEPING) and k not in ("algo.name", "modality.name",
-                                                                                  "reward.name")
-                   and not k.startswith("modality.enabled")
-                   and len({_setting(flat[id(r)].get(k)) for r in same}) > 1]
+        varying = [
+            k
+            for k in keys
+            if not k.startswith(BOOKKEEPING)
+            and k not in ("algo.name", "modality.name", "reward.name")
+            and not k.startswith("modality.enabled")
+            and len({_setting(flat[id(r)].get(k)) for r in same}) > 1
+        ]
         for r in same:
             r.extras = tuple(f"{k}={_setting(flat[id(r)].get(k))}" for k in varying)
 
@@ -259,10 +286,12 @@ def _flatten(node: Any, prefix: str = "") -> dict[str, Any]:
     return {prefix[:-1]: node}
 
 
-def labels(runs: Sequence[RunRecord], parts: Sequence[str] = ("algo", "modality", "reward", "extras", "condition")
-           ) -> dict[Path, str]:
+def labels(
+    runs: Sequence[RunRecord], parts: Sequence[str] = ("algo", "modality", "reward", "extras", "condition")
+) -> dict[Path, str]:
     """A label per run naming the algorithm and whichever of ``parts`` differ among ``runs`` (so runs that differ
     only in their seed share a label).  ``condition``: curriculum or direct; ``training``: curriculum or the level."""
+
     def part(r: RunRecord, name: str) -> str:
         if name == "condition":
             return "curriculum" if r.curriculum else "direct"
@@ -276,7 +305,6 @@ def labels(runs: Sequence[RunRecord], parts: Sequence[str] = ("algo", "modality"
     return {r.dir: " · ".join(x for x in (part(r, p) for p in shown) if x) for r in runs}
 
 
-
 # ------------------------------------------------------------------------------------------------ episode files
 def read_episodes(paths: Sequence[str | Path | io.StringIO]) -> pd.DataFrame:
     """Episode rows of several CSV files in one frame (``success`` as booleans, NaN where a level has none)."""
@@ -288,8 +316,11 @@ def read_episodes(paths: Sequence[str | Path | io.StringIO]) -> pd.DataFrame:
     rows["acting"] = rows["acting"].fillna("") if "acting" in rows else ""
     rows["success"] = rows["success"].map({"True": True, "False": False, True: True, False: False, "": np.nan})
     # files written before the worlds column: evaluate.py built make_env(seed=s)'s worlds, a seed-s run's own
-    old = rows["seed"].fillna("").astype(str).map(lambda s: OLD_WORLDS.format(s or "?")) if "seed" in rows \
+    old = (
+        rows["seed"].fillna("").astype(str).map(lambda s: OLD_WORLDS.format(s or "?"))
+        if "seed" in rows
         else OLD_WORLDS.format("?")
+    )
     worlds = rows["worlds"].fillna("").astype(str) if "worlds" in rows else pd.Series("", index=rows.index)
     rows["worlds"] = worlds.where(worlds != "", old)
     return rows
@@ -318,8 +349,7 @@ def _episode_files(paths: Iterable[str | Path]) -> list[Path]:
         elif p.is_dir():
             found = []
             for here, dirs, names in os.walk(p):
-                dirs[:] = sorted(d for d in dirs if not d.startswith(".") and ".partial-" not in d
-                                 and ".old-" not in d)
+                dirs[:] = sorted(d for d in dirs if not d.startswith(".") and ".partial-" not in d and ".old-" not in d)
                 found += [Path(here) / "episodes.csv"] if "episodes.csv" in names else []
             if not found:
                 raise ReportError(f"evals: {p} holds no episodes.csv, neither itself nor in a folder below it")
@@ -340,8 +370,10 @@ def load_evaluations(paths: Iterable[str | Path], notes: list[str] | None = None
         columns = set(pd.read_csv(text, nrows=0).columns)
         missing = [c for c in EVAL_FILE_COLUMNS if c not in columns]
         if missing:
-            raise ReportError(f"evals: {file} is not an episode file of scripts/evaluate.py or scripts/play.py "
-                              f"(no column {', '.join(missing)})")
+            raise ReportError(
+                f"evals: {file} is not an episode file of scripts/evaluate.py or scripts/play.py "
+                f"(no column {', '.join(missing)})"
+            )
         text.seek(0)
         rows = read_episodes([text])
         frames.append(rows.assign(file=str(file)))
@@ -365,8 +397,10 @@ def select_acting(evals: pd.DataFrame, acting: str | None) -> pd.DataFrame:
     asked = evals["acting_recorded"].fillna(evals["acting"]).astype(str) if "acting_recorded" in evals else modes
     chosen = (evals["acting"].astype(str) == acting) | (asked.reindex(evals.index).astype(str) == acting)
     if not chosen[is_ckpt].any() and is_ckpt.any():
-        raise ReportError(f"acting: no checkpoint was evaluated acting {acting!r}; the evaluations hold "
-                          f"{', '.join(repr(m) for m in dict.fromkeys(modes))}")
+        raise ReportError(
+            f"acting: no checkpoint was evaluated acting {acting!r}; the evaluations hold "
+            f"{', '.join(repr(m) for m in dict.fromkeys(modes))}"
+        )
     return evals[~is_ckpt | chosen]
 
 
@@ -389,8 +423,10 @@ def attach(evals: pd.DataFrame, runs: dict[Path, RunRecord]) -> Evaluations:
     absent: list[str] = []
     info: dict[str, tuple[Path | None, int, str]] = {}
     for policy, part in ckpts.groupby("policy", sort=False):
-        where = (f"{len(part)} episodes on {', '.join(dict.fromkeys(part['level']))} "
-                 f"in {', '.join(dict.fromkeys(part['file']))}")
+        where = (
+            f"{len(part)} episodes on {', '.join(dict.fromkeys(part['level']))} "
+            f"in {', '.join(dict.fromkeys(part['file']))}"
+        )
         path = Path(policy)
         run_dir = path.parent.resolve()
         if run_dir not in runs:
@@ -403,8 +439,9 @@ def attach(evals: pd.DataFrame, runs: dict[Path, RunRecord]) -> Evaluations:
                 continue
         run = runs[run_dir]
         if not run.config:
-            orphans.append(f"evaluation of {policy}: its run's settings are unknown ({run.problem}); left out "
-                           f"({where})")
+            orphans.append(
+                f"evaluation of {policy}: its run's settings are unknown ({run.problem}); left out ({where})"
+            )
             info[policy] = (None, -1, "")
             continue
         match = MODEL_FILE.match(path.name) or BEST_MODEL_FILE.match(path.name)
@@ -419,7 +456,7 @@ def attach(evals: pd.DataFrame, runs: dict[Path, RunRecord]) -> Evaluations:
         if run.algo == "dqn":  # no action distribution: evaluate.py's `sample` took the greedy action all the same
             relabel = (ckpts["policy"] == policy) & ckpts["acting"].astype(str).str.startswith("sample")
             ckpts.loc[relabel, "acting_recorded"] = ckpts.loc[relabel, "acting"]
-            ckpts.loc[relabel, "acting"] = "mode" + ckpts.loc[relabel, "acting"].astype(str).str[len("sample"):]
+            ckpts.loc[relabel, "acting"] = "mode" + ckpts.loc[relabel, "acting"].astype(str).str[len("sample") :]
     ckpts["run"] = ckpts["policy"].map(lambda p: info[p][0])
     if "acting_recorded" in ckpts:
         ckpts["acting_recorded"] = ckpts["acting_recorded"].fillna(ckpts["acting"])
@@ -439,5 +476,5 @@ def final_checkpoints(ckpts: pd.DataFrame) -> pd.DataFrame:
     if not len(ckpts):
         return ckpts
     ckpts = ckpts.assign(_model=ckpts["policy"].map(lambda p: bool(MODEL_FILE.match(Path(p).name))))
-    best = (ckpts.sort_values(["ckpt_stage", "_model"], kind="stable").groupby("run", sort=False)["policy"].last())
+    best = ckpts.sort_values(["ckpt_stage", "_model"], kind="stable").groupby("run", sort=False)["policy"].last()
     return ckpts[ckpts["policy"].isin(set(best))].drop(columns="_model")

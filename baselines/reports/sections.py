@@ -12,18 +12,29 @@ from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 import evaaa
 
 from . import claims as rules
-import numpy as np
-
-from .aggregate import (STAT_COLUMNS, across_seeds, curves, evaluation_points, final_survival, per_run,
-                        reference_stats)
+from .aggregate import STAT_COLUMNS, across_seeds, curves, evaluation_points, final_survival, per_run, reference_stats
 from .figures import plot_bars, plot_lines
-from .load import (MODEL_FILE, Evaluations, ReportError, RunRecord, attach, describe_extras, final_checkpoints,
-                   find_run_dirs, labels, level_sorted, load_evaluations, load_run, select_acting)
+from .load import (
+    MODEL_FILE,
+    Evaluations,
+    ReportError,
+    RunRecord,
+    attach,
+    describe_extras,
+    final_checkpoints,
+    find_run_dirs,
+    labels,
+    level_sorted,
+    load_evaluations,
+    load_run,
+    select_acting,
+)
 from .stats import MIN_SEEDS
 from .tables import caption, pivot_table
 
@@ -99,13 +110,16 @@ class Inputs:
     def source_note(self) -> str:
         """Where the final-survival values come from, for the sections that show them."""
         counts = self.final["source"].value_counts() if len(self.final) else pd.Series(dtype=int)
-        said = {"evaluate.py": "the stage's network evaluated by evaluate.py on its level (one row per episode)",
-                "eval.csv": "the stage's last in-training evaluation (`eval.csv`, one row per episode)",
-                "eval.csv (means only)": "the stage's last in-training evaluation, of which `eval.csv` (an older "
-                                         "format) kept only the mean: means only",
-                "training episodes": f"the stage's last {self.window} training episodes (exploring policy)"}
+        said = {
+            "evaluate.py": "the stage's network evaluated by evaluate.py on its level (one row per episode)",
+            "eval.csv": "the stage's last in-training evaluation (`eval.csv`, one row per episode)",
+            "eval.csv (means only)": "the stage's last in-training evaluation, of which `eval.csv` (an older "
+            "format) kept only the mean: means only",
+            "training episodes": f"the stage's last {self.window} training episodes (exploring policy)",
+        }
         parts = [f"{said.get(k, k)} ({v} stage{'s' if v != 1 else ''})" for k, v in counts.items() if k != "none"]
         return "Survival: " + ("; ".join(parts) if parts else "none") + "."
+
     @cached_property
     def checkpoint_runs(self) -> list[RunRecord]:
         """The runs whose checkpoints were evaluated, in the order of the evaluations."""
@@ -116,8 +130,9 @@ class Inputs:
     def checkpoint_labels(self) -> dict[Path, str]:
         return labels(self.checkpoint_runs, ("algo", "modality", "reward", "extras", "training"))
 
-    def labelled(self, frame: pd.DataFrame, labels: dict[Path, str], column: str = "label",
-                 within: Sequence[str] = ()) -> pd.DataFrame:
+    def labelled(
+        self, frame: pd.DataFrame, labels: dict[Path, str], column: str = "label", within: Sequence[str] = ()
+    ) -> pd.DataFrame:
         """``frame`` (rows with ``run`` and ``acting``) with ``column`` = the run's label, and the acting mode in
         brackets wherever one label (within one value of each of ``within``: a figure's panel) holds rows of several
         modes (both shown, labelled, never pooled)."""
@@ -157,16 +172,24 @@ class Inputs:
             return str(p)
 
 
-def read_inputs(run_paths: Sequence[str | Path], eval_paths: Sequence[str | Path], *, survival: str = "eval",
-                window: int = 20, bins: int = 20, acting: str | None = None) -> Inputs:
+def read_inputs(
+    run_paths: Sequence[str | Path],
+    eval_paths: Sequence[str | Path],
+    *,
+    survival: str = "eval",
+    window: int = 20,
+    bins: int = 20,
+    acting: str | None = None,
+) -> Inputs:
     """Check the arguments, read the runs and evaluations and tie the evaluated checkpoints to their runs."""
     if survival not in ("eval", "train"):
         raise ReportError(f"survival must be eval or train, not {survival!r}")
     if window < 1 or bins < 1:
         raise ReportError("window and bins must be positive")
     if not run_paths and not eval_paths:
-        raise ReportError("nothing to report: give runs=[...] (run directories) and/or evals=[...] "
-                          "(evaluate.py outputs)")
+        raise ReportError(
+            "nothing to report: give runs=[...] (run directories) and/or evals=[...] (evaluate.py outputs)"
+        )
     runs = {d: load_run(d) for d in find_run_dirs(run_paths)}
     # attach may add the runs of evaluated checkpoints
     read_notes: list[str] = []
@@ -194,7 +217,8 @@ STATISTICS_NOTE = (
     "that differ only in their seed are pooled; labels name what else differs. Every table's title names how the "
     "agents acted (`mode`: the greedy or most likely action; `sample`: drawn from the policy's distribution; "
     "`+epsilon=e`: a uniformly random action with chance e) and on which worlds (`test`: held out; `validation`: "
-    "the periodic evaluations and tuning; anything else is not held out).")
+    "the periodic evaluations and tuning; anything else is not held out)."
+)
 
 
 def introduction(doc: Document, inp: Inputs, title: str) -> None:
@@ -206,17 +230,25 @@ def introduction(doc: Document, inp: Inputs, title: str) -> None:
     learned = learned_paragraph(inp)
     if learned:
         doc.md += [learned, ""]
-    doc.md += [f"{len(inp.run_list)} run directories; {n_policies} evaluated policies "
-               f"({len(evals.checkpoints) + len(evals.references)} evaluation episodes).", "", STATISTICS_NOTE, ""]
+    doc.md += [
+        f"{len(inp.run_list)} run directories; {n_policies} evaluated policies "
+        f"({len(evals.checkpoints) + len(evals.references)} evaluation episodes).",
+        "",
+        STATISTICS_NOTE,
+        "",
+    ]
     ck = evals.checkpoints
     if len(ck):
         ways = ", ".join(f"`{w}`" if w else "not recorded" for w in dict.fromkeys(ck["acting"].astype(str)))
         worlds = ", ".join(dict.fromkeys(ck["worlds"].astype(str)))
         doc.md += [f"Checkpoints acted: {ways}; worlds: {worlds}.", ""]
         if (ck["worlds"].astype(str).str.contains("not held out")).any():
-            doc.md += ["**Not held out.** Evaluations written before evaluate.py recorded its worlds were made on "
-                       "`make_env(seed=s)`'s worlds, the worlds a seed-s training run starts on; every number "
-                       "measured there is labelled so and is not a held-out result.", ""]
+            doc.md += [
+                "**Not held out.** Evaluations written before evaluate.py recorded its worlds were made on "
+                "`make_env(seed=s)`'s worlds, the worlds a seed-s training run starts on; every number "
+                "measured there is labelled so and is not a held-out result.",
+                "",
+            ]
 
 
 def _run_caption(inp: Inputs) -> str:
@@ -228,36 +260,56 @@ def _run_caption(inp: Inputs) -> str:
                 if r.algo not in ways[way]:
                     ways[way].append(r.algo)
     acting = "; ".join(f"`{w}` ({', '.join(a)})" for w, a in ways.items()) or "no in-training evaluations"
-    worlds = " / ".join(dict.fromkeys(w for r in inp.usable if r.evals is not None
-                                      for w in r.evals["worlds"].astype(str))) or "none"
-    return (f"**Runs.** Acting: training episodes explore; in-training evaluations {acting}. Worlds: training "
-            f"worlds (training episodes); {worlds} (in-training evaluations).")
+    worlds = (
+        " / ".join(dict.fromkeys(w for r in inp.usable if r.evals is not None for w in r.evals["worlds"].astype(str)))
+        or "none"
+    )
+    return (
+        f"**Runs.** Acting: training episodes explore; in-training evaluations {acting}. Worlds: training "
+        f"worlds (training episodes); {worlds} (in-training evaluations)."
+    )
 
 
 def runs_and_problems(doc: Document, inp: Inputs) -> list[str]:
     """The table of runs and the list of what is missing, partial or doubtful; returns that list."""
     rel = inp.rel
-    doc.md += ["## Runs", "", _run_caption(inp), "",
-               "| run | algo | modality | reward | training | seed | env steps | status |",
-               "|---|---|---|---|---|---|---|---|"]
+    doc.md += [
+        "## Runs",
+        "",
+        _run_caption(inp),
+        "",
+        "| run | algo | modality | reward | training | seed | env steps | status |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for r in inp.run_list:
         status = "finished" if r.problem is None else r.problem.split(":")[0]
-        doc.md.append(f"| {rel(r.dir)} | {r.algo} | {r.modality} | {r.reward} | {r.training} | "
-                      f"{'' if r.seed is None else r.seed} | {r.steps:,} / {r.total:,} | {status} |")
+        doc.md.append(
+            f"| {rel(r.dir)} | {r.algo} | {r.modality} | {r.reward} | {r.training} | "
+            f"{'' if r.seed is None else r.seed} | {r.steps:,} / {r.total:,} | {status} |"
+        )
     if inp.evals.absent:
         evaluated = inp.evals.checkpoints["policy"].nunique()
-        doc.md += ["", f"{len(inp.evals.absent)} of the {evaluated} evaluated checkpoints are not on disk here, their "
-                   "runs are (a committed record keeps no model files): their recorded episodes are used."]
+        doc.md += [
+            "",
+            f"{len(inp.evals.absent)} of the {evaluated} evaluated checkpoints are not on disk here, their "
+            "runs are (a committed record keeps no model files): their recorded episodes are used.",
+        ]
     problems = [f"{rel(r.dir)}: {r.problem}" for r in inp.run_list if r.problem] + inp.evals.orphans
     problems += [note for r in inp.run_list for note in r.notes] + inp.read_notes
     groups: dict[tuple, list[RunRecord]] = {}
     for r in inp.usable:
         groups.setdefault((r.algo, r.modality, r.reward, r.extras, r.training, r.seed), []).append(r)
-    problems += [f"{', '.join(rel(r.dir) for r in same)}: same settings and seed; all are counted as seeds"
-                 for same in groups.values() if len(same) > 1]
+    problems += [
+        f"{', '.join(rel(r.dir) for r in same)}: same settings and seed; all are counted as seeds"
+        for same in groups.values()
+        if len(same) > 1
+    ]
     doc.md += ["", "## Missing and partial runs", ""]
-    doc.md += [f"- {p}" for p in problems] if problems else ["None: every run finished and every evaluated "
-                                                             "checkpoint belongs to a run given here."]
+    doc.md += (
+        [f"- {p}" for p in problems]
+        if problems
+        else ["None: every run finished and every evaluated checkpoint belongs to a run given here."]
+    )
     doc.md.append("")
     return problems
 
@@ -266,8 +318,9 @@ def survival_per_level(doc: Document, inp: Inputs) -> None:
     """Fig. 4a, left: the survival each training level ended with, per algorithm (curriculum runs where an
     algorithm has them, else its direct runs)."""
     final = inp.final
-    left_runs = [r for r in inp.usable
-                 if r.curriculum or (r.algo, r.modality, r.reward, r.extras) not in inp.curriculum_algos]
+    left_runs = [
+        r for r in inp.usable if r.curriculum or (r.algo, r.modality, r.reward, r.extras) not in inp.curriculum_algos
+    ]
     table = figure = None
     if len(final):
         lab = labels(left_runs)
@@ -275,19 +328,32 @@ def survival_per_level(doc: Document, inp: Inputs) -> None:
         stats = across_seeds(f, ["label", "level"], "survival")
         doc.tables["survival_per_level"] = stats
         levels = level_sorted(stats["level"])
-        figure = plot_bars(stats, doc.out / "fig4a_survival_per_level.png", levels=levels,
-                           ylabel="survival (decisions)", title="Survival per training level")
+        figure = plot_bars(
+            stats,
+            doc.out / "fig4a_survival_per_level.png",
+            levels=levels,
+            ylabel="survival (decisions)",
+            title="Survival per training level",
+        )
         table = pivot_table(stats, "level", "label", rows=levels, title="Survival per training level (decisions)")
-    doc.section("Survival per training level (Fig. 4a, left)",
-                inp.source_note + " Curriculum runs where an algorithm has them, else its direct runs.", figure, table,
-                "No finished stage in the runs given.")
+    doc.section(
+        "Survival per training level (Fig. 4a, left)",
+        inp.source_note + " Curriculum runs where an algorithm has them, else its direct runs.",
+        figure,
+        table,
+        "No finished stage in the runs given.",
+    )
 
 
 def _seen(inp: Inputs, final: pd.DataFrame) -> pd.Series:
     """Env steps each row's network had seen when its stage ended: a curriculum stage k has seen its own and the
     stages' before it ((k+1) × the budget for equal budgets), a direct run its budget."""
-    return final.apply(lambda row: inp.by_dir[row["run"]].offset(int(row["stage"]))
-                       + inp.by_dir[row["run"]].stages[int(row["stage"])][2], axis=1)
+    return final.apply(
+        lambda row: (
+            inp.by_dir[row["run"]].offset(int(row["stage"])) + inp.by_dir[row["run"]].stages[int(row["stage"])][2]
+        ),
+        axis=1,
+    )
 
 
 def curriculum_vs_direct(doc: Document, inp: Inputs) -> None:
@@ -310,28 +376,45 @@ def curriculum_vs_direct(doc: Document, inp: Inputs) -> None:
         base = {d: " · ".join([k[0], *(", ".join(k[i]) if i == 3 else k[i] for i in varies)]) for d, k in keys.items()}
         lab = {d: f"{v} · {'curriculum' if inp.by_dir[d].curriculum else 'direct'}" for d, v in base.items()}
         f = inp.labelled(final[final["run"].isin(list(lab))], lab)
-        f = f.assign(seen=_seen(inp, f) if len(f) else pd.Series(dtype=int),
-                     curriculum=f["run"].map(lambda d: inp.by_dir[d].curriculum))
+        f = f.assign(
+            seen=_seen(inp, f) if len(f) else pd.Series(dtype=int),
+            curriculum=f["run"].map(lambda d: inp.by_dir[d].curriculum),
+        )
         direct_levels = set(f.loc[~f["curriculum"], "level"])
         f = f[f["level"].isin(direct_levels)]
         stats = across_seeds(f, ["label", "level"], "survival").sort_values(
-            "label", key=lambda s: s.str.contains("direct"), kind="stable")
+            "label", key=lambda s: s.str.contains("direct"), kind="stable"
+        )
         seen = f.groupby(["label", "level"])["seen"].agg(lambda s: "/".join(f"{v:,}" for v in sorted(set(s))))
         stats["env_steps"] = [seen.get((lb, lv), "") for lb, lv in zip(stats["label"], stats["level"])]
         doc.tables["curriculum_vs_direct"] = stats
         levels = level_sorted(stats["level"])
         if len(stats):
-            figure = plot_bars(stats, doc.out / "fig4a_curriculum_vs_direct.png", levels=levels,
-                               ylabel="survival (decisions)", title="With and without curriculum, equal env steps "
-                               "per stage (curriculum stage k has seen k+1 stages' env steps)")
-            steps_by_level = {lv: "; ".join(f"{lb.rsplit(' · ', 1)[-1]} {st}" for lb, st in
-                                            dict.fromkeys(zip(stats.loc[stats["level"] == lv, "label"],
-                                                              stats.loc[stats["level"] == lv, "env_steps"])))
-                              for lv in levels}
-            table = pivot_table(stats, "level", "label", rows=levels,
-                                title="Curriculum vs direct at equal env steps per stage (survival, decisions)")
-            table += "\n\nEnv steps seen per cell: " + "; ".join(
-                f"{lv}: {steps_by_level[lv]}" for lv in levels) + "."
+            figure = plot_bars(
+                stats,
+                doc.out / "fig4a_curriculum_vs_direct.png",
+                levels=levels,
+                ylabel="survival (decisions)",
+                title="With and without curriculum, equal env steps "
+                "per stage (curriculum stage k has seen k+1 stages' env steps)",
+            )
+            steps_by_level = {
+                lv: "; ".join(
+                    f"{lb.rsplit(' · ', 1)[-1]} {st}"
+                    for lb, st in dict.fromkeys(
+                        zip(stats.loc[stats["level"] == lv, "label"], stats.loc[stats["level"] == lv, "env_steps"])
+                    )
+                )
+                for lv in levels
+            }
+            table = pivot_table(
+                stats,
+                "level",
+                "label",
+                rows=levels,
+                title="Curriculum vs direct at equal env steps per stage (survival, decisions)",
+            )
+            table += "\n\nEnv steps seen per cell: " + "; ".join(f"{lv}: {steps_by_level[lv]}" for lv in levels) + "."
         # matched view: a curriculum stage beside direct runs of the same level with as many env steps in total
         cur, dire = f[f["curriculum"]], f[~f["curriculum"]]
         pairs = cur.merge(dire[["level", "seen"]].drop_duplicates(), on=["level", "seen"])
@@ -339,21 +422,34 @@ def curriculum_vs_direct(doc: Document, inp: Inputs) -> None:
             keep = f.merge(pairs[["level", "seen"]].drop_duplicates(), on=["level", "seen"])
             mstats = across_seeds(keep, ["label", "level"], "survival")
             doc.tables["curriculum_vs_direct_matched"] = mstats
-            matched_md = ["", pivot_table(mstats, "level", "label", rows=level_sorted(mstats["level"]),
-                                          title="Curriculum vs direct at matched total env steps (survival, "
-                                                "decisions)")]
+            matched_md = [
+                "",
+                pivot_table(
+                    mstats,
+                    "level",
+                    "label",
+                    rows=level_sorted(mstats["level"]),
+                    title="Curriculum vs direct at matched total env steps (survival, decisions)",
+                ),
+            ]
         unmatched = cur[~cur.set_index(["level", "seen"]).index.isin(pairs.set_index(["level", "seen"]).index)]
         if len(unmatched):
             needs = unmatched.groupby("level")["seen"].max()
-            matched_md += ["", "**At matched total env steps:** no direct run here has as many env steps as the "
-                           "curriculum stage on " + ", ".join(f"{lv} ({needs[lv]:,})" for lv in
-                                                               level_sorted(needs.index))
-                           + "; there only the view at equal env steps per stage can be shown."]
-    doc.section("With and without curriculum (Fig. 4a, right)",
-                inp.source_note + " Curriculum: the stage of that level after the levels before it (it has seen "
-                "their env steps too); direct: a run trained on that level alone.", figure,
-                (table or "") + "\n".join(matched_md) if table else None,
-                "No algorithm has both curriculum runs (`level=curriculum`) and direct runs (`level=<level>`) here.")
+            matched_md += [
+                "",
+                "**At matched total env steps:** no direct run here has as many env steps as the "
+                "curriculum stage on "
+                + ", ".join(f"{lv} ({needs[lv]:,})" for lv in level_sorted(needs.index))
+                + "; there only the view at equal env steps per stage can be shown.",
+            ]
+    doc.section(
+        "With and without curriculum (Fig. 4a, right)",
+        inp.source_note + " Curriculum: the stage of that level after the levels before it (it has seen "
+        "their env steps too); direct: a run trained on that level alone.",
+        figure,
+        (table or "") + "\n".join(matched_md) if table else None,
+        "No algorithm has both curriculum runs (`level=curriculum`) and direct runs (`level=<level>`) here.",
+    )
 
 
 def success_per_testbed(doc: Document, inp: Inputs) -> None:
@@ -362,11 +458,21 @@ def success_per_testbed(doc: Document, inp: Inputs) -> None:
     refs = inp.evals.references
     ref_tests = reference_stats(refs[refs["level"].isin(evaaa.TESTBEDS)], "success")
     table = figure = None
-    note = ("Each run's furthest-trained evaluated checkpoint; its episodes pooled over seeds (seed-clustered Wilson "
-            "interval); n: seeds × episodes for trained agents, episodes (or human participants) for the others.")
+    note = (
+        "Each run's furthest-trained evaluated checkpoint; its episodes pooled over seeds (seed-clustered Wilson "
+        "interval); n: seeds × episodes for trained agents, episodes (or human participants) for the others."
+    )
     if len(inp.best) or len(ref_tests):
-        stats = across_seeds(inp.labelled(per_run(inp.best, "success"), inp.checkpoint_labels),
-                             ["label", "level"], "success", success=True) if len(inp.best) else ref_tests.iloc[:0]
+        stats = (
+            across_seeds(
+                inp.labelled(per_run(inp.best, "success"), inp.checkpoint_labels),
+                ["label", "level"],
+                "success",
+                success=True,
+            )
+            if len(inp.best)
+            else ref_tests.iloc[:0]
+        )
         stats = pd.concat([stats.assign(unit="seeds"), ref_tests], ignore_index=True)
         doc.tables["success_per_testbed"] = stats
         testbeds = level_sorted(stats["level"])
@@ -376,14 +482,25 @@ def success_per_testbed(doc: Document, inp: Inputs) -> None:
         paper = _curriculum_labels(inp, stats["label"])
         shown = stats[~stats["label"].isin(agents - paper)] if paper and agents - paper else stats
         if len(shown) < len(stats):
-            note += (f" The figure shows the {len(agents & paper)} curriculum-trained agents with every sense beside "
-                     "the references; the table has every run.")
-        figure = plot_bars(shown, doc.out / "fig4b_success_per_testbed.png", levels=testbeds, scale=100, top=105,
-                           ylabel="success rate (%)", title="Success per testbed")
-        table = pivot_table(stats, "level", "label", rows=testbeds, percent=True, row_title="testbed",
-                            title="Success per testbed")
-    doc.section("Success per testbed (Fig. 4b, left)", note, figure, table,
-                "No testbed evaluation given (`evals=[...]`).")
+            note += (
+                f" The figure shows the {len(agents & paper)} curriculum-trained agents with every sense beside "
+                "the references; the table has every run."
+            )
+        figure = plot_bars(
+            shown,
+            doc.out / "fig4b_success_per_testbed.png",
+            levels=testbeds,
+            scale=100,
+            top=105,
+            ylabel="success rate (%)",
+            title="Success per testbed",
+        )
+        table = pivot_table(
+            stats, "level", "label", rows=testbeds, percent=True, row_title="testbed", title="Success per testbed"
+        )
+    doc.section(
+        "Success per testbed (Fig. 4b, left)", note, figure, table, "No testbed evaluation given (`evals=[...]`)."
+    )
 
 
 def _curriculum_labels(inp: Inputs, shown: pd.Series | None = None) -> set[str]:
@@ -401,39 +518,73 @@ def generalisation(doc: Document, inp: Inputs) -> None:
     tests, refs = inp.testbed_episodes, inp.evals.references
     table = figure = None
     if len(tests):
-        stats = across_seeds(inp.labelled(_mean_testbed_success(tests), inp.checkpoint_labels),
-                             ["label", "ckpt_level"], "success", success=True).rename(columns={"ckpt_level": "level"})
+        stats = across_seeds(
+            inp.labelled(_mean_testbed_success(tests), inp.checkpoint_labels),
+            ["label", "ckpt_level"],
+            "success",
+            success=True,
+        ).rename(columns={"ckpt_level": "level"})
         doc.tables["generalisation"] = stats
         order = level_sorted(stats["level"])
         ref_tb = refs[refs["level"].isin(evaaa.TESTBEDS)]
         ref_mean = reference_stats(ref_tb.assign(level="testbeds"), "success") if len(ref_tb) else None
         paper = _curriculum_labels(inp, stats["label"])
         shown = stats[stats["label"].isin(paper)] if paper and set(stats["label"]) - paper else stats
-        figure = plot_lines(shown, doc.out / "fig4b_generalisation.png", x="level", panel=None, order=order,
-                            ylabel="mean testbed success (%)", xlabel="trained up to level", scale=100, top=105,
-                            band=False, title="Generalisation by training level", hlines=ref_mean)
+        figure = plot_lines(
+            shown,
+            doc.out / "fig4b_generalisation.png",
+            x="level",
+            panel=None,
+            order=order,
+            ylabel="mean testbed success (%)",
+            xlabel="trained up to level",
+            scale=100,
+            top=105,
+            band=False,
+            title="Generalisation by training level",
+            hlines=ref_mean,
+        )
         tb_names = ", ".join(level_sorted(tests["level"]))
-        table = pivot_table(stats, "level", "label", rows=order, percent=True, row_title="trained up to",
-                            title="Mean testbed success by training level")
+        table = pivot_table(
+            stats,
+            "level",
+            "label",
+            rows=order,
+            percent=True,
+            row_title="trained up to",
+            title="Mean testbed success by training level",
+        )
         table += f"\n\nTestbeds averaged: {tb_names} (each checkpoint over the testbeds it was evaluated on)."
-    doc.section("Generalisation by training level (Fig. 4b, right)",
-                "Success averaged over the testbeds, for checkpoints trained up to each level "
-                "(`model-<stage>-<level>.pt` of curriculum runs; a direct run's checkpoint at its level); dashed: "
-                "reference agents. Where there are curriculum runs with every sense, the figure draws those (the "
-                "paper's view) and the table every run.", figure, table,
-                "No testbed evaluation of a run's checkpoint given.")
+    doc.section(
+        "Generalisation by training level (Fig. 4b, right)",
+        "Success averaged over the testbeds, for checkpoints trained up to each level "
+        "(`model-<stage>-<level>.pt` of curriculum runs; a direct run's checkpoint at its level); dashed: "
+        "reference agents. Where there are curriculum runs with every sense, the figure draws those (the "
+        "paper's view) and the table every run.",
+        figure,
+        table,
+        "No testbed evaluation of a run's checkpoint given.",
+    )
 
 
 def _mean_testbed_success(tests: pd.DataFrame) -> pd.DataFrame:
     """Per run, stage network and acting mode: the successes of all its testbed episodes, as one seed's scores
     (the final model of a stage preferred to its best model and to ``checkpoint.pt``)."""
     per_ckpt = per_run(tests, "success", ("run", "policy", "ckpt_stage", "ckpt_level", "level"))
-    mean_tb = per_ckpt.groupby(["run", "policy", "ckpt_stage", "ckpt_level", "acting"], sort=False).agg(
-        success=("success", "mean"), scores=("scores", lambda s: tuple(x for one in s for x in one)),
-        worlds=("worlds", lambda w: " / ".join(dict.fromkeys(w))), source=("source", "first")).reset_index()
+    mean_tb = (
+        per_ckpt.groupby(["run", "policy", "ckpt_stage", "ckpt_level", "acting"], sort=False)
+        .agg(
+            success=("success", "mean"),
+            scores=("scores", lambda s: tuple(x for one in s for x in one)),
+            worlds=("worlds", lambda w: " / ".join(dict.fromkeys(w))),
+            source=("source", "first"),
+        )
+        .reset_index()
+    )
     mean_tb["episodes"] = mean_tb["scores"].map(len)
-    return mean_tb.sort_values("policy", key=lambda p: p.map(lambda s: not MODEL_FILE.match(Path(s).name)),
-                               kind="stable").drop_duplicates(["run", "ckpt_stage", "acting"])
+    return mean_tb.sort_values(
+        "policy", key=lambda p: p.map(lambda s: not MODEL_FILE.match(Path(s).name)), kind="stable"
+    ).drop_duplicates(["run", "ckpt_stage", "acting"])
 
 
 def evaluation_survival(doc: Document, inp: Inputs) -> None:
@@ -443,21 +594,41 @@ def evaluation_survival(doc: Document, inp: Inputs) -> None:
     ref_train = inp.reference_training
     if not (len(train_ck) or len(ref_train)):
         return
-    stats = across_seeds(inp.labelled(per_run(train_ck, "steps"), inp.checkpoint_labels),
-                         ["label", "level"], "steps") if len(train_ck) else ref_train.iloc[:0]
+    stats = (
+        across_seeds(inp.labelled(per_run(train_ck, "steps"), inp.checkpoint_labels), ["label", "level"], "steps")
+        if len(train_ck)
+        else ref_train.iloc[:0]
+    )
     stats = pd.concat([stats.assign(unit="seeds"), ref_train], ignore_index=True)
     doc.tables["evaluation_survival"] = stats
-    doc.md += ["## Evaluation on training levels", "", "Survival (decisions) in evaluate.py's episodes (cells as "
-               "described under Statistics); checkpoints as above; references: stand-still (`still`: always the "
-               "action none), random and the oracle, where evaluated.", "",
-               pivot_table(stats, "level", "label", rows=level_sorted(stats["level"]),
-                           title="Survival in evaluations on training levels (decisions)"), ""]
+    doc.md += [
+        "## Evaluation on training levels",
+        "",
+        "Survival (decisions) in evaluate.py's episodes (cells as "
+        "described under Statistics); checkpoints as above; references: stand-still (`still`: always the "
+        "action none), random and the oracle, where evaluated.",
+        "",
+        pivot_table(
+            stats,
+            "level",
+            "label",
+            rows=level_sorted(stats["level"]),
+            title="Survival in evaluations on training levels (decisions)",
+        ),
+        "",
+    ]
 
 
 # ------------------------------------------------------------------------------------------------ what it learned
 #: end types as the "what it learned" table names them
-ENDS = {"FoodOutOfRange": "starved", "WaterOutOfRange": "dehydrated", "TemperatureOutOfRange": "too hot/cold",
-        "DamageTooHigh": "damaged", "MaxStepReached": "time limit", "ResourceConsumed": "ate (testbed end)"}
+ENDS = {
+    "FoodOutOfRange": "starved",
+    "WaterOutOfRange": "dehydrated",
+    "TemperatureOutOfRange": "too hot/cold",
+    "DamageTooHigh": "damaged",
+    "MaxStepReached": "time limit",
+    "ResourceConsumed": "ate (testbed end)",
+}
 LEARNED_REFERENCES = ("random", "still")
 
 
@@ -478,18 +649,36 @@ def learned_table(inp: Inputs) -> pd.DataFrame:
         groups = [g for _, g in part.groupby(key, sort=False)] if key else [part]
         per = lambda col: [float(g[col].astype(float).mean()) for g in groups]  # noqa: E731
         ends = part["end_type"].map(lambda e: ENDS.get(e, e)).value_counts(normalize=True)
-        surv = across_seeds(pd.DataFrame({"scores": [tuple(g["steps"].astype(float)) for g in groups],
-                                          "episodes": [len(g) for g in groups], "g": 0}), ["g"], "steps",
-                            unit=unit).iloc[0]
-        return {"level": level, "label": label, "n": len(groups) if unit == "seeds" else len(part),
-                "unit": unit, "episodes": len(part), "acting": "/".join(dict.fromkeys(part["acting"].astype(str))),
-                "worlds": " / ".join(dict.fromkeys(part["worlds"].astype(str))),
-                "food": float(part["food_eaten"].astype(float).mean()), "food_seeds": tuple(per("food_eaten")),
-                "water": float(part["water_eaten"].astype(float).mean()), "water_seeds": tuple(per("water_eaten")),
-                "collisions": float(part["collisions"].astype(float).mean()),
-                "ends": ", ".join(f"{k} {100 * v:.0f} %" for k, v in ends.items()),
-                "survival": float(surv["value"]), "survival_low": float(surv["low"]),
-                "survival_high": float(surv["high"])}
+        surv = across_seeds(
+            pd.DataFrame(
+                {
+                    "scores": [tuple(g["steps"].astype(float)) for g in groups],
+                    "episodes": [len(g) for g in groups],
+                    "g": 0,
+                }
+            ),
+            ["g"],
+            "steps",
+            unit=unit,
+        ).iloc[0]
+        return {
+            "level": level,
+            "label": label,
+            "n": len(groups) if unit == "seeds" else len(part),
+            "unit": unit,
+            "episodes": len(part),
+            "acting": "/".join(dict.fromkeys(part["acting"].astype(str))),
+            "worlds": " / ".join(dict.fromkeys(part["worlds"].astype(str))),
+            "food": float(part["food_eaten"].astype(float).mean()),
+            "food_seeds": tuple(per("food_eaten")),
+            "water": float(part["water_eaten"].astype(float).mean()),
+            "water_seeds": tuple(per("water_eaten")),
+            "collisions": float(part["collisions"].astype(float).mean()),
+            "ends": ", ".join(f"{k} {100 * v:.0f} %" for k, v in ends.items()),
+            "survival": float(surv["value"]),
+            "survival_low": float(surv["low"]),
+            "survival_high": float(surv["high"]),
+        }
 
     for (policy, level), part in refs.groupby(["policy", "level"], sort=False):
         rows.append(describe(policy, level, part, "episodes", None))
@@ -501,10 +690,12 @@ def learned_table(inp: Inputs) -> pd.DataFrame:
     if not len(table):
         return table
     ref = table[table["label"].isin(LEARNED_REFERENCES)]
-    compared = {lv: " and ".join("stand-still" if p == "still" else p for p in LEARNED_REFERENCES
-                                 if p in set(part["label"])) for lv, part in ref.groupby("level")}
+    compared = {
+        lv: " and ".join("stand-still" if p == "still" else p for p in LEARNED_REFERENCES if p in set(part["label"]))
+        for lv, part in ref.groupby("level")
+    }
     better = ref.sort_values("survival").groupby("level").tail(1).set_index("level")
-    most_eaten = (ref.assign(eaten=ref["food"] + ref["water"]).groupby("level")["eaten"].max())
+    most_eaten = ref.assign(eaten=ref["food"] + ref["water"]).groupby("level")["eaten"].max()
     learned, vs, eats_more, lives_longer = [], [], [], []
     for row in table.itertuples():
         if row.label in (*LEARNED_REFERENCES, "oracle") or row.level not in better.index:
@@ -521,9 +712,13 @@ def learned_table(inp: Inputs) -> pd.DataFrame:
         eats_more.append(bool(eats))
         lives_longer.append(bool(lives))
         than = compared[row.level]
-        learned.append(f"eats more than {than}" + (" and survives longer" if lives else "")
-                       if eats else f"survives longer than {than}, eats no more" if lives
-                       else f"neither eats more nor survives longer than {than}")
+        learned.append(
+            f"eats more than {than}" + (" and survives longer" if lives else "")
+            if eats
+            else f"survives longer than {than}, eats no more"
+            if lives
+            else f"neither eats more nor survives longer than {than}"
+        )
     return table.assign(vs_reference=vs, learned=learned, eats_more=eats_more, lives_longer=lives_longer)
 
 
@@ -541,16 +736,22 @@ def learned_paragraph(inp: Inputs) -> str:
     acting = ", ".join(f"`{a}`" for a in dict.fromkeys(agents["acting"]))
     worlds = ", ".join(dict.fromkeys(agents["worlds"]))
     budget = sorted({b for r in inp.usable for _, _, b in r.stages})
+
     def said(w: str) -> str:  # "test" -> "test worlds"; the older labels say "worlds" already
         return w if "worlds" in w else f"{w} worlds"
 
     worlds = ", ".join(said(w) for w in dict.fromkeys(agents["worlds"]))
-    ref_worlds = {("stand-still" if r == "still" else r): ", ".join(said(w) for w in dict.fromkeys(part["worlds"]))
-                  for r, part in refs.groupby("label", sort=False)}
+    ref_worlds = {
+        ("stand-still" if r == "still" else r): ", ".join(said(w) for w in dict.fromkeys(part["worlds"]))
+        for r, part in refs.groupby("label", sort=False)
+    }
     differ = any(w != worlds for w in ref_worlds.values())
-    out = [f"**What the agents learned** ({', '.join(f'{b:,}' for b in budget)} env steps per stage; every stage's "
-           f"network on its own level, acting {acting}, on {worlds}"
-           + ("; " + "; ".join(f"{r} on {w}" for r, w in ref_worlds.items()) if differ else "") + "):"]
+    out = [
+        f"**What the agents learned** ({', '.join(f'{b:,}' for b in budget)} env steps per stage; every stage's "
+        f"network on its own level, acting {acting}, on {worlds}"
+        + ("; " + "; ".join(f"{r} on {w}" for r, w in ref_worlds.items()) if differ else "")
+        + "):"
+    ]
     groups: dict[str, pd.DataFrame] = {}
     for label, part in agents.groupby("label", sort=False):
         key = label.split(" [")[0]
@@ -558,28 +759,32 @@ def learned_paragraph(inp: Inputs) -> str:
         groups[key] = pd.concat([groups.get(key, part.iloc[:0]), part])
     sentences = []
     for key, part in groups.items():
-        if any(m in key for m in ("no_vision", "no_interoception", "no_olfaction", "no_thermoception",
-                                  "no_collision")):
+        if any(m in key for m in ("no_vision", "no_interoception", "no_olfaction", "no_thermoception", "no_collision")):
             continue
         eats = part[part["eats_more"]]
-        than = " and ".join("stand-still" if r == "still" else r for r in LEARNED_REFERENCES
-                            if r in set(refs["label"]))
+        than = " and ".join("stand-still" if r == "still" else r for r in LEARNED_REFERENCES if r in set(refs["label"]))
         lives = part[part["lives_longer"]]
         sentences.append(
             f"{key} ate more food and water per episode than {than} on {len(eats)} of {len(part)} levels"
-            + (f" ({', '.join(f'{r.level}: {r.food + r.water:.1f}' for r in eats.itertuples())})" if len(eats)
-               else "") + f" and survived longer than {'the better of ' if ' and ' in than else ''}{than} on "
-            f"{len(lives)} of {len(part)}")
+            + (f" ({', '.join(f'{r.level}: {r.food + r.water:.1f}' for r in eats.itertuples())})" if len(eats) else "")
+            + f" and survived longer than {'the better of ' if ' and ' in than else ''}{than} on "
+            f"{len(lives)} of {len(part)}"
+        )
     out.append("; ".join(sentences) + ".")
     if len(refs):
         still = refs[refs["label"] == "still"]
         if len(still):
-            out.append("Stand-still survives " + ", ".join(f"{r.survival:.0f} decisions on {r.level}"
-                                                           for r in still.itertuples()) + " without eating.")
+            out.append(
+                "Stand-still survives "
+                + ", ".join(f"{r.survival:.0f} decisions on {r.level}" for r in still.itertuples())
+                + " without eating."
+            )
     if missing:
-        out.append(f"No {' or '.join(missing)} reference was evaluated on these levels: the comparison uses "
-                   f"{' and '.join(r for r in LEARNED_REFERENCES if r not in missing) or 'nothing'}.")
-    out.append("Counts are of points, not verdicts; see \"What each agent learned\" for the numbers.")
+        out.append(
+            f"No {' or '.join(missing)} reference was evaluated on these levels: the comparison uses "
+            f"{' and '.join(r for r in LEARNED_REFERENCES if r not in missing) or 'nothing'}."
+        )
+    out.append('Counts are of points, not verdicts; see "What each agent learned" for the numbers.')
     return " ".join(out)
 
 
@@ -594,29 +799,46 @@ def what_it_learned(doc: Document, inp: Inputs) -> None:
         return
     doc.tables["what_it_learned"] = table.assign(
         food_seeds=table["food_seeds"].map(lambda t: ";".join(f"{v:.3g}" for v in t)),
-        water_seeds=table["water_seeds"].map(lambda t: ";".join(f"{v:.3g}" for v in t)))
-    ordered = table.assign(_l=table["level"].map(lambda lv: level_sorted(evaaa.LEVELS).index(lv)),
-                           _r=~table["label"].isin((*LEARNED_REFERENCES, "oracle"))).sort_values(
-        ["_l", "_r"], kind="stable")
+        water_seeds=table["water_seeds"].map(lambda t: ";".join(f"{v:.3g}" for v in t)),
+    )
+    ordered = table.assign(
+        _l=table["level"].map(lambda lv: level_sorted(evaaa.LEVELS).index(lv)),
+        _r=~table["label"].isin((*LEARNED_REFERENCES, "oracle")),
+    ).sort_values(["_l", "_r"], kind="stable")
 
     def seeds(values: tuple, unit: str) -> str:
-        return f" ({', '.join(f'{v:.2f}' for v in values)})" if unit == "seeds" and 1 < len(values) < MIN_SEEDS \
-            else ""
+        return f" ({', '.join(f'{v:.2f}' for v in values)})" if unit == "seeds" and 1 < len(values) < MIN_SEEDS else ""
 
-    doc.md += [caption("What each agent learned on its own level", ordered.assign(
-                   unit=ordered["unit"], means_only=False), col="label"), "",
-               "| level | agent | n | food / ep. | water / ep. | collisions / ep. | ends | survival (IQM) | "
-               "vs better of random, stand-still | reading |", "|---|---|---|---|---|---|---|---|---|---|"]
+    doc.md += [
+        caption(
+            "What each agent learned on its own level",
+            ordered.assign(unit=ordered["unit"], means_only=False),
+            col="label",
+        ),
+        "",
+        "| level | agent | n | food / ep. | water / ep. | collisions / ep. | ends | survival (IQM) | "
+        "vs better of random, stand-still | reading |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in ordered.itertuples():
-        n = f"{r.n} seeds × {r.episodes // r.n} ep." if r.unit == "seeds" and r.episodes % r.n == 0 else \
-            (f"{r.n} seeds, {r.episodes} ep." if r.unit == "seeds" else f"{r.episodes} ep.")
+        n = (
+            f"{r.n} seeds × {r.episodes // r.n} ep."
+            if r.unit == "seeds" and r.episodes % r.n == 0
+            else (f"{r.n} seeds, {r.episodes} ep." if r.unit == "seeds" else f"{r.episodes} ep.")
+        )
         interval_ = "" if np.isnan(r.survival_low) else f" [{r.survival_low:.0f}, {r.survival_high:.0f}]"
-        doc.md.append(f"| {r.level} | {r.label} | {n} | {r.food:.2f}{seeds(r.food_seeds, r.unit)} | "
-                      f"{r.water:.2f}{seeds(r.water_seeds, r.unit)} | {r.collisions:.1f} | {r.ends} | "
-                      f"{r.survival:.0f}{interval_} | {r.vs_reference} | {r.learned} |")
-    doc.md += ["", "Food and water: items eaten per episode (per seed in brackets under three seeds); ends: share of "
-               "episodes by how they ended; reading: the points compared (no interval, no verdict) — an agent that "
-               "survives longer without eating more than stand-still has learned at most to move less.", ""]
+        doc.md.append(
+            f"| {r.level} | {r.label} | {n} | {r.food:.2f}{seeds(r.food_seeds, r.unit)} | "
+            f"{r.water:.2f}{seeds(r.water_seeds, r.unit)} | {r.collisions:.1f} | {r.ends} | "
+            f"{r.survival:.0f}{interval_} | {r.vs_reference} | {r.learned} |"
+        )
+    doc.md += [
+        "",
+        "Food and water: items eaten per episode (per seed in brackets under three seeds); ends: share of "
+        "episodes by how they ended; reading: the points compared (no interval, no verdict) — an agent that "
+        "survives longer without eating more than stand-still has learned at most to move less.",
+        "",
+    ]
 
 
 def training_curves(doc: Document, inp: Inputs) -> None:
@@ -626,8 +848,10 @@ def training_curves(doc: Document, inp: Inputs) -> None:
     table = figure = None
     if len(all_curves):
         lab = labels(inp.usable, ("algo", "modality", "reward", "extras"))
-        by = all_curves.assign(group=lambda d: d["run"].map(lambda x: f"trained on {by_dir[x].training}"),
-                               label=lambda d: d["run"].map(lab))
+        by = all_curves.assign(
+            group=lambda d: d["run"].map(lambda x: f"trained on {by_dir[x].training}"),
+            label=lambda d: d["run"].map(lab),
+        )
         stats = across_seeds(by, ["group", "label", "bin", "steps"], "survival")
         doc.tables["training_curves"] = stats
         trained_on = {by_dir[d].training for d in by["run"]}
@@ -635,18 +859,37 @@ def training_curves(doc: Document, inp: Inputs) -> None:
         if len(trained_on) == 1 and len(ref_train):
             hl = ref_train[ref_train["level"] == next(iter(trained_on))]
             hl = hl.assign(label=hl["label"] + " (evaluation)") if len(hl) else None
-        figure = plot_lines(stats, doc.out / "fig_training_curves.png", x="steps", panel="group", band=True,
-                            ylabel="survival (decisions)", xlabel="env steps", title="Training curves",
-                            hlines=hl)
+        figure = plot_lines(
+            stats,
+            doc.out / "fig_training_curves.png",
+            x="steps",
+            panel="group",
+            band=True,
+            ylabel="survival (decisions)",
+            xlabel="env steps",
+            title="Training curves",
+            hlines=hl,
+        )
         ends = stats.sort_values("bin").groupby(["group", "label"], sort=False).tail(1)
-        table = pivot_table(ends.rename(columns={"group": "level"}), "level", "label", row_title="training",
-                            title="Training survival in the last bin of env steps (decisions)")
-        table += (f"\n\nCurves: survival of the training episodes (exploring policy) in {inp.bins} bins of env "
-                  "steps, IQM of the bin's episodes with its 95 % bootstrap interval (band); table: the last bin. "
-                  "Dashed/dotted: reference agents' IQM survival in evaluate.py's episodes on that level, when given.")
-    doc.section("Training curves",
-                "One panel per training set-up, one line per algorithm and settings.", figure, table,
-                "No finished training episode in the runs given.")
+        table = pivot_table(
+            ends.rename(columns={"group": "level"}),
+            "level",
+            "label",
+            row_title="training",
+            title="Training survival in the last bin of env steps (decisions)",
+        )
+        table += (
+            f"\n\nCurves: survival of the training episodes (exploring policy) in {inp.bins} bins of env "
+            "steps, IQM of the bin's episodes with its 95 % bootstrap interval (band); table: the last bin. "
+            "Dashed/dotted: reference agents' IQM survival in evaluate.py's episodes on that level, when given."
+        )
+    doc.section(
+        "Training curves",
+        "One panel per training set-up, one line per algorithm and settings.",
+        figure,
+        table,
+        "No finished training episode in the runs given.",
+    )
 
 
 def evaluation_curves(doc: Document, inp: Inputs) -> None:
@@ -657,21 +900,39 @@ def evaluation_curves(doc: Document, inp: Inputs) -> None:
     table = figure = None
     if len(points):
         lab = labels(inp.usable, ("algo", "modality", "reward", "extras"))
-        by = inp.labelled(points, lab).assign(group=lambda d: d["run"].map(
-            lambda x: f"trained on {inp.by_dir[x].training}"))
+        by = inp.labelled(points, lab).assign(
+            group=lambda d: d["run"].map(lambda x: f"trained on {inp.by_dir[x].training}")
+        )
         stats = across_seeds(by, ["group", "label", "steps"], "survival")
         doc.tables["evaluation_curves"] = stats
-        figure = plot_lines(stats, doc.out / "fig_evaluation_curves.png", x="steps", panel="group", band=True,
-                            ylabel="survival (decisions)", xlabel="env steps",
-                            title="In-training evaluations" + (" (means only)" if stats["means_only"].any() else ""))
+        figure = plot_lines(
+            stats,
+            doc.out / "fig_evaluation_curves.png",
+            x="steps",
+            panel="group",
+            band=True,
+            ylabel="survival (decisions)",
+            xlabel="env steps",
+            title="In-training evaluations" + (" (means only)" if stats["means_only"].any() else ""),
+        )
         ends = stats.sort_values("steps").groupby(["group", "label"], sort=False).tail(1)
-        table = pivot_table(ends.rename(columns={"group": "level"}), "level", "label", row_title="training",
-                            title="Last in-training evaluation (survival, decisions)")
-    doc.section("In-training evaluations",
-                "Survival in the periodic evaluations during training against env steps (summed over a "
-                "curriculum's stages): the worlds of model selection and tuning, never a published number. Where "
-                "`eval.csv` kept one mean per evaluation (its older format) the points are over those means: means "
-                "only.", figure, table, "No in-training evaluation in the runs given.")
+        table = pivot_table(
+            ends.rename(columns={"group": "level"}),
+            "level",
+            "label",
+            row_title="training",
+            title="Last in-training evaluation (survival, decisions)",
+        )
+    doc.section(
+        "In-training evaluations",
+        "Survival in the periodic evaluations during training against env steps (summed over a "
+        "curriculum's stages): the worlds of model selection and tuning, never a published number. Where "
+        "`eval.csv` kept one mean per evaluation (its older format) the points are over those means: means "
+        "only.",
+        figure,
+        table,
+        "No in-training evaluation in the runs given.",
+    )
 
 
 def ablation_curves(doc: Document, inp: Inputs) -> None:
@@ -682,29 +943,56 @@ def ablation_curves(doc: Document, inp: Inputs) -> None:
     table = figure = None
     if len(curve_rows):
         # one bin grid per group: a group's runs share a budget (steps per stage is part of the group)
-        by = curve_rows.assign(group=lambda d: d["run"].map(ab_lab), label=lambda d: d["run"].map(
-            lambda x: by_dir[x].modality))
+        by = curve_rows.assign(
+            group=lambda d: d["run"].map(ab_lab), label=lambda d: d["run"].map(lambda x: by_dir[x].modality)
+        )
         stats = across_seeds(by, ["group", "label", "bin", "steps"], "survival")
         doc.tables["ablation_curves"] = stats
-        figure = plot_lines(_ablations(stats), doc.out / "fig25_ablation_curves.png", x="steps", panel="group",
-                            band=True, ylabel="survival (decisions)", xlabel="env steps",
-                            title="Training curves per modality", colour_by="modality")
+        figure = plot_lines(
+            _ablations(stats),
+            doc.out / "fig25_ablation_curves.png",
+            x="steps",
+            panel="group",
+            band=True,
+            ylabel="survival (decisions)",
+            xlabel="env steps",
+            title="Training curves per modality",
+            colour_by="modality",
+        )
         final = inp.final
-        last = inp.labelled(final[final["last"]].assign(group=lambda d: d["run"].map(ab_lab)),
-                            {d: by_dir[d].modality for d in by_dir}, within=("group",))
+        last = inp.labelled(
+            final[final["last"]].assign(group=lambda d: d["run"].map(ab_lab)),
+            {d: by_dir[d].modality for d in by_dir},
+            within=("group",),
+        )
         fstats = across_seeds(last, ["group", "label"], "survival")
         doc.tables["ablation_final_survival"] = fstats
-        table = pivot_table(fstats, "label", "group", row_title="modality",
-                            rows=sorted(dict.fromkeys(fstats["label"]), key=_modality_key),
-                            title="Survival at the end of each run, per modality set (decisions)") \
-            if len(fstats) else ""
-        table += (f"\n\nCurves: survival of training episodes in {inp.bins} bins of env steps, IQM with its 95 % "
-                  "bootstrap interval (band). Table: survival at the end of each run (" +
-                  inp.source_note[len("Survival: "):].rstrip(".") + ").")
-    doc.section("Modality ablations: training curves (Fig. 25)",
-                "One panel per algorithm (and training set-up) trained with several modality sets, one line per "
-                "modality set; the table has every run.", figure, table,
-                "No finished training episode in the runs given.")
+        table = (
+            pivot_table(
+                fstats,
+                "label",
+                "group",
+                row_title="modality",
+                rows=sorted(dict.fromkeys(fstats["label"]), key=_modality_key),
+                title="Survival at the end of each run, per modality set (decisions)",
+            )
+            if len(fstats)
+            else ""
+        )
+        table += (
+            f"\n\nCurves: survival of training episodes in {inp.bins} bins of env steps, IQM with its 95 % "
+            "bootstrap interval (band). Table: survival at the end of each run ("
+            + inp.source_note[len("Survival: ") :].rstrip(".")
+            + ")."
+        )
+    doc.section(
+        "Modality ablations: training curves (Fig. 25)",
+        "One panel per algorithm (and training set-up) trained with several modality sets, one line per "
+        "modality set; the table has every run.",
+        figure,
+        table,
+        "No finished training episode in the runs given.",
+    )
 
 
 def ablation_success(doc: Document, inp: Inputs) -> None:
@@ -712,24 +1000,54 @@ def ablation_success(doc: Document, inp: Inputs) -> None:
     table = figure = None
     if len(inp.best):
         ab_ck = labels(inp.checkpoint_runs, ("algo", "reward", "extras", "training"))
-        stats = across_seeds(inp.labelled(per_run(inp.best, "success").assign(group=lambda d: d["run"].map(ab_ck)),
-                                          {d: inp.runs[d].modality for d in ab_ck}, within=("group",)),
-                             ["group", "label", "level"], "success", success=True)
+        stats = across_seeds(
+            inp.labelled(
+                per_run(inp.best, "success").assign(group=lambda d: d["run"].map(ab_ck)),
+                {d: inp.runs[d].modality for d in ab_ck},
+                within=("group",),
+            ),
+            ["group", "label", "level"],
+            "success",
+            success=True,
+        )
         order = {g: i for i, g in enumerate(dict.fromkeys(stats["group"]))}
         stats = stats.sort_values("label", key=lambda s: s.map(_modality_key), kind="stable").sort_values(
-            "group", key=lambda s: s.map(order), kind="stable")
+            "group", key=lambda s: s.map(order), kind="stable"
+        )
         doc.tables["ablation_success"] = stats
-        figure = plot_bars(_ablations(stats), doc.out / "fig26_ablation_success.png", panel="group", scale=100,
-                           top=105, ylabel="success rate (%)", title="Testbed success per modality",
-                           colour_by="modality")
-        stats = stats.assign(column=stats["group"] + " · " + stats["label"]) if stats["group"].nunique() > 1 \
+        figure = plot_bars(
+            _ablations(stats),
+            doc.out / "fig26_ablation_success.png",
+            panel="group",
+            scale=100,
+            top=105,
+            ylabel="success rate (%)",
+            title="Testbed success per modality",
+            colour_by="modality",
+        )
+        stats = (
+            stats.assign(column=stats["group"] + " · " + stats["label"])
+            if stats["group"].nunique() > 1
             else stats.assign(column=stats["label"])
-        table = pivot_table(stats, "level", "column", rows=level_sorted(stats["level"]), percent=True,
-                            row_title="testbed", title="Testbed success per modality set")
-    doc.section("Modality ablations: testbed success (Fig. 26)",
-                "Each run's furthest-trained evaluated checkpoint, evaluated with the observation keys it was trained "
-                "on; the figure has a panel per algorithm (and training set-up) trained with several modality sets, "
-                "the table every run.", figure, table, "No testbed evaluation of a run's checkpoint given.")
+        )
+        table = pivot_table(
+            stats,
+            "level",
+            "column",
+            rows=level_sorted(stats["level"]),
+            percent=True,
+            row_title="testbed",
+            title="Testbed success per modality set",
+        )
+    doc.section(
+        "Modality ablations: testbed success (Fig. 26)",
+        "Each run's furthest-trained evaluated checkpoint, evaluated with the observation keys it was trained "
+        "on; the figure has a panel per algorithm (and training set-up) trained with several modality sets, "
+        "the table every run.",
+        figure,
+        table,
+        "No testbed evaluation of a run's checkpoint given.",
+    )
 
 
 def _ablations(stats: pd.DataFrame) -> pd.DataFrame:
@@ -761,8 +1079,12 @@ def _one_mode(rows: pd.DataFrame) -> pd.DataFrame:
     shared = sorted(set.intersection(*per_run), key=lambda a: (not a.startswith("mode"), a))
     if shared:
         return rows[rows["acting"] == shared[0]]
-    counts = rows.groupby(["run", "acting"]).size().reset_index(name="k").sort_values(
-        ["k", "acting"], ascending=[True, False], kind="stable")
+    counts = (
+        rows.groupby(["run", "acting"])
+        .size()
+        .reset_index(name="k")
+        .sort_values(["k", "acting"], ascending=[True, False], kind="stable")
+    )
     chosen = dict(zip(counts["run"], counts["acting"]))
     return rows[rows["acting"] == rows["run"].map(chosen)]
 
@@ -778,17 +1100,26 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
     final = _one_mode(inp.final)
     full = final[final["run"].map(lambda d: runs[d].modality == "all")] if len(final) else final
     if len(full):
-        full = full.assign(algo=full["run"].map(lambda d: runs[d].algo),
-                           setup=full["run"].map(lambda d: "curriculum" if runs[d].curriculum else "direct"),
-                           seen=_seen(inp, full))
+        full = full.assign(
+            algo=full["run"].map(lambda d: runs[d].algo),
+            setup=full["run"].map(lambda d: "curriculum" if runs[d].curriculum else "direct"),
+            seen=_seen(inp, full),
+        )
         # (b) at matched total env steps where direct runs of a curriculum stage's total exist, else at equal env
         # steps per stage
         cur_seen = full[full["setup"] == "curriculum"].groupby(["algo", "level"])["seen"].max()
-        matched = full.apply(lambda r: r["setup"] == "direct" and cur_seen.get((r["algo"], r["level"])) == r["seen"],
-                             axis=1)
+        matched = full.apply(
+            lambda r: r["setup"] == "direct" and cur_seen.get((r["algo"], r["level"])) == r["seen"], axis=1
+        )
         has_match = set(zip(full.loc[matched, "algo"], full.loc[matched, "level"]))
-        keep = full.apply(lambda r: r["setup"] == "curriculum" or (r["algo"], r["level"]) not in has_match
-                          or cur_seen.get((r["algo"], r["level"])) == r["seen"], axis=1)
+        keep = full.apply(
+            lambda r: (
+                r["setup"] == "curriculum"
+                or (r["algo"], r["level"]) not in has_match
+                or cur_seen.get((r["algo"], r["level"])) == r["seen"]
+            ),
+            axis=1,
+        )
         by_setup = across_seeds(full, ["algo", "setup", "level"], "survival")
         cmp = across_seeds(full[keep], ["algo", "setup", "level"], "survival")
     else:
@@ -806,47 +1137,95 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
     best = best[best["run"].map(lambda d: inp.runs[d].modality == "all")] if len(best) else best
     if len(best):
         best = best[best["run"].map(lambda d: inp.runs[d].curriculum or inp.runs[d].algo not in with_cur)]
-    success = across_seeds(per_run(best, "success").assign(agent=lambda d: d["run"].map(agent)),
-                           ["agent", "level"], "success", success=True) if len(best) else \
-        pd.DataFrame(columns=["agent", "level", *STAT_COLUMNS])
+    success = (
+        across_seeds(
+            per_run(best, "success").assign(agent=lambda d: d["run"].map(agent)),
+            ["agent", "level"],
+            "success",
+            success=True,
+        )
+        if len(best)
+        else pd.DataFrame(columns=["agent", "level", *STAT_COLUMNS])
+    )
     refs = inp.evals.references
-    ref_tests = reference_stats(refs[refs["level"].isin(evaaa.TESTBEDS)], "success").rename(
-        columns={"label": "agent"}) if len(refs) else pd.DataFrame(columns=["agent", "level", *STAT_COLUMNS])
+    ref_tests = (
+        reference_stats(refs[refs["level"].isin(evaaa.TESTBEDS)], "success").rename(columns={"label": "agent"})
+        if len(refs)
+        else pd.DataFrame(columns=["agent", "level", *STAT_COLUMNS])
+    )
 
     tests = _one_mode(inp.testbed_episodes)
-    tests = tests[tests["run"].map(lambda d: inp.runs[d].curriculum and inp.runs[d].modality == "all")
-                  & tests["policy"].map(lambda p: bool(MODEL_FILE.match(Path(p).name)))] if len(tests) else tests
-    per_stage = _mean_testbed_success(tests).assign(agent=lambda d: d["run"].map(lambda x: inp.runs[x].algo)) \
-        if len(tests) else None
-    gen = across_seeds(per_stage, ["agent", "ckpt_level"], "success", success=True).rename(
-        columns={"ckpt_level": "level"}) if per_stage is not None else \
-        pd.DataFrame(columns=["agent", "level", *STAT_COLUMNS])
-    per_seed = pd.DataFrame({"agent": per_stage["agent"], "level": per_stage["ckpt_level"],
-                             "seed": per_stage["run"].map(lambda x: inp.runs[x].seed),
-                             "value": per_stage["success"]}) if per_stage is not None else None
+    tests = (
+        tests[
+            tests["run"].map(lambda d: inp.runs[d].curriculum and inp.runs[d].modality == "all")
+            & tests["policy"].map(lambda p: bool(MODEL_FILE.match(Path(p).name)))
+        ]
+        if len(tests)
+        else tests
+    )
+    per_stage = (
+        _mean_testbed_success(tests).assign(agent=lambda d: d["run"].map(lambda x: inp.runs[x].algo))
+        if len(tests)
+        else None
+    )
+    gen = (
+        across_seeds(per_stage, ["agent", "ckpt_level"], "success", success=True).rename(
+            columns={"ckpt_level": "level"}
+        )
+        if per_stage is not None
+        else pd.DataFrame(columns=["agent", "level", *STAT_COLUMNS])
+    )
+    per_seed = (
+        pd.DataFrame(
+            {
+                "agent": per_stage["agent"],
+                "level": per_stage["ckpt_level"],
+                "seed": per_stage["run"].map(lambda x: inp.runs[x].seed),
+                "value": per_stage["success"],
+            }
+        )
+        if per_stage is not None
+        else None
+    )
 
-    verdicts = [rules.survival_falls(survival, order),
-                rules.curriculum_beats_direct(cmp, order),
-                rules.algorithm_ordering(survival, random, order),
-                rules.testbeds_below_ceiling(success, ref_tests, gen, order, per_seed)]
+    verdicts = [
+        rules.survival_falls(survival, order),
+        rules.curriculum_beats_direct(cmp, order),
+        rules.algorithm_ordering(survival, random, order),
+        rules.testbeds_below_ceiling(success, ref_tests, gen, order, per_seed),
+    ]
     # ablations: runs of one algorithm and training set-up (a level, or the curriculum) with several modality sets
     groups: dict[tuple, list[RunRecord]] = {}
     for r in inp.usable:
         groups.setdefault((r.algo, r.training), []).append(r)
     groups = {k: v for k, v in groups.items() if len({r.modality for r in v}) > 1}
     if not groups:
-        verdicts.append(rules.missing(rules.ablations(pd.DataFrame(), pd.DataFrame()).claim,
-                                      "no runs of one algorithm and level with several modality sets"))
+        verdicts.append(
+            rules.missing(
+                rules.ablations(pd.DataFrame(), pd.DataFrame()).claim,
+                "no runs of one algorithm and level with several modality sets",
+            )
+        )
     for (algo, level), members in groups.items():
         dirs = {r.dir: r.modality for r in members}
         last = final[final["run"].isin(list(dirs)) & final["last"]] if len(final) else final
-        surv = across_seeds(last.assign(modality=last["run"].map(dirs)), ["modality"], "survival") if len(last) \
+        surv = (
+            across_seeds(last.assign(modality=last["run"].map(dirs)), ["modality"], "survival")
+            if len(last)
             else pd.DataFrame(columns=["modality", *STAT_COLUMNS])
+        )
         ab_best = _one_mode(inp.best)
         ab_best = ab_best[ab_best["run"].isin(list(dirs))] if len(ab_best) else ab_best
-        succ = across_seeds(_pooled_success(ab_best, ["run"]).assign(modality=lambda d: d["run"].map(dirs)),
-                            ["modality"], "success", success=True) if len(ab_best) else \
-            pd.DataFrame(columns=["modality", *STAT_COLUMNS])
+        succ = (
+            across_seeds(
+                _pooled_success(ab_best, ["run"]).assign(modality=lambda d, dirs=dirs: d["run"].map(dirs)),
+                ["modality"],
+                "success",
+                success=True,
+            )
+            if len(ab_best)
+            else pd.DataFrame(columns=["modality", *STAT_COLUMNS])
+        )
         v = rules.ablations(surv, succ)
         v.claim += f" ({algo}, trained on {level})"
         verdicts.append(v)
@@ -857,32 +1236,57 @@ def claims(doc: Document, inp: Inputs) -> None:
     """The paper's claims (a)–(e), one by one: reproduced, contradicted or not resolvable at this scale, with the
     rule and the numbers (:mod:`.claims`)."""
     acting = list(dict.fromkeys(inp.evals.checkpoints["acting"].astype(str))) if len(inp.evals.checkpoints) else []
-    doc.md += ["## The paper's claims", "",
-               "Each claim of the EVAAA paper judged against the numbers above by a fixed rule: two cells differ only "
-               "where their 95 % intervals do not overlap, and overlapping intervals never decide a claim (not "
-               f"resolvable at this scale). A part whose agent cells have fewer than {MIN_SEEDS} seeds has no "
-               "interval and is not decided (`not resolvable: 2 seeds`, with each seed's value); agents that acted "
-               "differently are not compared. (b) compares at matched total env steps where direct runs of a "
-               "curriculum stage's total exist, else at equal env steps per stage (the curriculum stage has seen "
-               "more). (d)'s drops: one-sided paired t-tests over seeds between every pair of training levels, "
-               "Holm-corrected. A claim of several parts is reproduced when every part is, contradicted "
-               "when some part is and none is reproduced. Survival per level: "
-               + inp.source_note[len("Survival: "):].rstrip(".") + " (runs with every sense; curriculum runs where an "
-               "algorithm has them). Testbed success: each run's furthest-trained evaluated checkpoint"
-               + (f", acting {', '.join(f'`{a}`' for a in acting)}" if acting else "") + ".", ""]
+    doc.md += [
+        "## The paper's claims",
+        "",
+        "Each claim of the EVAAA paper judged against the numbers above by a fixed rule: two cells differ only "
+        "where their 95 % intervals do not overlap, and overlapping intervals never decide a claim (not "
+        f"resolvable at this scale). A part whose agent cells have fewer than {MIN_SEEDS} seeds has no "
+        "interval and is not decided (`not resolvable: 2 seeds`, with each seed's value); agents that acted "
+        "differently are not compared. (b) compares at matched total env steps where direct runs of a "
+        "curriculum stage's total exist, else at equal env steps per stage (the curriculum stage has seen "
+        "more). (d)'s drops: one-sided paired t-tests over seeds between every pair of training levels, "
+        "Holm-corrected. A claim of several parts is reproduced when every part is, contradicted "
+        "when some part is and none is reproduced. Survival per level: "
+        + inp.source_note[len("Survival: ") :].rstrip(".")
+        + " (runs with every sense; curriculum runs where an "
+        "algorithm has them). Testbed success: each run's furthest-trained evaluated checkpoint"
+        + (f", acting {', '.join(f'`{a}`' for a in acting)}" if acting else "")
+        + ".",
+        "",
+    ]
     doc.md += rules.markdown(claim_verdicts(inp))
     doc.md.append("")
 
 
 #: The sections after the runs, in the order the report shows them.
-SECTIONS = (survival_per_level, curriculum_vs_direct, success_per_testbed, generalisation, evaluation_survival,
-            what_it_learned, training_curves, evaluation_curves, ablation_curves, ablation_success, claims)
+SECTIONS = (
+    survival_per_level,
+    curriculum_vs_direct,
+    success_per_testbed,
+    generalisation,
+    evaluation_survival,
+    what_it_learned,
+    training_curves,
+    evaluation_curves,
+    ablation_curves,
+    ablation_success,
+    claims,
+)
 
 
 # ------------------------------------------------------------------------------------------------ the report
-def build_report(run_paths: Sequence[str | Path], eval_paths: Sequence[str | Path], out: str | Path, *,
-                 survival: str = "eval", window: int = 20, bins: int = 20, title: str = "evaaa report",
-                 acting: str | None = None) -> Report:
+def build_report(
+    run_paths: Sequence[str | Path],
+    eval_paths: Sequence[str | Path],
+    out: str | Path,
+    *,
+    survival: str = "eval",
+    window: int = 20,
+    bins: int = 20,
+    title: str = "evaaa report",
+    acting: str | None = None,
+) -> Report:
     """Read runs and evaluations, write ``out/report.md``, its PNG figures and ``out/data/*.csv`` (the tables'
     numbers); returns what was written.  ``acting``: which of the checkpoints' evaluation modes to report
     (:func:`.load.select_acting`)."""

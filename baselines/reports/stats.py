@@ -41,8 +41,18 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats as sps
 
-__all__ = ["Estimate", "MIN_SEEDS", "TooFewSeeds", "iqm", "interval", "replicates", "binomial_interval",
-           "clustered_rate", "holm", "STATISTICS"]
+__all__ = [
+    "Estimate",
+    "MIN_SEEDS",
+    "TooFewSeeds",
+    "iqm",
+    "interval",
+    "replicates",
+    "binomial_interval",
+    "clustered_rate",
+    "holm",
+    "STATISTICS",
+]
 
 #: the fewest seeds (units) an interval is computed from
 MIN_SEEDS = 3
@@ -77,8 +87,9 @@ def _ragged(statistic: str, values: np.ndarray, counts: np.ndarray) -> np.ndarra
     return np.where(keep, ordered, 0.0).sum(axis=1) / keep.sum(axis=1)
 
 
-def replicates(samples: Sequence[Sequence[float]], statistic: str = "iqm", *, resamples: int = 2000,
-               seed: int = 0) -> np.ndarray:
+def replicates(
+    samples: Sequence[Sequence[float]], statistic: str = "iqm", *, resamples: int = 2000, seed: int = 0
+) -> np.ndarray:
     """``resamples`` bootstrap replicates of ``statistic`` by the two-stage scheme of the module docstring: seeds
     redrawn with replacement, then each drawn seed's episodes redrawn from that seed alone."""
     if statistic not in STATISTICS:
@@ -89,7 +100,7 @@ def replicates(samples: Sequence[Sequence[float]], statistic: str = "iqm", *, re
     sizes = np.array([s.size for s in strata])
     padded = np.full((k, sizes.max()), np.nan)
     for i, s in enumerate(strata):
-        padded[i, :s.size] = s
+        padded[i, : s.size] = s
     rng = np.random.default_rng(seed)
     chosen = rng.integers(0, k, size=(resamples, k))  # step 1: seeds
     m = sizes[chosen]  # (resamples, k) episodes of each drawn seed
@@ -120,8 +131,14 @@ class Estimate:
         return f"{self.value:.4g} [{self.low:.4g}, {self.high:.4g}]"
 
 
-def interval(samples: Sequence[Sequence[float]], statistic: str = "iqm", *, confidence: float = 0.95,
-             resamples: int = 2000, seed: int = 0) -> Estimate:
+def interval(
+    samples: Sequence[Sequence[float]],
+    statistic: str = "iqm",
+    *,
+    confidence: float = 0.95,
+    resamples: int = 2000,
+    seed: int = 0,
+) -> Estimate:
     """``statistic`` (``"iqm"`` or ``"mean"``) of all values of ``samples`` pooled (one sequence of episode scores
     per seed), with its percentile interval from the two-stage bootstrap (module docstring).  Seeded, so a report
     is reproducible.  ``n``: the seeds.  Raises :class:`TooFewSeeds` for fewer than :data:`MIN_SEEDS` seeds."""
@@ -132,8 +149,9 @@ def interval(samples: Sequence[Sequence[float]], statistic: str = "iqm", *, conf
     strata = [np.asarray(s, dtype=float).ravel() for s in samples]
     strata = [s for s in strata if s.size]
     if len(strata) < MIN_SEEDS:
-        raise TooFewSeeds(f"an interval needs at least {MIN_SEEDS} seeds, got {len(strata)}: show the seeds' "
-                          "values instead")
+        raise TooFewSeeds(
+            f"an interval needs at least {MIN_SEEDS} seeds, got {len(strata)}: show the seeds' values instead"
+        )
     pooled = np.concatenate(strata)
     if not np.isfinite(pooled).all():
         raise ValueError("interval: scores must be finite")
@@ -170,15 +188,16 @@ def clustered_rate(samples: Sequence[Sequence[float]], *, confidence: float = 0.
     strata = [np.asarray(s, dtype=float).ravel() for s in samples]
     strata = [s for s in strata if s.size]
     if len(strata) < MIN_SEEDS:
-        raise TooFewSeeds(f"an interval needs at least {MIN_SEEDS} seeds, got {len(strata)}: show the seeds' "
-                          "values instead")
+        raise TooFewSeeds(
+            f"an interval needs at least {MIN_SEEDS} seeds, got {len(strata)}: show the seeds' values instead"
+        )
     s = np.array([x.sum() for x in strata])
     m = np.array([x.size for x in strata], dtype=float)
     n, k = m.sum(), len(strata)
     p = float(s.sum() / n)
     deff = 1.0
     if 0 < p < 1:
-        clustered = k / (k - 1) * float(((s - p * m) ** 2).sum()) / n ** 2
+        clustered = k / (k - 1) * float(((s - p * m) ** 2).sum()) / n**2
         deff = max(1.0, clustered / (p * (1 - p) / n))
     low, high = _wilson(p, n / deff, float(sps.norm.ppf(0.5 + confidence / 2)))
     return Estimate(p, low, high, k)

@@ -14,6 +14,7 @@ import pandas as pd
 from .aggregate import estimate, mean_se
 from .load import LEVEL_ORDER, display_names
 
+
 def sample_size(n: int, episodes: int, unit: str = "seeds", means_only: bool = False) -> str:
     """``2 seeds × 20 ep.`` (or ``2 seeds, 37 ep.`` when the seeds have unequal numbers of episodes; ``2 seeds ×
     mean of 8 ep.`` where each seed gave one evaluation's mean); reference agents: ``20 ep.``, or ``3 participants,
@@ -22,8 +23,11 @@ def sample_size(n: int, episodes: int, unit: str = "seeds", means_only: bool = F
         return f"{episodes} ep."
     word = unit if n != 1 else unit.rstrip("s")
     if means_only:
-        return f"{n} {word} × mean of {episodes // n} ep." if n and episodes % n == 0 else \
-            f"{n} {word}, means of {episodes} ep."
+        return (
+            f"{n} {word} × mean of {episodes // n} ep."
+            if n and episodes % n == 0
+            else f"{n} {word}, means of {episodes} ep."
+        )
     return f"{n} {word} × {episodes // n} ep." if n and episodes % n == 0 else f"{n} {word}, {episodes} ep."
 
 
@@ -64,8 +68,10 @@ def _named(stats: pd.DataFrame, column: str, col: str | None) -> str:
     if len(ways) == 1 or col is None or col not in part:
         return " / ".join(f"`{w}`" if column == "acting" else w for w in ways)
     algo = part[col].astype(str).str.split(" · ").str[0].str.split(" [", regex=False).str[0]
-    return "; ".join((f"`{w}`" if column == "acting" else w) + f" ({', '.join(dict.fromkeys(algo[part[column] == w]))})"
-                     for w in ways)
+    return "; ".join(
+        (f"`{w}`" if column == "acting" else w) + f" ({', '.join(dict.fromkeys(algo[part[column] == w]))})"
+        for w in ways
+    )
 
 
 def caption(title: str, stats: pd.DataFrame, col: str | None = "label") -> str:
@@ -84,14 +90,27 @@ def caption(title: str, stats: pd.DataFrame, col: str | None = "label") -> str:
     return text
 
 
-def pivot_table(stats: pd.DataFrame, row: str, col: str, *, percent: bool = False, row_title: str = "level",
-                rows: Sequence[str] | None = None, cols: Sequence[str] | None = None, title: str = "Table") -> str:
+def pivot_table(
+    stats: pd.DataFrame,
+    row: str,
+    col: str,
+    *,
+    percent: bool = False,
+    row_title: str = "level",
+    rows: Sequence[str] | None = None,
+    cols: Sequence[str] | None = None,
+    title: str = "Table",
+) -> str:
     """A Markdown table of ``stats`` (:data:`STAT_COLUMNS`) with one row per ``row`` value and one column per
     ``col`` value (cells: :func:`cell`), under its :func:`caption`."""
     rows = list(rows if rows is not None else dict.fromkeys(stats[row]))
     cols = list(cols if cols is not None else dict.fromkeys(stats[col]))
-    lines = [caption(title, stats, col), "", f"| {row_title} | " + " | ".join(cols) + " |",
-             "|---|" + "---|" * len(cols)]
+    lines = [
+        caption(title, stats, col),
+        "",
+        f"| {row_title} | " + " | ".join(cols) + " |",
+        "|---|" + "---|" * len(cols),
+    ]
     for r in rows:
         cells = []
         for c in cols:
@@ -103,12 +122,14 @@ def pivot_table(stats: pd.DataFrame, row: str, col: str, *, percent: bool = Fals
 
 # ------------------------------------------------------------------------------------------------ evaluate.py
 #: What evaluate.py's summary table shows, for the text above it.
-SUMMARY_NOTE = ("Testbeds: success rate `rate [low, high]`, the share of successful episodes with its 95 % Wilson "
-                "score interval. Training levels: survival (decisions) `IQM [low, high]; mean ± se`, the "
-                "interquartile mean of the episodes with its 95 % percentile bootstrap interval (2000 resamples; "
-                "one policy's episodes are its units; human play: participants redrawn, then their episodes), then "
-                "the mean ± standard error over episodes. n: episodes (and participants where there are several; "
-                "under three participants, their values and no interval).")
+SUMMARY_NOTE = (
+    "Testbeds: success rate `rate [low, high]`, the share of successful episodes with its 95 % Wilson "
+    "score interval. Training levels: survival (decisions) `IQM [low, high]; mean ± se`, the "
+    "interquartile mean of the episodes with its 95 % percentile bootstrap interval (2000 resamples; "
+    "one policy's episodes are its units; human play: participants redrawn, then their episodes), then "
+    "the mean ± standard error over episodes. n: episodes (and participants where there are several; "
+    "under three participants, their values and no interval)."
+)
 
 
 def summarize(rows: pd.DataFrame) -> pd.DataFrame:
@@ -121,8 +142,13 @@ def summarize(rows: pd.DataFrame) -> pd.DataFrame:
     rows = rows.assign(policy=display_names(rows))
     out = []
     for (level, policy), part in rows.groupby(["level", "policy"], sort=False):
-        unit = "participants" if "participant" in part and part["participant"].astype(str).str.len().gt(0).all() \
-            and part["participant"].nunique() > 1 else "seeds"
+        unit = (
+            "participants"
+            if "participant" in part
+            and part["participant"].astype(str).str.len().gt(0).all()
+            and part["participant"].nunique() > 1
+            else "seeds"
+        )
         key = "participant" if unit == "participants" else ("seed" if "seed" in part else None)
         strata = [g for _, g in part.groupby(key, sort=False)] if key else [part]
         steps = [tuple(g["steps"].astype(float)) for g in strata]
@@ -132,16 +158,39 @@ def summarize(rows: pd.DataFrame) -> pd.DataFrame:
         surv = estimate(steps, unit=by)
         mean, se, _ = mean_se(part["steps"].astype(float))
         judged = part["success"].notna()
-        success = estimate([tuple(g.loc[judged.loc[g.index], "success"].astype(float)) for g in strata],
-                           success=True, unit=by) if judged.any() else {"value": np.nan, "low": np.nan,
-                                                                        "high": np.nan}
-        out.append({"level": level, "policy": policy, "episodes": len(part), "units": len(strata), "unit": unit,
-                    "success_rate": success["value"], "success_low": success["low"], "success_high": success["high"],
-                    "survival_iqm": surv["value"], "survival_low": surv["low"], "survival_high": surv["high"],
-                    "survival_mean": mean, "survival_se": se, "collisions": float(part["collisions"].mean())})
+        success = (
+            estimate(
+                [tuple(g.loc[judged.loc[g.index], "success"].astype(float)) for g in strata], success=True, unit=by
+            )
+            if judged.any()
+            else {"value": np.nan, "low": np.nan, "high": np.nan}
+        )
+        out.append(
+            {
+                "level": level,
+                "policy": policy,
+                "episodes": len(part),
+                "units": len(strata),
+                "unit": unit,
+                "success_rate": success["value"],
+                "success_low": success["low"],
+                "success_high": success["high"],
+                "survival_iqm": surv["value"],
+                "survival_low": surv["low"],
+                "survival_high": surv["high"],
+                "survival_mean": mean,
+                "survival_se": se,
+                "collisions": float(part["collisions"].mean()),
+            }
+        )
     table = pd.DataFrame(out)
-    return table.sort_values(by="level", key=lambda c: c.map(lambda n: LEVEL_ORDER.get(n, len(LEVEL_ORDER))),
-                             kind="stable") if len(table) else table
+    return (
+        table.sort_values(
+            by="level", key=lambda c: c.map(lambda n: LEVEL_ORDER.get(n, len(LEVEL_ORDER))), kind="stable"
+        )
+        if len(table)
+        else table
+    )
 
 
 def markdown_table(summary: pd.DataFrame) -> str:
@@ -157,14 +206,27 @@ def markdown_table(summary: pd.DataFrame) -> str:
                 cells.append("–")
                 continue
             r = hit.iloc[0]
-            n = f"{r['episodes']} ep." if r["units"] < 2 else sample_size(int(r["units"]), int(r["episodes"]),
-                                                                          r["unit"])
+            n = (
+                f"{r['episodes']} ep."
+                if r["units"] < 2
+                else sample_size(int(r["units"]), int(r["episodes"]), r["unit"])
+            )
             judged = not np.isnan(r["success_rate"])
-            cells.append(cell({"value": r["success_rate"] if judged else r["survival_iqm"],
-                               "low": r["success_low"] if judged else r["survival_low"],
-                               "high": r["success_high"] if judged else r["survival_high"],
-                               "statistic": "rate" if judged else "iqm", "mean": r["survival_mean"],
-                               "se": r["survival_se"], "n": r["episodes"], "episodes": r["episodes"]},
-                              percent=judged).rsplit(" (n=", 1)[0] + f" (n={n})")
+            cells.append(
+                cell(
+                    {
+                        "value": r["success_rate"] if judged else r["survival_iqm"],
+                        "low": r["success_low"] if judged else r["survival_low"],
+                        "high": r["success_high"] if judged else r["survival_high"],
+                        "statistic": "rate" if judged else "iqm",
+                        "mean": r["survival_mean"],
+                        "se": r["survival_se"],
+                        "n": r["episodes"],
+                        "episodes": r["episodes"],
+                    },
+                    percent=judged,
+                ).rsplit(" (n=", 1)[0]
+                + f" (n={n})"
+            )
         lines.append(f"| {level} | " + " | ".join(cells) + " |")
     return "\n".join(lines)

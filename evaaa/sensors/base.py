@@ -97,7 +97,7 @@ class World(Protocol):
 
 
 #: Every defined sensor class by its observation key (filled as sensor classes are defined).
-REGISTRY: dict[str, type["Sensor"]] = {}
+REGISTRY: dict[str, type[Sensor]] = {}
 
 
 class Sensor:
@@ -122,8 +122,10 @@ class Sensor:
             return
         known = REGISTRY.get(cls.key)
         if known is not None and (known.__module__, known.__qualname__) != (cls.__module__, cls.__qualname__):
-            raise ValueError(f"sensor key {cls.key!r} is already taken by {known.__module__}.{known.__qualname__}; "
-                             f"give {cls.__module__}.{cls.__qualname__} another key")
+            raise ValueError(
+                f"sensor key {cls.key!r} is already taken by {known.__module__}.{known.__qualname__}; "
+                f"give {cls.__module__}.{cls.__qualname__} another key"
+            )
         REGISTRY[cls.key] = cls
 
     def __init__(self, sim: World):

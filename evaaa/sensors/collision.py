@@ -43,8 +43,9 @@ class CollisionRays(Sensor):
         halves.append(wall_half)
         headings.append(np.zeros(4))
         for kinds, names, extents, heading, lift in (
-                (OBSTACLE_KINDS, obstacles.kind, obstacles.extents, obstacles.heading, obstacles.lift),
-                (RESOURCE_KINDS, pool.kind, pool.extents, pool.heading, np.zeros(pool.size_total))):
+            (OBSTACLE_KINDS, obstacles.kind, obstacles.extents, obstacles.heading, obstacles.lift),
+            (RESOURCE_KINDS, pool.kind, pool.extents, pool.heading, np.zeros(pool.size_total)),
+        ):
             half = np.zeros((len(names), 2))
             for name in set(names):
                 m = names == name
@@ -110,8 +111,9 @@ class CollisionRays(Sensor):
         rows, things = np.nonzero(near)  # every (world, thing) pair within reach, world by world
         if len(rows):
             directions = sim.heading_rad[worlds[rows]][:, None] + self.offsets  # (K, R) compass directions
-            hits = self._cast(delta[rows, things], headings[rows, things], things, np.sin(directions),
-                              np.cos(directions))
+            hits = self._cast(
+                delta[rows, things], headings[rows, things], things, np.sin(directions), np.cos(directions)
+            )
             # a ray hits if it meets any thing of its world: OR the pairs of each world together
             change = np.empty(len(rows), dtype=bool)
             change[0] = True
@@ -121,8 +123,9 @@ class CollisionRays(Sensor):
             out[rows[starts]] = per_world.reshape(len(starts), self.sectors, -1).any(axis=2)
         return out
 
-    def _cast(self, origin: np.ndarray, heading: np.ndarray, things: np.ndarray, dx: np.ndarray,
-              dy: np.ndarray) -> np.ndarray:
+    def _cast(
+        self, origin: np.ndarray, heading: np.ndarray, things: np.ndarray, dx: np.ndarray, dy: np.ndarray
+    ) -> np.ndarray:
         """(K, R) whether ray r of pair k meets the pair's thing within range: origins relative to the things
         (K, 2), the things' headings (K,), their indices (K,) and the rays' directions (K, R)."""
         c, s = np.cos(heading)[:, None], np.sin(heading)[:, None]
