@@ -3,13 +3,14 @@ PY := .venv/bin/python
 
 ARGS ?=
 
-.PHONY: setup train demo test test-fast bench pictures
+.PHONY: setup train demo test test-fast lint bench pictures
 
 setup:
 	@bash scripts/setup.sh
 
 # Every script takes key=value arguments (python scripts/<name>.py --help lists them); ARGS passes them on.
-# the main job: train a baseline (Hydra overrides in ARGS, e.g. make train ARGS="algo=dreamer level=3-2")
+# the main job: train a baseline (Hydra overrides in ARGS, e.g. make train ARGS="algo=ppo level=1-1 total_steps=10000";
+# ARGS="algo=dreamer level=3-2" is DreamerV3 size S, for a GPU: algo=dreamer_xs is its CPU size)
 train: setup
 	$(PY) scripts/train.py $(ARGS)
 
@@ -26,6 +27,11 @@ test: setup
 
 test-fast: setup
 	$(PY) -m pytest -q -m "not slow" $(XDIST)
+
+# ruff: lint and format check (CI runs it); `.venv/bin/ruff format .` and `ruff check --fix .` mend
+lint: setup
+	.venv/bin/ruff check .
+	.venv/bin/ruff format --check .
 
 bench: setup
 	$(PY) scripts/bench_env.py $(ARGS)

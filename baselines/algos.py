@@ -1,11 +1,11 @@
 """The algorithms: an ``algo.name`` -> the module that builds and trains it.
 
 An algorithm is one module and one config.  The module has the four functions of :class:`Algorithm`; the config is
-``conf/algo/<name>.yaml``, whose ``name`` is the algorithm's name.  The module of this package named like the
-algorithm is the one (``dqn.py`` for ``algo=dqn``); a variant that shares another's code is a module that re-exports
-it (``ppo_lstm.py`` is PPO's code, the LSTM chosen by its config).  A module outside this package joins with
-:func:`register`.  Modules are imported when first asked for, so they may import the modules that look them up
-(``runner``, ``evaluation``) without an import cycle.
+``conf/algo/<name>.yaml``, whose ``name`` is the algorithm's name.  The module (or subpackage) of this package
+named like the algorithm is the one (``dqn.py`` for ``algo=dqn``, ``dreamer/`` for ``algo=dreamer``); a variant that
+shares another's code is a module that re-exports it (``ppo_lstm.py`` is PPO's code, the LSTM chosen by its
+config).  A module outside this package joins with :func:`register`.  Modules are imported when first asked for,
+so they may import the modules that look them up (``runner``, ``evaluation``) without an import cycle.
 """
 
 from __future__ import annotations

@@ -52,6 +52,10 @@ def option(
     return dataclasses.field(default=default, metadata=metadata)
 
 
+#: ``check=`` of a seed: numpy's generators take no negative seed
+SEED = (lambda v: v >= 0, "an integer >= 0")
+
+
 class UsageError(ValueError):
     """A command-line argument is refused; the message names the key and what is allowed."""
 
@@ -72,6 +76,23 @@ def _is_list(tp: Any) -> bool:
 
 def _is_text(tp: Any) -> bool:
     return _optional(tp)[0] in (str, Path)
+
+
+def _item(tp: Any) -> Any:
+    """The element type of a list type."""
+    return (typing.get_args(_optional(tp)[0]) or (Any,))[0]
+
+
+def _as_typed(text: str, value: Any) -> Any:
+    """``value`` (what YAML read from ``text``) with every scalar as the text typed: ``[3_2,07]`` -> ``["3_2", "07"]``;
+    null stays null."""
+    try:
+        raw = yaml.load(text, Loader=yaml.BaseLoader)  # every scalar a string, as typed
+    except yaml.YAMLError:
+        return value
+    if isinstance(value, list) and isinstance(raw, list) and len(raw) == len(value):
+        return [v if v is None else r for v, r in zip(value, raw)]
+    return raw if not isinstance(value, list) and isinstance(raw, str) else value
 
 
 def type_name(tp: Any) -> str:
@@ -168,8 +189,23 @@ def read(schema: type[T], argv: Sequence[str], checks: bool = True) -> T:
             value = text
         if key == top and _is_text(tp) and value is not None and not isinstance(value, str):
             value = text  # a name like 07, or a title with a colon, stays as typed
+        if key == top and _is_list(tp) and _is_text(_item(tp)) and value is not None:
+            value = _as_typed(text, value)  # levels=[3_2] names '3_2', not the number 32 YAML reads
         if key == top and _is_list(tp) and not isinstance(value, list) and value is not None:
             value = [value]
+        if (
+            key == top
+            and _optional(tp)[0] is bool
+            and isinstance(value, bool)
+            and text.strip().lower() not in ("true", "false")
+        ):
+            # YAML 1.1 reads on/off/yes/no as true/false: a typo of another key's value would pass unnoticed
+            raise UsageError(f"{key}={text}: expected true or false")
+        if key == top and _optional(tp)[0] is int and isinstance(value, float) and value.is_integer():
+            # YAML reads 1e3 as the float 1000.0, which an integer key refuses: say what to write
+            raise UsageError(
+                f"{key}={text}: expected {_expected(tp)} (YAML reads {text} as {value!r}: write {int(value)})"
+            )
         OmegaConf.update(given, key, value, force_add=True)
     try:
         cfg = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(schema), given))
@@ -180,7 +216,10 @@ def read(schema: type[T], argv: Sequence[str], checks: bool = True) -> T:
         if top not in fields:
             raise UsageError(f"{str(err).splitlines()[0]} (see --help)") from None
         raise UsageError(f"{top}={_given(argv, top)}: expected {_expected(hints[top])}") from None
-    for f in dataclasses.fields(schema) if checks else ():
+    typed_keys = {a.partition("=")[0].lstrip("+").split(".")[0] for a in argv}
+    # what was typed is checked first: its mistake is the one to report, not a required key left out
+    ordered = sorted(dataclasses.fields(schema), key=lambda f: f.name not in typed_keys)
+    for f in ordered if checks else ():
         value = getattr(cfg, f.name)
         items = value if isinstance(value, list) else [value]
         choices, check = f.metadata.get("choices"), f.metadata.get("check")

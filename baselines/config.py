@@ -9,7 +9,9 @@ level.file=path/to/my.yaml``) and would take precedence over a registered name.
 
 from __future__ import annotations
 
+import contextlib
 import copy
+import difflib
 import re
 import sys
 import tempfile
@@ -18,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import yaml
 from hydra.core.config_store import ConfigStore
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import Override
@@ -102,6 +105,75 @@ NULLABLE = {
 }
 #: free-form nodes: any key below them is a level field (checked by evaaa when the env is made)
 FREE_FORM = ("env.overrides", "level.overrides")
+#: config groups of conf/ that are not training's: ``scripts/reproduce.py protocol=<name>`` reads conf/protocol/
+NOT_TRAINING = ("hydra", "protocol")
+
+
+def _at_least(low: float, text: str) -> tuple[Any, str]:
+    return (lambda v: v >= low), text
+
+
+_POSITIVE = _at_least(1, "an integer >= 1")
+_NATURAL = _at_least(0, "an integer >= 0")
+_POSITIVE_NUMBER = ((lambda v: v > 0), "a number > 0")
+_SHARE = ((lambda v: 0 <= v <= 1), "a number from 0 to 1")
+_DISCOUNT = ((lambda v: 0 < v <= 1), "a number > 0 and <= 1")
+#: bounds beyond a key's type, checked before anything is written: ``(test, what is allowed)``.  A budget of 0 or
+#: less would create the run folder and then fail (or divide by zero) in the training loop
+LIMITS: dict[str, tuple[Any, str]] = {
+    "seed": _NATURAL,
+    "total_steps": _POSITIVE,
+    "max_minutes": _POSITIVE_NUMBER,
+    "threads": _POSITIVE,
+    "env.num_envs": _POSITIVE,
+    "eval.every": (_NATURAL[0], "an integer >= 0 (0: never)"),
+    "eval.episodes": _POSITIVE,
+    "eval.seed_offset": _NATURAL,
+    "checkpoint.every": (_NATURAL[0], "an integer >= 0 (0: only at the end)"),
+    "log_every": _POSITIVE,
+    "progress_window": _POSITIVE,
+    "progress_seconds": _POSITIVE_NUMBER,
+    "level.stage_steps": _POSITIVE,
+}
+#: bounds of the algorithms' keys, by the key's last name (``algo.lr``, ``algo.actor.lr``)
+ALGO_LIMITS: dict[str, tuple[Any, str]] = {
+    **dict.fromkeys(
+        (
+            "frames_per_batch",
+            "num_minibatches",
+            "epochs",
+            "batch_size",
+            "buffer_size",
+            "frame_stack",
+            "sequence_length",
+            "horizon",
+            "target_update_every",
+            "updates_per_step",
+            "dense",
+            "recurrent",
+            "hidden",
+            "stochastic",
+            "classes",
+            "bins",
+            "mlp_layers",
+        ),
+        _POSITIVE,
+    ),
+    "learning_starts": _NATURAL,
+    "eps_anneal_updates": _POSITIVE,
+    **dict.fromkeys(("lr", "replay_ratio"), _POSITIVE_NUMBER),
+    **dict.fromkeys(("gamma", "gae_lambda", "lmbda"), _DISCOUNT),
+    **dict.fromkeys(("eps_start", "eps_end", "consume_share", "terminal_share", "tau", "unimix"), _SHARE),
+}
+
+
+def limit_of(full: str) -> tuple[Any, str] | None:
+    """The bounds of the key ``full`` (dotted), if it has any beyond its type."""
+    if full in LIMITS:
+        return LIMITS[full]
+    return ALGO_LIMITS.get(full.rpartition(".")[2]) if full.startswith("algo.") else None
+
+
 #: meanings of the keys that name a group's option, and of those of the ``level=<name>`` options that
 #: :func:`register_levels` stores
 GROUP_KEYS = {
@@ -165,10 +237,17 @@ def _show(value: Any) -> str:
     return str(value)
 
 
-def validate(cfg: DictConfig, defaults: DictConfig, path: str = "") -> None:
+def validate(cfg: DictConfig, defaults: DictConfig, path: str = "", typed: dict[str, str] | None = None) -> None:
     """Every value of a composed training config has the type of its default (from the same groups, without the
-    command line's values): ``total_steps=abc`` or ``eval.sample=maybe`` is refused before any work, as is a key
-    the defaults do not have (``+totl_steps=5`` would otherwise be ignored).  Raises :class:`ConfigError`."""
+    command line's values) and lies within its :func:`limit_of`: ``total_steps=abc``, ``total_steps=-5`` or
+    ``eval.sample=maybe`` is refused before any work, as is a key the defaults do not have (``+totl_steps=5`` would
+    otherwise be ignored).  ``typed``: the text given for each key on the command line, which the message quotes
+    (YAML reads ``1e3`` as 1000.0 and ``3_2`` as 32).  Raises :class:`ConfigError`."""
+    typed = typed or {}
+
+    def shown(full: str, value: Any) -> str:
+        return typed.get(full, _show(value))
+
     for key in cfg.keys() if OmegaConf.is_dict(cfg) else ():
         full = f"{path}{key}"
         if full.startswith(FREE_FORM):
@@ -176,11 +255,15 @@ def validate(cfg: DictConfig, defaults: DictConfig, path: str = "") -> None:
         if key not in defaults.keys():  # ``in`` alone is false for a mandatory value (``???``) such as level.file
             allowed = ", ".join(f"{path}{k}" for k in defaults.keys())
             raise ConfigError(f"unknown key '{full}'; keys here: {allowed} (see --help)")
-        if OmegaConf.is_interpolation(cfg, key) or OmegaConf.is_interpolation(defaults, key):
+        if OmegaConf.is_interpolation(cfg, key):
             continue  # a reference to another key: that key is checked
         if OmegaConf.is_missing(defaults, key):
             continue  # no default to take a type from (level.file: evaaa checks the file when the env is made)
-        value, default = cfg[key], defaults[key]
+        try:  # a reference (run.name, level.stage_steps): a value given instead has the type of what it refers to
+            default_node = defaults[key]
+        except Exception:  # noqa: BLE001  (a reference only a running job resolves)
+            continue
+        value, default = cfg[key], default_node
         if default is None:
             types = NULLABLE.get(full)
             if types is None or value is None:
@@ -188,11 +271,14 @@ def validate(cfg: DictConfig, defaults: DictConfig, path: str = "") -> None:
         elif value is None:
             if full in NULLABLE:
                 continue
-            raise ConfigError(f"{full}=null: expected {_type_text(_allowed_types(default))} (default {_show(default)})")
+            raise ConfigError(
+                f"{full}={shown(full, value)}: expected {_type_text(_allowed_types(default))} "
+                f"(default {_show(default)})"
+            )
         elif OmegaConf.is_dict(default):
             if not OmegaConf.is_dict(value):
                 raise ConfigError(f"{full}={_show(value)}: expected a mapping of {', '.join(default.keys())}")
-            validate(value, default, f"{full}.")
+            validate(value, default, f"{full}.", typed)
             continue
         elif OmegaConf.is_list(default):
             types = (list,)
@@ -200,8 +286,22 @@ def validate(cfg: DictConfig, defaults: DictConfig, path: str = "") -> None:
             types = _allowed_types(default)
         plain = OmegaConf.to_container(value) if OmegaConf.is_config(value) else value
         if not _matches(plain, tuple(list if t is list else dict if t is dict else t for t in types)):
+            read_as = ""
+            if full in typed and typed[full] != _show(value) and not isinstance(plain, (list, dict)):
+                read_as = f"; YAML reads it as {_show(value)}"  # 1e3 is a float to YAML, 3_2 the integer 32
+            if str in types and not isinstance(plain, str):
+                read_as += f": quote it to keep the text, e.g. '{full}=\"{shown(full, value)}\"'"
+            elif int in types and float not in types and isinstance(plain, float) and plain.is_integer():
+                read_as += f": write it as an integer, e.g. {full}={int(plain)} or {full}={int(plain):_}"
             raise ConfigError(
-                f"{full}={_show(value)}: expected {_type_text(types)}"
+                f"{full}={shown(full, value)}: expected {_type_text(types)}"
+                + ("" if default is None else f" (default {_show(default)})")
+                + read_as
+            )
+        bounds = limit_of(full)
+        if bounds is not None and not isinstance(plain, (list, dict, bool, str)) and not bounds[0](plain):
+            raise ConfigError(
+                f"{full}={shown(full, value)}: expected {bounds[1]}"
                 + ("" if default is None else f" (default {_show(default)})")
             )
         if (
@@ -214,7 +314,7 @@ def validate(cfg: DictConfig, defaults: DictConfig, path: str = "") -> None:
             bad = [v for v in plain if not _matches(v, item_types)]
             if bad:
                 raise ConfigError(
-                    f"{full}={_show(value)}: expected a list of {_type_text(item_types, plural=True)} "
+                    f"{full}={shown(full, value)}: expected a list of {_type_text(item_types, plural=True)} "
                     f"(default {_show(default)}), got {_show(bad[0])}"
                 )
 
@@ -232,10 +332,10 @@ def _one_line(err: BaseException) -> str:
 _DEFAULTS: dict[tuple[str, ...], DictConfig] = {}
 
 
-def compose_checked(overrides: list[str]) -> DictConfig:
-    """The training config of one job composed as ``scripts/train.py`` would, and :func:`validate`-d.  Call it inside
-    ``hydra.initialize_config_dir(CONF_DIR)``, after :func:`register_levels`.  Raises :class:`ConfigError` naming
-    the key."""
+def compose_checked(overrides: list[str], values: bool = True) -> DictConfig:
+    """The training config of one job composed as ``scripts/train.py`` would, :func:`validate`-d and (``values``)
+    :func:`check_values`-d.  Call it inside ``hydra.initialize_config_dir(CONF_DIR)``, after
+    :func:`register_levels`.  Raises :class:`ConfigError` naming the key."""
     from hydra import compose
     from hydra.core.global_hydra import GlobalHydra
     from hydra.errors import MissingConfigException, OverrideParseException
@@ -248,11 +348,19 @@ def compose_checked(overrides: list[str]) -> DictConfig:
     groups = set(loader.list_groups(""))
     chosen = [o.input_line for o in parsed if _group_of(o, groups)]
     for o in parsed:
-        if _group_of(o, groups) and o.value() is not None and isinstance(o.value(), str):
-            group = o.key_or_group.split("@")[0]
+        group = o.key_or_group.split("@")[0]
+        if group in NOT_TRAINING[1:]:
+            raise ConfigError(
+                f"{o.input_line}: {group} is not a key of train.py (scripts/reproduce.py "
+                f"{group}=<name> runs a protocol)"
+            )
+        if _group_of(o, groups) and o.value() is not None and not isinstance(o.value(), list):
             options = loader.get_group_options(group)
-            if options and o.value() not in options:
-                raise ConfigError(f"{o.input_line}: no option '{o.value()}' in {group}; allowed: {', '.join(options)}")
+            text = _typed_text(o)  # YAML reads level=3_2 as the integer 32: the message quotes what was typed
+            if options and (not isinstance(o.value(), str) or o.value() not in options):
+                close = difflib.get_close_matches(text, options, n=1, cutoff=0.6)
+                hint = f" (did you mean {group}={close[0]}?)" if close else ""
+                raise ConfigError(f"{o.input_line}: no option '{text}' in {group}{hint}; allowed: {', '.join(options)}")
     key = tuple(chosen)
     if key not in _DEFAULTS:  # a sweep composes the same groups' defaults again and again
         try:
@@ -281,9 +389,71 @@ def compose_checked(overrides: list[str]) -> DictConfig:
                 raise ConfigError(f"'{full_key}' is not in {parent} yet: add it with ++{line.lstrip('+')}") from None
             raise ConfigError(f"unknown key '{full_key}'; keys here: {keys} (see --help)") from None
         raise ConfigError(_one_line(err)) from None
-    validate(cfg, defaults)
+    typed = typed_values(parsed)
+    validate(cfg, defaults, typed=typed)
+    if values:
+        check_values(cfg, typed)
     _LAST[:] = [cfg, defaults]
     return cfg
+
+
+def _typed_text(override: Override) -> str:
+    """The value of ``override`` as typed on the command line."""
+    return override.input_line.partition("=")[2]
+
+
+def typed_values(parsed: list[Override]) -> dict[str, str]:
+    """The text typed for each key of the command line, by dotted key (``++total_steps=1e3`` -> ``1e3``)."""
+    return {o.key_or_group.lstrip("+"): _typed_text(o) for o in parsed}
+
+
+def check_values(cfg: DictConfig, typed: dict[str, str] | None = None) -> None:
+    """What a composed config's types and bounds do not say, checked before anything is written: the device exists
+    here, the curriculum names levels, the algorithm accepts its settings (``check_config`` of its module, if it
+    has one), and DreamerV3's GPU size is not started on a CPU unless asked for by name.  Raises
+    :class:`ConfigError`."""
+    from .algos import algorithm
+    from .runtime import DeviceError, resolve_device
+
+    try:
+        device = resolve_device(cfg.device)
+    except DeviceError as err:
+        raise ConfigError(str(err)) from None
+    if "stages" in cfg.level and cfg.level.stages is not None:
+        text = (typed or {}).get("level.stages")
+        names = [str(n) for n in cfg.level.stages]
+        if text is not None:  # the names as typed: YAML reads [1-1,3_2] as ["1-1", 32]
+            with contextlib.suppress(yaml.YAMLError):
+                raw = yaml.load(text, Loader=yaml.BaseLoader)
+                names = raw if isinstance(raw, list) and len(raw) == len(names) else names
+        unknown = [n for n in names if n not in (*evaaa.LEVELS, *evaaa.TESTBEDS)]
+        if unknown or not names:
+            raise ConfigError(
+                f"level.stages={text or _show(cfg.level.stages)}: "
+                + (f"'{unknown[0]}' is not a level" if unknown else "expected at least one level")
+                + f"; allowed: {', '.join((*evaaa.LEVELS, *evaaa.TESTBEDS))}"
+            )
+    module = algorithm(cfg.algo.name)
+    check = getattr(module, "check_config", None)
+    if check is not None:
+        problem = check(cfg)
+        if problem:
+            raise ConfigError(problem)
+    if (
+        cfg.algo.name == "dreamer"
+        and cfg.algo.get("size") == "S"
+        and device.type == "cpu"
+        and str(cfg.device).strip().lower() == "auto"
+    ):
+        raise ConfigError(CPU_DREAMER)
+
+
+#: why ``algo=dreamer`` stops on a machine without a GPU, and what to type instead (docs/training.md, "DreamerV3")
+CPU_DREAMER = (
+    "algo=dreamer is DreamerV3 size S, a GPU size: no CUDA device here, and on a CPU one of its gradient "
+    "steps takes 10-80 s (days for a level); algo=dreamer_xs is its CPU size, or add device=cpu to train "
+    "size S on the CPU anyway"
+)
 
 
 _LAST: list[DictConfig] = []  # the last config compose_checked composed, and its defaults
@@ -322,12 +492,13 @@ def job_overrides(overrides: list[str], multirun: bool) -> list[list[str]]:
     return jobs
 
 
-def check_overrides(overrides: list[str], multirun: bool) -> None:
+def check_overrides(overrides: list[str], multirun: bool, values: bool = True) -> None:
     """Compose and check every job of :func:`job_overrides`; a job that differs from the first only in the value of
     a plain key (``seed=0,1,2``) is checked by setting that value in the first job's config, which is much faster
-    than composing it again and gives the same verdict.  Raises :class:`ConfigError`."""
+    than composing it again and gives the same verdict.  ``values=False``: keys and types only, not what depends on
+    this machine (:func:`check_values`).  Raises :class:`ConfigError`."""
     jobs = job_overrides(overrides, multirun)
-    compose_checked(jobs[0])
+    compose_checked(jobs[0], values)
     first, defaults = _LAST
     from hydra.core.global_hydra import GlobalHydra
 
@@ -336,12 +507,12 @@ def check_overrides(overrides: list[str], multirun: bool) -> None:
     for job in jobs[1:]:
         changed = [parser.parse_override(new) for new, old in zip(job, jobs[0]) if new != old]
         if len(changed) != 1 or _group_of(changed[0], groups) or changed[0].key_or_group.startswith("hydra"):
-            compose_checked(job)
+            compose_checked(job, values)
             continue
         trial = copy.deepcopy(first)
         with open_dict(trial):
             OmegaConf.update(trial, changed[0].key_or_group, changed[0].value(), force_add=True)
-        validate(trial, defaults)
+        validate(trial, defaults, typed=typed_values(changed))
 
 
 def check_command_line(argv: list[str], doc: str = "") -> None:
@@ -443,7 +614,7 @@ def help_text(overrides: list[str], prog: str = "train.py", description: str = "
     from hydra.core.global_hydra import GlobalHydra
 
     loader = GlobalHydra.instance().config_loader()
-    compose_checked(list(overrides))  # a bad override is refused as it would be without --help
+    compose_checked(list(overrides), values=False)  # a bad override is refused as it would be without --help
     cfg = compose("config", overrides=list(overrides), return_hydra_config=True)
     choices = dict(cfg.hydra.runtime.choices)
     with open_dict(cfg):
@@ -460,7 +631,7 @@ def help_text(overrides: list[str], prog: str = "train.py", description: str = "
     if description:
         lines += [*textwrap.wrap(" ".join(description.split()), width=114), ""]
     lines.append("groups (group=option; the config below is composed from the options chosen):")
-    for group in sorted(g for g in loader.list_groups("") if g != "hydra"):
+    for group in sorted(g for g in loader.list_groups("") if g not in NOT_TRAINING):
         options = loader.get_group_options(group)
         lines += textwrap.wrap(
             f"{group}: {', '.join(options)} (now {choices.get(group)})",

@@ -52,6 +52,11 @@ EVALUATION_INFO = (
 )
 
 
+def samples_actions(algo: str) -> bool:
+    """Whether a policy of ``algo`` has an action distribution to sample from (DQN's Q-values have none)."""
+    return getattr(algorithm(algo), "SAMPLES_ACTIONS", True)
+
+
 def acting_mode(algo: str | None, sample: bool, epsilon: float = 0.0) -> str:
     """How a checkpoint of ``algo`` acts, as every evaluation row records it: ``mode`` (the most likely action:
     greedy Q-values, the mode of the action distribution) or ``sample`` (drawn from the distribution; an algorithm
@@ -59,8 +64,7 @@ def acting_mode(algo: str | None, sample: bool, epsilon: float = 0.0) -> str:
     action replaces it with chance ``epsilon``.  ``algo=None``: a reference agent, which has no mode (``""``)."""
     if algo is None:
         return ""
-    samples = sample and getattr(algorithm(algo), "SAMPLES_ACTIONS", True)
-    return ("sample" if samples else "mode") + (f"+epsilon={epsilon:g}" if epsilon else "")
+    return ("sample" if sample and samples_actions(algo) else "mode") + (f"+epsilon={epsilon:g}" if epsilon else "")
 
 
 @dataclass(frozen=True)

@@ -152,6 +152,29 @@ class ReturnScale:
 
 
 # ------------------------------------------------------------------------------------------------ training
+def check_config(cfg: DictConfig) -> str | None:
+    """Why ``cfg`` (the whole training config) cannot train PPO, in one line; None when it can.  ``train.py`` asks
+    before it writes anything."""
+    algo, num_envs = cfg.algo, cfg.env.num_envs
+    if algo.frames_per_batch % num_envs:
+        return (
+            f"algo.frames_per_batch={algo.frames_per_batch}: expected a multiple of env.num_envs ({num_envs}): "
+            f"each world takes the same number of steps per update"
+        )
+    rollout = algo.frames_per_batch // num_envs
+    if algo.lstm and rollout % algo.sequence_length:
+        return (
+            f"algo.sequence_length={algo.sequence_length}: each world's rollout ({rollout} steps = "
+            f"algo.frames_per_batch / env.num_envs) must be a multiple of it"
+        )
+    if algo.frames_per_batch < algo.num_minibatches:
+        return (
+            f"algo.num_minibatches={algo.num_minibatches}: more minibatches than transitions per update "
+            f"(algo.frames_per_batch={algo.frames_per_batch})"
+        )
+    return None
+
+
 def train(run: Run) -> None:
     cfg = run.cfg.algo
     recurrent = bool(cfg.lstm)
@@ -160,15 +183,11 @@ def train(run: Run) -> None:
         compile_networks(model)
     env = run.train_env(make_transforms(cfg, run.obs_keys, model))
     num_envs = env.batch_size.numel()
-    if cfg.frames_per_batch % num_envs:
-        raise ValueError(
-            f"algo.frames_per_batch ({cfg.frames_per_batch}) must be a multiple of env.num_envs ({num_envs})"
-        )
+    problem = check_config(run.cfg)
+    if problem:
+        raise ValueError(problem)
     rollout = cfg.frames_per_batch // num_envs
-    if recurrent and rollout % cfg.sequence_length:
-        raise ValueError(
-            f"each world's rollout ({rollout} steps) must be a multiple of algo.sequence_length ({cfg.sequence_length})"
-        )
+    run.iteration = (cfg.frames_per_batch, f"{num_envs} worlds x {rollout} steps, then an update")
     policy = make_policy(model)
     acting = run.acting(policy)
 

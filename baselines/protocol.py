@@ -44,9 +44,9 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 import evaaa
 
-from .algos import algorithm
 from .algos import names as algorithm_names
 from .config import CONF_DIR
+from .evaluation import samples_actions
 
 REPO = CONF_DIR.parent
 PROTOCOL_DIR = CONF_DIR / "protocol"
@@ -498,7 +498,7 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
     def eval_cell(name: str, model: Path, own: str, train_cell: str, sps: float, algo: str) -> Cell:
         cmds, seconds = [], 0.0
         # an algorithm without an action distribution acts the same when asked to sample: evaluated once
-        own_modes = [m for m in modes if m == "mode" or getattr(algorithm(algo), "SAMPLES_ACTIONS", True)] or modes
+        own_modes = [m for m in modes if m == "mode" or samples_actions(algo)] or modes
         for mode in own_modes:
             suffix = "" if len(modes) == 1 else f"-{mode}"
             common = [
@@ -723,7 +723,8 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
         f"survival={p.report.survival}",
         f"title={title}",
     ]
-    if any(c.kind == "eval" for c in cells):
+    if any(c.kind == "eval" for c in cells) and len(modes) == 1:
+        # several modes: the report shows each, labelled, and its claims take the mode every agent has
         argv.append(f"acting={acting(ev)}")
     cells.append(
         Cell(
@@ -758,8 +759,19 @@ def default_title(p: Protocol) -> str:
     algos = ", ".join(n for n, a in p.algorithms.items() if a.enabled)
     return (
         f"evaaa: the paper's protocol at CPU scale ({p.name}: {algos}; {p.stage_steps:,} env steps per "
-        f"stage; seeds {', '.join(map(str, p.seeds))}; checkpoints act {acting(p.evaluation)})"
+        f"stage; seeds {', '.join(map(str, p.seeds))}; checkpoints act {acting_text(p.evaluation)})"
     )
+
+
+def acting_text(ev: EvaluationSpec) -> str:
+    """How the protocol's checkpoints act, in words that hold for every algorithm (DQN has no distribution)."""
+    eps = f", epsilon {ev.epsilon:g}" if ev.epsilon else ""
+    modes = eval_modes(ev)
+    if modes == ["mode"]:
+        return f"by their most likely action{eps}"
+    if modes == ["sample"]:
+        return f"by sampling (DQN: its greedy action){eps}"
+    return f"by their most likely action, and by sampling where they have a distribution{eps}"
 
 
 # ------------------------------------------------------------------------------------------------ status
@@ -841,7 +853,7 @@ def plan_text(p: Protocol, cells: Sequence[Cell], lay: Layout, threads: int) -> 
     width = max(len(c.name) for c in cells)
     lines = [
         f"protocol {p.name}: {len(cells)} cells under {lay.root}; S = {p.stage_steps:,} env steps per stage "
-        f"(curriculum stage and direct run), seeds {p.seeds}; checkpoints act {acting(p.evaluation)}",
+        f"(curriculum stage and direct run), seeds {p.seeds}; checkpoints act {acting_text(p.evaluation)}",
         "",
         f"{'cell':<{width}}  {'status':<7}  {'CPU-min':>8}  {'took':>8}",
     ]
@@ -960,7 +972,7 @@ def provenance(p: Protocol, cells: Sequence[Cell], lay: Layout, selects: str | N
         "## How this report was made",
         "",
         f"The protocol `{p.name}`: S = {p.stage_steps:,} env steps per stage (curriculum "
-        f"stage and direct run), seeds {', '.join(map(str, p.seeds))}, checkpoints act {acting(p.evaluation)}; "
+        f"stage and direct run), seeds {', '.join(map(str, p.seeds))}, checkpoints act {acting_text(p.evaluation)}; "
         f"{len(cells)} cells, {len(done)} of them done (the report not counted) when this report was made. From "
         "the repository root:",
         "",

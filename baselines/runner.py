@@ -14,18 +14,22 @@ leaves every file of the existing run as it was:
   run that never reached its first checkpoint aside; it refuses where a finished run's checkpoint is gone;
 - ``start_over=true`` moves an existing run aside (a hidden sibling folder, named in the log) and starts from zero.
 
-Ctrl-C: the first one lets the iteration under way finish, writes a checkpoint and stops
-(:class:`~baselines.runtime.Interrupted`, one line); a second one stops at once.
+Ctrl-C: the first one lets the gradient step (DreamerV3) or iteration (the others) under way finish, writes a
+checkpoint and stops (:class:`~baselines.runtime.Interrupted`, one line); a second one stops within seconds, even
+inside a minute-long gradient step (:class:`StopRequest`).
 """
 
 from __future__ import annotations
 
+import csv
 import logging
+import os
 import signal
 import sys
 import threading
 import time
-from collections.abc import Iterator, Mapping
+from collections import Counter
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Any
@@ -240,25 +244,108 @@ def _write_records(run_dir: Path, records: Mapping[str, Any] | None, resumed: bo
         path.write_text(text)
 
 
+class StopRequest:
+    """Ctrl-C while a run trains.  The first SIGINT asks the loop to stop at its next safe point (after the gradient
+    step under way for DreamerV3, after the iteration for the others), where it writes a checkpoint; a second one
+    stops at once.
+
+    Python runs a signal handler only between bytecodes, and signals that arrive while the main thread is inside
+    one long call (a DreamerV3-S backward pass on a CPU: a minute) reach the handler as ONE call.  So the signals
+    are also counted by a watcher thread that reads the wakeup fd (``signal.set_wakeup_fd``: one byte per signal,
+    written by the C-level handler as it arrives): it says at once what the first Ctrl-C waits for, and after a
+    second one it gives the main thread :attr:`GRACE` seconds to stop by ``KeyboardInterrupt`` before ending the
+    process itself (``os._exit``: the last checkpoint is complete on disk, a half-written one is a ``.tmp`` that the
+    next start removes)."""
+
+    #: seconds a second Ctrl-C waits for the main thread before the process is ended from the watcher thread
+    GRACE = 3.0
+
+    def __init__(self, run_dir: Path):
+        self.run_dir = run_dir
+        self.event = threading.Event()
+        self.finished = threading.Event()
+        #: what the first Ctrl-C waits for, in words (the stage under way sets it: :meth:`Run.stop_wait`)
+        self.wait: Callable[[], str] = lambda: "the iteration under way"
+        self._handled = 0  # SIGINTs the Python handler has seen (two coalesced signals count once here)
+
+    def is_set(self) -> bool:
+        return self.event.is_set()
+
+    def request(self) -> None:
+        if not self.event.is_set():
+            self.event.set()
+            log.warning(
+                "Ctrl-C: stopping after %s, then writing a checkpoint (Ctrl-C again to stop at once)", self.wait()
+            )
+
+    def handler(self, signum, frame) -> None:
+        self._handled += 1
+        if self._handled >= 2:
+            raise KeyboardInterrupt
+        self.request()
+
+    def watch(self, fd: int) -> None:
+        """The watcher thread: one byte per signal on ``fd``; 0 ends it."""
+        signals = 0
+        while True:
+            try:
+                data = os.read(fd, 64)
+            except InterruptedError:
+                continue
+            if not data or 0 in data:
+                return
+            signals += data.count(signal.SIGINT)
+            if signals == 1:
+                self.request()
+            elif signals >= 2:
+                if self.finished.wait(self.GRACE):
+                    return
+                print(f"{Path(sys.argv[0]).name}: {stopped_at_once(self.run_dir)}", file=sys.stderr, flush=True)
+                os._exit(130)
+
+
+def stopped_at_once(run_dir: Path) -> str:
+    """What a second Ctrl-C leaves: the checkpoint a resume continues from, or none."""
+    latest = run_dir / CHECKPOINT
+    if latest.exists():
+        return f"stopped at once: no new checkpoint; the same command with resume=true continues from the last one, {latest}"
+    return (
+        f"stopped at once, before the first checkpoint: there is no checkpoint to continue from; the same command "
+        f"with start_over=true starts {run_dir} again from zero"
+    )
+
+
 @contextmanager
-def _graceful_interrupts() -> Iterator[threading.Event]:
-    """The first SIGINT (Ctrl-C) sets the returned event (the loop checkpoints and stops after its iteration); a
-    second one raises ``KeyboardInterrupt`` at once.  Outside the main thread, Ctrl-C keeps its usual meaning."""
-    stop = threading.Event()
+def _graceful_interrupts(run_dir: Path) -> Iterator[StopRequest]:
+    """Ctrl-C as :class:`StopRequest` says while the block runs.  Outside the main thread, Ctrl-C keeps its usual
+    meaning."""
+    stop = StopRequest(run_dir)
     if threading.current_thread() is not threading.main_thread():
         yield stop
         return
-
-    def handler(signum, frame):
-        if stop.is_set():
-            raise KeyboardInterrupt
-        stop.set()
-        log.warning("Ctrl-C: finishing this iteration and writing a checkpoint (Ctrl-C again to stop at once)")
-
-    previous = signal.signal(signal.SIGINT, handler)
+    previous = signal.signal(signal.SIGINT, stop.handler)
+    read_fd, write_fd = os.pipe()
+    os.set_blocking(write_fd, False)
+    try:
+        old_fd = signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
+    except ValueError:  # not the main interpreter: the handler alone counts
+        old_fd = None
+    watcher = None
+    if old_fd == -1:
+        watcher = threading.Thread(target=stop.watch, args=(read_fd,), name="ctrl-c", daemon=True)
+        watcher.start()
+    elif old_fd is not None:
+        signal.set_wakeup_fd(old_fd)  # someone else's (an event loop): leave it to them
     try:
         yield stop
     finally:
+        stop.finished.set()
+        if watcher is not None:
+            signal.set_wakeup_fd(-1)
+            os.write(write_fd, b"\0")
+            watcher.join()
+        os.close(read_fd)
+        os.close(write_fd)
         signal.signal(signal.SIGINT, previous)
 
 
@@ -275,25 +362,16 @@ def train(cfg: DictConfig, run_dir: str | Path, *, records: Mapping[str, Any] | 
     """
     run_dir = Path(run_dir)
     # from the start: a Ctrl-C while the checks run or an old run is moved aside waits for a consistent state too
-    with _graceful_interrupts() as stop:
+    with _graceful_interrupts(run_dir) as stop:
         try:
             return _train(cfg, run_dir, records, stop)
         except Interrupted:
             raise
         except KeyboardInterrupt:
-            latest = run_dir / CHECKPOINT
-            if latest.exists():
-                raise Interrupted(
-                    f"stopped at once: no new checkpoint; the same command with resume=true continues "
-                    f"from the last one, {latest}"
-                ) from None
-            raise Interrupted(
-                f"stopped at once, before the first checkpoint: there is no checkpoint to continue "
-                f"from; the same command with start_over=true starts {run_dir} again from zero"
-            ) from None
+            raise Interrupted(stopped_at_once(run_dir)) from None
 
 
-def _train(cfg: DictConfig, run_dir: Path, records: Mapping[str, Any] | None, stop: threading.Event) -> Path:
+def _train(cfg: DictConfig, run_dir: Path, records: Mapping[str, Any] | None, stop: StopRequest) -> Path:
     device = resolve_device(cfg.get("device", "auto"))  # a device this machine lacks fails here, before any write
     deterministic_kernels(cfg.get("deterministic", True), device)
     algo = algorithm(cfg.algo.name)
@@ -336,6 +414,7 @@ def _train(cfg: DictConfig, run_dir: Path, records: Mapping[str, Any] | None, st
                 fresh_logs=state is None and stage.index == 0,
                 stop_requested=stop.is_set,
             )
+            stop.wait = run.stop_wait
             try:
                 algo.train(run)
             finally:
@@ -345,6 +424,44 @@ def _train(cfg: DictConfig, run_dir: Path, records: Mapping[str, Any] | None, st
     finally:
         _quietly(logger.shutdown)
     return run_dir
+
+
+def summary(cfg: DictConfig, run_dir: Path) -> str:
+    """What a finished run shows last: its folder, its final evaluation (the last row of ``eval.csv``) and its
+    final model."""
+    run_dir = Path(run_dir)
+    with suppress(ValueError):  # as the command named it: runs/..., not the absolute path Hydra resolved
+        run_dir = run_dir.resolve().relative_to(Path.cwd().resolve())
+    rows = []
+    if (run_dir / "eval.csv").is_file():
+        with open(run_dir / "eval.csv", newline="") as f:
+            rows = list(csv.DictReader(f))
+    lines = [f"run folder: {run_dir}"]
+    if rows:
+        last = rows[-1]
+        # the last evaluation: its episodes (one row each, on the run's validation worlds)
+        final = [r for r in rows if (r["env_steps"], r["stage"]) == (last["env_steps"], last["stage"])]
+        steps = [int(r["steps"]) for r in final]
+        ends = ", ".join(f"{name} {n}" for name, n in Counter(r["end_type"] for r in final).most_common())
+        acting = (
+            "actions sampled from the policy"
+            if last.get("acting", "").startswith("sample")
+            else "the policy's most likely actions"
+        )
+        lines.append(
+            f"final evaluation on {last['level']} at env step {int(last['env_steps']):,} ({last['worlds']} "
+            f"worlds): mean survival {sum(steps) / len(steps):.0f} steps over {len(steps)} episodes (min "
+            f"{min(steps)}, max {max(steps)}; {acting}; ended by {ends})"
+        )
+        model = run_dir / f"model-{last['stage']}-{last['level']}.pt"
+        if model.exists():
+            lines.append(
+                f"final model: {model} (python scripts/evaluate.py policy={model} levels=[{last['level']}] "
+                f"evaluates it on the test worlds)"
+            )
+    else:
+        lines.append("no evaluation was made (eval.every=0)")
+    return "\n".join(lines)
 
 
 def _quietly(cleanup) -> None:

@@ -165,6 +165,19 @@ def _duration(seconds: float) -> str:
     return f"{int(seconds // 60)}:{int(seconds % 60):02d}"
 
 
+def _about(seconds: float) -> str:
+    """A duration in words for a log line: "about 14 minutes", "about 2.3 hours", "about 3.1 days"."""
+    if not math.isfinite(seconds):
+        return "an unknown time"
+    if seconds < 90:
+        return f"about {seconds:.0f} seconds"
+    if seconds < 5400:
+        return f"about {seconds / 60:.0f} minutes"
+    if seconds < 2 * 86400:
+        return f"about {seconds / 3600:.1f} hours"
+    return f"about {seconds / 86400:.1f} days"
+
+
 def _rate(x: float) -> str:
     return f"{x:.3g}" if x < 100 else f"{x:.0f}"
 
@@ -396,6 +409,11 @@ class Run:
         #: gradient steps so far (:meth:`updated`), and a function of env steps giving those owed by then (for the ETA)
         self.updates = 0
         self.planned_updates: Callable[[int], int] | None = None
+        #: env steps an iteration takes (all worlds) and how, e.g. (1024, "8 worlds x 128 steps, then an update"):
+        #: the stage ends with the iteration that reaches its budget; an algorithm that steps otherwise sets it
+        self.iteration: tuple[int, str] = (cfg.env.num_envs, f"one step of each of the {cfg.env.num_envs} worlds")
+        #: the algorithm checks :attr:`stop_requested` between its gradient steps and calls :meth:`stop_now`
+        self.stops_between_updates = False
         self._ratio: float | None = None
         self._shown = 0.0
 
@@ -421,8 +439,14 @@ class Run:
 
     def seconds_spent(self) -> tuple[float, float]:
         """Wall-clock and CPU seconds of this stage so far, earlier sessions included (kept in the checkpoint)."""
-        (wall, cpu), (wall0, cpu0) = self._spent_before, self._clock_start
+        wall, cpu = getattr(self, "_spent_before", (0.0, 0.0))
+        wall0, cpu0 = getattr(self, "_clock_start", None) or (time.perf_counter(), time.process_time())
         return wall + time.perf_counter() - wall0, cpu + time.process_time() - cpu0
+
+    def session_seconds(self) -> float:
+        """Wall-clock seconds since :meth:`start` began this process's session of the stage (a resumed stage's
+        earlier sessions not included: :meth:`seconds_spent` counts those)."""
+        return time.perf_counter() - self._session[0]
 
     def train_env(self, transforms: Sequence[Transform]) -> TransformedEnv:
         """The stage's worlds wrapped in the algorithm's transforms."""
@@ -444,7 +468,7 @@ class Run:
                 model.load_state_dict(self.init_weights)
             td = self.env.reset()
         log.info(
-            "%s on %s: %s parameters on %s (bf16 autocast %s, compile %s), %d worlds on the CPU, %s env steps",
+            "%s on %s: %s parameters on %s (bf16 autocast %s, compile %s), %d worlds on the CPU, %s",
             self.cfg.algo.name,
             self.stage.level,
             f"{parameter_count(model):,}",
@@ -452,23 +476,72 @@ class Run:
             "on" if self.cfg.get("bf16") else "off",
             "on" if self.cfg.get("compile") else "off",
             self.base_env.num_envs,
-            f"{self.stage.budget:,}",
+            self.budget_text(),
         )
         # the bar's own rate and ETA (tqdm's) are left out: they follow the last few updates of the bar and swing
-        # with the loop's phases; Progress gives smoothed ones
+        # with the loop's phases; Progress gives smoothed ones.  disable=None: no bar where the output is not a
+        # terminal (a file or a pipe would get one line per refresh)
         self.progress = tqdm(
             total=self.stage.budget,
             initial=self.steps,
             unit="step",
             dynamic_ncols=True,
             desc=self._desc(),
-            disable=not self.cfg.progress,
+            disable=None if self.cfg.progress else True,
             bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]",
         )
+        self._estimated = False
         self._session = (time.perf_counter(), self.steps)
         self._clock_start = (self._session[0], time.process_time())
         self.meter = Progress(self.cfg.get("progress_seconds", 60), self.steps, now=self._session[0])
         return td
+
+    @property
+    def trained_steps(self) -> int:
+        """The env steps the stage will have taken at its end: its budget, rounded up to whole iterations."""
+        size = self.iteration[0]
+        return -(-self.stage.budget // size) * size
+
+    def budget_text(self) -> str:
+        """The stage's budget as asked and, where whole iterations overshoot it, as trained and why."""
+        text = f"{self.stage.budget:,} env steps"
+        if self.trained_steps != self.stage.budget:
+            size, how = self.iteration
+            text += (
+                f" asked: {self.trained_steps:,} trained, as the stage ends with the iteration that reaches "
+                f"its budget and one iteration is {size:,} env steps ({how})"
+            )
+        return text
+
+    def _estimate(self) -> None:
+        """Log once how long the stage will take, from this session's own speed so far: after 20 s, and once
+        gradient steps (whose cost dominates) have been timed where the algorithm makes any."""
+        elapsed = time.perf_counter() - self._session[0]
+        timed = self.planned_updates is None or self.meter.sums["updates"] > 0
+        if self._estimated or elapsed < 20 or not timed or self.done:
+            return
+        self._estimated = True
+        planned = None
+        if self.planned_updates is not None:
+            planned = max(self.planned_updates(self.trained_steps) - self.updates, 0)
+        left = self.meter.eta(self.trained_steps - self.steps, planned)
+        limit = self.cfg.get("max_minutes")
+        capped = f"; max_minutes={limit:g} ends it sooner" if limit is not None and left > 60 * limit - elapsed else ""
+        speed = f"{_rate(self.meter.env_rate)} env steps/s"
+        if self.meter.sums["updates"] > 0:
+            speed += f", {self.meter.seconds_per_update:.3g} s per gradient step"
+        log.info(
+            "time estimate for %s on %s: %s more for the %s env steps (%s done), from this run's speed over "
+            "its first %.0f s here (%s)%s",
+            self.cfg.algo.name,
+            self.stage.level,
+            _about(left),
+            f"{self.trained_steps:,}",
+            f"{self.steps:,}",
+            elapsed,
+            speed,
+            capped,
+        )
 
     def acting(self, policy: TensorDictModuleBase) -> OnDevice:
         """``policy`` (on :attr:`device`) acting on the CPU worlds' tensordicts."""
@@ -582,6 +655,7 @@ class Run:
         requested, after which :class:`Interrupted` is raised."""
         prev, now = self.counters["last_end"], self.steps
         self.counters["last_end"] = now
+        self._estimate()
 
         def crossed(every: int) -> bool:
             return every > 0 and now // every > prev // every
@@ -597,10 +671,30 @@ class Run:
         if crossed(self.cfg.checkpoint.every) or self.done or stop:
             self._checkpoint(td)
         if stop:
-            raise Interrupted(
-                f"interrupted at env step {now:,} of {self.stage.level}: checkpoint written to "
-                f"{self.dir / CHECKPOINT}; the same command with resume=true continues from it"
-            )
+            self._interrupted()
+
+    def stop_now(self, td: TensorDictBase) -> None:
+        """A stop was requested inside an iteration, between two gradient steps: checkpoint here and raise
+        :class:`Interrupted`.  The algorithm's resume finishes the iteration (the gradient steps still owed, then
+        :meth:`end_iteration`) before it takes another env step, so the resumed run is the uninterrupted one."""
+        self._checkpoint(td)
+        self._interrupted()
+
+    def _interrupted(self) -> None:
+        raise Interrupted(
+            f"interrupted at env step {self.steps:,} of {self.stage.level}: checkpoint written to "
+            f"{self.dir / CHECKPOINT}; the same command with resume=true continues from it"
+        )
+
+    def stop_wait(self) -> str:
+        """What a first Ctrl-C waits for, in words, with how long it takes here when that is known."""
+        if self.stops_between_updates and self.phase != "prefill":
+            seconds = self.meter.seconds_per_update if self.meter is not None else math.nan
+            known = f" ({_about(seconds)} each here)" if math.isfinite(seconds) else ""
+            return f"the gradient step under way{known}"
+        rate = self.meter.session_rate if self.meter is not None else math.nan
+        known = f" (one takes {_about(self.iteration[0] / rate)} here)" if math.isfinite(rate) and rate > 0 else ""
+        return f"the iteration under way{known}"
 
     @property
     def model_path(self) -> Path:
@@ -756,13 +850,20 @@ class Run:
         if self.progress is not None:
             self.progress.close()
             if self.steps > self._session[1]:
+                asked = (
+                    f" ({self.stage.budget:,} asked, in whole iterations of {self.iteration[0]:,})"
+                    if self.steps != self.stage.budget and self.steps >= self.stage.budget
+                    else ""
+                )
                 log.info(
-                    "%s on %s: %d env steps, %.3g env steps/s this session, %d gradient steps",
+                    "%s on %s: %s env steps%s, %.3g env steps/s this session, %s gradient steps, %s",
                     self.cfg.algo.name,
                     self.stage.level,
-                    self.steps,
+                    f"{self.steps:,}",
+                    asked,
                     self.steps_per_second(),
-                    self.updates,
+                    f"{self.updates:,}",
+                    _duration(time.perf_counter() - self._session[0]),
                 )
         self.episodes_csv.close()
         self.eval_csv.close()

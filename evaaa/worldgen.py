@@ -53,7 +53,7 @@ class ResourcePool:
     @classmethod
     def from_level(cls, level: Level) -> ResourcePool:
         rows = []
-        for g, (name, spec) in enumerate(level.resources.items()):
+        for g, spec in enumerate(level.resources.values()):
             kind = RESOURCE_KINDS[spec.kind]
             rows += [
                 (
@@ -138,7 +138,7 @@ class ObstaclePool:
         # a generator of its own, so the sizes are a fixed property of the level
         rng = np.random.default_rng(zlib.crc32(f"evaaa-obstacles-{level.name}".encode()))
         rows = []
-        for g, (name, spec) in enumerate(level.obstacles.items()):
+        for g, spec in enumerate(level.obstacles.values()):
             kind = OBSTACLE_KINDS[spec.kind]
             for _ in range(spec.count):
                 scale = [rng.uniform(lo, hi) for lo, hi in spec.scale]

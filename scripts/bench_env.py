@@ -43,12 +43,14 @@ from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
+import evaaa  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
+
+# isort: split
 import gymnasium
 import mujoco
 import numpy as np
 import torch
 
-import evaaa  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
 from evaaa.env import EvaaaEnv, make_env
 from evaaa.render import BatchRenderer
 from evaaa.scene import GROUP_AGENT

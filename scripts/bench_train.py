@@ -209,6 +209,63 @@ def run_algo(run_dir: Path) -> str:
     return str(OmegaConf.load(config).algo.name)
 
 
+def train_overrides(
+    algo: str,
+    level: str,
+    minutes: float,
+    threads: int | None,
+    root: Path,
+    extra: list[str],
+    device: str = "auto",
+    progress: bool = False,
+) -> list[str]:
+    """The ``scripts/train.py`` arguments of one algorithm's run."""
+    overrides = [
+        f"algo={algo}",
+        f"level={level}",
+        "total_steps=1000000000",
+        f"max_minutes={minutes}",
+        "eval.every=0",
+        "checkpoint.every=1000000000",
+        "eval.episodes=1",
+        "logger=csv",
+        f"progress={str(progress).lower()}",
+        f"device={device}",
+        f"run.root={root}",
+        f"run.name={algo}",
+        *extra,
+    ]
+    return overrides + ([f"threads={threads}"] if threads is not None else [])
+
+
+def check_runs(args: BenchConfig, device: str) -> None:
+    """Refuse, in one line and before any run starts, a training command that ``train.py`` would refuse (a bad
+    value in ``overrides``)."""
+    from hydra import initialize_config_dir
+
+    from evaaa_baselines.config import CONF_DIR, ConfigError, check_overrides, register_levels
+
+    register_levels()
+    with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
+        for algo in args.algos:
+            try:
+                check_overrides(
+                    train_overrides(
+                        algo,
+                        args.level,
+                        args.minutes,
+                        args.threads,
+                        Path("runs"),
+                        args.overrides,
+                        device,
+                        args.progress,
+                    ),
+                    multirun=False,
+                )
+            except ConfigError as err:
+                cli.fail("bench_train.py", f"the run of {algo}: {err}")
+
+
 def run_one(
     algo: str,
     level: str,
@@ -226,22 +283,8 @@ def run_one(
     cmd = [
         sys.executable,
         str(ROOT / "scripts" / "train.py"),
-        f"algo={algo}",
-        f"level={level}",
-        "total_steps=1000000000",
-        f"max_minutes={minutes}",
-        "eval.every=0",
-        "checkpoint.every=1000000000",
-        "eval.episodes=1",
-        "logger=csv",
-        f"progress={str(progress).lower()}",
-        f"device={device}",
-        f"run.root={root}",
-        f"run.name={algo}",
-        *extra,
+        *train_overrides(algo, level, minutes, threads, root, extra, device, progress),
     ]
-    if threads is not None:
-        cmd.append(f"threads={threads}")
     log = root / f"{algo}.out"
     launched = time.time()
     code, peak_rss = run_measured(cmd, log)
@@ -336,6 +379,7 @@ def main(argv: list[str] | None = None) -> int:
         device = resolve_device(args.device)
     except DeviceError as err:
         cli.fail("bench_train.py", str(err))
+    check_runs(args, str(device))
     gpu = f", {torch_device_name(device)}" if device.type == "cuda" else ""
     print(
         f"evaaa bench_train: level {args.level}, {args.minutes:g} min per algorithm, device {device}{gpu}, threads "

@@ -46,7 +46,7 @@ class DemoConfig:
     num_envs: int = option(
         1, "worlds stepped together; the video shows world 0", check=(lambda v: v >= 1, "a positive integer")
     )
-    seed: int = option(0, "seed of the env and of the random actions")
+    seed: int = option(0, "seed of the env and of the random actions", check=cli.SEED)
     out: Path = option(Path("outputs/demo"), "output directory, created if missing")
 
 

@@ -65,7 +65,9 @@ class EvalConfig:
     episodes: int = option(20, "episodes per level and policy", check=(lambda v: v >= 1, "a positive integer"))
     num_envs: int = option(4, "worlds run together", check=(lambda v: v >= 1, "a positive integer"))
     seed: int = option(
-        0, "seed of the envs (and the random agent); the same for every policy, so they face the same draws"
+        0,
+        "seed of the envs (and the random agent); the same for every policy, so they face the same draws",
+        check=cli.SEED,
     )
     worlds: str = option(
         "test",

@@ -23,9 +23,10 @@ from pathlib import Path
 
 import torch
 
+from evaaa.sensors import SENSORS, resolve_modalities
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
-from evaaa_baselines.dreamer import eat_success_readout, fit_world_model
+from evaaa_baselines.dreamer.probes import eat_success_readout, fit_world_model
 from evaaa_baselines.runtime import DeviceError, resolve_device
 
 
@@ -40,11 +41,12 @@ class FitConfig:
     keys: list[str] | None = option(
         None,
         "observation keys the new model sees (null: the run's), e.g. [interoception,olfaction] to leave the pixels out",
+        choices=lambda: resolve_modalities(list(SENSORS)),
     )
     held_out: float = option(
         0.1, "share of the replay's rows kept for measuring", check=(lambda v: 0 < v < 1, "in (0, 1)")
     )
-    seed: int = option(0, "seed of the new model and of the batches")
+    seed: int = option(0, "seed of the new model and of the batches", check=cli.SEED)
     out: str = option("", "a CSV file for the measurements (empty: print only)")
     threads: int | None = option(
         None,

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
-from evaaa_baselines.dreamer import ev_decoding_errors, imagined_action_values
+from evaaa_baselines.dreamer.probes import ev_decoding_errors, imagined_action_values
 
 
 @dataclass

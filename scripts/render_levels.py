@@ -33,7 +33,7 @@ class RenderConfig:
         list(evaaa.LEVELS), "levels and testbeds to render", choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS]
     )
     out: Path = option(Path("docs/images"), "output directory, created if missing")
-    seed: int = option(0, "seed of the reset that lays out each world")
+    seed: int = option(0, "seed of the reset that lays out each world", check=cli.SEED)
 
 
 def main(argv=None) -> int:

@@ -6,9 +6,11 @@
 Arguments are ``key=value`` (lists as ``[a,b]``), the keys of :class:`ReportConfig`; ``--help`` lists them with
 their types, defaults and meanings.
 
-Writes ``out/report.md`` (tables: survival as interquartile mean with its 95 % bootstrap interval beside mean ±
-standard error across seeds, success rates with 95 % Wilson intervals, n as seeds × episodes; the runs, and those
-missing or unfinished),
+Writes ``out/report.md`` (seeds as the unit; tables: survival as interquartile mean with its 95 % bootstrap interval
+over seeds and episodes beside mean ± standard error across seeds, success rates with 95 % seed-clustered Wilson
+intervals, no interval under three seeds but each seed's value, n as seeds × episodes, every table naming how the
+agents acted and on which worlds; what each agent learned beside random and stand-still; the paper's claims; the
+runs, and those missing or unfinished),
 the figures ``fig_training_curves.png`` (training survival against env steps, one panel per training set-up),
 ``fig4a_survival_per_level.png``, ``fig4a_curriculum_vs_direct.png``, ``fig4b_success_per_testbed.png``,
 ``fig4b_generalisation.png``, ``fig25_ablation_curves.png``, ``fig26_ablation_success.png`` (those the inputs have
@@ -30,9 +32,9 @@ class ReportConfig:
     runs: list[str] = option([], "run directories of scripts/train.py, or folders holding them (searched recursively)")
     evals: list[str] = option(
         [],
-        "evaluate.py output directories or episode CSV files (incl. human play records of "
-        "scripts/play.py); a checkpoint evaluated there is tied to its run through the run "
-        "directory it lies in",
+        "evaluate.py output directories (or folders of them, searched recursively) or "
+        "episode CSV files (incl. human play records of scripts/play.py); a checkpoint "
+        "evaluated there is tied to its run through the run directory it lies in",
     )
     out: str = option("outputs/report", "output directory")
     survival: str = option(

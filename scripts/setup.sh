@@ -5,8 +5,27 @@
 #   2. a virtual environment in .venv with the pinned packages of constraints.txt (torch 2.13.0 CPU build; the
 #      extras train, cluster (Ray, submitit: the tests run them) and dev),
 #   3. one off-screen render.
-# Safe to run again: each step is skipped when already done. Called by `make demo` and `make test`.
+# Safe to run again: each step is skipped when already done. Called by `make setup`, `make train`, `make demo` and
+# `make test`.
 set -euo pipefail
+
+usage() {
+  cat <<'TEXT'
+usage: bash scripts/setup.sh [-h | --help]
+
+Sets up evaaa on a Debian/Ubuntu machine and checks that it works:
+  1. the system libraries for headless OpenGL (EGL through Mesa; MUJOCO_GL=osmesa: OSMesa) and Chromium for the
+     browser test, installed with apt-get when run as root (otherwise the command to run is printed),
+  2. .venv with the pinned packages of constraints.txt (PyTorch CPU build),
+  3. one off-screen render.
+Each step already done is skipped, so it is safe to run again. It takes no other arguments.
+TEXT
+}
+case "${1:-}" in
+  -h|--help) usage; exit 0 ;;
+  "") ;;
+  *) printf 'setup.sh: error: unknown argument %s (see --help)\n' "$1" >&2; exit 2 ;;
+esac
 cd "$(dirname "$0")/.."
 
 say() { printf '[setup] %s\n' "$*"; }

@@ -5,7 +5,8 @@ is ``runs/<level>/<algo>/<modality>-<reward>/seed<seed>`` (``run.root``, ``run.n
 ``all-squared-debug``), for single runs and for sweeps (``-m seed=0,1,2``) alike, so the same command with
 ``resume=true`` continues a killed run.  A folder that already holds a run is never overwritten: the command is
 refused (in one line, changing nothing) unless it says ``resume=true`` or ``start_over=true``.  Ctrl-C writes a
-checkpoint after the iteration under way and stops; a second Ctrl-C stops at once.  See docs/training.md.
+checkpoint after the gradient step (DreamerV3) or iteration under way and stops; a second Ctrl-C stops within
+seconds.  A finished run prints its folder, final evaluation and model last.  See docs/training.md.
 
     python scripts/train.py algo=ppo level=1-1
     python scripts/train.py algo=dqn level=curriculum resume=true
@@ -57,7 +58,7 @@ from evaaa.records import DISK_ERRNOS, DiskError  # noqa: E402
 from evaaa_baselines import train  # noqa: E402
 from evaaa_baselines.checkpoint import CheckpointError  # noqa: E402
 from evaaa_baselines.config import CONF_DIR, check_command_line, register_levels  # noqa: E402
-from evaaa_baselines.runner import RunRefused  # noqa: E402
+from evaaa_baselines.runner import RunRefused, summary  # noqa: E402
 from evaaa_baselines.runtime import DeviceError, Interrupted  # noqa: E402
 
 register_levels()
@@ -77,7 +78,8 @@ def main(cfg: DictConfig) -> None:
         "overrides.yaml": OmegaConf.create(list(hydra_cfg.overrides.task)),
     }
     try:
-        train(cfg, hydra_cfg.runtime.output_dir, records=records)
+        run_dir = train(cfg, hydra_cfg.runtime.output_dir, records=records)
+        print(summary(cfg, run_dir), flush=True)
     except (RunRefused, CheckpointError) as err:
         # printed, not logged: logging would append to the existing run's log file
         print(f"train.py: {err}", file=sys.stderr, flush=True)

@@ -121,11 +121,46 @@ def gen(values):
     return frame([cell(v, 0.05, agent="ppo", level=lv) for lv, v in zip(LEVELS, values)])
 
 
+def seeds_of(values, spread=(0.0, 0.01, -0.01, 0.02), agent="ppo"):
+    """Per-seed testbed success: seed k at level i is values[i] + spread[k]."""
+    return frame(
+        [
+            {"agent": agent, "level": lv, "seed": k, "value": v + d}
+            for lv, v in zip(LEVELS, values)
+            for k, d in enumerate(spread)
+        ]
+    )
+
+
 def test_d_agents_below_humans_at_ceiling_and_a_drop_is_reproduced():
     success = frame([cell(0.1, 0.1, agent="ppo · curriculum", level=t) for t in TESTBEDS])
-    v = c.testbeds_below_ceiling(success, refs(), gen([0.1, 0.3, 0.5, 0.2, 0.2, 0.2, 0.2, 0.2]), LEVELS)
+    values = [0.1, 0.3, 0.5, 0.2, 0.2, 0.2, 0.2, 0.2]
+    v = c.testbeds_below_ceiling(success, refs(), gen(values), LEVELS, seeds_of(values))
     assert v.verdict == c.REPRODUCED, [(p.claim, p.verdict) for p in v.parts]
-    assert "2-1→2-2" in v.parts[-1].evidence[1]  # 1-2 (0.3 ± 0.05) touches 2-2 (0.2 ± 0.05): not apart
+    assert "2-1→2-2" in v.parts[-1].evidence[1]  # every seed 0.3 lower: p tiny, rejected after Holm's correction
+    assert "Holm-corrected over the 28 pairs" in v.parts[-1].evidence[1]
+
+
+def test_d_a_drop_significant_once_but_not_after_holm_is_not_resolved():
+    # 1-1 lies above every later level in every seed by 0.10, 0.04, 0.16, 0.08 (the later levels equal): a
+    # one-sided paired t-test over the 4 seeds gives p ≈ 0.016 — under 0.05 alone, over Holm's 0.05 / 28 for the
+    # smallest of the 28 pairs: no resolved drop (an uncorrected rule would find seven)
+    first, later = [0.30, 0.30, 0.30, 0.30], [0.20, 0.26, 0.14, 0.22]
+    values = [0.3] + [0.2] * 7
+    per_seed = frame(
+        [
+            {"agent": "ppo", "level": lv, "seed": k, "value": (first if lv == "1-1" else later)[k]}
+            for lv in LEVELS
+            for k in range(4)
+        ]
+    )
+    found, tested = c.drops(per_seed, LEVELS)
+    p_first = [float(t.split("p = ")[1].split(" ")[0]) for t in tested if t.startswith("1-1→1-2")][0]
+    assert len(tested) == 28 and 0.05 / 28 < p_first < 0.05
+    assert found == []
+    success = frame([cell(0.1, 0.1, agent="ppo · curriculum", level=t) for t in TESTBEDS])
+    v = c.testbeds_below_ceiling(success, refs(), gen(values), LEVELS, per_seed)
+    assert v.parts[-1].verdict != c.REPRODUCED
 
 
 def test_d_without_human_records_is_not_resolvable_and_says_so():
@@ -197,6 +232,51 @@ def test_spearman_p_is_exact_for_few_levels_so_a_perfect_order_of_four_is_not_si
     assert c.spearman(range(8), range(8, 0, -1))[1] == pytest.approx(2 / 40320)
     v = c.survival_falls(frame(per_level("dqn", [900, 800, 300, 200], levels=LEVELS[:4])), LEVELS)
     assert v.verdict == c.UNRESOLVED and "p = 0.0833" in v.parts[0].evidence[1]
+
+
+def test_no_part_is_decided_on_fewer_than_three_seeds():
+    # a rising survival would contradict (a) on its points alone (Spearman's rho 1, p < 0.001); with two seeds per
+    # cell there are no intervals and no verdict: "not resolvable: 2 seeds", with each seed's value
+    nan = float("nan")
+    rising = frame(
+        [
+            {
+                "algo": "ppo",
+                "level": lv,
+                "value": 100.0 * (i + 1),
+                "low": nan,
+                "high": nan,
+                "n": 2,
+                "unit": "seeds",
+                "points": (100.0 * (i + 1) - 5, 100.0 * (i + 1) + 5),
+            }
+            for i, lv in enumerate(LEVELS)
+        ]
+    )
+    v = c.survival_falls(rising, LEVELS)
+    assert v.verdict == "not resolvable: 2 seeds" and v.parts[0].verdict == "not resolvable: 2 seeds"
+    assert "1-1: 100 (seeds 95, 105)" in v.parts[0].evidence[0]
+    three = rising.assign(n=3, low=rising["value"] - 10, high=rising["value"] + 10)
+    assert c.survival_falls(three, LEVELS).verdict == c.CONTRADICTED
+    # the same for a part that compares with a reference agent, whose units are its episodes
+    short = frame(
+        [
+            {"algo": "ppo_lstm", "level": lv, "value": 900.0, "low": 890.0, "high": 910.0, "n": 2, "unit": "seeds"}
+            for lv in LEVELS[:3]
+        ]
+    )
+    assert c._fails("ppo_lstm", LEVELS[:3], short, RANDOM).verdict == "not resolvable: 2 seeds"
+
+
+def test_agents_that_acted_differently_are_not_compared():
+    fast = frame(
+        [cell(900.0, algo="dqn", level=lv, acting="mode+epsilon=0.05") for lv in LEVELS[:4]]
+        + [cell(100.0, algo="ppo", level=lv, acting="sample+epsilon=0.05") for lv in LEVELS[:4]]
+    )
+    v = c._ordered("dqn", "ppo", fast, LEVELS)
+    assert v.verdict == c.UNRESOLVED and "acting modes differ" in v.evidence[-1]
+    same = fast.assign(acting="mode")
+    assert c._ordered("dqn", "ppo", same, LEVELS).verdict == c.REPRODUCED
 
 
 def test_fails_is_not_reproduced_on_levels_without_an_interval():

@@ -140,11 +140,29 @@ def test_a_string_key_keeps_its_text_and_a_single_value_is_a_list():
         (["+totl_steps=5"], "unknown key 'totl_steps'"),
         (["algo.lrr=1"], "unknown key 'algo.lrr'; keys here: algo.name"),
         (["algo=a2c"], "algo=a2c: no option 'a2c' in algo; allowed: dqn, dreamer, dreamer_xs, ppo, ppo_lstm"),
-        (["level=1-3"], "level=1-3: no option '1-3' in level; allowed: 1-1, 1-2"),
+        (["level=1-3"], "level=1-3: no option '1-3' in level (did you mean level=1-2?); allowed: 1-1, 1-2"),
         (["env.overrides.episode.max_steps=5"], "add it with ++env.overrides.episode.max_steps=5"),
         (["seed=0,1"], "seed=0,1: several values make a sweep: add -m"),
         (["-m", "seed=0,x"], "seed=x: expected an integer"),
         (["total_steps=[1"], "total_steps=[1"),
+        # what YAML makes of a newcomer's typing, budgets of zero or less, values only a running job used to check
+        (["level=3_2"], "level=3_2: no option '3_2' in level (did you mean level=3-2?); allowed: 1-1"),
+        (["total_steps=-5"], "total_steps=-5: expected an integer >= 1 (default 2000000)"),
+        (
+            ["total_steps=1e3"],
+            "total_steps=1e3: expected an integer (default 2000000); YAML reads it as 1000.0: write it "
+            "as an integer, e.g. total_steps=1000 or total_steps=1_000",
+        ),
+        (["progress=on"], "progress=on: expected true or false"),
+        (["run.name=3_2"], "run.name=3_2: expected a string"),
+        (["level=curriculum", "level.stages=[1-1,3_2]"], "level.stages=[1-1,3_2]: '3_2' is not a level"),
+        (["level=curriculum", "level.stage_steps=0"], "level.stage_steps=0: expected an integer >= 1"),
+        (["env.num_envs=0"], "env.num_envs=0: expected an integer >= 1"),
+        (["env.num_envs=3"], "algo.frames_per_batch=1024: expected a multiple of env.num_envs (3)"),
+        (["max_minutes=-1"], "max_minutes=-1: expected a number > 0"),
+        (["algo.lr=-1"], "algo.lr=-1: expected a number > 0"),
+        (["device=on"], "device=on: not a device; allowed: auto, cpu, cuda, cuda:N"),
+        (["protocol=smoke"], "protocol=smoke: protocol is not a key of train.py"),
     ],
 )
 def test_train_refuses_a_malformed_override_in_one_line(args, message, capsys):
@@ -182,18 +200,30 @@ def test_train_accepts_what_its_config_allows():
 
 def test_train_script_refuses_before_hydra_writes_anything(tmp_path):
     done = subprocess.run(
-        [sys.executable, str(ROOT / "scripts" / "train.py"), "total_steps=abc"],
+        [sys.executable, str(ROOT / "scripts" / "train.py"), "total_steps=-5"],
         cwd=tmp_path,
         capture_output=True,
         text=True,
         timeout=120,
     )
     assert done.returncode == 2
-    assert (
-        done.stderr.strip().splitlines()[-1] == "train.py: error: total_steps=abc: expected an integer (default "
-        "2000000)"
-    )
-    assert "Traceback" not in done.stderr and not list(tmp_path.iterdir())  # no run directory, no .hydra
+    assert done.stderr.strip().splitlines() == [
+        "train.py: error: total_steps=-5: expected an integer >= 1 (default 2000000)"
+    ]
+    assert not list(tmp_path.iterdir())  # no run directory, no .hydra: the corrected command finds nothing in its way
+
+
+def test_dreamer_size_s_on_a_machine_without_a_gpu_stops_and_says_what_to_type(monkeypatch, capsys):
+    monkeypatch.setattr("torch.cuda.is_available", lambda: False)
+    with pytest.raises(SystemExit) as exit_:
+        check_command_line(["algo=dreamer", "level=3-2"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.count("\n") == 1, err
+    assert "algo=dreamer is DreamerV3 size S, a GPU size" in err and "algo=dreamer_xs" in err and "device=cpu" in err
+    for asked in (["algo=dreamer", "device=cpu"], ["algo=dreamer_xs"], ["algo=dreamer", "preset=debug"]):
+        check_command_line(asked)  # the paper's size by name, the CPU size, and the smoke-test networks go ahead
+    with pytest.raises(SystemExit):
+        check_command_line(["-m", "algo=ppo,dreamer"])  # each job of a sweep is checked
 
 
 # ------------------------------------------------------------------------------------------------ documented commands
@@ -238,9 +268,98 @@ def test_documented_commands_parse_as_written():
             try:
                 if name == "train":
                     parsed = get_args_parser().parse_args(args)
-                    check_overrides(parsed.overrides, parsed.multirun)
+                    # keys and types; a GPU named in an example need not be on this machine
+                    check_overrides(parsed.overrides, parsed.multirun, values=False)
                 else:  # keys and types; paths of runs that exist elsewhere are not looked for
                     cli.read(schema(name), args, checks=False)
             except (cli.UsageError, ConfigError) as err:
                 problems.append(f"{where}\n    {err}")
     assert not problems, "\n".join(problems)
+
+
+# ------------------------------------------------------------------------------------------------ refused before writing
+#: for every script, values a newcomer types by mistake: YAML's readings (3_2 is the integer 32, 1e3 the float
+#: 1000.0, on is true), budgets of zero or less, a device that is not one
+BAD_VALUES = [
+    ("bench_env", "level=3_2", "level=3_2: '3_2' is not allowed"),
+    ("bench_env", "steps=-5", "steps=-5: expected"),
+    ("bench_env", "steps=1e3", "steps=1e3: expected an integer (YAML reads 1e3 as 1000.0: write 1000)"),
+    ("bench_env", "skip_parallel=on", "skip_parallel=on: expected true or false"),
+    ("bench_train", "level=3_2", "level=3_2: '3_2' is not allowed"),
+    ("bench_train", "minutes=-5", "minutes=-5: expected a positive number"),
+    ("bench_train", "threads=1e3", "threads=1e3: expected an integer"),
+    ("bench_train", "overrides=[total_steps=-5]", "total_steps=-5: expected an integer >= 1"),
+    ("bench_train", "device=on", "device=on: expected"),
+    ("demo", "level=3_2", "level=3_2: '3_2' is not allowed"),
+    ("demo", "steps=-5", "steps=-5: expected a positive integer"),
+    ("demo", "steps=1e3", "steps=1e3: expected an integer"),
+    ("demo", "seed=-1", "seed=-1: expected an integer >= 0"),
+    ("evaluate", "levels=[3_2]", "levels=[3_2]: '3_2' is not allowed"),
+    ("evaluate", "episodes=-5", "episodes=-5: expected a positive integer"),
+    ("evaluate", "episodes=1e3", "episodes=1e3: expected an integer"),
+    ("evaluate", "sample=on", "sample=on: expected true or false"),
+    ("evaluate", "seed=-1", "seed=-1: expected an integer >= 0"),
+    ("fit_world_model", "updates=-5", "updates=-5: expected >= 1"),
+    ("fit_world_model", "updates=1e3", "updates=1e3: expected an integer"),
+    ("fit_world_model", "keys=[3_2]", "keys=[3_2]: '3_2' is not allowed"),
+    ("play", "level=3_2", "level=3_2: '3_2' is not allowed"),
+    ("play", "port=1e3", "port=1e3: expected an integer"),
+    ("play", "step_log=on", "step_log=on: expected true or false"),
+    ("probe_dreamer", "sequences=-5", "sequences=-5: expected >= 1"),
+    ("probe_dreamer", "samples=1e3", "samples=1e3: expected an integer"),
+    ("profile_env", "level=3_2", "level=3_2: '3_2' is not allowed"),
+    ("profile_env", "steps=-5", "steps=-5: expected a positive integer"),
+    ("profile_env", "steps=1e3", "steps=1e3: expected an integer"),
+    ("render_levels", "levels=[3_2]", "levels=[3_2]: '3_2' is not allowed"),
+    ("render_levels", "seed=-1", "seed=-1: expected an integer >= 0"),
+    ("report", "window=-5", "window=-5: expected a positive integer"),
+    ("report", "bins=1e3", "bins=1e3: expected an integer"),
+    ("reproduce", "protocol=3_2", "protocol=3_2"),
+    ("reproduce", "jobs=-5", "jobs=-5: expected"),
+    ("reproduce", "jobs=1e3", "jobs=1e3: expected an integer"),
+    ("reproduce", "max_minutes=-5", "max_minutes=-5: expected"),
+    ("reproduce", "plan=on", "plan=on: expected true or false"),
+    ("wall_hits", "angles=[-5]", "angles=[-5]: expected angles in [0, 90)"),
+    ("wall_hits", "angles=on", "angles=on: expected"),
+]
+
+
+@pytest.mark.parametrize("name, arg, message", BAD_VALUES, ids=[f"{n}-{a}" for n, a, _ in BAD_VALUES])
+def test_every_script_refuses_a_bad_value_in_one_line_and_writes_nothing(
+    name, arg, message, tmp_path, monkeypatch, capsys
+):
+    monkeypatch.chdir(tmp_path)  # where each script's default output folder would go
+    module = load_script(name)
+    if hasattr(module, "serve"):  # play.py: a value let through would start a server that never returns
+        monkeypatch.setattr(module, "serve", lambda *args: pytest.fail(f"{name}.py accepted {arg}"))
+    try:
+        code = module.main([arg])  # play.py returns its status, the others exit
+    except SystemExit as exit_:
+        code = exit_.code
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith(f"{name}.py: error: ") and err.count("\n") == 1, err
+    assert message in err, err
+    assert not list(tmp_path.iterdir())
+
+
+def test_every_script_has_rows_of_bad_values():
+    assert {name for name, _, _ in BAD_VALUES} == set(SCHEMAS)
+
+
+def test_setup_sh_help_prints_help_and_sets_nothing_up():
+    done = subprocess.run(
+        ["bash", str(ROOT / "scripts" / "setup.sh"), "--help"], capture_output=True, text=True, timeout=60
+    )
+    assert done.returncode == 0 and done.stdout.startswith("usage: bash scripts/setup.sh"), done.stderr
+    assert "[setup]" not in done.stdout + done.stderr  # no step ran
+    wrong = subprocess.run(
+        ["bash", str(ROOT / "scripts" / "setup.sh"), "--bogus"], capture_output=True, text=True, timeout=60
+    )
+    assert wrong.returncode == 2 and wrong.stderr.strip() == "setup.sh: error: unknown argument --bogus (see --help)"
+
+
+def test_train_help_lists_only_training_groups(capsys):
+    with pytest.raises(SystemExit):
+        check_command_line(["--help"])
+    groups = capsys.readouterr().out.split("groups (")[1].split("\nkeys (")[0]
+    assert "algo: dqn" in groups and "protocol" not in groups  # protocol=<name> is scripts/reproduce.py's key

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -24,6 +25,10 @@ from tensordict import TensorDict
 import evaaa
 from evaaa_baselines import checkpoint, dreamer, evaluate, load_policy, runtime
 from evaaa_baselines.config import CONF_DIR, observation_keys, register_levels
+from evaaa_baselines.dreamer import model as dreamer_model
+from evaaa_baselines.dreamer import probes as dreamer_probes
+from evaaa_baselines.dreamer import replay as dreamer_replay
+from evaaa_baselines.nets import symlog
 from evaaa_baselines.runner import train
 from evaaa_baselines.runtime import resolve_device
 
@@ -231,14 +236,15 @@ def test_only_memory_mapped_batches_go_to_a_gpu_through_pinned_memory(tmp_path):
     # a buffer in memory lives on the training device: its batches are there already and cannot be pinned (on a GPU
     # that raised at the first gradient step); memory-mapped rows are read on the host and pinned for the copy
     shape = dict(capacity=64, num_envs=2, sequence_length=8, batch_size=2)
-    in_memory, mapped = dreamer.SequenceReplay(**shape), dreamer.SequenceReplay(**shape, directory=tmp_path / "replay")
+    in_memory = dreamer_replay.SequenceReplay(**shape)
+    mapped = dreamer_replay.SequenceReplay(**shape, directory=tmp_path / "replay")
     assert not in_memory.pins and not mapped.pins  # on the CPU nothing is pinned
     in_memory.device = mapped.device = torch.device("cuda")  # as a run with device=cuda makes them (CPU-only here)
     assert not in_memory.pins and mapped.pins
 
 
 def test_a_buffer_larger_than_the_memory_is_refused_naming_both(tmp_path, monkeypatch):
-    monkeypatch.setattr(dreamer, "available_memory", lambda device: 10_000_000)
+    monkeypatch.setattr(dreamer_replay, "available_memory", lambda device: 10_000_000)
     where = resolve_device("auto").type  # a buffer in memory lives on the training device
     with pytest.raises(
         ValueError,
@@ -248,7 +254,8 @@ def test_a_buffer_larger_than_the_memory_is_refused_naming_both(tmp_path, monkey
         train(debug_cfg("algo.buffer_on_disk=false"), tmp_path / "run")
 
 
-def test_the_bar_says_prefill_then_counts_gradient_steps(tmp_path, capsys):
+def test_the_bar_says_prefill_then_counts_gradient_steps(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)  # the bar is drawn in a terminal only
     train(debug_cfg("progress=true", "total_steps=64"), tmp_path / "run")
     bar = capsys.readouterr().err.replace("\r", "\n")
     assert "dreamer 1-1 prefill:" in bar  # before learning_starts
@@ -303,7 +310,7 @@ def test_evaluate_script_runs_a_dreamer_checkpoint(runs, tmp_path):
 def test_the_probe_decodes_the_evs_of_a_run_and_says_how_far_off_they_are(runs, capsys):
     from evaaa import EV_NAMES
 
-    result = dreamer.ev_decoding_errors(runs["whole"], sequences=4)
+    result = dreamer_probes.ev_decoding_errors(runs["whole"], sequences=4)
     assert result["sequences"] == 4 and result["env_steps"] > 0
     assert list(result["other"]) == list(EV_NAMES)
     assert all(math.isfinite(v) and v >= 0 for v in result["other"].values())
@@ -316,7 +323,7 @@ def test_the_probe_decodes_the_evs_of_a_run_and_says_how_far_off_they_are(runs, 
         "latent (both)",
     ]
     assert all(math.isfinite(v) and v <= 1 for shares in result["linear_probe"].values() for v in shares.values())
-    values = dreamer.imagined_action_values(runs["whole"], sequences=4, samples=2)
+    values = dreamer_probes.imagined_action_values(runs["whole"], sequences=4, samples=2)
     assert list(values["groups"]) == ["every state", "ate or drank", "ate nothing", "1-5 steps before eating"]
     every = values["groups"]["every state"]
     assert every["states"] > 0 and values["return_scale"] >= 1
@@ -340,12 +347,14 @@ def test_the_probe_reads_other_networks_of_the_run_on_its_replay(runs, capsys, t
     state["env_steps"] = 12
     flat = tmp_path / "model-flat.pt"
     checkpoint.save_checkpoint(state, flat)
-    own = dreamer.imagined_action_values(runs["whole"], sequences=4, samples=2)["groups"]["every state"]["policy"]
-    values = dreamer.imagined_action_values(runs["whole"], sequences=4, samples=2, model_file=flat)
+    own = dreamer_probes.imagined_action_values(runs["whole"], sequences=4, samples=2)["groups"]["every state"][
+        "policy"
+    ]
+    values = dreamer_probes.imagined_action_values(runs["whole"], sequences=4, samples=2, model_file=flat)
     assert values["env_steps"] == 12
     assert list(values["groups"]["every state"]["policy"].values()) == pytest.approx([0.2] * 5)
     assert list(own.values()) != pytest.approx([0.2] * 5)
-    assert dreamer.ev_decoding_errors(runs["whole"], sequences=4, model_file=flat)["env_steps"] == 12
+    assert dreamer_probes.ev_decoding_errors(runs["whole"], sequences=4, model_file=flat)["env_steps"] == 12
     probe = load_script("probe_dreamer")
     assert probe.main([f"run={runs['whole']}", f"model={flat}", "sequences=4", "samples=2"]) == 0
     out = capsys.readouterr().out
@@ -359,7 +368,7 @@ def test_the_probe_reads_other_networks_of_the_run_on_its_replay(runs, capsys, t
 
 def test_a_fresh_world_model_fits_a_runs_replay_and_measures_what_eating_does(runs, capsys, tmp_path):
     seen = []
-    rows = dreamer.fit_world_model(
+    rows = dreamer_probes.fit_world_model(
         runs["whole"], updates=6, every=3, overrides=["consume_share=0.5"], held_out=0.25, report=seen.append
     )
     assert [r["updates"] for r in rows] == [0, 3, 6] and seen == rows
@@ -369,22 +378,22 @@ def test_a_fresh_world_model_fits_a_runs_replay_and_measures_what_eating_does(ru
     assert all("eat_effect_trained" in r for r in rows)  # the same on eating steps it trains on
     # the trained latent's read-out of "this press will eat" comes with the last measurement only
     assert {"latent_auc_embedding", "latent_auc_belief"} <= set(rows[-1]) and "latent_auc_belief" not in rows[0]
-    blind = dreamer.fit_world_model(
+    blind = dreamer_probes.fit_world_model(
         runs["whole"], updates=1, every=1, held_out=0.25, keys=["interoception", "olfaction"]
     )
     assert len(blind) == 2  # without the pixels' encoder and decoder
     assert blind[0]["world_model_parameters"] < rows[0]["world_model_parameters"]
     with pytest.raises(ValueError, match="keys must include interoception"):
-        dreamer.fit_world_model(runs["whole"], updates=1, every=1, held_out=0.25, keys=["pixels"])
+        dreamer_probes.fit_world_model(runs["whole"], updates=1, every=1, held_out=0.25, keys=["pixels"])
     with pytest.raises(ValueError, match="too few to hold out"):
-        dreamer.fit_world_model(runs["whole"], updates=1, every=1, held_out=0.99)
+        dreamer_probes.fit_world_model(runs["whole"], updates=1, every=1, held_out=0.99)
     fit = load_script("fit_world_model")
     out = tmp_path / "fit.csv"
     assert fit.main([f"run={runs['whole']}", "updates=2", "every=1", "held_out=0.25", f"out={out}", "threads=1"]) == 0
     printed = capsys.readouterr().out
     assert "eat effect" in printed and "on trained" in printed and "held-out AUC" in printed
     assert "read-out of the trained latent" in printed
-    readout = dreamer.eat_success_readout(runs["whole"])
+    readout = dreamer_probes.eat_success_readout(runs["whole"])
     assert readout["ate"] <= readout["presses"] and "all of them" in readout["auc"]
     assert [r["updates"] for r in read_csv(out)] == ["0", "1", "2"]
 
@@ -392,17 +401,18 @@ def test_a_fresh_world_model_fits_a_runs_replay_and_measures_what_eating_does(ru
 def test_the_world_model_fit_leaves_out_steps_taken_on_a_reset_observation_it_never_stored(runs, monkeypatch):
     # an episode's first step was taken on the reset observation, which the replay does not store: no measurement
     # may read the previous episode's last observation as the one eaten on
-    state, data, num_envs, rows = dreamer._run_replay(runs["whole"])
+    state, data, num_envs, rows = dreamer_probes._run_replay(runs["whole"])
     data = data.clone()  # in memory: the run's own files stay as they are
     held_out_rows = torch.arange(int(rows * 0.75) + 16, rows)[:3]  # beyond the 16 steps of context before each
     assert len(held_out_rows) == 3
     data["next", "consumed"].zero_()
     data["next", "consumed"][held_out_rows, 0] = True
     data["is_init"].zero_()
-    monkeypatch.setattr(dreamer, "_run_replay", lambda run_dir: (state, data, num_envs, rows))
-    assert dreamer.fit_world_model(runs["whole"], updates=0, every=1, held_out=0.25)[0]["held_out_eating_steps"] == 3
+    monkeypatch.setattr(dreamer_probes, "_run_replay", lambda run_dir: (state, data, num_envs, rows))
+    fit = dreamer_probes.fit_world_model(runs["whole"], updates=0, every=1, held_out=0.25)
+    assert fit[0]["held_out_eating_steps"] == 3
     data["is_init"][held_out_rows[:2], 0] = True  # two of the three meals were an episode's first step
-    row = dreamer.fit_world_model(runs["whole"], updates=0, every=1, held_out=0.25)[0]
+    row = dreamer_probes.fit_world_model(runs["whole"], updates=0, every=1, held_out=0.25)[0]
     assert row["held_out_eating_steps"] == 1
 
 
@@ -423,9 +433,9 @@ def test_the_logistic_readout_tells_what_the_features_carry_and_not_what_they_la
     carrying = torch.randn(600, 5, generator=gen)
     carrying[:, 2] += 3 * labels  # one feature says it
     fit = torch.arange(600) % 2 == 0
-    assert dreamer.logistic_readout_auc(carrying, labels, fit) > 0.95
-    assert abs(dreamer.logistic_readout_auc(torch.randn(600, 5, generator=gen), labels, fit) - 0.5) < 0.15
-    assert math.isnan(dreamer.logistic_readout_auc(carrying, torch.zeros(600, dtype=torch.bool), fit))
+    assert dreamer_probes.logistic_readout_auc(carrying, labels, fit) > 0.95
+    assert abs(dreamer_probes.logistic_readout_auc(torch.randn(600, 5, generator=gen), labels, fit) - 0.5) < 0.15
+    assert math.isnan(dreamer_probes.logistic_readout_auc(carrying, torch.zeros(600, dtype=torch.bool), fit))
 
 
 def test_imagining_each_action_takes_that_action_and_averages_the_draws():
@@ -435,7 +445,7 @@ def test_imagining_each_action_takes_that_action_and_averages_the_draws():
         return None, torch.full_like(state, float(next(draws))), onehot
 
     state, belief = torch.zeros(3, 2), torch.zeros(3, 5)
-    out = dreamer.imagine_each_action(
+    out = dreamer_probes.imagine_each_action(
         prior,
         state,
         belief,
@@ -443,11 +453,11 @@ def test_imagining_each_action_takes_that_action_and_averages_the_draws():
         paid=lambda s, b: b[:, evaaa.ACTION_NAMES.index("eat")] * 10,
         drawn=lambda s, b: s[:, 0],
     )
-    assert out["paid"].shape == (3, dreamer.NUM_ACTIONS)
+    assert out["paid"].shape == (3, dreamer_model.NUM_ACTIONS)
     assert out["paid"][:, evaaa.ACTION_NAMES.index("eat")].eq(10).all()  # only eating pays, in every state
     assert out["paid"].sum(1).eq(10).all()
     # action a's four draws are 4a .. 4a + 3: their mean
-    assert out["drawn"][0].tolist() == [4 * a + 1.5 for a in range(dreamer.NUM_ACTIONS)]
+    assert out["drawn"][0].tolist() == [4 * a + 1.5 for a in range(dreamer_model.NUM_ACTIONS)]
 
 
 def test_the_linear_probe_reads_what_the_features_hold_and_not_what_they_lack():
@@ -456,9 +466,34 @@ def test_the_linear_probe_reads_what_the_features_hold_and_not_what_they_lack():
     fit = torch.arange(400) % 2 == 0
     mixing = torch.randn(4, 16, generator=gen)
     # the targets' symlog (as the model codes them), linearly mixed
-    holding = dreamer.symlog(target) @ mixing + 0.001 * torch.randn(400, 16, generator=gen)
+    holding = symlog(target) @ mixing + 0.001 * torch.randn(400, 16, generator=gen)
     lacking = torch.randn(400, 16, generator=gen)  # nothing of them
-    assert float(dreamer.linear_probe_r2(holding, target, fit).min()) > 0.99
-    assert float(dreamer.linear_probe_r2(lacking, target, fit).max()) < 0.1
-    nothing = dreamer.linear_probe_r2(torch.zeros(400, 1), target, fit)  # the fitted mean
+    assert float(dreamer_probes.linear_probe_r2(holding, target, fit).min()) > 0.99
+    assert float(dreamer_probes.linear_probe_r2(lacking, target, fit).max()) < 0.1
+    nothing = dreamer_probes.linear_probe_r2(torch.zeros(400, 1), target, fit)  # the fitted mean
     assert float(nothing.abs().max()) < 0.05
+
+
+def test_ctrl_c_stops_between_two_gradient_steps_and_the_resume_finishes_the_iteration(tmp_path, monkeypatch):
+    # two gradient steps per iteration (replay ratio 1, two worlds): the Ctrl-C after the 40th of them leaves the
+    # 41st owed by the same iteration; a size-S gradient step takes a minute on a CPU, an iteration several
+    ratio = ("algo.replay_ratio=1.0", "total_steps=96")
+    train(debug_cfg(*ratio), tmp_path / "whole")
+    updated = runtime.Run.updated
+
+    def ctrl_c_after_40(self, count, seconds, total, ratio=None):
+        updated(self, count, seconds, total, ratio)
+        if total == 40:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    monkeypatch.setattr(runtime.Run, "updated", ctrl_c_after_40)
+    with pytest.raises(runtime.Interrupted, match="interrupted at env step"):
+        train(debug_cfg(*ratio), tmp_path / "resumed")
+    monkeypatch.undo()
+    at_stop = checkpoint.load_checkpoint(tmp_path / "resumed" / checkpoint.CHECKPOINT)
+    assert at_stop["components"]["counters"]["updates"] == 40  # not the 41st: the step under way was the last
+    train(debug_cfg(*ratio, "resume=true"), tmp_path / "resumed")
+    whole = checkpoint.load_checkpoint(tmp_path / "whole" / checkpoint.CHECKPOINT)
+    resumed = checkpoint.load_checkpoint(tmp_path / "resumed" / checkpoint.CHECKPOINT)
+    same_training(whole, resumed)
+    assert read_csv(tmp_path / "whole" / "eval.csv") == read_csv(tmp_path / "resumed" / "eval.csv")

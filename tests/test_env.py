@@ -214,7 +214,7 @@ def test_the_sensors_read_the_world_only_through_the_protocol():
     for key, reading in obs.items():
         assert np.array_equal(SENSORS[key](seen).read(np.arange(2)), reading), key
     with pytest.raises(AttributeError, match="not part of the World protocol"):
-        seen.datas
+        _ = seen.datas
     sim.close()
 
 

@@ -17,6 +17,9 @@ from tensordict import TensorDict
 from evaaa import ACTION_NAMES
 from evaaa_baselines import dreamer
 from evaaa_baselines.config import CONF_DIR, register_levels
+from evaaa_baselines.dreamer import losses as dreamer_losses
+from evaaa_baselines.dreamer import model as dreamer_model
+from evaaa_baselines.dreamer import replay as dreamer_replay
 from evaaa_baselines.ppo import ReturnScale
 
 register_levels()
@@ -87,7 +90,7 @@ def test_consumed_marks_the_steps_whose_food_or_water_count_grew():
     after = {"food_eaten": torch.tensor([[0], [3], [0]]), "water_eaten": torch.tensor([[2], [0], [0]])}
     td = TensorDict({"info": counts, "next": {"info": after}}, [3])
     # world 0 drank, world 1 ate, world 2's counts restarted (an episode's first step), which is no eating
-    assert dreamer.consumed(td).squeeze(-1).tolist() == [True, True, False]
+    assert dreamer_replay.consumed(td).squeeze(-1).tolist() == [True, True, False]
 
 
 @pytest.fixture(scope="module")
@@ -133,8 +136,8 @@ def test_diagnostics_say_what_the_heads_and_the_actor_do(model):
         },
         [n, horizon],
     )
-    critic = dreamer.value_model(model)
-    out = dreamer.diagnostics(model, critic, posterior, imagined, torch.tensor(2.0))
+    critic = dreamer_model.value_model(model)
+    out = dreamer_losses.diagnostics(model, critic, posterior, imagined, torch.tensor(2.0))
 
     assert out["reward_error_consume"].item() == pytest.approx((4.0 + 0.0) / 2)
     assert out["reward_error_other"].item() == pytest.approx((0.5 + 0.0 + 0.1 + 0.0) / 4)
@@ -161,7 +164,7 @@ def test_the_replay_value_loss_targets_the_real_rewards_after_each_state(model):
 
     with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
         cfg = compose("config", overrides=["algo=dreamer", "preset=debug"]).algo
-    critic = dreamer.value_model(model)
+    critic = dreamer_model.value_model(model)
     loss = DreamerV3ValueLoss(
         critic, value_loss="two_hot", num_value_bins=cfg.model.bins, slow_critic_regularization=0.0
     )
@@ -173,7 +176,7 @@ def test_the_replay_value_loss_targets_the_real_rewards_after_each_state(model):
     posterior = TensorDict({"next": {**latents, "true_reward": reward, "done": no, "terminated": no}}, [1, time])
     bootstrap = torch.tensor([10.0, 20.0, 30.0])  # each state's first imagined return, in the batch's order
     imagined = TensorDict({"lambda_target": torch.stack([bootstrap, bootstrap - 1], 1).unsqueeze(-1)}, [time, 2])
-    got = dreamer.replay_value_loss(loss, posterior, imagined, cfg)
+    got = dreamer_losses.replay_value_loss(loss, posterior, imagined, cfg)
 
     gamma, lmbda = cfg.gamma, cfg.lmbda
     # state k's return: the reward of the step after it, then its successor's bootstrap and return
@@ -235,7 +238,7 @@ def test_a_ppo_run_made_without_reward_scaling_resumes_only_with_it_off(tmp_path
 def fill_replay(share: float, *, rows: int, eaten_at: list[tuple[int, int]], capacity: int | None = None):
     """A 2-world in-memory replay of ``rows`` steps per world whose ``step`` entry counts the rows written, with
     ``("next", "consumed")`` set at (row, world) for ``eaten_at``."""
-    replay = dreamer.SequenceReplay(capacity or 2 * rows, 2, 8, 10, consume_share=share)
+    replay = dreamer_replay.SequenceReplay(capacity or 2 * rows, 2, 8, 10, consume_share=share)
     for t in range(rows):
         replay.extend(
             TensorDict(
@@ -271,7 +274,7 @@ def test_a_share_of_the_replayed_sequences_hold_an_eating_step():
 
 def test_a_share_of_the_replayed_sequences_hold_a_death_beside_those_around_eating():
     torch.manual_seed(0)
-    replay = dreamer.SequenceReplay(240, 2, 8, 10, consume_share=0.2, terminal_share=0.3)
+    replay = dreamer_replay.SequenceReplay(240, 2, 8, 10, consume_share=0.2, terminal_share=0.3)
     assert (replay.consume_sequences, replay.terminal_sequences) == (2, 3)
     for t in range(120):
         replay.extend(
@@ -297,11 +300,11 @@ def test_a_share_of_the_replayed_sequences_hold_a_death_beside_those_around_eati
         seen.append(died[:5].float().mean())
     assert float(torch.stack(seen).mean()) < 0.5  # the first five are uniform
     with pytest.raises(ValueError, match=r"algo.terminal_share must lie in \[0, 1\], got -0.1"):
-        dreamer.SequenceReplay(100, 2, 8, 10, terminal_share=-0.1)
+        dreamer_replay.SequenceReplay(100, 2, 8, 10, terminal_share=-0.1)
     with pytest.raises(
         ValueError, match=r"algo.consume_share \+ algo.terminal_share must be at most 1, got 0.6 \+ 0.5"
     ):
-        dreamer.SequenceReplay(100, 2, 8, 10, consume_share=0.6, terminal_share=0.5)
+        dreamer_replay.SequenceReplay(100, 2, 8, 10, consume_share=0.6, terminal_share=0.5)
 
 
 def test_the_uniform_replay_is_left_alone_and_a_share_outside_zero_one_is_refused():
@@ -310,7 +313,7 @@ def test_the_uniform_replay_is_left_alone_and_a_share_outside_zero_one_is_refuse
     none_yet = fill_replay(0.5, rows=50, eaten_at=[])
     assert none_yet.sample().shape == (10, 8)  # nothing eaten yet: all uniform
     with pytest.raises(ValueError, match=r"algo.consume_share must lie in \[0, 1\], got 1.5"):
-        dreamer.SequenceReplay(100, 2, 8, 10, consume_share=1.5)
+        dreamer_replay.SequenceReplay(100, 2, 8, 10, consume_share=1.5)
 
 
 def test_sequences_around_eating_never_run_across_the_writers_cursor():
@@ -333,14 +336,14 @@ def test_the_vector_reconstruction_is_the_symlog_squared_error_summed_per_key():
     first = (math.log(4.0) - 1.0) ** 2  # step 0: one entry off
     second = math.log(2.0) ** 2  # step 1: symlog(1) = log 2
     expected = (first + second) / 2
-    got = dreamer.vector_reconstruction(posterior, ["interoception", "olfaction"])
+    got = dreamer_losses.vector_reconstruction(posterior, ["interoception", "olfaction"])
     assert float(got) == pytest.approx(expected, rel=1e-5)
-    assert float(dreamer.vector_reconstruction(posterior, ["olfaction"])) == 0.0
+    assert float(dreamer_losses.vector_reconstruction(posterior, ["olfaction"])) == 0.0
     # in raw units: step 0 is off by 3 - (e - 1), step 1 by 1
     raw = ((3.0 - (math.e - 1)) ** 2 + 1.0) / 2
-    assert float(dreamer.vector_reconstruction(posterior, ["interoception"], raw=["interoception"])) == pytest.approx(
-        raw, rel=1e-5
-    )
+    assert float(
+        dreamer_losses.vector_reconstruction(posterior, ["interoception"], raw=["interoception"])
+    ) == pytest.approx(raw, rel=1e-5)
 
 
 def test_raw_keys_must_be_vector_keys_of_the_run():
@@ -348,9 +351,9 @@ def test_raw_keys_must_be_vector_keys_of_the_run():
         cfg = compose("config", overrides=["algo=dreamer", "preset=debug", "algo.world_model.raw_keys=[pixels]"])
     model = dreamer.make_model(cfg.algo, {"pixels": (64, 64, 3), "interoception": (4,)})
     with pytest.raises(ValueError, match="raw_keys must name vector observation keys"):
-        dreamer.WorldModelLoss(cfg.algo, model)
+        dreamer_losses.WorldModelLoss(cfg.algo, model)
     cfg.algo.world_model.raw_keys = "interoception"  # one key as a plain string (a dotted override's value)
-    loss = dreamer.WorldModelLoss(cfg.algo, model)
+    loss = dreamer_losses.WorldModelLoss(cfg.algo, model)
     assert loss.raw_keys == ("interoception",) and loss.loss.reco_symlog == [False, False]
 
 
@@ -406,18 +409,18 @@ def test_the_prior_term_trains_the_transition_to_predict_the_evs_and_a_negative_
         },
         [2, 6],
     )
-    out = dreamer.world_model(model)(batch)
+    out = dreamer_model.world_model(model)(batch)
     head = list(model.prior.rnn_to_prior_projector.parameters())
 
     def grads(loss: torch.Tensor) -> list[torch.Tensor | None]:
         return torch.autograd.grad(loss, head, allow_unused=True, retain_graph=True)
 
-    assert all(g is None or not g.any() for g in grads(dreamer.vector_reconstruction(out, list(shapes))))
-    prior = dreamer.prior_vector_reconstruction(out, model.decoder, list(shapes))
+    assert all(g is None or not g.any() for g in grads(dreamer_losses.vector_reconstruction(out, list(shapes))))
+    prior = dreamer_losses.prior_vector_reconstruction(out, model.decoder, list(shapes))
     assert float(prior.detach()) > 0 and any(g is not None and g.abs().sum() > 0 for g in grads(prior))
     cfg.algo.world_model.prior_vector_scale = 3.0
-    loss = dreamer.WorldModelLoss(cfg.algo, model)
+    loss = dreamer_losses.WorldModelLoss(cfg.algo, model)
     assert loss.prior_scale == 3.0 and not loss.loss.detach_output  # the term needs the graph
     cfg.algo.world_model.prior_vector_scale = -1.0
     with pytest.raises(ValueError, match="prior_vector_scale must be >= 0"):
-        dreamer.WorldModelLoss(cfg.algo, model)
+        dreamer_losses.WorldModelLoss(cfg.algo, model)

@@ -110,7 +110,8 @@ def test_summary_numbers_match_the_inputs(tmp_path):
     assert summary.loc["1-1", "survival_mean"] == pytest.approx(300.0)
     assert summary.loc["1-1", "survival_se"] == pytest.approx(np.std([100, 200, 600], ddof=1) / np.sqrt(3))
     low, high = summary.loc["1-1", "survival_low"], summary.loc["1-1", "survival_high"]
-    assert (low, high) == (interval([[100.0, 200.0, 600.0]]).low, interval([[100.0, 200.0, 600.0]]).high)
+    # one policy's episodes are its units: each episode a stratum of one
+    assert (low, high) == (interval([[100.0], [200.0], [600.0]]).low, interval([[100.0], [200.0], [600.0]]).high)
     assert 100 <= low < 300 < high <= 600
     assert np.isnan(summary.loc["1-1", "success_rate"])
     table = markdown_table(summarize(rows))
@@ -220,8 +221,9 @@ def test_figures_label_checkpoints_by_what_differs_in_their_paths(tmp_path, monk
 
 
 def test_summary_of_human_play_has_the_participants_as_units():
-    # p01 survived 10, 20, 30 decisions, p02 1000 and 40: bootstrap strata are the participants, mean ± se over
-    # the five episodes, the IQM (one cut at each end of 10, 20, 30, 40, 1000) is the mean of 20, 30, 40
+    # p01 survived 10, 20, 30 decisions, p02 1000 and 40: the participants are the units, mean ± se over the five
+    # episodes, the IQM (one cut at each end of 10, 20, 30, 40, 1000) is the mean of 20, 30, 40; two participants
+    # are too few for an interval
     rows = pd.DataFrame(
         {
             "level": ["1-1"] * 5,
@@ -237,6 +239,8 @@ def test_summary_of_human_play_has_the_participants_as_units():
     row = summarize(rows).iloc[0]
     assert (row["units"], row["unit"], row["episodes"]) == (2, "participants", 5)
     assert row["survival_iqm"] == pytest.approx(30.0) and row["survival_mean"] == pytest.approx(220.0)
-    est = interval([[10.0, 20.0, 30.0], [1000.0, 40.0]])
-    assert (row["survival_low"], row["survival_high"]) == (est.low, est.high)
+    assert np.isnan(row["survival_low"]) and np.isnan(row["survival_high"])
+    third = pd.concat([rows, rows.iloc[:1].assign(participant="p03", steps=500)], ignore_index=True)
+    est = interval([[10.0, 20.0, 30.0], [1000.0, 40.0], [500.0]])
+    assert tuple(summarize(third).iloc[0][["survival_low", "survival_high"]]) == (est.low, est.high)
     assert "(n=2 participants, 5 ep.) |" in markdown_table(summarize(rows))

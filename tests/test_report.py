@@ -27,7 +27,7 @@ import evaaa
 from evaaa.records import TRAINING_EPISODE_FIELDS, append_rows
 from evaaa_baselines.config import CONF_DIR, observation_keys, register_levels
 from evaaa_baselines.reports import ReportError, build_report
-from evaaa_baselines.reports.stats import interval
+from evaaa_baselines.reports.stats import clustered_rate, interval
 
 register_levels()
 
@@ -35,18 +35,8 @@ ROOT = Path(__file__).resolve().parents[1]
 STAGES = ("1-1", "1-2")
 BUDGET = 100  # env steps per stage
 TESTBEDS = ("two-resource-food", "y-maze")
-FIGURES = (
-    "fig4a_survival_per_level.png",
-    "fig4a_curriculum_vs_direct.png",
-    "fig4b_success_per_testbed.png",
-    "fig4b_generalisation.png",
-    "fig_training_curves.png",
-    "fig25_ablation_curves.png",
-    "fig26_ablation_success.png",
-)
-
-# eval.csv as runs wrote it before evaluations were one row per episode (the committed paper-cpu record's format)
-EVAL_COLUMNS = (
+#: eval.csv as training runs wrote it before evaluations kept one row per episode: one mean per evaluation
+OLD_EVAL_COLUMNS = (
     "env_steps",
     "stage",
     "level",
@@ -57,6 +47,16 @@ EVAL_COLUMNS = (
     "return_mean",
     "end_types",
     "wall_time",
+)
+FIGURES = (
+    "fig4a_survival_per_level.png",
+    "fig4a_curriculum_vs_direct.png",
+    "fig4b_success_per_testbed.png",
+    "fig4b_generalisation.png",
+    "fig_training_curves.png",
+    "fig_evaluation_curves.png",
+    "fig25_ablation_curves.png",
+    "fig26_ablation_success.png",
 )
 
 
@@ -92,13 +92,15 @@ class Sim:
         partial_steps: int = 0,
         files: bool = True,
         overrides: tuple[str, ...] = (),
+        budget: int = BUDGET,
     ) -> Path:
         """``finish``: stages finished (a curriculum has two, a direct run one); ``partial_steps``: env steps the
-        next, unfinished stage got to; ``files``: False leaves the config alone (a run that never started)."""
+        next, unfinished stage got to; ``files``: False leaves the config alone (a run that never started);
+        ``budget``: a direct run's env steps."""
         extra = (
             [f"level.stage_steps={BUDGET}", f"level.stages=[{','.join(STAGES)}]"]
             if level == "curriculum"
-            else [f"total_steps={BUDGET}"]
+            else [f"total_steps={budget}"]
         )
         cfg = make_cfg(
             f"algo={algo}",
@@ -130,7 +132,7 @@ class Sim:
         for index, name in enumerate(stages):
             if index > finish:
                 break
-            end = BUDGET if index < finish else partial_steps
+            end = (BUDGET if level == "curriculum" else budget) if index < finish else partial_steps
             for step in np.linspace(end / 5, end, 5).astype(int)[: -1 if index == finish else None]:
                 survival = int(self.rng.integers(10, 400))
                 episodes.append(
@@ -174,7 +176,7 @@ class Sim:
             if index < finish:
                 (run_dir / f"model-{index}-{name}.pt").touch()
         write_csv(run_dir / "episodes.csv", TRAINING_EPISODE_FIELDS, episodes)
-        write_csv(run_dir / "eval.csv", EVAL_COLUMNS, evals)
+        write_csv(run_dir / "eval.csv", OLD_EVAL_COLUMNS, evals)
         (run_dir / "checkpoint.pt").touch()
         return run_dir
 
@@ -288,37 +290,50 @@ def wilson(k: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
     return centre - half, centre + half
 
 
-def size(samples, unit: str) -> str:
+def size(samples, unit: str, means_of: int | None = None) -> str:
     n, episodes = len(samples), sum(len(s) for s in samples)
     if unit == "episodes":
         return f"{episodes} ep."
     word = unit if n != 1 else unit[:-1]
+    if means_of:
+        return f"{n} {word} × mean of {means_of} ep."
     return f"{n} {word} × {episodes // n} ep." if episodes % n == 0 else f"{n} {word}, {episodes} ep."
 
 
 def expect(samples, unit: str = "seeds", *, per_seed: int | None = None) -> str:
     """The survival cell for ``samples`` (one list of episode survivals per seed, or per participant; ``unit``
-    ``episodes``: one list, a reference agent's episodes): ``IQM [95 % bootstrap]; mean ± se (n=…)``.
-    ``per_seed``: each seed gave one number (an evaluation's mean) over this many episodes."""
+    ``episodes``: one list, a reference agent's episodes, each its own unit): ``IQM [95 % bootstrap]; mean ± se
+    (n=…)`` from three units on, ``IQM; seeds a, b (n=…)`` under three.  ``per_seed``: each seed gave one number
+    (an evaluation's mean) over this many episodes."""
     samples = [list(map(float, s)) for s in samples]
     pooled = [v for s in samples for v in s]
-    strata = [pooled] if all(len(s) == 1 for s in samples) else samples
-    est = interval(strata, "iqm")
+    units = [[v] for v in pooled] if unit == "episodes" else samples
     text = f"{hand_iqm(pooled):.1f}"
-    if len(pooled) > 1:
-        text += f" [{est.low:.1f}, {est.high:.1f}]"
-    m, se, _ = stats(pooled if unit == "episodes" else [np.mean(s) for s in samples])
-    text += f"; {m:.1f}" + ("" if np.isnan(se) else f" ± {se:.1f}")
-    shown = [[0.0] * per_seed for _ in samples] if per_seed else samples
-    return f"{text} (n={size(shown, unit)})"
+    if len(units) >= 3:
+        est = interval(units, "iqm")
+        m, se, _ = stats([np.mean(s) for s in units])
+        text += f" [{est.low:.1f}, {est.high:.1f}]; {m:.1f} ± {se:.1f}"
+    else:
+        text += f"; {unit} " + ", ".join(f"{np.mean(s):.1f}" for s in units)
+    return f"{text} (n={size(samples, unit, per_seed)})"
 
 
 def expect_rate(samples, unit: str = "seeds") -> str:
     """The success cell for ``samples`` (one list of outcomes per seed or participant; ``unit`` ``episodes``: one
-    list): the pooled share with its Wilson interval, ``rate% [low, high] (n=…)``."""
-    pooled = [float(v) for s in samples for v in s]
-    low, high = wilson(int(sum(pooled)), len(pooled))
-    return f"{100 * np.mean(pooled):.1f}% [{100 * low:.1f}, {100 * high:.1f}] (n={size(samples, unit)})"
+    list): the pooled share with its interval — Wilson's for a reference agent's episodes, seed-clustered Wilson
+    (tested in test_stats.py) from three seeds on, none under three (the seeds' rates instead)."""
+    samples = [list(map(float, s)) for s in samples]
+    pooled = [v for s in samples for v in s]
+    text = f"{100 * np.mean(pooled):.1f}%"
+    if unit == "episodes":
+        low, high = wilson(int(sum(pooled)), len(pooled))
+        text += f" [{100 * low:.1f}, {100 * high:.1f}]"
+    elif len(samples) >= 3:
+        est = clustered_rate(samples)
+        text += f" [{100 * est.low:.1f}, {100 * est.high:.1f}]"
+    else:
+        text += f"; {unit} " + ", ".join(f"{100 * np.mean(s):.1f}%" for s in samples)
+    return f"{text} (n={size(samples, unit)})"
 
 
 def table(text: str, heading: str) -> dict[str, dict[str, str]]:
@@ -369,19 +384,27 @@ def test_survival_per_level_is_the_mean_and_se_across_seeds_of_each_stage_final_
             ]
             assert got[level][label] == expect(values, per_seed=2), (label, level)
     # the run killed in stage 2 counts for the level it finished, not for the one it did not
-    assert "(n=4 seeds × 2 ep.)" in got["1-1"]["dqn · all"] and "(n=3 seeds × 2 ep.)" in got["1-2"]["dqn · all"]
+    assert "(n=4 seeds × mean of 2 ep.)" in got["1-1"]["dqn · all"]
+    assert "(n=3 seeds × mean of 2 ep.)" in got["1-2"]["dqn · all"]
+    section = world["text"][world["text"].index("## Survival per training level") :]
+    assert "means only" in section[: section.index("| level |")]  # eval.csv of the older format: said so
     assert set(got["1-1"]) == {"ppo · all", "dqn · all", "ppo · no_vision"}  # direct ppo runs are in 4a right
 
 
-def test_the_survival_note_says_how_the_in_training_evaluations_acted(world, tmp_path):
-    assert "(`eval.csv`, deterministic episodes)" in world["text"]
+def test_the_tables_say_how_the_in_training_evaluations_acted(world, tmp_path):
+    def title(text: str) -> str:
+        section = text[text.index("## Survival per training level") :]
+        return section[: section.index("| level |")]
+
+    assert "Acting: `mode`" in title(world["text"])  # eval.sample is false by default: the greedy action
     sim = Sim(tmp_path / "runs")
     sim.run("ppo", 0, level="1-1", finish=1, overrides=("eval.sample=true",))
     sampled = build_report([tmp_path / "runs"], [], tmp_path / "out").markdown.read_text()
-    assert "(`eval.csv`, episodes sampled from the policy)" in sampled
-    sim.run("ppo", 1, level="1-1", finish=1)
+    assert "Acting: `sample`" in title(sampled)
+    sim.run("dqn", 0, level="1-1", finish=1, overrides=("eval.sample=true",))
     mixed = build_report([tmp_path / "runs"], [], tmp_path / "out2").markdown.read_text()
-    assert "deterministic episodes, or sampled ones where a run set `eval.sample`" in mixed
+    # DQN has no action distribution: greedy whatever eval.sample says; two modes in one table are said to be so
+    assert "`mode` (dqn); `sample` (ppo)" in title(mixed) and "Not one acting mode" in title(mixed)
 
 
 def test_curriculum_vs_direct_compares_the_same_level(world):
@@ -624,7 +647,7 @@ def test_a_run_ended_by_its_wall_clock_budget_reports_the_steps_it_reached(tmp_p
     assert report.problems == []
 
 
-def test_a_checkpoint_evaluated_in_two_ways_is_reported_one_way_at_a_time(world, tmp_path):
+def test_a_checkpoint_evaluated_in_two_ways_is_reported_both_ways_labelled_never_pooled(world, tmp_path):
     sim = world["sim"]
     run = next(d for d, info in sim.runs.items() if info["level"] == "1-1" and info["seed"] == 0)
     ckpt = str(run / "checkpoint.pt")
@@ -634,13 +657,12 @@ def test_a_checkpoint_evaluated_in_two_ways_is_reported_one_way_at_a_time(world,
     append_rows(tmp_path / "sampled" / "episodes.csv", sampled)
     append_rows(tmp_path / "random.csv", sim.evaluate("random", "1-1", 4))
     evals = [tmp_path / "greedy", tmp_path / "sampled", tmp_path / "random.csv"]
-    # pooled, the numbers would describe neither way of acting
-    with pytest.raises(
-        ReportError,
-        match=r"evaluated in 2 ways \('mode', 'sample'\); choose one with "
-        r"acting=<mode\|sample>",
-    ):
-        build_report([run], evals, tmp_path / "out")
+    both = table(
+        build_report([run], evals, tmp_path / "both").markdown.read_text(), "## Evaluation on training levels"
+    )["1-1"]
+    label = next(k for k in both if k.endswith("[mode]")).removesuffix(" [mode]")
+    assert both[f"{label} [mode]"] == expect([[r["steps"] for r in greedy]])
+    assert both[f"{label} [sample]"] == expect([[r["steps"] for r in sampled]])
     with pytest.raises(ReportError, match=r"no checkpoint was evaluated acting 'greedy'"):
         build_report([run], evals, tmp_path / "out", acting="greedy")
     for acting, rows in (("sample", sampled), ("mode", greedy)):
@@ -749,14 +771,17 @@ def test_a_number_spelled_two_ways_or_another_time_budget_does_not_split_a_group
     sim = Sim(tmp_path / "runs")
     dirs = [
         sim.run("ppo", 0, level="1-1", finish=1, overrides=("algo.value_coef=1", "max_minutes=75")),
-        sim.run("ppo", 1, level="1-1", finish=1, overrides=("algo.value_coef=1.0", "max_minutes=33")),
+        sim.run(
+            "ppo", 1, level="1-1", finish=1, overrides=("algo.value_coef=1.0", "max_minutes=33", "max_cpu_minutes=110")
+        ),
         sim.run("ppo", 2, level="1-1", finish=1, overrides=("algo.value_coef=0.25",)),
     ]
     runs = [load_run(d) for d in dirs]
     assert [r.config["algo"]["value_coef"] for r in runs] == [1, 1.0, 0.25]
     assert isinstance(runs[0].config["algo"]["value_coef"], int)
     describe_extras(runs)
-    assert runs[0].extras == runs[1].extras == ("algo.value_coef=1",)  # max_minutes is a budget, not a setting
+    # max_minutes and max_cpu_minutes are budgets, not settings
+    assert runs[0].extras == runs[1].extras == ("algo.value_coef=1",)
     assert runs[2].extras == ("algo.value_coef=0.25",)  # a setting that differs still splits
     names = labels(runs)
     assert names[dirs[0]] == names[dirs[1]] != names[dirs[2]]
@@ -922,11 +947,10 @@ def test_known_scores_give_their_iqm_and_old_training_files_still_read(tmp_path)
         write_csv(run_dir / "episodes.csv", old, rows)
     report = build_report([tmp_path / "runs"], [], tmp_path / "out", survival="train", window=4)
     got = table(report.markdown.read_text(), "## Survival per training level")["1-1"]["ppo"]
-    assert got.startswith("45.0 [") and got.endswith("; 160.0 ± 105.0 (n=2 seeds × 4 ep.)"), got
-    low, high = map(float, got[len("45.0 [") : got.index("]")].split(", "))
-    assert 10 <= low <= 45 <= high <= 1000 and high > low
+    assert got == "45.0; seeds 265.0, 55.0 (n=2 seeds × 4 ep.)"  # two seeds: their values, no interval
     data = pd.read_csv(tmp_path / "out" / "data" / "survival_per_level.csv")
     assert data.loc[0, "value"] == pytest.approx(45.0) and data.loc[0, "episodes"] == 8
+    assert np.isnan(data.loc[0, "low"]) and data.loc[0, "acting"] == "exploring (training)"
 
 
 def test_training_writes_the_episode_fields_of_evaluations():
@@ -980,3 +1004,345 @@ def test_the_claims_are_judged_on_the_numbers_of_the_report(world):
         f"no_vision {fmt(final, label='no_vision', group='ppo · curriculum')} vs all "
         f"{fmt(final, label='all', group='ppo · curriculum')}"
     ]
+
+
+# ------------------------------------------------------------------------------------------------ issue 42
+def test_survival_cells_come_from_per_episode_evaluations_where_there_are_any(tmp_path):
+    # three direct runs whose final models were evaluated on their level: the cell is over those episodes (seeds
+    # redrawn, then episodes within seeds), not over the means of eval.csv
+    sim = Sim(tmp_path / "runs")
+    per_seed, rows = [], []
+    for seed in (0, 1, 2):
+        run = sim.run("ppo", seed, level="1-1", finish=1)
+        part = [r | {"acting": "mode", "worlds": "test"} for r in sim.evaluate(str(run / "model-0-1-1.pt"), "1-1", 4)]
+        per_seed.append([r["steps"] for r in part])
+        rows += part
+    append_rows(tmp_path / "eval" / "episodes.csv", rows)
+    text = build_report([tmp_path / "runs"], [tmp_path / "eval"], tmp_path / "out").markdown.read_text()
+    assert table(text, "## Survival per training level")["1-1"]["ppo"] == expect(per_seed)
+    section = text[text.index("## Survival per training level") :]
+    assert "**Survival per training level (decisions).** Acting: `mode`. Worlds: test." in section
+    assert "evaluated by evaluate.py on its level" in section.split("\n\n")[1]
+
+
+def markdown_tables(text: str) -> list[tuple[str, str]]:
+    """(title line, header line) of every Markdown table of ``text``: the title is the last non-empty line
+    before it."""
+    lines = text.splitlines()
+    out = []
+    for i, line in enumerate(lines):
+        if line.startswith("|") and (i == 0 or not lines[i - 1].startswith("|")):
+            out.append((next((x for x in reversed(lines[:i]) if x.strip()), ""), line))
+    return out
+
+
+def test_every_table_of_a_report_names_its_acting_mode_and_worlds(world):
+    found = markdown_tables(world["text"])
+    assert len(found) >= 10
+    for title, header in found:
+        assert "Acting:" in title and "Worlds:" in title, (header, title)
+    assert "Worlds: seed-0 worlds, not held out." in world["text"]  # evaluations of files without a worlds column
+    for path in (world["base"] / "out" / "data").glob("*.csv"):
+        columns = set(pd.read_csv(path, nrows=0).columns)
+        assert {"acting", "worlds"} <= columns, path.name
+
+
+def png_width(path: Path) -> int:
+    from PIL import Image
+
+    with Image.open(path) as image:
+        return image.size[0]
+
+
+def test_figures_fit_a_page_width(world, tmp_path):
+    from evaaa_baselines.reports import plot_bars, plot_lines, plot_outcomes
+
+    for name in FIGURES:
+        assert png_width(world["base"] / "out" / name) <= 1600, name
+    # many agents on every level, many panels, many policies: wrapped into rows, never wider
+    levels = list(evaaa.LEVELS)
+    many = pd.DataFrame(
+        [
+            {
+                "label": f"ppo · setting {i} · a long label",
+                "level": lv,
+                "value": 100.0 + i,
+                "low": 90.0,
+                "high": 120.0 + i,
+                "statistic": "iqm",
+                "n": 3,
+                "unit": "seeds",
+            }
+            for i in range(30)
+            for lv in levels
+        ]
+    )
+    assert png_width(plot_bars(many, tmp_path / "bars.png", ylabel="survival", title="t")) <= 1600
+    panels = many.assign(panel=many["label"].str[:14], steps=many["level"].map(levels.index) * 100.0)
+    assert (
+        png_width(
+            plot_lines(
+                panels, tmp_path / "lines.png", x="steps", panel="panel", ylabel="y", xlabel="x", title="t", band=True
+            )
+        )
+        <= 1600
+    )
+    rows = pd.DataFrame(
+        [
+            {
+                "policy": f"runs/{i}/seed0/model-0-1-1.pt",
+                "acting": "mode",
+                "level": lv,
+                "success": np.nan,
+                "end_type": "FoodOutOfRange",
+                "food_eaten": 0,
+                "collisions": 1,
+            }
+            for i in range(12)
+            for lv in (*levels, *evaaa.TESTBEDS)
+        ]
+    )
+    assert png_width(plot_outcomes(rows, tmp_path / "outcomes.png")) <= 1600
+
+
+def test_one_colour_per_algorithm_and_per_modality_across_figures(world, tmp_path, monkeypatch):
+    from matplotlib.axes import Axes
+
+    from evaaa_baselines.reports.figures import styles
+
+    drawn: list[tuple[str, str, object]] = []  # (figure kind, label, colour)
+    bar, plot = Axes.bar, Axes.plot
+
+    def spy_bar(self, *a, **kw):
+        drawn.append(("bar", kw.get("label"), kw.get("color")))
+        return bar(self, *a, **kw)
+
+    def spy_plot(self, *a, **kw):
+        drawn.append(("line", kw.get("label"), kw.get("color")))
+        return plot(self, *a, **kw)
+
+    monkeypatch.setattr(Axes, "bar", spy_bar)
+    monkeypatch.setattr(Axes, "plot", spy_plot)
+    build_report([world["base"] / "runs"], [world["base"] / "eval"], tmp_path)
+    algos, modalities = {}, {}
+    for _, label, colour in drawn:
+        if not label or label.startswith("_"):
+            continue
+        if label in ("all", "no_vision"):  # Figs. 25 (lines) and 26 (bars) label their lines and bars by modality
+            modalities.setdefault(label, set()).add(colour)
+        else:
+            algos.setdefault(label.split(" · ")[0], set()).add(colour)
+    assert {"ppo", "dqn", "oracle", "random"} <= set(algos) and set(modalities) == {"all", "no_vision"}
+    assert all(len(c) == 1 for c in (*algos.values(), *modalities.values())), (algos, modalities)
+    assert len({next(iter(c)) for c in algos.values()}) == len(algos)  # and different algorithms differ
+    assert modalities["all"] != modalities["no_vision"]
+    # whatever else a figure shows, and in whatever order
+    assert styles(["dqn · x", "ppo · y"])["ppo · y"][0] == styles(["ppo · z"])["ppo · z"][0]
+
+
+def learned_rows(text: str) -> list[dict[str, str]]:
+    lines = text[text.index("## What each agent learned") :].splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("| level"))
+    header = [c.strip() for c in lines[start].strip("|").split("|")]
+    rows = []
+    for line in lines[start + 2 :]:
+        if not line.startswith("|"):
+            break
+        rows.append(dict(zip(header, (c.strip() for c in line.strip("|").split("|")))))
+    return rows
+
+
+def test_what_it_learned_sets_every_agent_beside_random_and_stand_still(tmp_path):
+    # ppo stands still (never eats, survives a little longer than stand-still); dqn eats two items an episode
+    sim = Sim(tmp_path / "runs")
+    rows = []
+    for algo, steps, food in (("ppo", 1200, 0), ("dqn", 900, 2), ("ppo_lstm", 500, 0)):
+        for seed in (0, 1, 2):
+            run = sim.run(algo, seed, level="1-1", finish=1)
+            rows += [
+                r
+                | {
+                    "acting": "mode",
+                    "worlds": "test",
+                    "steps": steps + seed,
+                    "food_eaten": food,
+                    "end_type": "FoodOutOfRange",
+                }
+                for r in sim.evaluate(str(run / "model-0-1-1.pt"), "1-1", 4)
+            ]
+    rows += [
+        r | {"worlds": "test", "steps": 1112, "end_type": "FoodOutOfRange"} for r in sim.evaluate("still", "1-1", 5)
+    ]
+    rows += [
+        r | {"worlds": "test", "steps": 300, "food_eaten": 1, "collisions": 28, "end_type": "DamageTooHigh"}
+        for r in sim.evaluate("random", "1-1", 5)
+    ]
+    append_rows(tmp_path / "eval" / "episodes.csv", rows)
+    text = build_report([tmp_path / "runs"], [tmp_path / "eval"], tmp_path / "out").markdown.read_text()
+    got = {r["agent"]: r for r in learned_rows(text)}
+    assert set(got) == {"ppo", "dqn", "ppo_lstm", "still", "random"}
+    assert got["ppo_lstm"]["reading"] == "neither eats more nor survives longer than random and stand-still"
+    assert got["ppo"]["food / ep."] == "0.00" and got["ppo"]["vs better of random, stand-still"] == "1.08× still"
+    assert got["ppo"]["reading"] == "survives longer than random and stand-still, eats no more"
+    assert got["dqn"]["reading"] == "eats more than random and stand-still"  # 901 < 1112: not longer
+    assert got["random"]["ends"] == "damaged 100 %" and got["random"]["collisions / ep."] == "28.0"
+    assert got["dqn"]["n"] == "3 seeds × 4 ep."
+    top = text.split("\n\n")[1]
+    assert top.startswith("**What the agents learned**")
+    assert (
+        "ppo ate more food and water per episode than random and stand-still on 0 of 1 levels and survived "
+        "longer than the better of random and stand-still on 1 of 1"
+    ) in top
+    assert (
+        "dqn ate more food and water per episode than random and stand-still on 1 of 1 levels (1-1: 2.0) and "
+        "survived longer than the better of random and stand-still on 0 of 1"
+    ) in top
+    assert (
+        "ppo_lstm ate more food and water per episode than random and stand-still on 0 of 1 levels and "
+        "survived longer than the better of random and stand-still on 0 of 1" in top
+    )
+    assert "Stand-still survives 1112 decisions on 1-1" in top
+
+
+def test_curriculum_and_direct_are_shown_with_the_env_steps_each_has_seen(world, tmp_path):
+    section = world["text"][world["text"].index("## With and without curriculum") :]
+    section = section[: section.index("\n## ")]
+    assert f"1-2: curriculum {2 * BUDGET:,}; direct {BUDGET:,}" in section  # stage 2 has seen both stages
+    assert f"no direct run here has as many env steps as the curriculum stage on 1-2 ({2 * BUDGET:,})" in section
+    # direct runs of the curriculum stage's total on 1-2: the matched view, and claim (b) on it
+    sim = Sim(tmp_path / "runs")
+    cur = [sim.run("ppo", seed) for seed in (0, 1, 2)]
+    direct = [sim.run("ppo", seed, level="1-2", finish=1, budget=2 * BUDGET) for seed in (0, 1, 2)]
+    other = Sim(tmp_path / "runs" / "short", seed=1)  # run directories are named without their budget
+    short = [other.run("ppo", seed, level="1-2", finish=1) for seed in (0, 1, 2)]
+    text = build_report([tmp_path / "runs"], [], tmp_path / "out").markdown.read_text()
+    matched = table(text, "Curriculum vs direct at matched total env steps")
+    want = [[sim.runs[d]["final"]["1-2"]] for d in direct]
+    assert matched["1-2"]["ppo · direct"] == expect(want, per_seed=2)
+    assert matched["1-2"]["ppo · curriculum"] == expect([[sim.runs[d]["final"]["1-2"]] for d in cur], per_seed=2)
+    equal = table(text, "Curriculum vs direct at equal env steps per stage")
+    assert equal["1-2"]["ppo · direct"] == expect(
+        [[sim.runs[d]["final"]["1-2"]] for d in direct] + [[other.runs[d]["final"]["1-2"]] for d in short], per_seed=2
+    )
+    from evaaa_baselines.reports import claims as rules
+    from evaaa_baselines.reports.sections import claim_verdicts, read_inputs
+
+    (b,) = [v for v in claim_verdicts(read_inputs([tmp_path / "runs"], [])) if v.claim.startswith("(b)")]
+    matched_stats = pd.read_csv(tmp_path / "out" / "data" / "curriculum_vs_direct_matched.csv")
+    row = matched_stats[(matched_stats["label"] == "ppo · direct") & (matched_stats["level"] == "1-2")].iloc[0]
+    assert f"vs direct {rules._fmt(row)}" in b.parts[0].evidence[0]
+
+
+def test_a_dqn_checkpoint_evaluated_with_sample_is_shown_acting_greedily(tmp_path):
+    # DQN has no action distribution: older evaluate.py files label its epsilon-greedy episodes `sample+epsilon`
+    sim = Sim(tmp_path / "runs")
+    run = sim.run("dqn", 0, level="1-1", finish=1)
+    rows = [r | {"acting": "sample+epsilon=0.05"} for r in sim.evaluate(str(run / "model-0-1-1.pt"), "1-1", 3)]
+    append_rows(tmp_path / "eval" / "episodes.csv", rows)
+    for acting in (None, "sample+epsilon=0.05", "mode+epsilon=0.05"):  # what was asked for, or what it did
+        text = build_report([run], [tmp_path / "eval"], tmp_path / str(acting), acting=acting).markdown.read_text()
+        assert "Checkpoints acted: `mode+epsilon=0.05`" in text
+        assert "Acting: `mode+epsilon=0.05`" in text and "Acting: `sample" not in text
+
+
+#: eval.csv as training runs write it now: one row per episode of each periodic evaluation
+EVAL_EPISODE_COLUMNS = (
+    "env_steps",
+    "stage",
+    "level",
+    "worlds",
+    "acting",
+    "episode",
+    "steps",
+    "return",
+    "end_type",
+    "food_eaten",
+    "water_eaten",
+    "collisions",
+    "damage_taken",
+    "wall_time",
+)
+
+
+def test_per_episode_in_training_evaluations_give_cells_and_curves_over_episodes(tmp_path):
+    # three runs whose eval.csv has one row per episode (validation worlds): the stage's last evaluation is a
+    # survival cell over those episodes, and each evaluation a point of the curve over the seeds' episodes
+    sim = Sim(tmp_path / "runs")
+    last, first = [], []
+    for seed in (0, 1, 2):
+        run = sim.run("ppo", seed, level="1-1", finish=1)
+        rows = []
+        for steps in (BUDGET // 2, BUDGET):
+            survival = [int(v) for v in sim.rng.integers(10, 400, 4)]
+            (last if steps == BUDGET else first).append(survival)
+            rows += [
+                dict(
+                    zip(
+                        EVAL_EPISODE_COLUMNS,
+                        (
+                            steps,
+                            0,
+                            "1-1",
+                            "validation",
+                            "mode",
+                            i,
+                            v,
+                            -1.0,
+                            "FoodOutOfRange",
+                            0,
+                            0,
+                            0,
+                            0.0,
+                            "2026-01-01T00:00:00",
+                        ),
+                    )
+                )
+                for i, v in enumerate(survival)
+            ]
+        write_csv(run / "eval.csv", EVAL_EPISODE_COLUMNS, rows)
+    text = build_report([tmp_path / "runs"], [], tmp_path / "out").markdown.read_text()
+    assert table(text, "## Survival per training level")["1-1"]["ppo"] == expect(last)
+    assert "Acting: `mode`. Worlds: validation." in text and "Means only:" not in text
+    curve = pd.read_csv(tmp_path / "out" / "data" / "evaluation_curves.csv").set_index("steps")
+    assert curve.loc[BUDGET // 2, "value"] == pytest.approx(hand_iqm([v for s in first for v in s]))
+    assert curve.loc[BUDGET // 2, "n"] == 3 and curve.loc[BUDGET // 2, "episodes"] == 12
+    assert table(text, "## In-training evaluations")["trained on 1-1"]["ppo"] == expect(last)
+
+
+def test_a_folder_of_evaluations_is_searched_for_their_episode_files(world, tmp_path):
+    # a protocol's evals folder: one evaluate.py output per cell, an evaluation moved aside that must not count
+    rows = pd.read_csv(world["base"] / "eval" / "episodes.csv", dtype=str, keep_default_na=False)
+    half = len(rows) // 2
+    for name, part in (
+        ("a/testbeds", rows.iloc[:half]),
+        ("b/level", rows.iloc[half:]),
+        ("b/level.old-20260101T000000Z", rows.iloc[:3]),
+    ):
+        (tmp_path / "evals" / name).mkdir(parents=True)
+        part.to_csv(tmp_path / "evals" / name / "episodes.csv", index=False)
+    whole = build_report([world["base"] / "runs"], [world["base"] / "eval"], tmp_path / "one")
+    found = build_report([world["base"] / "runs"], [tmp_path / "evals"], tmp_path / "many")
+    assert table(found.markdown.read_text(), "## Success per testbed") == table(
+        whole.markdown.read_text(), "## Success per testbed"
+    )
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ReportError, match="holds no episodes.csv"):
+        build_report([], [tmp_path / "empty"], tmp_path / "none")
+
+
+def test_the_claims_compare_agents_in_the_acting_mode_they_all_have():
+    from evaaa_baselines.reports.sections import _one_mode
+
+    rows = pd.DataFrame(
+        {
+            "run": ["ppo0", "ppo0", "dqn0", "ppo1", "ppo1"],
+            "acting": ["mode", "sample", "mode", "sample", "mode"],
+            "steps": [1, 2, 3, 4, 5],
+        }
+    )
+    assert _one_mode(rows)["acting"].tolist() == ["mode"] * 3  # the deterministic action: every agent has it
+    apart = pd.DataFrame(
+        {"run": ["a", "a", "b", "c", "c", "c"], "acting": ["sample", "sample", "mode", "sample", "mode", "mode"]}
+    )
+    # no mode shared by every run: each run's most frequent (such agents are then not compared)
+    assert _one_mode(apart)["acting"].tolist() == ["sample", "sample", "mode", "mode", "mode"]

@@ -251,6 +251,49 @@ def test_ctrl_c_while_training_leaves_a_checkpoint_that_resume_continues(tmp_pat
     assert load_checkpoint(run_dir / checkpoint.CHECKPOINT)["counters"]["steps"] >= steps + 64
 
 
+@pytest.mark.slow  # DreamerV3 size S on the CPU: a minute or two on a busy 2-core box
+def test_a_second_ctrl_c_stops_a_dreamer_s_run_within_seconds_inside_a_gradient_step(tmp_path):
+    # one world and a 64-step prefill: once the first gradient step is logged (with its duration), the second is
+    # under way within milliseconds, and both Ctrl-Cs arrive inside it, where Python runs no handler until it ends
+    cmd = [
+        *TRAIN,
+        "algo=dreamer",
+        "device=cpu",
+        "env.num_envs=1",
+        "algo.learning_starts=64",
+        "logger=csv",
+        "progress=false",
+        "eval.every=0",
+        "threads=1",
+        "total_steps=100000",
+        f"run.root={tmp_path}",
+    ]
+    log = tmp_path / "1-1" / "dreamer" / "all-squared" / "seed0" / "train.log"
+    proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline, first = time.monotonic() + 600, None
+    while first is None and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.1)
+        first = (
+            re.search(r"first gradient step at env step [\d,]+: ([\d.]+) s", log.read_text()) if log.exists() else None
+        )
+    assert first is not None, "no gradient step was logged"
+    step = float(first.group(1))  # what one gradient step takes here
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGINT)
+    time.sleep(2.0)
+    proc.send_signal(signal.SIGINT)
+    sent = time.monotonic()
+    try:
+        out, err = proc.communicate(timeout=300)
+    finally:
+        proc.kill()
+    took = time.monotonic() - sent
+    # within 10 s, and (where a gradient step is long enough to tell) without waiting for the one under way to end
+    assert proc.returncode == 130 and took < 10 and (step < 8 or took < step - 4), (took, step, err[-3000:])
+    assert "Ctrl-C: stopping after the gradient step under way" in out  # the first said what it waits for
+    assert err.strip().splitlines()[-1].startswith("train.py: stopped at once"), err[-3000:]
+
+
 def test_ctrl_c_before_training_stops_in_one_line_and_writes_nothing(tmp_path):
     cmd = [*TRAIN, "algo=ppo", "preset=debug", "logger=csv", f"run.root={tmp_path}"]
     started = time.monotonic()

@@ -9,6 +9,7 @@ its ETA adds acting and gradient steps; the loader refuses a checkpoint trained 
 from __future__ import annotations
 
 import csv
+import hashlib
 import itertools
 import logging
 import os
@@ -16,6 +17,8 @@ import re
 import signal
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -25,10 +28,10 @@ from hydra import compose, initialize_config_dir
 
 import evaaa
 from evaaa.records import TRAINING_EPISODE_FIELDS
-from evaaa_baselines import checkpoint, evaluate, load_policy, runtime
-from evaaa_baselines.config import CONF_DIR, env_overrides, observation_keys, register_levels, stages
+from evaaa_baselines import checkpoint, evaluate, load_policy, runner, runtime
+from evaaa_baselines.config import CONF_DIR, Stage, env_overrides, observation_keys, register_levels, stages
 from evaaa_baselines.evaluation import EvaluatedPolicy, EvaluationError
-from evaaa_baselines.runner import make_logger, train
+from evaaa_baselines.runner import make_logger, summary, train
 from evaaa_baselines.runtime import DeviceError, Progress, resolve_device
 
 register_levels()
@@ -99,7 +102,7 @@ def test_config_composes_for_every_modality_reward_logger_and_level(algo):
         cfg = make_cfg(f"algo={algo}", f"modality={modality}", f"reward={reward}", f"logger={logger}")
         check_composed(cfg, algo, "1-1", modality, reward, logger)
     for level in (*evaaa.LEVELS, *evaaa.TESTBEDS, "curriculum"):
-        check_composed(make_cfg(f"algo={algo}", f"level={level}"), algo, level, "all", "squared", "wandb")
+        check_composed(make_cfg(f"algo={algo}", f"level={level}"), algo, level, "all", "squared", "csv")
 
 
 def test_debug_preset_shrinks_each_algorithm():
@@ -547,11 +550,11 @@ def test_train_script_without_cuda_refuses_device_cuda_in_one_line(tmp_path):
     done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert done.returncode == 2
     lines = done.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("train.py: device=cuda: no CUDA device is available here"), (
+    assert len(lines) == 1 and lines[0].startswith("train.py: error: device=cuda: no CUDA device is available here"), (
         done.stderr
     )
     assert "Traceback" not in done.stdout + done.stderr
-    assert not list(tmp_path.rglob("checkpoint.pt")) and not list(tmp_path.rglob("episodes.csv"))
+    assert not list(tmp_path.iterdir())  # refused before Hydra made the run folder
 
 
 def test_loaded_policy_moves_to_the_device_asked_for(runs, capsys):
@@ -742,3 +745,76 @@ def test_a_new_algorithm_is_one_module_and_its_config(tmp_path, monkeypatch):
     actions = policy(env.reset())["action"]
     assert actions.shape == (2,) and ((actions >= 0) & (actions < len(evaaa.ACTION_NAMES))).all()
     env.close()
+
+
+def test_a_run_states_its_budget_and_ends_with_its_folder_and_final_evaluation(tmp_path, caplog, capsys):
+    # PPO's debug iteration is 32 env steps (2 worlds x 16): 100 asked is 128 trained, and the first line says why;
+    # progress=true draws no bar here, where the output is not a terminal
+    cfg = debug_cfg("ppo", "progress=true", "eval.every=64", total_steps=100)
+    with caplog.at_level(logging.INFO, logger="evaaa_baselines.runtime"):
+        run_dir = train(cfg, tmp_path / "run")
+    assert (
+        "100 env steps asked: 128 trained, as the stage ends with the iteration that reaches its budget and one "
+        "iteration is 32 env steps (2 worlds x 16 steps, then an update)" in caplog.text
+    )
+    assert "128 env steps (100 asked, in whole iterations of 32)" in caplog.text
+    assert "step/s" not in capsys.readouterr().err  # tqdm drew nothing
+    final = [r for r in read_csv(run_dir / "eval.csv") if r["env_steps"] == "128"]  # one row per episode
+    lines = summary(cfg, run_dir).splitlines()
+    assert lines[0] == f"run folder: {run_dir}"
+    assert lines[1].startswith(
+        f"final evaluation on 1-1 at env step 128 (validation worlds): mean survival "
+        f"{sum(int(r['steps']) for r in final) / 2:.0f} steps over 2 episodes"
+    )
+    assert lines[2].startswith(f"final model: {run_dir / 'model-0-1-1.pt'}")
+
+
+def test_the_time_estimate_comes_from_the_run_s_own_speed(caplog, monkeypatch):
+    now = [0.0]
+    monkeypatch.setattr(runtime.time, "perf_counter", lambda: now[0])
+    run = runtime.Run.__new__(runtime.Run)  # the estimate alone: no worlds, no networks
+    run.cfg, run.stage = debug_cfg("ppo"), Stage(0, "1-1", 1000)
+    run.iteration, run.updates, run.planned_updates = (100, "test"), 0, None
+    run.counters, run._estimated, run._session = {"steps": 0}, False, (0.0, 0)
+    run.meter = Progress(60, 0, now=0.0)
+    with caplog.at_level(logging.INFO, logger="evaaa_baselines.runtime"):
+        for t, steps in ((10, 100), (20, 200), (30, 300)):  # 10 env steps/s
+            now[0], run.counters["steps"] = float(t), steps
+            run.meter.add(steps)
+            run._estimate()
+    lines = [r.getMessage() for r in caplog.records if "time estimate" in r.getMessage()]
+    assert lines == [
+        "time estimate for ppo on 1-1: about 80 seconds more for the 1,000 env steps (200 done), from "
+        "this run's speed over its first 20 s here (10 env steps/s)"
+    ]
+
+
+def test_two_ctrl_c_inside_one_long_call_still_stop_the_run_at_once(tmp_path, monkeypatch, capsys):
+    # Python runs a signal handler only between bytecodes, and two SIGINTs inside one long C call (a gradient step's
+    # backward pass) reach it as one call: the watcher thread counts them as they arrive. The long call here is
+    # PBKDF2, which releases the GIL and never looks at signals, as a torch backward pass does
+    def long_call(iterations: int) -> float:
+        began = time.perf_counter()
+        hashlib.pbkdf2_hmac("sha256", b"evaaa", b"salt", iterations)
+        return time.perf_counter() - began
+
+    iterations = int(100_000 * 2.5 / max(long_call(100_000), 1e-3))  # about 2.5 s here
+    ended: list[float] = []
+    monkeypatch.setattr(runner.StopRequest, "GRACE", 0.5)
+    monkeypatch.setattr(runner.os, "_exit", lambda code: ended.append(time.perf_counter()) if code == 130 else None)
+
+    def ctrl_c_twice():
+        for _ in range(2):
+            time.sleep(0.3)
+            os.kill(os.getpid(), signal.SIGINT)
+
+    with runner._graceful_interrupts(tmp_path / "run"):
+        threading.Thread(target=ctrl_c_twice).start()
+        try:
+            began = time.perf_counter()
+            long_call(iterations)
+            returned = time.perf_counter()
+        except KeyboardInterrupt:  # the handler's own count, had the two signals not arrived inside the call
+            returned = time.perf_counter()
+    assert ended and ended[0] < returned, (ended, began, returned)  # the process was ended while the call ran
+    assert "stopped at once, before the first checkpoint" in capsys.readouterr().err

@@ -5,15 +5,19 @@ The package reads top to bottom:
 
 * :mod:`.load` — the inputs: run directories of ``scripts/train.py`` and episode files of ``scripts/evaluate.py``
   and ``scripts/play.py``, an evaluated checkpoint tied to its run through the directory it lies in;
-* :mod:`.stats` — the estimators (interquartile mean with a stratified bootstrap interval, Wilson intervals);
-* :mod:`.aggregate` — a report's numbers: survival per stage, training curves, a table cell's statistics over seeds;
+* :mod:`.stats` — the estimators, seeds as the unit (interquartile mean with a two-stage bootstrap over seeds and
+  episodes within seeds, refused under three seeds; seed-clustered Wilson intervals; Holm's correction);
+* :mod:`.aggregate` — a report's numbers: survival per stage from per-episode evaluations, training curves, a table
+  cell's statistics over seeds (its points where there are fewer than three);
 * :mod:`.tables` and :mod:`.figures` — Markdown tables and PNG figures of those numbers;
+* :mod:`.claims` — the paper's claims (a)–(e) judged on those numbers (none from fewer than three seeds);
 * :mod:`.sections` — one function per section of the report, and :func:`build_report`, which writes it.
 
 Runs that differ only in their seed (and in bookkeeping: logger, evaluation and checkpoint cadence, threads, run
 directory) are pooled; anything else that differs (modality, reward, a hyperparameter, steps per stage, curriculum
 or not) makes a separate group, and labels name what differs.  Nothing is dropped silently: runs without episodes,
-unfinished runs and evaluations whose run directory is gone are listed in the report.  See docs/reports.md.
+unfinished runs and evaluations whose run directory is gone are listed in the report.  Every table names how the
+agents acted and on which worlds.  See docs/reports.md.
 """
 
 from .aggregate import STAT_COLUMNS, across_seeds, curves, estimate, final_survival, mean_se, per_run, reference_stats

@@ -1,23 +1,26 @@
-"""A report's numbers: each run's survival per stage and training curve, each run's evaluation scores, and the
-statistics of a table cell over seeds (or over episodes and participants for reference agents).
+"""A report's numbers: each run's survival per stage (from per-episode evaluations where there are any) and training
+curve, and the statistics of a table cell over seeds (or over episodes and participants for reference agents).
 
-A survival cell is the interquartile mean (IQM) of the episodes with its 95 % percentile bootstrap interval
-(episodes redrawn within each seed: seeds are the strata), beside the mean over seeds of each seed's value ± the
-standard error across seeds (no error with one seed); where a seed has only one number (the mean of its last
-evaluation in ``eval.csv``) the IQM and its bootstrap are over the seeds' numbers.  A success rate is the share of
-successful episodes of all seeds pooled, with its Wilson score interval.  The estimators are in :mod:`.stats`.
+A cell's unit is the seed (a training run): a survival cell is the interquartile mean (IQM) of the seeds' episodes
+pooled with its 95 % interval from the two-stage bootstrap of :mod:`.stats` (seeds redrawn, then episodes within
+each), beside the mean over seeds of each seed's mean ± the standard error across seeds; a success cell is the share
+of successful episodes pooled with its seed-clustered Wilson interval.  With fewer than three seeds a cell has no
+interval and no standard error: it carries its points (each seed's mean) instead.  A reference agent is one fixed
+policy, so its episodes are its units.  Where a seed has only an evaluation's mean (``eval.csv`` files written
+before evaluations kept one row per episode), the cell is over those means and says so (``means_only``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from .load import RunRecord
-from .stats import binomial_interval, interval
+from .load import BEST_MODEL_FILE, MODEL_FILE, RunRecord
+from .stats import MIN_SEEDS, binomial_interval, clustered_rate, interval, iqm
 
 
 def standard_error(values: pd.Series) -> float:
@@ -32,46 +35,136 @@ def mean_se(values: Iterable[float]) -> tuple[float, float, int]:
     return (float(s.mean()) if len(s) else float("nan")), standard_error(s), int(len(s))
 
 
-def final_survival(runs: Sequence[RunRecord], source: str = "eval", window: int = 20) -> pd.DataFrame:
-    """One row per finished stage of every run: the survival the stage ended with.
+#: columns of :func:`final_survival`
+FINAL_COLUMNS = [
+    "run",
+    "stage",
+    "level",
+    "survival",
+    "source",
+    "last",
+    "scores",
+    "episodes",
+    "acting",
+    "worlds",
+    "means_only",
+]
 
-    ``source="eval"``: the stage's last evaluation (``eval.csv``: episodes at the stage's end, deterministic or,
-    with ``eval.sample``, sampled), or, in a stage without evaluations, the mean survival of its last ``window``
-    training episodes; ``"train"``: always the training episodes.  The ``source`` column says which.
-    """
+
+def _checkpoint_rank(policy: str) -> int:
+    """Which evaluated network stands for a stage: its final model, else its best, else the latest state."""
+    name = Path(policy).name
+    return 0 if MODEL_FILE.match(name) else 1 if BEST_MODEL_FILE.match(name) else 2
+
+
+def final_survival(
+    runs: Sequence[RunRecord], source: str = "eval", window: int = 20, checkpoints: pd.DataFrame | None = None
+) -> pd.DataFrame:
+    """One row per finished stage of every run (and per acting mode): the survival the stage ended with, with its
+    episodes' scores.
+
+    ``source="eval"``: the stage's network evaluated by evaluate.py on the stage's level (``checkpoints``: the
+    checkpoint episodes of :func:`.load.attach`; the final model preferred), else the stage's last in-training
+    evaluation (``eval.csv``: its episodes, or only its mean in files written before evaluations kept episodes),
+    else the mean survival of its last ``window`` training episodes; ``"train"``: always the training episodes.
+    The ``source`` column says which; ``acting`` and ``worlds`` say how the network acted and on which worlds."""
     rows = []
+    ck = checkpoints if checkpoints is not None and len(checkpoints) else None
     for r in runs:
         if not r.usable:
             continue
+        mine = ck[ck["run"] == r.dir] if ck is not None else None
         for index, level, _ in r.stages:
             if index not in r.complete:
                 continue
-            value, used, scores, episodes = float("nan"), "none", (), 0
+            base = {"run": r.dir, "stage": index, "level": level, "last": index == r.stages[-1][0]}
+            found = []
+            if source == "eval" and mine is not None:
+                hits = mine[(mine["ckpt_stage"] == index) & (mine["level"] == level)]
+                if len(hits):
+                    best = min(hits["policy"].unique(), key=_checkpoint_rank)
+                    for acting, part in hits[hits["policy"] == best].groupby("acting", sort=False):
+                        scores = tuple(part["steps"].astype(float))
+                        found.append(
+                            base
+                            | {
+                                "survival": float(np.mean(scores)),
+                                "source": "evaluate.py",
+                                "scores": scores,
+                                "episodes": len(scores),
+                                "acting": acting,
+                                "worlds": " / ".join(dict.fromkeys(part["worlds"])),
+                                "means_only": False,
+                            }
+                        )
             ev = r.evals[r.evals["stage"] == index] if r.evals is not None else None
-            if source == "eval" and ev is not None and len(ev):
-                last = ev.sort_values("env_steps", kind="stable").iloc[-1]
-                value, used = float(last["survival_mean"]), "eval"
-                # eval.csv keeps each evaluation's mean, not its episodes: the seed contributes that one number
-                scores = (value,)
-                episodes = int(last["episodes"]) if "episodes" in last and pd.notna(last["episodes"]) else 1
-            else:
+            if source == "eval" and not found and ev is not None and len(ev):
+                last = ev[ev["env_steps"] == ev["env_steps"].max()]
+                if r.eval_means_only:
+                    value = float(last["survival_mean"].iloc[-1])
+                    n = (
+                        int(last["episodes"].iloc[-1])
+                        if "episodes" in last and pd.notna(last["episodes"].iloc[-1])
+                        else 1
+                    )
+                    found.append(
+                        base
+                        | {
+                            "survival": value,
+                            "source": "eval.csv (means only)",
+                            "scores": (value,),
+                            "episodes": n,
+                            "acting": r.eval_acting,
+                            "worlds": r.eval_worlds,
+                            "means_only": True,
+                        }
+                    )
+                else:
+                    for acting, part in last.groupby("acting", sort=False):
+                        scores = tuple(part["steps"].astype(float))
+                        found.append(
+                            base
+                            | {
+                                "survival": float(np.mean(scores)),
+                                "source": "eval.csv",
+                                "scores": scores,
+                                "episodes": len(scores),
+                                "acting": acting,
+                                "worlds": " / ".join(dict.fromkeys(part["worlds"].astype(str))),
+                                "means_only": False,
+                            }
+                        )
+            if not found and r.episodes is not None:
                 eps = r.episodes[r.episodes["stage"] == index]
                 if len(eps):
                     scores = tuple(float(v) for v in eps["steps"].iloc[-window:])
-                    value, used, episodes = float(np.mean(scores)), "train", len(scores)
-            rows.append(
-                {
-                    "run": r.dir,
-                    "stage": index,
-                    "level": level,
-                    "survival": value,
-                    "source": used,
-                    "last": index == r.stages[-1][0],
-                    "scores": scores,
-                    "episodes": episodes,
-                }
-            )
-    return pd.DataFrame(rows, columns=["run", "stage", "level", "survival", "source", "last", "scores", "episodes"])
+                    found.append(
+                        base
+                        | {
+                            "survival": float(np.mean(scores)),
+                            "source": "training episodes",
+                            "scores": scores,
+                            "episodes": len(scores),
+                            "acting": "exploring (training)",
+                            "worlds": "training worlds",
+                            "means_only": False,
+                        }
+                    )
+            if not found:
+                found.append(
+                    base
+                    | {
+                        "survival": float("nan"),
+                        "source": "none",
+                        "scores": (),
+                        "episodes": 0,
+                        "acting": "",
+                        "worlds": "",
+                        "means_only": False,
+                    }
+                )
+            rows += found
+    return pd.DataFrame(rows, columns=FINAL_COLUMNS)
 
 
 def curves(runs: Sequence[RunRecord], bins: int = 20) -> pd.DataFrame:
@@ -97,86 +190,175 @@ def curves(runs: Sequence[RunRecord], bins: int = 20) -> pd.DataFrame:
                     "survival": float(np.mean(scores)),
                     "scores": scores,
                     "episodes": len(scores),
+                    "acting": "exploring (training)",
+                    "worlds": "training worlds",
                 }
             )
-    return pd.DataFrame(rows, columns=["run", "bin", "steps", "survival", "scores", "episodes"])
+    return pd.DataFrame(rows, columns=["run", "bin", "steps", "survival", "scores", "episodes", "acting", "worlds"])
+
+
+def evaluation_points(runs: Sequence[RunRecord]) -> pd.DataFrame:
+    """Every in-training evaluation of every run (``eval.csv``): its env steps summed over stages, the survival of
+    its episodes in ``scores`` (one row per episode), or of ``eval.csv`` files of the older format its mean alone
+    (``means_only``), with its acting mode and worlds."""
+    rows = []
+    for r in runs:
+        if not r.usable or r.evals is None or not len(r.evals):
+            continue
+        for (stage, steps, acting), part in r.evals.groupby(["stage", "env_steps", "acting"], sort=True):
+            x = r.offset(int(stage)) + int(steps)
+            if r.eval_means_only:
+                scores = tuple(float(v) for v in part["survival_mean"])
+                n = int(part["episodes"].sum()) if "episodes" in part else len(scores)
+            else:
+                scores, n = tuple(part["steps"].astype(float)), len(part)
+            rows.append(
+                {
+                    "run": r.dir,
+                    "stage": int(stage),
+                    "steps": x,
+                    "survival": float(np.mean(scores)),
+                    "scores": scores,
+                    "episodes": n,
+                    "means_only": r.eval_means_only,
+                    "acting": acting,
+                    "worlds": " / ".join(dict.fromkeys(part["worlds"].astype(str))),
+                    "source": "eval.csv",
+                }
+            )
+    return pd.DataFrame(
+        rows,
+        columns=["run", "stage", "steps", "survival", "scores", "episodes", "means_only", "acting", "worlds", "source"],
+    )
 
 
 #: Columns of the statistics frames (:func:`across_seeds`), after the grouping columns.  ``statistic`` says what
-#: ``value`` and its interval ``low``..``high`` are: ``iqm`` (survival: interquartile mean, 95 % percentile
-#: bootstrap interval) or ``rate`` (success: pooled share of episodes, 95 % Wilson interval); ``mean`` ± ``se``: the
-#: mean over units (seeds, or episodes or participants for reference agents) and the standard error across them;
-#: ``n``: units, ``episodes``: episodes behind the numbers.
-STAT_COLUMNS = ("value", "low", "high", "statistic", "mean", "se", "n", "episodes", "unit")
+#: ``value`` and its interval ``low``..``high`` are: ``iqm`` (survival: interquartile mean, 95 % two-stage bootstrap
+#: interval) or ``rate`` (success: pooled share of episodes, 95 % seed-clustered Wilson interval); ``mean`` ± ``se``:
+#: the mean over units (seeds, or episodes or participants for reference agents) and the standard error across them
+#: (none under three seeds); ``n``: units, ``episodes``: episodes behind the numbers; ``points``: each seed's value
+#: (where there are fewer than three seeds, the cell's only spread); ``means_only``: the seeds gave evaluation means,
+#: not episodes; ``acting``, ``worlds``, ``source``: how the networks acted, on which worlds, from which files.
+STAT_COLUMNS = (
+    "value",
+    "low",
+    "high",
+    "statistic",
+    "mean",
+    "se",
+    "n",
+    "episodes",
+    "unit",
+    "points",
+    "means_only",
+    "acting",
+    "worlds",
+    "source",
+)
 
 
 def estimate(
-    samples: Sequence[Sequence[float]], success: bool = False, seed: int = 0, episodes: int | None = None
+    samples: Sequence[Sequence[float]],
+    success: bool = False,
+    seed: int = 0,
+    episodes: int | None = None,
+    unit: str = "seeds",
+    means_only: bool = False,
 ) -> dict[str, Any]:
     """The statistics of one table cell from ``samples``: one sequence of episode scores per unit (seed,
-    participant; a success is 1.0, a failure 0.0).  Units that gave one number each (a seed's evaluation mean) are
-    bootstrapped as one stratum: there is nothing to redraw within a unit.  ``episodes``: the episodes behind the
-    scores, where a score is itself a mean (default: one per score)."""
+    participant; a success is 1.0, a failure 0.0); ``unit="episodes"``: one sequence whose every episode is a unit
+    (a reference agent).  Under three units: no interval, the units' values as ``points``.  ``episodes``: the
+    episodes behind the scores, where a score is itself a mean (``means_only``)."""
     samples = [np.asarray(s, dtype=float).ravel() for s in samples]
     samples = [s for s in samples if s.size]
+    if unit == "episodes":
+        samples = [np.concatenate(samples)] if samples else []
+        units = [s[i : i + 1] for s in samples for i in range(s.size)]
+    else:
+        units = samples
     scored = int(sum(s.size for s in samples))
     episodes = scored if episodes is None else int(episodes)
-    m, se, n = mean_se(s.mean() for s in samples)
-    if success:
-        est = binomial_interval(int(round(sum(s.sum() for s in samples))), scored)
-        return {
-            "value": est.value,
-            "low": est.low,
-            "high": est.high,
-            "statistic": "rate",
-            "mean": m,
-            "se": se,
-            "n": n,
-            "episodes": episodes,
-        }
-    strata = [np.concatenate(samples)] if samples and all(s.size == 1 for s in samples) else samples
-    est = interval(strata, "iqm", seed=seed)
-    return {
-        "value": est.value,
-        "low": est.low,
-        "high": est.high,
-        "statistic": "iqm",
-        "mean": m,
-        "se": se,
-        "n": n,
+    nan = float("nan")
+    out = {
+        "value": nan,
+        "low": nan,
+        "high": nan,
+        "statistic": "rate" if success else "iqm",
+        "mean": nan,
+        "se": nan,
+        "n": len(units),
         "episodes": episodes,
+        "points": (),
+        "means_only": means_only,
     }
+    if not units:
+        return out
+    pooled = np.concatenate(samples)
+    m, se, _ = mean_se(s.mean() for s in units)
+    out["value"] = float(pooled.mean()) if success else float(iqm(pooled))
+    out["mean"] = m
+    if len(units) < MIN_SEEDS:
+        out["points"] = tuple(float(s.mean()) for s in units)
+        return out
+    out["se"] = se
+    if success:
+        est = (
+            binomial_interval(int(round(pooled.sum())), int(pooled.size))
+            if unit == "episodes"
+            else clustered_rate(units)
+        )
+    else:
+        est = interval(units, "iqm", seed=seed)
+    out["low"], out["high"] = est.low, est.high
+    return out
+
+
+def _joined(values: pd.Series) -> str:
+    return " / ".join(str(v) for v in dict.fromkeys(values.fillna("").astype(str)) if v)
 
 
 def across_seeds(
     values: pd.DataFrame, by: Sequence[str], value: str, *, success: bool = False, unit: str = "seeds"
 ) -> pd.DataFrame:
     """Per group of ``by``: the statistics of :data:`STAT_COLUMNS` over the group's rows (one row per seed, its
-    episodes' scores in a ``scores`` column, or ``value`` alone where there is none)."""
+    episodes' scores in a ``scores`` column, or ``value`` alone where there is none); ``acting``, ``worlds`` and
+    ``source`` name what the rows say (joined where they differ)."""
     out = []
     for key, part in values.groupby(list(by), sort=False, dropna=False):
         if "scores" in part:
             samples = [s if len(s) else () for s in part["scores"]]
         else:
             samples = [(v,) for v in part[value].astype(float).dropna()]
-        est = estimate(samples, success, episodes=int(part["episodes"].sum()) if "episodes" in part else None)
-        out.append({**dict(zip(by, key if isinstance(key, tuple) else (key,))), **est, "unit": unit})
+        means_only = bool(part["means_only"].any()) if "means_only" in part else False
+        est = estimate(
+            samples,
+            success,
+            episodes=int(part["episodes"].sum()) if "episodes" in part else None,
+            unit=unit,
+            means_only=means_only,
+        )
+        named = {c: _joined(part[c]) if c in part else "" for c in ("acting", "worlds", "source")}
+        out.append({**dict(zip(by, key if isinstance(key, tuple) else (key,))), **est, "unit": unit, **named})
     return pd.DataFrame(out, columns=[*by, *STAT_COLUMNS])
 
 
 def per_run(ckpts: pd.DataFrame, value: str, by: Sequence[str] = ("run", "level")) -> pd.DataFrame:
-    """Each run's mean of ``value`` (success as 0/1, or steps) per ``by``: one value per seed, with its episodes'
-    values in ``scores``."""
-    grouped = ckpts.assign(_v=ckpts[value].astype(float)).groupby(list(by), sort=False)["_v"]
-    return grouped.agg(**{value: "mean", "scores": lambda v: tuple(v.dropna())}).reset_index()
+    """Each run's mean of ``value`` (success as 0/1, or steps) per ``by`` (and acting mode): one value per seed,
+    with its episodes' values in ``scores`` and the episodes' acting mode and worlds."""
+    keys = list(dict.fromkeys([*by, "acting"]))
+    grouped = ckpts.assign(_v=ckpts[value].astype(float)).groupby(keys, sort=False)
+    out = grouped["_v"].agg(**{value: "mean", "scores": lambda v: tuple(v.dropna())})
+    out["worlds"] = grouped["worlds"].agg(_joined)
+    out["source"] = "evaluate.py"
+    return out.reset_index().assign(episodes=lambda d: d["scores"].map(len))
 
 
 def reference_stats(refs: pd.DataFrame, value: str) -> pd.DataFrame:
     """Per (policy, level) the statistics (:data:`STAT_COLUMNS`) of ``value`` (``success`` or ``steps``) for
-    reference agents: over episodes, or with participants as units for human rows of several participants."""
+    reference agents: episodes as the units, or participants for human rows of several participants."""
     out = []
     for (policy, level), part in refs.groupby(["policy", "level"], sort=False):
-        vals, unit, samples = part[value].astype(float), "episodes", None
+        vals = part[value].astype(float)
         if (
             "participant" in part
             and part["participant"].astype(str).str.len().gt(0).all()
@@ -184,8 +366,18 @@ def reference_stats(refs: pd.DataFrame, value: str) -> pd.DataFrame:
         ):
             unit = "participants"
             samples = [tuple(v.dropna()) for _, v in part.assign(_v=vals).groupby("participant")["_v"]]
-        est = estimate(samples if samples is not None else [tuple(vals.dropna())], success=value == "success")
-        if unit == "episodes":  # mean ± se over episodes, not over the one stratum
-            est |= dict(zip(("mean", "se", "n"), mean_se(vals)))
-        out.append({"label": policy, "level": level, **est, "unit": unit})
+        else:
+            unit, samples = "episodes", [tuple(vals.dropna())]
+        est = estimate(samples, success=value == "success", unit=unit)
+        out.append(
+            {
+                "label": policy,
+                "level": level,
+                **est,
+                "unit": unit,
+                "acting": "",
+                "worlds": _joined(part["worlds"]) if "worlds" in part else "",
+                "source": "evaluate.py",
+            }
+        )
     return pd.DataFrame(out, columns=["label", "level", *STAT_COLUMNS])

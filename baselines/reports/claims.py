@@ -2,10 +2,15 @@
 estimates with 95 % intervals (``value``, ``low``, ``high``), gives a :class:`Verdict` — reproduced, contradicted, or
 not resolvable at this scale — with the numbers behind it.
 
-The rules are deliberately conservative: two cells differ only where their intervals do not overlap; overlapping
-intervals never decide a claim.  A claim made of parts is reproduced when every part with data is, contradicted when
-some part is and none is reproduced, and otherwise not resolvable (the parts' verdicts are listed).  A part without
-data (DreamerV3, human records) is said to be missing and counts as not resolvable.
+The rules are deliberately conservative: two cells differ only where their intervals (two-stage bootstrap over
+seeds and episodes, seed-clustered Wilson for success; :mod:`.stats`) do not overlap; overlapping intervals never
+decide a claim.  A part whose agent cells have fewer than three seeds has no intervals and is not decided: its
+verdict is "not resolvable: 2 seeds", with the numbers (each seed's value).  Two agents that acted differently
+(greedy against sampled actions) are not compared.  The (d) "drop" rule looks at every pair of training levels of an
+agent, so its one-sided paired tests over seeds are corrected for the number of pairs (Holm).  A claim made of parts
+is reproduced when every part with data is, contradicted when some part is and none is reproduced, and otherwise not
+resolvable (the parts' verdicts are listed).  A part without data (DreamerV3, human records) is said to be missing
+and counts as not resolvable.
 """
 
 from __future__ import annotations
@@ -18,7 +23,34 @@ import numpy as np
 import pandas as pd
 from scipy import stats as sps
 
+from .stats import MIN_SEEDS, holm
+
 REPRODUCED, CONTRADICTED, UNRESOLVED = "reproduced", "contradicted", "not resolvable at this scale"
+
+
+def few_seeds(n: int) -> str:
+    """The verdict of a part whose cells have ``n`` < 3 seeds."""
+    return f"not resolvable: {n} seed{'s' if n != 1 else ''}"
+
+
+def unresolved(verdict: str) -> bool:
+    return verdict.startswith("not resolvable")
+
+
+def seeds_short(*cells) -> int | None:
+    """The fewest seeds among agent cells (rows or frames with ``n`` and ``unit``; reference agents, whose units
+    are episodes, do not count) where that is under :data:`MIN_SEEDS`, else None."""
+    counts = []
+    for c in cells:
+        frame = c.to_frame().T if isinstance(c, pd.Series) else c
+        if frame is None or not len(frame) or "n" not in frame:
+            continue
+        agents = frame[frame["unit"] == "seeds"] if "unit" in frame else frame
+        counts += [int(n) for n in agents["n"].dropna()]
+    short = [n for n in counts if n < MIN_SEEDS]
+    return min(short) if short else None
+
+
 #: levels the paper calls hard: survival drops sharply from 3-2 on
 HARD_FROM = "3-2"
 
@@ -43,6 +75,9 @@ def _fmt(row) -> str:
     if math.isnan(v):
         return "n/a"
     if math.isnan(lo):
+        points = row.get("points", ()) if hasattr(row, "get") else ()
+        if isinstance(points, tuple) and len(points) > 1:
+            return f"{_num(v)} (seeds {', '.join(_num(p) for p in points)})"
         return _num(v)
     return f"{_num(v)} [{_num(lo)}, {_num(hi)}]"
 
@@ -85,8 +120,23 @@ def combine(claim: str, parts: Sequence[Verdict], rule: str) -> Verdict:
     elif CONTRADICTED in verdicts and REPRODUCED not in verdicts:
         verdict = CONTRADICTED
     else:
-        verdict = UNRESOLVED
+        # every part with data short of seeds in the same way: the claim says so
+        with_data = {v for v, p in zip(verdicts, parts) if p.rule != "no data"}
+        verdict = (
+            with_data.pop()
+            if len(with_data) == 1 and next(iter(with_data)).startswith("not resolvable: ")
+            else UNRESOLVED
+        )
     return Verdict(claim, verdict, rule, parts=list(parts))
+
+
+def _gate(verdict: Verdict, *cells) -> Verdict:
+    """``verdict`` unless its agent cells have fewer than three seeds: then not resolvable, with the numbers."""
+    n = seeds_short(*cells)
+    if n is not None:
+        verdict.verdict = few_seeds(n)
+        verdict.evidence.append(f"fewer than {MIN_SEEDS} seeds ({n}): no interval, no verdict")
+    return verdict
 
 
 def missing(claim: str, what: str) -> Verdict:
@@ -119,7 +169,9 @@ def survival_falls(survival: pd.DataFrame, order: Sequence[str], hard_from: str 
         rank = part["level"].map({n: i for i, n in enumerate(order)})
         evidence = ["; ".join(f"{r.level}: {_fmt(r._asdict())}" for r in part.itertuples())]
         if len(part) < 3 or part["value"].nunique() < 2:
-            parts.append(Verdict(f"{algo}", UNRESOLVED, rule, evidence + ["fewer than 3 levels, or all equal"]))
+            parts.append(
+                _gate(Verdict(f"{algo}", UNRESOLVED, rule, evidence + ["fewer than 3 levels, or all equal"]), part)
+            )
             continue
         rho, p = spearman(rank, part["value"])
         early, late = part[rank < cut], part[rank >= cut]
@@ -141,7 +193,7 @@ def survival_falls(survival: pd.DataFrame, order: Sequence[str], hard_from: str 
             verdict = CONTRADICTED
         else:
             verdict = UNRESOLVED
-        parts.append(Verdict(f"{algo}", verdict, rule, evidence))
+        parts.append(_gate(Verdict(f"{algo}", verdict, rule, evidence), part))
     return combine(claim, parts, rule)
 
 
@@ -180,7 +232,7 @@ def curriculum_beats_direct(cmp: pd.DataFrame, order: Sequence[str], skip: Seque
             verdict = CONTRADICTED
         else:
             verdict = UNRESOLVED
-        parts.append(Verdict(algo, verdict, rule, evidence))
+        parts.append(_gate(Verdict(algo, verdict, rule, evidence), cur.loc[levels], dire.loc[levels]))
     return combine(claim, parts, rule)
 
 
@@ -206,7 +258,11 @@ def _ordered(a: str, b: str, survival: pd.DataFrame, order: Sequence[str]) -> Ve
         if levels and 2 * len(down) >= len(levels) and not up
         else UNRESOLVED
     )
-    return Verdict(f"{a} > {b} in survival", verdict, rule, evidence)
+    modes = [" / ".join(dict.fromkeys(x.loc[levels, "acting"].astype(str))) if "acting" in x else "" for x in (sa, sb)]
+    if all(modes) and modes[0] != modes[1]:  # greedy against sampled actions says nothing about the algorithms
+        verdict = UNRESOLVED
+        evidence.append(f"acting modes differ ({a}: `{modes[0]}`, {b}: `{modes[1]}`): not compared")
+    return _gate(Verdict(f"{a} > {b} in survival", verdict, rule, evidence), sa.loc[levels], sb.loc[levels])
 
 
 def _fails(
@@ -249,7 +305,7 @@ def _fails(
         if 2 * len(beats) > len(checked)
         else UNRESOLVED
     )
-    return Verdict(name, verdict, rule, evidence)
+    return _gate(Verdict(name, verdict, rule, evidence), s.loc[checked])
 
 
 def algorithm_ordering(survival: pd.DataFrame, random: pd.DataFrame, order: Sequence[str]) -> Verdict:
@@ -269,13 +325,43 @@ def algorithm_ordering(survival: pd.DataFrame, random: pd.DataFrame, order: Sequ
 
 
 # ------------------------------------------------------------------------------------------------ (d)
+def drops(per_seed: pd.DataFrame, order: Sequence[str], alpha: float = 0.05) -> tuple[list, list[str]]:
+    """The resolved drops of one agent's testbed success between training levels: for every pair of levels i before
+    j, a one-sided paired t-test over seeds (``scipy.stats.ttest_1samp`` of each seed's success at i minus at j,
+    alternative "greater"), Holm-corrected over all pairs (family-wise error ``alpha``).  ``per_seed``: columns
+    level, seed, value (each seed's mean testbed success).  Returns the rejected pairs and a line per pair tested."""
+    levels = [lv for lv in order if lv in set(per_seed["level"])]
+    wide = per_seed.pivot_table(index="seed", columns="level", values="value", aggfunc="mean")
+    pairs, pvalues, lines = [], [], []
+    for i, a in enumerate(levels):
+        for b in levels[i + 1 :]:
+            d = (wide[a] - wide[b]).dropna().to_numpy()
+            if len(d) < MIN_SEEDS:
+                continue
+            if np.allclose(d, d[0]):  # every seed the same difference: no spread to test against
+                p = 0.0 if d[0] > 0 else 1.0
+            else:
+                p = float(sps.ttest_1samp(d, 0.0, alternative="greater").pvalue)
+            pairs.append((a, b))
+            pvalues.append(p)
+    rejected = holm(pvalues, alpha)
+    for (a, b), p, r in zip(pairs, pvalues, rejected):
+        lines.append(f"{a}→{b}: p = {p:.3g}{' (rejected)' if r else ''}")
+    return [pair for pair, r in zip(pairs, rejected) if r], lines
+
+
 def testbeds_below_ceiling(
-    success: pd.DataFrame, references: pd.DataFrame, generalisation: pd.DataFrame, order: Sequence[str]
+    success: pd.DataFrame,
+    references: pd.DataFrame,
+    generalisation: pd.DataFrame,
+    order: Sequence[str],
+    per_seed: pd.DataFrame | None = None,
 ) -> Verdict:
     """(d) On the testbeds humans are near the ceiling, agents far below, and more training difficulty does not give
-    monotonic gains.  ``success``: agents' testbed success (agent, level, value, low, high); ``references``: the
-    same for oracle, random and human (column agent); ``generalisation``: per agent the mean testbed success by the
-    level trained up to (agent, level, value, low, high)."""
+    monotonic gains.  ``success``: agents' testbed success (agent, level, value, low, high, n, unit);
+    ``references``: the same for oracle, random and human (column agent); ``generalisation``: per agent the mean
+    testbed success by the level trained up to (agent, level, value, low, high, n, unit); ``per_seed``: the same
+    per seed (agent, level, seed, value), for the paired tests of :func:`drops`."""
     claim = "(d) testbeds: humans ≈ ceiling, agents far below; no monotonic gain with training difficulty"
     refs = {a: p.set_index("level") for a, p in references.groupby("agent")} if len(references) else {}
     parts = []
@@ -310,13 +396,16 @@ def testbeds_below_ceiling(
                 else UNRESOLVED
             )
             parts.append(
-                Verdict(
-                    f"{agent} far below the oracle",
-                    verdict,
-                    "below: its 95 % interval under the oracle's; reproduced when below on at least half "
-                    "of the testbeds, contradicted when its rate reaches the oracle's lower bound on "
-                    "most",
-                    [f"below on {len(below)} of {len(tb)} testbeds; at the oracle's level on {len(near)}"],
+                _gate(
+                    Verdict(
+                        f"{agent} far below the oracle",
+                        verdict,
+                        "below: its 95 % interval under the oracle's; reproduced when below on at "
+                        "least half of the testbeds, contradicted when its rate reaches the oracle's "
+                        "lower bound on most",
+                        [f"below on {len(below)} of {len(tb)} testbeds; at the oracle's level on {len(near)}"],
+                    ),
+                    part,
                 )
             )
     if not len(generalisation):
@@ -327,28 +416,28 @@ def testbeds_below_ceiling(
             if len(part) < 3:
                 parts.append(missing(f"{agent}: no monotonic gain", "fewer than 3 training levels"))
                 continue
-            drops = [
-                (part.loc[i, "level"], part.loc[j, "level"])
-                for i in range(len(part))
-                for j in range(i + 1, len(part))
-                if above(part.loc[i], part.loc[j])
-            ]
+            mine = per_seed[per_seed["agent"] == agent] if per_seed is not None and len(per_seed) else None
+            found, tested = drops(mine, order) if mine is not None and len(mine) else ([], [])
             rises = all(part.loc[i + 1, "value"] >= part.loc[i, "value"] for i in range(len(part) - 1)) and above(
                 part.iloc[-1], part.iloc[0]
             )
             evidence = [
                 "; ".join(f"{r.level}: {_fmt(r._asdict())}" for r in part.itertuples()),
-                f"resolved drops (a later level's interval below an earlier one's): "
-                f"{', '.join(f'{a}→{b}' for a, b in drops) or 'none'}",
+                f"resolved drops (one-sided paired t-tests over seeds, Holm-corrected over the {len(tested)} "
+                f"pairs of levels): {', '.join(f'{a}→{b}' for a, b in found) or 'none'}",
             ]
-            verdict = REPRODUCED if drops else CONTRADICTED if rises else UNRESOLVED
+            verdict = REPRODUCED if found else CONTRADICTED if rises else UNRESOLVED
             parts.append(
-                Verdict(
-                    f"{agent}: no monotonic gain with training level",
-                    verdict,
-                    "reproduced by a resolved drop; contradicted by a rise at every step whose last "
-                    "level's interval lies above the first's",
-                    evidence,
+                _gate(
+                    Verdict(
+                        f"{agent}: no monotonic gain with training level",
+                        verdict,
+                        "reproduced by a resolved drop (a later level below an earlier one, Holm-"
+                        "corrected over every pair of levels); contradicted by a rise at every step "
+                        "whose last level's interval lies above the first's",
+                        evidence,
+                    ),
+                    part,
                 )
             )
     return combine(claim, parts, "each part by its rule")
@@ -373,11 +462,15 @@ def ablations(survival: pd.DataFrame, success: pd.DataFrame) -> Verdict:
                 continue
             v = REPRODUCED if above(base, t.loc[mod]) else CONTRADICTED if above(t.loc[mod], base) else UNRESOLVED
             parts.append(
-                Verdict(
-                    f"{mod} fails ({name})",
-                    v,
-                    "its 95 % interval below all's (contradicted: above)",
-                    [f"{mod} {_fmt(t.loc[mod])} vs all {_fmt(base)}"],
+                _gate(
+                    Verdict(
+                        f"{mod} fails ({name})",
+                        v,
+                        "its 95 % interval below all's (contradicted: above)",
+                        [f"{mod} {_fmt(t.loc[mod])} vs all {_fmt(base)}"],
+                    ),
+                    t.loc[mod],
+                    base,
                 )
             )
         need = ("no_olfaction", "no_thermoception", "no_collision")
@@ -396,11 +489,16 @@ def ablations(survival: pd.DataFrame, success: pd.DataFrame) -> Verdict:
             else UNRESOLVED
         )
         parts.append(
-            Verdict(
-                f"olfaction matters least ({name})",
-                v,
-                "no_olfaction's 95 % interval above no_thermoception's and no_collision's (contradicted: below either)",
-                [f"no_olfaction {_fmt(olf)}; " + "; ".join(f"{m} {_fmt(o)}" for m, o in others.items())],
+            _gate(
+                Verdict(
+                    f"olfaction matters least ({name})",
+                    v,
+                    "no_olfaction's 95 % interval above no_thermoception's and no_collision's "
+                    "(contradicted: below either)",
+                    [f"no_olfaction {_fmt(olf)}; " + "; ".join(f"{m} {_fmt(o)}" for m, o in others.items())],
+                ),
+                olf,
+                *others.values(),
             )
         )
     return combine(claim, parts, "each part by its rule")

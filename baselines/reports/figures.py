@@ -91,16 +91,75 @@ def _plt():
     return plt
 
 
-def _finish(fig, axes, path: Path, title: str) -> Path:
-    """Legends to the right of each panel (labels name algorithm, modality and more, so they are long), title,
-    and the file, cropped to what was drawn."""
+#: a figure's widest size: readable at page width (issue 42); panels wrap into rows to stay within it
+MAX_WIDTH_PX = 1600
+DPI = 120
+MAX_WIDTH_IN = (MAX_WIDTH_PX - 40) / DPI  # less what bbox_inches="tight" may add around the axes
+
+#: One colour per algorithm, per reference agent and per modality set, the same in every figure (tab10/Dark2
+#: colours; references in greys and black, so that agents stand out against them)
+ALGO_COLOURS = {
+    "ppo": "#1f77b4",
+    "dqn": "#ff7f0e",
+    "ppo_lstm": "#2ca02c",
+    "dreamer": "#9467bd",
+    "dreamer_xs": "#8c564b",
+}
+REFERENCE_COLOURS = {"oracle": "#000000", "random": "#7f7f7f", "still": "#bcbcbc", "human": "#e377c2"}
+MODALITY_COLOURS = {
+    "all": "#1b9e77",
+    "no_vision": "#d95f02",
+    "no_interoception": "#7570b3",
+    "no_olfaction": "#e7298a",
+    "no_thermoception": "#66a61e",
+    "no_collision": "#e6ab02",
+}
+HATCHES = ("", "//", "..", "xx", "\\\\", "oo", "++", "--")
+OTHER_COLOURS = ("#17becf", "#d62728", "#aec7e8", "#98df8a", "#c5b0d5", "#c49c94")
+
+
+def styles(labels: Sequence[str], colour_by: str = "algo") -> dict[str, tuple[str, str]]:
+    """(colour, hatch) of each label: the colour of its algorithm (the label's first part, ``ppo · curriculum``)
+    or, with ``colour_by="modality"``, of its modality set (the label itself); reference agents keep theirs.
+    Labels sharing a colour get different hatches, in the order given."""
+    table = MODALITY_COLOURS if colour_by == "modality" else ALGO_COLOURS
+    out, used, spare = {}, {}, iter(OTHER_COLOURS * 10)
+    for label in labels:
+        base = str(label).split(" [")[0]
+        key = base.split(" · ")[0].strip()
+        colour = REFERENCE_COLOURS.get(base) or table.get(key) or table.get(base)
+        if colour is None:
+            colour = used.setdefault(("other", key), next(spare))
+        n = used.get(colour, 0)
+        used[colour] = n + 1
+        out[label] = (colour, HATCHES[n % len(HATCHES)])
+    return out
+
+
+def _finish(fig, axes, path: Path, title: str, legend_rows: int = 0) -> Path:
+    """One legend under the panels (labels name algorithm, modality and more, so they are long: beside the panels
+    they made figures thousands of pixels wide), the title, and the file, cropped to what was drawn."""
+    handles, names = {}, []
     for ax in axes:
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(frameon=False, fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+        for h, n in zip(*ax.get_legend_handles_labels()):
+            if n not in handles:
+                handles[n] = h
+                names.append(n)
         ax.spines[["top", "right"]].set_visible(False)
-    fig.suptitle(title, fontsize=11)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120, bbox_inches="tight")
+    width = fig.get_size_inches()[0]
+    if names:
+        longest = max(len(n) for n in names)
+        ncols = max(1, min(len(names), int(width / (0.065 * longest + 0.6))))
+        fig.legend([handles[n] for n in names], names, loc="lower center", ncols=ncols, frameon=False, fontsize=8)
+        rows = -(-len(names) // ncols)
+    else:
+        rows = 0
+    fig.suptitle(title, fontsize=10)
+    height = fig.get_size_inches()[1]
+    bottom = min(0.45, (0.22 * rows + 0.1) / height) if rows else 0.0
+    top = 1 - min(0.3, (0.17 * (title.count("\n") + 1) + 0.1) / height)
+    fig.tight_layout(rect=(0, bottom, 1, top))
+    fig.savefig(path, dpi=DPI, bbox_inches="tight")
     _plt().close(fig)
     return Path(path)
 
@@ -119,10 +178,34 @@ def interval_note(stats: pd.DataFrame, drawn: str = "whiskers") -> str:
     kinds = set(stats["statistic"])
     parts = []
     if "iqm" in kinds:
-        parts.append(f"interquartile mean, {drawn} 95 % bootstrap interval")
+        parts.append(f"interquartile mean, {drawn} 95 % bootstrap interval over seeds and episodes")
     if "rate" in kinds:
-        parts.append(f"share of episodes, {drawn} 95 % Wilson interval")
+        parts.append(f"share of episodes, {drawn} 95 % seed-clustered Wilson interval")
+    if "n" in stats and "unit" in stats and ((stats["unit"] == "seeds") & (stats["n"] < 3)).any():
+        parts.append("under 3 seeds: dots are the seeds, no interval")
     return "; ".join(parts)
+
+
+def how_measured(stats: pd.DataFrame) -> str:
+    """A figure title's line naming how the agents acted and on which worlds."""
+    if "acting" not in stats and "worlds" not in stats:  # evaluate.py's summary: its own title says
+        return ""
+
+    def named(column: str) -> str:
+        if column not in stats:
+            return "not recorded"
+        agents = stats[stats["acting"].fillna("").astype(str) != ""] if column == "acting" else stats
+        ways = [w for w in dict.fromkeys(agents[column].fillna("").astype(str)) if w]
+        return " / ".join(ways) or "not recorded"
+
+    return f"acting: {named('acting')} · worlds: {named('worlds')}"
+
+
+def _chunks(items: Sequence, size: int) -> list[list]:
+    """``items`` in rows of at most ``size``, as even as they go (8 levels by 6: two rows of 4, not 6 and 2)."""
+    rows = -(-len(items) // max(1, size)) if len(items) else 1
+    even = -(-len(items) // rows) if len(items) else 1
+    return [list(items[i : i + even]) for i in range(0, len(items), even)] or [[]]
 
 
 def plot_bars(
@@ -136,45 +219,66 @@ def plot_bars(
     levels: Sequence[str] | None = None,
     top: float | None = None,
     note: str = "",
-    panel_height: float = 3.4,
+    panel_height: float = 3.0,
+    colour_by: str = "algo",
 ) -> Path:
-    """Grouped bars — one group per ``level``, one bar per ``label`` (``value``, its interval as whiskers) — in one
-    panel per ``panel`` value (or a single panel); the y axis starts at 0 and ends at ``top`` if given.  ``stats``
-    has the columns of :data:`.aggregate.STAT_COLUMNS` (``statistic`` says what the whiskers are, for the title);
-    ``note``: a last line of the title (e.g. what shortened labels stand for); ``panel_height`` in inches."""
+    """Grouped bars — one group per ``level``, one bar per ``label`` (``value``, its interval as whiskers, the
+    seeds' ``points`` as dots where there is no interval) — in one panel per ``panel`` value (or a single panel),
+    levels wrapped into further rows so that the figure stays within :data:`MAX_WIDTH_PX`; the y axis starts at 0
+    and ends at ``top`` if given.  ``stats`` has the columns of :data:`.aggregate.STAT_COLUMNS`; ``note``: a last
+    line of the title (e.g. what shortened labels stand for); colours: :func:`styles`."""
     plt = _plt()
     panels = list(dict.fromkeys(stats[panel])) if panel else [None]
-    n_levels = stats["level"].nunique()
-    fig, axes = plt.subplots(
-        len(panels),
-        1,
-        figsize=(max(4.5, 0.55 * len(stats) / len(panels) + 2.5, 1.2 * n_levels), panel_height * len(panels)),
-        squeeze=False,
-    )
-    for ax, name in zip(axes[:, 0], panels):
+    style = styles(list(dict.fromkeys(stats["label"])), colour_by)
+    rows = []  # (panel name, levels of this row, labels)
+    for name in panels:
         part = stats if name is None else stats[stats[panel] == name]
         order = [lv for lv in (levels or level_sorted(part["level"])) if lv in set(part["level"])]
         names = list(dict.fromkeys(part["label"]))
-        width = 0.8 / max(len(names), 1)
+        per_row = int((MAX_WIDTH_IN - 1.2) / (0.2 * len(names) + 0.35))
+        rows += [(name, chunk, names) for chunk in _chunks(order, per_row)]
+    widest = max(len(r[1]) * (0.2 * len(r[2]) + 0.35) + 1.2 for r in rows)
+    width = min(MAX_WIDTH_IN, max(5.0, widest))
+    slots = max(len(r[1]) for r in rows)  # every row as wide as the widest, so that bars keep one width
+    fig, axes = plt.subplots(len(rows), 1, figsize=(width, panel_height * len(rows) + 0.6), squeeze=False)
+    for ax, (name, order, names) in zip(axes[:, 0], rows):
+        part = stats if name is None else stats[stats[panel] == name]
+        bar = 0.8 / max(len(names), 1)
         for i, label in enumerate(names):
             one = part[part["label"] == label].set_index("level").reindex(order)
             heights, yerr = whiskers(one, scale)
+            xs = np.arange(len(order)) + (i - (len(names) - 1) / 2) * bar
+            colour, hatch = style[label]
             ax.bar(
-                np.arange(len(order)) + (i - (len(names) - 1) / 2) * width,
+                xs,
                 heights,
-                width,
+                bar,
                 yerr=yerr,
-                capsize=3,
+                capsize=2,
                 label=label,
+                color=colour,
+                hatch=hatch,
+                edgecolor="white" if hatch else None,
+                linewidth=0,
             )
+            if "points" in one:
+                for x, pts in zip(xs, one["points"]):
+                    if isinstance(pts, tuple) and pts:
+                        ax.plot([x] * len(pts), [scale * p for p in pts], "o", ms=2.5, color="0.15", zorder=3)
         ax.set_xticks(
-            range(len(order)), order, rotation=30 if len(order) > 2 else 0, ha="right" if len(order) > 2 else "center"
+            range(len(order)),
+            order,
+            rotation=30 if len(order) > 2 else 0,
+            ha="right" if len(order) > 2 else "center",
+            fontsize=8,
         )
-        ax.set_ylabel(ylabel)
+        ax.set_xlim(-0.5, slots - 0.5)
+        ax.set_ylabel(ylabel, fontsize=8)
         ax.set_ylim(0, top)
         if name is not None:
             ax.set_title(str(name), fontsize=9)
-    return _finish(fig, axes[:, 0], path, f"{title}\n({interval_note(stats)})" + (f"\n{note}" if note else ""))
+    lines = [title, f"({interval_note(stats)})", how_measured(stats), note]
+    return _finish(fig, axes[:, 0], path, "\n".join(line for line in lines if line))
 
 
 def plot_lines(
@@ -191,15 +295,19 @@ def plot_lines(
     order: Sequence[str] | None = None,
     hlines: pd.DataFrame | None = None,
     top: float | None = None,
+    colour_by: str = "algo",
 ) -> Path:
-    """Lines of ``value`` per ``label`` (one panel per ``panel`` value), with its interval as a band or whiskers;
-    ``order``: categorical x values in this order (labels drawn side by side, slightly apart, so that equal values
-    stay visible); ``hlines``: (label, value) rows drawn as dashed lines; the y axis starts at 0, ends at ``top``."""
+    """Lines of ``value`` per ``label`` (one panel per ``panel`` value, two panels a row), with its interval as a
+    band or whiskers; ``order``: categorical x values in this order (labels drawn side by side, slightly apart, so
+    that equal values stay visible); ``hlines``: (label, value) rows drawn as dashed lines; the y axis starts at 0,
+    ends at ``top``; colours: :func:`styles`."""
     plt = _plt()
     panels = list(dict.fromkeys(stats[panel])) if panel else [None]
     cols = min(len(panels), 2)
     nrows = -(-len(panels) // cols)
-    fig, axes = plt.subplots(nrows, cols, figsize=(6.5 * cols, 3.6 * nrows), squeeze=False)
+    style = styles(list(dict.fromkeys(stats["label"])), colour_by)
+    dashes = ("-", "--", ":", "-.")
+    fig, axes = plt.subplots(nrows, cols, figsize=(min(MAX_WIDTH_IN, 6.0 * cols), 3.4 * nrows + 0.8), squeeze=False)
     for ax in axes.flat[len(panels) :]:
         ax.set_visible(False)
     for ax, name in zip(axes.flat, panels):
@@ -213,29 +321,39 @@ def plot_lines(
                 line = line.sort_values(x)
                 xs = line[x].to_numpy(dtype=float)
             m, yerr = whiskers(line, scale)
+            colour, hatch = style[label]
+            dash = dashes[HATCHES.index(hatch) % len(dashes)]
             if band:
-                (drawn,) = ax.plot(xs, m, marker="." if len(xs) < 30 else None, label=label)
-                ax.fill_between(xs, m - yerr[0], m + yerr[1], alpha=0.25, color=drawn.get_color(), linewidth=0)
+                ax.plot(xs, m, marker="." if len(xs) < 30 else None, label=label, color=colour, linestyle=dash)
+                ax.fill_between(xs, m - yerr[0], m + yerr[1], alpha=0.25, color=colour, linewidth=0)
             else:
-                ax.errorbar(xs, m, yerr=yerr, marker="o", capsize=3, label=label)
-        for style, (_, ref) in zip(
+                ax.errorbar(xs, m, yerr=yerr, marker="o", capsize=3, label=label, color=colour, linestyle=dash)
+        for style_, (_, ref) in zip(
             ("--", ":", "-.", (0, (5, 1))), (hlines if hlines is not None else pd.DataFrame()).iterrows()
         ):
-            ax.axhline(scale * ref["value"], linestyle=style, linewidth=1, color="0.35", label=ref["label"])
+            base = str(ref["label"]).split(" (")[0]
+            ax.axhline(
+                scale * ref["value"],
+                linestyle=style_,
+                linewidth=1,
+                color=REFERENCE_COLOURS.get(base, "0.35"),
+                label=ref["label"],
+            )
         if order is not None:
-            ax.set_xticks(range(len(order)), order)
+            ax.set_xticks(range(len(order)), order, fontsize=8)
             ax.set_xlim(-0.3, len(order) - 0.7)
         else:  # env steps: 250k, 1.5M rather than six-digit labels that run into each other
             from matplotlib.ticker import EngFormatter
 
             ax.xaxis.set_major_formatter(EngFormatter(sep=""))
-        ax.set_xlabel(xlabel)
-        ax.set_ylabel(ylabel)
+        ax.set_xlabel(xlabel, fontsize=8)
+        ax.set_ylabel(ylabel, fontsize=8)
         ax.set_ylim(0, top)
         if name is not None:
             ax.set_title(str(name), fontsize=9)
     note = interval_note(stats, "band" if band else "whiskers")
-    return _finish(fig, list(axes.flat[: len(panels)]), path, f"{title}\n({note})")
+    lines = [title, f"({note})", how_measured(stats)]
+    return _finish(fig, list(axes.flat[: len(panels)]), path, "\n".join(line for line in lines if line))
 
 
 def plot_summary(summary: pd.DataFrame, path: str | Path, *, success: bool, title: str) -> Path:
@@ -277,14 +395,11 @@ def plot_outcomes(rows: pd.DataFrame, path: str | Path, *, title: str = "What ha
     rows = rows.assign(outcome=rows.apply(outcome, axis=1))
     levels = list(dict.fromkeys(rows["level"]))
     policies = list(dict.fromkeys(rows["policy"]))
-    cols = min(len(levels), 5)
+    per_panel = max(1.6, 0.65 * len(policies))
+    cols = max(1, min(len(levels), 5, int((MAX_WIDTH_IN - 1.0) // per_panel)))
     nrows = -(-len(levels) // cols)
     fig, axes = plt.subplots(
-        nrows,
-        cols,
-        figsize=(1.0 + cols * max(1.6, 0.65 * len(policies)), 3.2 * nrows + 0.9),
-        sharey=True,
-        squeeze=False,
+        nrows, cols, figsize=(min(MAX_WIDTH_IN, 1.0 + cols * per_panel), 3.2 * nrows + 0.9), sharey=True, squeeze=False
     )
     for ax in axes.flat[len(levels) :]:
         ax.set_visible(False)

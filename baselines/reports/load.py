@@ -3,7 +3,9 @@
 Inputs are what the other tools write: run directories of ``scripts/train.py`` (``.hydra/config.yaml``,
 ``episodes.csv``, ``eval.csv``, ``model-<stage>-<level>.pt``, ``checkpoint.pt``) and episode files of
 ``scripts/evaluate.py`` and ``scripts/play.py`` (one row per episode in the format of :mod:`evaaa.records`;
-``policy`` is a checkpoint path, ``oracle``, ``random`` or ``human``).  An evaluated checkpoint is tied to its run
+``policy`` is a checkpoint path, ``oracle``, ``random``, ``still`` or ``human``; ``acting`` how a checkpoint acted,
+``worlds`` on which worlds — files without that column were measured on ``make_env(seed=s)``'s worlds, a seed-s
+training run's own, and are labelled not held out).  An evaluated checkpoint is tied to its run
 through the run directory it lies in, whose ``.hydra/config.yaml`` says what was trained (algorithm, modality,
 reward, level or curriculum, seed, ...).  Nothing is dropped silently: what cannot be used says why.
 """
@@ -43,6 +45,7 @@ BOOKKEEPING = (
     "log_every",
     "total_steps",
     "max_minutes",
+    "max_cpu_minutes",
     "deterministic",
     "stages",
     "run.",
@@ -53,7 +56,14 @@ BOOKKEEPING = (
     "hydra.",
 )
 RUN_COLUMNS = ("env_steps", "stage", "level", "steps")
-EVAL_RUN_COLUMNS = ("env_steps", "stage", "level")
+#: eval.csv: one row per episode (``steps``), or, in files written before, one row per evaluation (its mean)
+EVAL_RUN_COLUMNS = ("env_steps", "stage", "level", "steps")
+EVAL_RUN_MEAN_COLUMNS = ("env_steps", "stage", "level", "survival_mean")
+#: worlds of evaluate.py episodes written before the ``worlds`` column: ``make_env(seed=s)``'s, the worlds a seed-s
+#: training run starts on
+OLD_WORLDS = "seed-{} worlds, not held out"
+#: worlds of in-training evaluations written before the ``worlds`` column (the run's seed + ``eval.seed_offset``)
+OLD_EVAL_WORLDS = "in-training evaluation worlds (run seed + {:,}), not held out"
 EVAL_FILE_COLUMNS = ("policy", "level", "steps", "success", "episode")
 LEVEL_ORDER = {name: i for i, name in enumerate((*evaaa.LEVELS, *evaaa.TESTBEDS))}
 
@@ -82,15 +92,18 @@ class RunRecord:
     curriculum: bool = False
     stages: list[tuple[int, str, int]] = field(default_factory=list)  # (index, level, budget)
     episodes: pd.DataFrame | None = None
-    evals: pd.DataFrame | None = None  # one row per evaluation (its mean survival): read, or made from the episodes
-    #: one row per episode of the periodic evaluations (eval.csv since evaluations were written per episode, on
-    #: validation worlds); None where eval.csv holds only each evaluation's mean
-    eval_episodes: pd.DataFrame | None = None
+    #: eval.csv as written: one row per episode of the periodic evaluations (on validation worlds), or, in files of
+    #: the older format (``eval_means_only``), one row per evaluation with its mean survival
+    evals: pd.DataFrame | None = None
+    eval_episodes: pd.DataFrame | None = None  # ``evals`` where it has one row per episode, else None
     complete: set[int] = field(default_factory=set)  # indices of finished stages
     steps: int = 0  # env steps reached, summed over stages
     problem: str | None = None  # why the run is missing or partial (None: finished)
     usable: bool = True  # False: nothing of it can be reported (no config or no episodes file)
     extras: tuple = ()  # other settings that tell this run's group apart (filled by describe_extras)
+    eval_means_only: bool = False  # eval.csv of the format before per-episode rows: one mean per evaluation
+    eval_acting: str = ""  # how its in-training evaluations acted, where eval.csv does not say
+    eval_worlds: str = ""  # on which worlds, where eval.csv does not say
     notes: list[str] = field(default_factory=list)  # what was skipped while reading its files
 
     @property
@@ -162,16 +175,16 @@ def load_run(run_dir: str | Path) -> RunRecord:
         run.problem, run.usable = f"unreadable .hydra/config.yaml ({err}); left out", False
         return run
     run.episodes = _read_run_csv(run.dir / "episodes.csv", RUN_COLUMNS, run.notes)
-    run.evals = _read_run_csv(run.dir / "eval.csv", EVAL_RUN_COLUMNS, run.notes)
-    if run.evals is not None and "survival_mean" not in run.evals.columns:
-        if "steps" not in run.evals.columns:
-            raise ReportError(f"{run.dir / 'eval.csv'} is not a training eval.csv (no column survival_mean or steps)")
-        run.eval_episodes = run.evals
-        run.evals = (
-            run.evals.groupby(["env_steps", "stage", "level"], sort=False)["steps"]
-            .agg(episodes="size", survival_mean="mean", survival_min="min", survival_max="max")
-            .reset_index()
-        )
+    run.evals = _read_run_csv(run.dir / "eval.csv", EVAL_RUN_COLUMNS, run.notes, EVAL_RUN_MEAN_COLUMNS)
+    if run.evals is not None:
+        run.eval_means_only = "steps" not in run.evals.columns
+        ev = run.config.get("eval") or {}
+        # DQN has no action distribution: its in-training evaluations took the greedy action whatever eval.sample
+        run.eval_acting = "sample" if ev.get("sample") and run.algo != "dqn" else "mode"
+        run.eval_worlds = OLD_EVAL_WORLDS.format(int(ev.get("seed_offset", 0)))
+        for column, default in (("acting", run.eval_acting), ("worlds", run.eval_worlds)):
+            run.evals[column] = run.evals[column].fillna(default) if column in run.evals else default
+        run.eval_episodes = None if run.eval_means_only else run.evals
     for index, level, budget in run.stages:
         later = any(df is not None and (df["stage"] > index).any() for df in (run.episodes, run.evals))
         evaluated_at_end = (
@@ -219,12 +232,17 @@ def csv_text(path: Path, notes: list[str]) -> io.StringIO:
     return io.StringIO(text)
 
 
-def _read_run_csv(path: Path, needed: Sequence[str], notes: list[str]) -> pd.DataFrame | None:
+def _read_run_csv(
+    path: Path, needed: Sequence[str], notes: list[str], older: Sequence[str] = ()
+) -> pd.DataFrame | None:
+    """A training CSV with the columns ``needed`` (or, for files of an older format, ``older``)."""
     if not path.is_file():
         return None
     df = pd.read_csv(csv_text(path, notes))
     df = df.rename(columns={k: v for k, v in TRAINING_OLD_NAMES.items() if v not in df.columns})  # older runs
     missing = [c for c in needed if c not in df.columns]
+    if missing and older and all(c in df.columns for c in older):
+        return df
     if missing:
         raise ReportError(f"{path} is not a training {path.name} (no column {', '.join(missing)})")
     return df
@@ -297,6 +315,14 @@ def read_episodes(paths: Sequence[str | Path | io.StringIO]) -> pd.DataFrame:
     # files written before the acting column existed: how their checkpoints acted is not known
     rows["acting"] = rows["acting"].fillna("") if "acting" in rows else ""
     rows["success"] = rows["success"].map({"True": True, "False": False, True: True, False: False, "": np.nan})
+    # files written before the worlds column: evaluate.py built make_env(seed=s)'s worlds, a seed-s run's own
+    old = (
+        rows["seed"].fillna("").astype(str).map(lambda s: OLD_WORLDS.format(s or "?"))
+        if "seed" in rows
+        else OLD_WORLDS.format("?")
+    )
+    worlds = rows["worlds"].fillna("").astype(str) if "worlds" in rows else pd.Series("", index=rows.index)
+    rows["worlds"] = worlds.where(worlds != "", old)
     return rows
 
 
@@ -310,16 +336,36 @@ def display_names(rows: pd.DataFrame) -> pd.Series:
 
 
 # ------------------------------------------------------------------------------------------------ evaluations
+def _episode_files(paths: Iterable[str | Path]) -> list[Path]:
+    """The episode CSVs of ``paths``: a file itself; a directory's ``episodes.csv``; or, for a directory without
+    one (a protocol's ``evals`` folder), every ``episodes.csv`` below it — hidden folders and evaluations moved
+    aside (``.partial-``, ``.old-``) skipped, as they hold no finished evaluation of the models reported."""
+    files: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_file():
+            files.append(p)
+        elif (p / "episodes.csv").is_file():
+            files.append(p / "episodes.csv")
+        elif p.is_dir():
+            found = []
+            for here, dirs, names in os.walk(p):
+                dirs[:] = sorted(d for d in dirs if not d.startswith(".") and ".partial-" not in d and ".old-" not in d)
+                found += [Path(here) / "episodes.csv"] if "episodes.csv" in names else []
+            if not found:
+                raise ReportError(f"evals: {p} holds no episodes.csv, neither itself nor in a folder below it")
+            files += found
+        else:
+            raise ReportError(f"evals: {p} is neither an episode CSV nor a directory holding episodes.csv")
+    return files
+
+
 def load_evaluations(paths: Iterable[str | Path], notes: list[str] | None = None) -> pd.DataFrame:
-    """Episode rows of evaluation outputs (an ``out`` directory of evaluate.py or an episode CSV, e.g. human
-    play records), in one frame with a ``file`` column.  ``notes`` gets a line per skipped (cut short) row."""
+    """Episode rows of evaluation outputs (an ``out`` directory of evaluate.py, a folder of such directories
+    searched recursively, or an episode CSV, e.g. human play records), in one frame with a ``file`` column.
+    ``notes`` gets a line per skipped (cut short) row."""
     notes = [] if notes is None else notes
     frames = []
-    for p in paths:
-        p = Path(p)
-        file = p / "episodes.csv" if p.is_dir() else p
-        if not file.is_file():
-            raise ReportError(f"evals: {p} is neither an episode CSV nor a directory holding episodes.csv")
+    for file in _episode_files(paths):
         text = csv_text(file, notes)
         columns = set(pd.read_csv(text, nrows=0).columns)
         missing = [c for c in EVAL_FILE_COLUMNS if c not in columns]
@@ -338,29 +384,24 @@ def load_evaluations(paths: Iterable[str | Path], notes: list[str] | None = None
 
 def select_acting(evals: pd.DataFrame, acting: str | None) -> pd.DataFrame:
     """Keep the checkpoints' episodes made acting ``acting`` (evaluate.py's ``acting`` column: ``mode``,
-    ``sample``, ``mode+epsilon=0.05`` ...); reference agents' are always kept.  Without ``acting``, a checkpoint
-    evaluated in more than one way is an error: pooling its greedy and sampled episodes would describe neither."""
-    if not len(evals):
+    ``sample``, ``mode+epsilon=0.05`` ...); reference agents' are always kept.  Without ``acting`` every way is
+    kept: the report labels each checkpoint's cells with how it acted, so that greedy and sampled episodes are never
+    pooled."""
+    if not len(evals) or acting is None:
         return evals
     if acting == "unknown":  # episodes written before evaluate.py recorded how checkpoints acted
         acting = ""
     is_ckpt = ~evals["policy"].isin(REFERENCES) & evals["policy"].map(_is_checkpoint_path)
     modes = evals.loc[is_ckpt, "acting"].astype(str)
-    if acting is not None:
-        if not (modes == acting).any() and is_ckpt.any():
-            raise ReportError(
-                f"acting: no checkpoint was evaluated acting {acting!r}; the evaluations hold "
-                f"{', '.join(repr(m) for m in dict.fromkeys(modes))}"
-            )
-        return evals[~is_ckpt | (evals["acting"].astype(str) == acting)]
-    for policy, part in evals[is_ckpt].groupby("policy", sort=False):
-        ways = list(dict.fromkeys(part["acting"].astype(str)))
-        if len(ways) > 1:
-            raise ReportError(
-                f"evals: {policy} was evaluated in {len(ways)} ways ({', '.join(map(repr, ways))}); "
-                f"choose one with acting=<{'|'.join(w or 'unknown' for w in ways)}>"
-            )
-    return evals
+    # what the evaluation was asked for also selects (a DQN checkpoint's `sample` episodes, shown as `mode`)
+    asked = evals["acting_recorded"].fillna(evals["acting"]).astype(str) if "acting_recorded" in evals else modes
+    chosen = (evals["acting"].astype(str) == acting) | (asked.reindex(evals.index).astype(str) == acting)
+    if not chosen[is_ckpt].any() and is_ckpt.any():
+        raise ReportError(
+            f"acting: no checkpoint was evaluated acting {acting!r}; the evaluations hold "
+            f"{', '.join(repr(m) for m in dict.fromkeys(modes))}"
+        )
+    return evals[~is_ckpt | chosen]
 
 
 @dataclass
@@ -412,7 +453,13 @@ def attach(evals: pd.DataFrame, runs: dict[Path, RunRecord]) -> Evaluations:
         if not path.is_file():  # a committed record keeps no model files: not a problem, its episodes count
             absent.append(policy)
         info[policy] = (run_dir, stage, level)
+        if run.algo == "dqn":  # no action distribution: evaluate.py's `sample` took the greedy action all the same
+            relabel = (ckpts["policy"] == policy) & ckpts["acting"].astype(str).str.startswith("sample")
+            ckpts.loc[relabel, "acting_recorded"] = ckpts.loc[relabel, "acting"]
+            ckpts.loc[relabel, "acting"] = "mode" + ckpts.loc[relabel, "acting"].astype(str).str[len("sample") :]
     ckpts["run"] = ckpts["policy"].map(lambda p: info[p][0])
+    if "acting_recorded" in ckpts:
+        ckpts["acting_recorded"] = ckpts["acting_recorded"].fillna(ckpts["acting"])
     ckpts["ckpt_stage"] = ckpts["policy"].map(lambda p: info[p][1])
     ckpts["ckpt_level"] = ckpts["policy"].map(lambda p: info[p][2])
     ckpts = ckpts[ckpts["run"].notna()]

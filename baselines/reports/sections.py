@@ -1,6 +1,8 @@
 """The report itself: its inputs read once (:class:`Inputs`), then one function per section, each adding its
-Markdown, figure and tables to the :class:`Document` (the paper's Figs. 4a, 4b, 25 and 26, training curves, the
-runs and what is missing), and :func:`build_report`, which runs them in order and writes the files.
+Markdown, figure and tables to the :class:`Document` (the paper's Figs. 4a, 4b, 25 and 26, what each agent learned
+beside the references, training curves, the runs and what is missing), and :func:`build_report`, which runs them in
+order and writes the files.  Every table names how the agents acted and on which worlds (its caption, and the
+``acting`` and ``worlds`` columns of its CSV); an agent evaluated in several ways gets one labelled column per way.
 """
 
 from __future__ import annotations
@@ -10,12 +12,13 @@ from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 import evaaa
 
 from . import claims as rules
-from .aggregate import STAT_COLUMNS, across_seeds, curves, final_survival, per_run, reference_stats
+from .aggregate import STAT_COLUMNS, across_seeds, curves, evaluation_points, final_survival, per_run, reference_stats
 from .figures import plot_bars, plot_lines
 from .load import (
     MODEL_FILE,
@@ -32,7 +35,8 @@ from .load import (
     load_run,
     select_acting,
 )
-from .tables import pivot_table
+from .stats import MIN_SEEDS
+from .tables import caption, pivot_table
 
 
 @dataclass
@@ -90,7 +94,7 @@ class Inputs:
     @cached_property
     def final(self) -> pd.DataFrame:
         """The survival every finished stage ended with (:func:`.aggregate.final_survival`)."""
-        return final_survival(self.usable, self.survival, self.window)
+        return final_survival(self.usable, self.survival, self.window, self.evals.checkpoints)
 
     @cached_property
     def run_curves(self) -> pd.DataFrame:
@@ -105,19 +109,16 @@ class Inputs:
     @cached_property
     def source_note(self) -> str:
         """Where the final-survival values come from, for the sections that show them."""
-        fallback = int((self.final["source"] == "train").sum()) if self.survival == "eval" else 0
-        modes = {bool((r.config.get("eval") or {}).get("sample", False)) for r in self.usable}
-        how = {frozenset({False}): "deterministic episodes", frozenset({True}): "episodes sampled from the policy"}.get(
-            frozenset(modes), "deterministic episodes, or sampled ones where a run set `eval.sample`"
-        )
-        note = (
-            f"Survival: the last evaluation of each finished stage (`eval.csv`, {how})"
-            if self.survival == "eval"
-            else f"Survival: the mean of each finished stage's last {self.window} training episodes"
-        )
-        if fallback:
-            note += f"; {fallback} value(s) from the last {self.window} training episodes (stages without evaluation)"
-        return note + "."
+        counts = self.final["source"].value_counts() if len(self.final) else pd.Series(dtype=int)
+        said = {
+            "evaluate.py": "the stage's network evaluated by evaluate.py on its level (one row per episode)",
+            "eval.csv": "the stage's last in-training evaluation (`eval.csv`, one row per episode)",
+            "eval.csv (means only)": "the stage's last in-training evaluation, of which `eval.csv` (an older "
+            "format) kept only the mean: means only",
+            "training episodes": f"the stage's last {self.window} training episodes (exploring policy)",
+        }
+        parts = [f"{said.get(k, k)} ({v} stage{'s' if v != 1 else ''})" for k, v in counts.items() if k != "none"]
+        return "Survival: " + ("; ".join(parts) if parts else "none") + "."
 
     @cached_property
     def checkpoint_runs(self) -> list[RunRecord]:
@@ -129,6 +130,18 @@ class Inputs:
     def checkpoint_labels(self) -> dict[Path, str]:
         return labels(self.checkpoint_runs, ("algo", "modality", "reward", "extras", "training"))
 
+    def labelled(
+        self, frame: pd.DataFrame, labels: dict[Path, str], column: str = "label", within: Sequence[str] = ()
+    ) -> pd.DataFrame:
+        """``frame`` (rows with ``run`` and ``acting``) with ``column`` = the run's label, and the acting mode in
+        brackets wherever one label (within one value of each of ``within``: a figure's panel) holds rows of several
+        modes (both shown, labelled, never pooled)."""
+        if not len(frame):
+            return frame.assign(**{column: pd.Series(dtype=str)})
+        out = frame.assign(**{column: frame["run"].map(labels)})
+        ways = out.groupby([*within, column])["acting"].transform("nunique")
+        return out.assign(**{column: out[column].where(ways < 2, out[column] + " [" + out["acting"] + "]")})
+
     @cached_property
     def testbed_episodes(self) -> pd.DataFrame:
         """The evaluated checkpoints' episodes on testbeds."""
@@ -139,6 +152,11 @@ class Inputs:
     def best(self) -> pd.DataFrame:
         """Per run, the testbed episodes of its furthest-trained evaluated checkpoint."""
         return final_checkpoints(self.testbed_episodes)
+
+    @cached_property
+    def learned(self) -> pd.DataFrame:
+        """The "what it learned" table (:func:`learned_table`)."""
+        return learned_table(self)
 
     @cached_property
     def reference_training(self) -> pd.DataFrame:
@@ -175,44 +193,81 @@ def read_inputs(
     runs = {d: load_run(d) for d in find_run_dirs(run_paths)}
     # attach may add the runs of evaluated checkpoints
     read_notes: list[str] = []
-    evals = attach(select_acting(load_evaluations(eval_paths, read_notes), acting), runs)
+    evals = attach(load_evaluations(eval_paths, read_notes), runs)
+    evals.checkpoints = select_acting(evals.checkpoints, acting)
     inputs = Inputs(runs, evals, read_notes, survival, window, bins)
     describe_extras(inputs.usable)
     return inputs
 
 
 # ------------------------------------------------------------------------------------------------ sections
+STATISTICS_NOTE = (
+    "**Statistics.** Seeds (training runs) are the unit. Survival cells: `IQM [low, high]; mean ± se (n=…)` — the "
+    "interquartile mean (mean of the middle 50 %) of the seeds' episodes pooled, with its 95 % percentile interval "
+    "from a two-stage bootstrap (2000 replicates: the seeds redrawn with replacement, then each drawn seed's episodes "
+    "redrawn from its own; rliable's stratified bootstrap with the episodes within seeds added), then the mean over "
+    "seeds of each seed's mean ± the standard error across seeds. Success cells: `rate [low, high] (n=…)` — the "
+    "share of successful episodes of all seeds pooled, with a 95 % Wilson interval on the effective number of "
+    "episodes (seed-clustered: episodes of one seed are not independent). "
+    f"**Under {MIN_SEEDS} seeds a cell has no interval**: it shows its point and each seed's value (`; seeds a, b`), "
+    "and no claim is decided on it. n: seeds × episodes per seed (`2 seeds, 37 ep.` when seeds have unequal "
+    "episodes; `× mean of 8 ep.` where a seed gave only an evaluation's mean). Reference agents (oracle, random, "
+    "stand-still) are one fixed policy each: their episodes are the units; human play: participants. Figures: bars "
+    "and lines show the IQM or rate, whiskers and bands its 95 % interval, dots the seeds where there is none. Runs "
+    "that differ only in their seed are pooled; labels name what else differs. Every table's title names how the "
+    "agents acted (`mode`: the greedy or most likely action; `sample`: drawn from the policy's distribution; "
+    "`+epsilon=e`: a uniformly random action with chance e) and on which worlds (`test`: held out; `validation`: "
+    "the periodic evaluations and tuning; anything else is not held out)."
+)
+
+
 def introduction(doc: Document, inp: Inputs, title: str) -> None:
-    """Title, what was read, how to read the cells, how the checkpoints acted."""
+    """Title, what the agents learned (one paragraph), what was read, how to read the cells, how the checkpoints
+    acted and on which worlds."""
     evals = inp.evals
     n_policies = evals.checkpoints["policy"].nunique() + evals.references["policy"].nunique()
+    doc.md += [f"# {title}", ""]
+    learned = learned_paragraph(inp)
+    if learned:
+        doc.md += [learned, ""]
     doc.md += [
-        f"# {title}",
-        "",
         f"{len(inp.run_list)} run directories; {n_policies} evaluated policies "
         f"({len(evals.checkpoints) + len(evals.references)} evaluation episodes).",
         "",
-        "**Statistics.** Survival cells: `IQM [low, high]; mean ± se (n=…)` — the interquartile mean (mean of "
-        "the middle 50 %) of the episodes with its 95 % percentile bootstrap interval (2000 resamples; "
-        "episodes redrawn within each seed, seeds as strata; where a seed gives one number, its last "
-        "evaluation's mean, the seeds' numbers are redrawn), then the mean over seeds of each seed's value ± "
-        "the standard error across seeds (none with one seed). Success cells: `rate [low, high] (n=…)` — the "
-        "share of successful episodes of all seeds pooled, with its 95 % Wilson score interval (not "
-        "degenerate at 0 % or 100 %). n: seeds × episodes per seed (`2 seeds, 37 ep.` when seeds have "
-        "unequal episodes). Reference agents (oracle, random): over episodes; human: participants as the "
-        "units when there are several. Figures: bars and lines show the IQM or rate, whiskers and bands its "
-        "95 % interval. Runs that differ only in their seed are pooled; labels name what else differs.",
+        STATISTICS_NOTE,
         "",
     ]
-    ways = list(dict.fromkeys(evals.checkpoints["acting"].astype(str))) if len(evals.checkpoints) else []
-    if ways:
-        doc.md += [
-            "Checkpoints acted: "
-            + ", ".join(f"`{w}`" if w else "not recorded" for w in ways)
-            + " (evaluate.py: `mode` the most likely action, `sample` drawn from the policy, `+epsilon=e` a "
-            "random action with chance e).",
-            "",
-        ]
+    ck = evals.checkpoints
+    if len(ck):
+        ways = ", ".join(f"`{w}`" if w else "not recorded" for w in dict.fromkeys(ck["acting"].astype(str)))
+        worlds = ", ".join(dict.fromkeys(ck["worlds"].astype(str)))
+        doc.md += [f"Checkpoints acted: {ways}; worlds: {worlds}.", ""]
+        if (ck["worlds"].astype(str).str.contains("not held out")).any():
+            doc.md += [
+                "**Not held out.** Evaluations written before evaluate.py recorded its worlds were made on "
+                "`make_env(seed=s)`'s worlds, the worlds a seed-s training run starts on; every number "
+                "measured there is labelled so and is not a held-out result.",
+                "",
+            ]
+
+
+def _run_caption(inp: Inputs) -> str:
+    ways: dict[str, list[str]] = {}
+    for r in inp.usable:
+        if r.evals is not None:
+            for way in dict.fromkeys(r.evals["acting"].astype(str)):
+                ways.setdefault(way, [])
+                if r.algo not in ways[way]:
+                    ways[way].append(r.algo)
+    acting = "; ".join(f"`{w}` ({', '.join(a)})" for w, a in ways.items()) or "no in-training evaluations"
+    worlds = (
+        " / ".join(dict.fromkeys(w for r in inp.usable if r.evals is not None for w in r.evals["worlds"].astype(str)))
+        or "none"
+    )
+    return (
+        f"**Runs.** Acting: training episodes explore; in-training evaluations {acting}. Worlds: training "
+        f"worlds (training episodes); {worlds} (in-training evaluations)."
+    )
 
 
 def runs_and_problems(doc: Document, inp: Inputs) -> list[str]:
@@ -220,6 +275,8 @@ def runs_and_problems(doc: Document, inp: Inputs) -> list[str]:
     rel = inp.rel
     doc.md += [
         "## Runs",
+        "",
+        _run_caption(inp),
         "",
         "| run | algo | modality | reward | training | seed | env steps | status |",
         "|---|---|---|---|---|---|---|---|",
@@ -267,7 +324,7 @@ def survival_per_level(doc: Document, inp: Inputs) -> None:
     table = figure = None
     if len(final):
         lab = labels(left_runs)
-        f = final[final["run"].isin(list(lab))].assign(label=lambda d: d["run"].map(lab))
+        f = inp.labelled(final[final["run"].isin(list(lab))], lab)
         stats = across_seeds(f, ["label", "level"], "survival")
         doc.tables["survival_per_level"] = stats
         levels = level_sorted(stats["level"])
@@ -278,7 +335,7 @@ def survival_per_level(doc: Document, inp: Inputs) -> None:
             ylabel="survival (decisions)",
             title="Survival per training level",
         )
-        table = pivot_table(stats, "level", "label", rows=levels)
+        table = pivot_table(stats, "level", "label", rows=levels, title="Survival per training level (decisions)")
     doc.section(
         "Survival per training level (Fig. 4a, left)",
         inp.source_note + " Curriculum runs where an algorithm has them, else its direct runs.",
@@ -288,26 +345,48 @@ def survival_per_level(doc: Document, inp: Inputs) -> None:
     )
 
 
+def _seen(inp: Inputs, final: pd.DataFrame) -> pd.Series:
+    """Env steps each row's network had seen when its stage ended: a curriculum stage k has seen its own and the
+    stages' before it ((k+1) × the budget for equal budgets), a direct run its budget."""
+    return final.apply(
+        lambda row: (
+            inp.by_dir[row["run"]].offset(int(row["stage"])) + inp.by_dir[row["run"]].stages[int(row["stage"])][2]
+        ),
+        axis=1,
+    )
+
+
 def curriculum_vs_direct(doc: Document, inp: Inputs) -> None:
-    """Fig. 4a, right: per level, curriculum runs' stage of that level beside runs trained on that level alone."""
+    """Fig. 4a, right: per level, curriculum runs' stage of that level beside runs trained on that level alone —
+    at equal env steps per stage (the paper's view: the curriculum stage has seen more in total), and at matched
+    total env steps where direct runs of that total exist."""
     usable, final = inp.usable, inp.final
-    both = {
-        k
-        for k in inp.curriculum_algos
-        if any(not r.curriculum and (r.algo, r.modality, r.reward, r.extras) == k for r in usable)
-    }
-    cmp_runs = [r for r in usable if (r.algo, r.modality, r.reward, r.extras) in both]
+
+    def key(r: RunRecord) -> tuple:
+        # a direct run's budget is what this comparison varies (equal per stage, or the stage's total): not a group
+        return (r.algo, r.modality, r.reward, tuple(e for e in r.extras if not e.startswith("steps_per_stage=")))
+
+    both = {key(r) for r in usable if r.curriculum} & {key(r) for r in usable if not r.curriculum}
+    cmp_runs = [r for r in usable if key(r) in both]
     table = figure = None
+    matched_md: list[str] = []
     if cmp_runs and len(final):
-        lab = {
-            d: f"{v} · {'curriculum' if inp.by_dir[d].curriculum else 'direct'}"
-            for d, v in labels(cmp_runs, ("algo", "modality", "reward", "extras")).items()
-        }
-        f = final[final["run"].isin(list(lab))].assign(label=lambda d: d["run"].map(lab))
-        f = f[f["level"].isin(set(f[f["label"].str.endswith("direct")]["level"]))]  # levels with direct runs
-        stats = across_seeds(f, ["label", "level"], "survival").sort_values(
-            "label", key=lambda s: s.str.endswith("direct"), kind="stable"
+        keys = {r.dir: key(r) for r in cmp_runs}
+        varies = [i for i in range(1, 4) if len({k[i] for k in keys.values()}) > 1]
+        base = {d: " · ".join([k[0], *(", ".join(k[i]) if i == 3 else k[i] for i in varies)]) for d, k in keys.items()}
+        lab = {d: f"{v} · {'curriculum' if inp.by_dir[d].curriculum else 'direct'}" for d, v in base.items()}
+        f = inp.labelled(final[final["run"].isin(list(lab))], lab)
+        f = f.assign(
+            seen=_seen(inp, f) if len(f) else pd.Series(dtype=int),
+            curriculum=f["run"].map(lambda d: inp.by_dir[d].curriculum),
         )
+        direct_levels = set(f.loc[~f["curriculum"], "level"])
+        f = f[f["level"].isin(direct_levels)]
+        stats = across_seeds(f, ["label", "level"], "survival").sort_values(
+            "label", key=lambda s: s.str.contains("direct"), kind="stable"
+        )
+        seen = f.groupby(["label", "level"])["seen"].agg(lambda s: "/".join(f"{v:,}" for v in sorted(set(s))))
+        stats["env_steps"] = [seen.get((lb, lv), "") for lb, lv in zip(stats["label"], stats["level"])]
         doc.tables["curriculum_vs_direct"] = stats
         levels = level_sorted(stats["level"])
         if len(stats):
@@ -316,15 +395,59 @@ def curriculum_vs_direct(doc: Document, inp: Inputs) -> None:
                 doc.out / "fig4a_curriculum_vs_direct.png",
                 levels=levels,
                 ylabel="survival (decisions)",
-                title="With and without curriculum",
+                title="With and without curriculum, equal env steps "
+                "per stage (curriculum stage k has seen k+1 stages' env steps)",
             )
-            table = pivot_table(stats, "level", "label", rows=levels)
+            steps_by_level = {
+                lv: "; ".join(
+                    f"{lb.rsplit(' · ', 1)[-1]} {st}"
+                    for lb, st in dict.fromkeys(
+                        zip(stats.loc[stats["level"] == lv, "label"], stats.loc[stats["level"] == lv, "env_steps"])
+                    )
+                )
+                for lv in levels
+            }
+            table = pivot_table(
+                stats,
+                "level",
+                "label",
+                rows=levels,
+                title="Curriculum vs direct at equal env steps per stage (survival, decisions)",
+            )
+            table += "\n\nEnv steps seen per cell: " + "; ".join(f"{lv}: {steps_by_level[lv]}" for lv in levels) + "."
+        # matched view: a curriculum stage beside direct runs of the same level with as many env steps in total
+        cur, dire = f[f["curriculum"]], f[~f["curriculum"]]
+        pairs = cur.merge(dire[["level", "seen"]].drop_duplicates(), on=["level", "seen"])
+        if len(pairs):
+            keep = f.merge(pairs[["level", "seen"]].drop_duplicates(), on=["level", "seen"])
+            mstats = across_seeds(keep, ["label", "level"], "survival")
+            doc.tables["curriculum_vs_direct_matched"] = mstats
+            matched_md = [
+                "",
+                pivot_table(
+                    mstats,
+                    "level",
+                    "label",
+                    rows=level_sorted(mstats["level"]),
+                    title="Curriculum vs direct at matched total env steps (survival, decisions)",
+                ),
+            ]
+        unmatched = cur[~cur.set_index(["level", "seen"]).index.isin(pairs.set_index(["level", "seen"]).index)]
+        if len(unmatched):
+            needs = unmatched.groupby("level")["seen"].max()
+            matched_md += [
+                "",
+                "**At matched total env steps:** no direct run here has as many env steps as the "
+                "curriculum stage on "
+                + ", ".join(f"{lv} ({needs[lv]:,})" for lv in level_sorted(needs.index))
+                + "; there only the view at equal env steps per stage can be shown.",
+            ]
     doc.section(
         "With and without curriculum (Fig. 4a, right)",
-        inp.source_note + " Curriculum: the stage of that level after the levels before it; direct: a run "
-        "trained on that level alone.",
+        inp.source_note + " Curriculum: the stage of that level after the levels before it (it has seen "
+        "their env steps too); direct: a run trained on that level alone.",
         figure,
-        table,
+        (table or "") + "\n".join(matched_md) if table else None,
         "No algorithm has both curriculum runs (`level=curriculum`) and direct runs (`level=<level>`) here.",
     )
 
@@ -336,13 +459,13 @@ def success_per_testbed(doc: Document, inp: Inputs) -> None:
     ref_tests = reference_stats(refs[refs["level"].isin(evaaa.TESTBEDS)], "success")
     table = figure = None
     note = (
-        "Each run's furthest-trained evaluated checkpoint; its episodes pooled over seeds (Wilson interval); n: "
-        "seeds × episodes for trained agents, episodes (or human participants) for the others."
+        "Each run's furthest-trained evaluated checkpoint; its episodes pooled over seeds (seed-clustered Wilson "
+        "interval); n: seeds × episodes for trained agents, episodes (or human participants) for the others."
     )
     if len(inp.best) or len(ref_tests):
         stats = (
             across_seeds(
-                per_run(inp.best, "success").assign(label=lambda d: d["run"].map(inp.checkpoint_labels)),
+                inp.labelled(per_run(inp.best, "success"), inp.checkpoint_labels),
                 ["label", "level"],
                 "success",
                 success=True,
@@ -354,9 +477,9 @@ def success_per_testbed(doc: Document, inp: Inputs) -> None:
         doc.tables["success_per_testbed"] = stats
         testbeds = level_sorted(stats["level"])
         # the figure, as the paper's: the agents trained through the curriculum with every sense, beside the
-        # references; every other run (direct, ablations) stays in the table, where dozens of bars are still legible
+        # references; every other run (direct, ablations) stays in the table
         agents = set(stats.loc[stats["unit"] == "seeds", "label"])
-        paper = _curriculum_labels(inp)
+        paper = _curriculum_labels(inp, stats["label"])
         shown = stats[~stats["label"].isin(agents - paper)] if paper and agents - paper else stats
         if len(shown) < len(stats):
             note += (
@@ -372,16 +495,21 @@ def success_per_testbed(doc: Document, inp: Inputs) -> None:
             ylabel="success rate (%)",
             title="Success per testbed",
         )
-        table = pivot_table(stats, "level", "label", rows=testbeds, percent=True, row_title="testbed")
+        table = pivot_table(
+            stats, "level", "label", rows=testbeds, percent=True, row_title="testbed", title="Success per testbed"
+        )
     doc.section(
         "Success per testbed (Fig. 4b, left)", note, figure, table, "No testbed evaluation given (`evals=[...]`)."
     )
 
 
-def _curriculum_labels(inp: Inputs) -> set[str]:
+def _curriculum_labels(inp: Inputs, shown: pd.Series | None = None) -> set[str]:
     """The labels of the evaluated runs trained through a curriculum with every sense: the agents the paper's
-    Fig. 4b draws."""
-    return {inp.checkpoint_labels[r.dir] for r in inp.checkpoint_runs if r.curriculum and r.modality == "all"}
+    Fig. 4b draws (with their acting modes where ``shown`` labels them so)."""
+    base = {inp.checkpoint_labels[r.dir] for r in inp.checkpoint_runs if r.curriculum and r.modality == "all"}
+    if shown is None:
+        return base
+    return {s for s in shown if s.split(" [")[0] in base}
 
 
 def generalisation(doc: Document, inp: Inputs) -> None:
@@ -390,21 +518,8 @@ def generalisation(doc: Document, inp: Inputs) -> None:
     tests, refs = inp.testbed_episodes, inp.evals.references
     table = figure = None
     if len(tests):
-        per_ckpt = per_run(tests, "success", ("run", "policy", "ckpt_stage", "ckpt_level", "level"))
-        mean_tb = (
-            per_ckpt.groupby(["run", "policy", "ckpt_stage", "ckpt_level"], sort=False)
-            .agg(
-                success=("success", "mean"),
-                testbeds=("success", "size"),
-                scores=("scores", lambda s: tuple(x for one in s for x in one)),
-            )
-            .reset_index()
-        )
-        mean_tb = mean_tb.sort_values(
-            "policy", key=lambda p: p.map(lambda s: not MODEL_FILE.match(Path(s).name)), kind="stable"
-        ).drop_duplicates(["run", "ckpt_stage"])
         stats = across_seeds(
-            mean_tb.assign(label=lambda d: d["run"].map(inp.checkpoint_labels)),
+            inp.labelled(_mean_testbed_success(tests), inp.checkpoint_labels),
             ["label", "ckpt_level"],
             "success",
             success=True,
@@ -413,7 +528,7 @@ def generalisation(doc: Document, inp: Inputs) -> None:
         order = level_sorted(stats["level"])
         ref_tb = refs[refs["level"].isin(evaaa.TESTBEDS)]
         ref_mean = reference_stats(ref_tb.assign(level="testbeds"), "success") if len(ref_tb) else None
-        paper = _curriculum_labels(inp)
+        paper = _curriculum_labels(inp, stats["label"])
         shown = stats[stats["label"].isin(paper)] if paper and set(stats["label"]) - paper else stats
         figure = plot_lines(
             shown,
@@ -430,7 +545,15 @@ def generalisation(doc: Document, inp: Inputs) -> None:
             hlines=ref_mean,
         )
         tb_names = ", ".join(level_sorted(tests["level"]))
-        table = pivot_table(stats, "level", "label", rows=order, percent=True, row_title="trained up to")
+        table = pivot_table(
+            stats,
+            "level",
+            "label",
+            rows=order,
+            percent=True,
+            row_title="trained up to",
+            title="Mean testbed success by training level",
+        )
         table += f"\n\nTestbeds averaged: {tb_names} (each checkpoint over the testbeds it was evaluated on)."
     doc.section(
         "Generalisation by training level (Fig. 4b, right)",
@@ -444,6 +567,26 @@ def generalisation(doc: Document, inp: Inputs) -> None:
     )
 
 
+def _mean_testbed_success(tests: pd.DataFrame) -> pd.DataFrame:
+    """Per run, stage network and acting mode: the successes of all its testbed episodes, as one seed's scores
+    (the final model of a stage preferred to its best model and to ``checkpoint.pt``)."""
+    per_ckpt = per_run(tests, "success", ("run", "policy", "ckpt_stage", "ckpt_level", "level"))
+    mean_tb = (
+        per_ckpt.groupby(["run", "policy", "ckpt_stage", "ckpt_level", "acting"], sort=False)
+        .agg(
+            success=("success", "mean"),
+            scores=("scores", lambda s: tuple(x for one in s for x in one)),
+            worlds=("worlds", lambda w: " / ".join(dict.fromkeys(w))),
+            source=("source", "first"),
+        )
+        .reset_index()
+    )
+    mean_tb["episodes"] = mean_tb["scores"].map(len)
+    return mean_tb.sort_values(
+        "policy", key=lambda p: p.map(lambda s: not MODEL_FILE.match(Path(s).name)), kind="stable"
+    ).drop_duplicates(["run", "ckpt_stage", "acting"])
+
+
 def evaluation_survival(doc: Document, inp: Inputs) -> None:
     """Survival in evaluations on training levels, when there are any (a table, no figure)."""
     ck = inp.evals.checkpoints
@@ -452,11 +595,7 @@ def evaluation_survival(doc: Document, inp: Inputs) -> None:
     if not (len(train_ck) or len(ref_train)):
         return
     stats = (
-        across_seeds(
-            per_run(train_ck, "steps").assign(label=lambda d: d["run"].map(inp.checkpoint_labels)),
-            ["label", "level"],
-            "steps",
-        )
+        across_seeds(inp.labelled(per_run(train_ck, "steps"), inp.checkpoint_labels), ["label", "level"], "steps")
         if len(train_ck)
         else ref_train.iloc[:0]
     )
@@ -465,9 +604,239 @@ def evaluation_survival(doc: Document, inp: Inputs) -> None:
     doc.md += [
         "## Evaluation on training levels",
         "",
-        "Survival (decisions) in evaluate.py's episodes (cells as described under Statistics); checkpoints as above.",
+        "Survival (decisions) in evaluate.py's episodes (cells as "
+        "described under Statistics); checkpoints as above; references: stand-still (`still`: always the "
+        "action none), random and the oracle, where evaluated.",
         "",
-        pivot_table(stats, "level", "label", rows=level_sorted(stats["level"])),
+        pivot_table(
+            stats,
+            "level",
+            "label",
+            rows=level_sorted(stats["level"]),
+            title="Survival in evaluations on training levels (decisions)",
+        ),
+        "",
+    ]
+
+
+# ------------------------------------------------------------------------------------------------ what it learned
+#: end types as the "what it learned" table names them
+ENDS = {
+    "FoodOutOfRange": "starved",
+    "WaterOutOfRange": "dehydrated",
+    "TemperatureOutOfRange": "too hot/cold",
+    "DamageTooHigh": "damaged",
+    "MaxStepReached": "time limit",
+    "ResourceConsumed": "ate (testbed end)",
+}
+LEARNED_REFERENCES = ("random", "still")
+
+
+def learned_table(inp: Inputs) -> pd.DataFrame:
+    """Per training level, each agent's networks (every stage's network on its own level: the run's episodes of
+    ``model-<stage>-<level>.pt`` on ``<level>``) and each reference agent: food and water eaten, collisions per
+    episode, how episodes ended, survival (IQM) and, for agents, survival against the better of random and
+    stand-still on that level.  ``learned`` says, point by point (no verdict), what the numbers show."""
+    ck = inp.evals.checkpoints
+    own = ck[(ck["level"] == ck["ckpt_level"]) & ck["level"].isin(evaaa.LEVELS)] if len(ck) else ck
+    if len(own):
+        own = own[own["policy"].map(lambda p: bool(MODEL_FILE.match(Path(p).name)))]
+    refs = inp.evals.references
+    refs = refs[refs["level"].isin(evaaa.LEVELS) & refs["policy"].isin(["oracle", *LEARNED_REFERENCES])]
+    rows = []
+
+    def describe(label: str, level: str, part: pd.DataFrame, unit: str, key: str | None) -> dict:
+        groups = [g for _, g in part.groupby(key, sort=False)] if key else [part]
+        per = lambda col: [float(g[col].astype(float).mean()) for g in groups]  # noqa: E731
+        ends = part["end_type"].map(lambda e: ENDS.get(e, e)).value_counts(normalize=True)
+        surv = across_seeds(
+            pd.DataFrame(
+                {
+                    "scores": [tuple(g["steps"].astype(float)) for g in groups],
+                    "episodes": [len(g) for g in groups],
+                    "g": 0,
+                }
+            ),
+            ["g"],
+            "steps",
+            unit=unit,
+        ).iloc[0]
+        return {
+            "level": level,
+            "label": label,
+            "n": len(groups) if unit == "seeds" else len(part),
+            "unit": unit,
+            "episodes": len(part),
+            "acting": "/".join(dict.fromkeys(part["acting"].astype(str))),
+            "worlds": " / ".join(dict.fromkeys(part["worlds"].astype(str))),
+            "food": float(part["food_eaten"].astype(float).mean()),
+            "food_seeds": tuple(per("food_eaten")),
+            "water": float(part["water_eaten"].astype(float).mean()),
+            "water_seeds": tuple(per("water_eaten")),
+            "collisions": float(part["collisions"].astype(float).mean()),
+            "ends": ", ".join(f"{k} {100 * v:.0f} %" for k, v in ends.items()),
+            "survival": float(surv["value"]),
+            "survival_low": float(surv["low"]),
+            "survival_high": float(surv["high"]),
+        }
+
+    for (policy, level), part in refs.groupby(["policy", "level"], sort=False):
+        rows.append(describe(policy, level, part, "episodes", None))
+    if len(own):
+        own = inp.labelled(own, inp.checkpoint_labels)
+        for (label, level), part in own.groupby(["label", "level"], sort=False):
+            rows.append(describe(label, level, part, "seeds", "run"))
+    table = pd.DataFrame(rows)
+    if not len(table):
+        return table
+    ref = table[table["label"].isin(LEARNED_REFERENCES)]
+    compared = {
+        lv: " and ".join("stand-still" if p == "still" else p for p in LEARNED_REFERENCES if p in set(part["label"]))
+        for lv, part in ref.groupby("level")
+    }
+    better = ref.sort_values("survival").groupby("level").tail(1).set_index("level")
+    most_eaten = ref.assign(eaten=ref["food"] + ref["water"]).groupby("level")["eaten"].max()
+    learned, vs, eats_more, lives_longer = [], [], [], []
+    for row in table.itertuples():
+        if row.label in (*LEARNED_REFERENCES, "oracle") or row.level not in better.index:
+            learned.append("")
+            vs.append("")
+            eats_more.append(False)
+            lives_longer.append(False)
+            continue
+        b = better.loc[row.level]
+        ratio = row.survival / b["survival"] if b["survival"] else float("nan")
+        vs.append(f"{ratio:.2f}× {b['label']}")
+        eats = row.food + row.water > most_eaten.get(row.level, np.inf)
+        lives = ratio > 1
+        eats_more.append(bool(eats))
+        lives_longer.append(bool(lives))
+        than = compared[row.level]
+        learned.append(
+            f"eats more than {than}" + (" and survives longer" if lives else "")
+            if eats
+            else f"survives longer than {than}, eats no more"
+            if lives
+            else f"neither eats more nor survives longer than {than}"
+        )
+    return table.assign(vs_reference=vs, learned=learned, eats_more=eats_more, lives_longer=lives_longer)
+
+
+def learned_paragraph(inp: Inputs) -> str:
+    """The report's first paragraph: what the agents learned, from :func:`learned_table` (agents trained with
+    every sense, grouped by algorithm and curriculum or direct)."""
+    table = inp.learned
+    if not len(table):
+        return ""
+    agents = table[~table["label"].isin((*LEARNED_REFERENCES, "oracle"))]
+    refs = table[table["label"].isin(LEARNED_REFERENCES)]
+    if not len(agents):
+        return ""
+    missing = [r for r in LEARNED_REFERENCES if r not in set(refs["label"])]
+    acting = ", ".join(f"`{a}`" for a in dict.fromkeys(agents["acting"]))
+    worlds = ", ".join(dict.fromkeys(agents["worlds"]))
+    budget = sorted({b for r in inp.usable for _, _, b in r.stages})
+
+    def said(w: str) -> str:  # "test" -> "test worlds"; the older labels say "worlds" already
+        return w if "worlds" in w else f"{w} worlds"
+
+    worlds = ", ".join(said(w) for w in dict.fromkeys(agents["worlds"]))
+    ref_worlds = {
+        ("stand-still" if r == "still" else r): ", ".join(said(w) for w in dict.fromkeys(part["worlds"]))
+        for r, part in refs.groupby("label", sort=False)
+    }
+    differ = any(w != worlds for w in ref_worlds.values())
+    out = [
+        f"**What the agents learned** ({', '.join(f'{b:,}' for b in budget)} env steps per stage; every stage's "
+        f"network on its own level, acting {acting}, on {worlds}"
+        + ("; " + "; ".join(f"{r} on {w}" for r, w in ref_worlds.items()) if differ else "")
+        + "):"
+    ]
+    groups: dict[str, pd.DataFrame] = {}
+    for label, part in agents.groupby("label", sort=False):
+        key = label.split(" [")[0]
+        key = key.split(" · trained on ")[0] + (" · direct" if " · trained on " in key else "")
+        groups[key] = pd.concat([groups.get(key, part.iloc[:0]), part])
+    sentences = []
+    for key, part in groups.items():
+        if any(m in key for m in ("no_vision", "no_interoception", "no_olfaction", "no_thermoception", "no_collision")):
+            continue
+        eats = part[part["eats_more"]]
+        than = " and ".join("stand-still" if r == "still" else r for r in LEARNED_REFERENCES if r in set(refs["label"]))
+        lives = part[part["lives_longer"]]
+        sentences.append(
+            f"{key} ate more food and water per episode than {than} on {len(eats)} of {len(part)} levels"
+            + (f" ({', '.join(f'{r.level}: {r.food + r.water:.1f}' for r in eats.itertuples())})" if len(eats) else "")
+            + f" and survived longer than {'the better of ' if ' and ' in than else ''}{than} on "
+            f"{len(lives)} of {len(part)}"
+        )
+    out.append("; ".join(sentences) + ".")
+    if len(refs):
+        still = refs[refs["label"] == "still"]
+        if len(still):
+            out.append(
+                "Stand-still survives "
+                + ", ".join(f"{r.survival:.0f} decisions on {r.level}" for r in still.itertuples())
+                + " without eating."
+            )
+    if missing:
+        out.append(
+            f"No {' or '.join(missing)} reference was evaluated on these levels: the comparison uses "
+            f"{' and '.join(r for r in LEARNED_REFERENCES if r not in missing) or 'nothing'}."
+        )
+    out.append('Counts are of points, not verdicts; see "What each agent learned" for the numbers.')
+    return " ".join(out)
+
+
+def what_it_learned(doc: Document, inp: Inputs) -> None:
+    """Per level, each agent beside the references: what it ate, how it collided, how its episodes ended and how
+    long it survived against the better of random and stand-still, so that surviving by not moving is never read
+    as learning."""
+    table = inp.learned
+    doc.md += ["## What each agent learned", ""]
+    if not len(table):
+        doc.md += ["No evaluation of a stage's network on its own level given.", ""]
+        return
+    doc.tables["what_it_learned"] = table.assign(
+        food_seeds=table["food_seeds"].map(lambda t: ";".join(f"{v:.3g}" for v in t)),
+        water_seeds=table["water_seeds"].map(lambda t: ";".join(f"{v:.3g}" for v in t)),
+    )
+    ordered = table.assign(
+        _l=table["level"].map(lambda lv: level_sorted(evaaa.LEVELS).index(lv)),
+        _r=~table["label"].isin((*LEARNED_REFERENCES, "oracle")),
+    ).sort_values(["_l", "_r"], kind="stable")
+
+    def seeds(values: tuple, unit: str) -> str:
+        return f" ({', '.join(f'{v:.2f}' for v in values)})" if unit == "seeds" and 1 < len(values) < MIN_SEEDS else ""
+
+    doc.md += [
+        caption(
+            "What each agent learned on its own level",
+            ordered.assign(unit=ordered["unit"], means_only=False),
+            col="label",
+        ),
+        "",
+        "| level | agent | n | food / ep. | water / ep. | collisions / ep. | ends | survival (IQM) | "
+        "vs better of random, stand-still | reading |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in ordered.itertuples():
+        n = (
+            f"{r.n} seeds × {r.episodes // r.n} ep."
+            if r.unit == "seeds" and r.episodes % r.n == 0
+            else (f"{r.n} seeds, {r.episodes} ep." if r.unit == "seeds" else f"{r.episodes} ep.")
+        )
+        interval_ = "" if np.isnan(r.survival_low) else f" [{r.survival_low:.0f}, {r.survival_high:.0f}]"
+        doc.md.append(
+            f"| {r.level} | {r.label} | {n} | {r.food:.2f}{seeds(r.food_seeds, r.unit)} | "
+            f"{r.water:.2f}{seeds(r.water_seeds, r.unit)} | {r.collisions:.1f} | {r.ends} | "
+            f"{r.survival:.0f}{interval_} | {r.vs_reference} | {r.learned} |"
+        )
+    doc.md += [
+        "",
+        "Food and water: items eaten per episode (per seed in brackets under three seeds); ends: share of "
+        "episodes by how they ended; reading: the points compared (no interval, no verdict) — an agent that "
+        "survives longer without eating more than stand-still has learned at most to move less.",
         "",
     ]
 
@@ -502,7 +871,13 @@ def training_curves(doc: Document, inp: Inputs) -> None:
             hlines=hl,
         )
         ends = stats.sort_values("bin").groupby(["group", "label"], sort=False).tail(1)
-        table = pivot_table(ends.rename(columns={"group": "level"}), "level", "label", row_title="training")
+        table = pivot_table(
+            ends.rename(columns={"group": "level"}),
+            "level",
+            "label",
+            row_title="training",
+            title="Training survival in the last bin of env steps (decisions)",
+        )
         table += (
             f"\n\nCurves: survival of the training episodes (exploring policy) in {inp.bins} bins of env "
             "steps, IQM of the bin's episodes with its 95 % bootstrap interval (band); table: the last bin. "
@@ -514,6 +889,49 @@ def training_curves(doc: Document, inp: Inputs) -> None:
         figure,
         table,
         "No finished training episode in the runs given.",
+    )
+
+
+def evaluation_curves(doc: Document, inp: Inputs) -> None:
+    """The in-training evaluations (``eval.csv``: validation worlds in runs that record them) against env steps:
+    one panel per training set-up, one line per algorithm and settings; each point over the seeds' episodes of that
+    evaluation, or over their means where ``eval.csv`` kept only means (said so)."""
+    points = evaluation_points(inp.usable)
+    table = figure = None
+    if len(points):
+        lab = labels(inp.usable, ("algo", "modality", "reward", "extras"))
+        by = inp.labelled(points, lab).assign(
+            group=lambda d: d["run"].map(lambda x: f"trained on {inp.by_dir[x].training}")
+        )
+        stats = across_seeds(by, ["group", "label", "steps"], "survival")
+        doc.tables["evaluation_curves"] = stats
+        figure = plot_lines(
+            stats,
+            doc.out / "fig_evaluation_curves.png",
+            x="steps",
+            panel="group",
+            band=True,
+            ylabel="survival (decisions)",
+            xlabel="env steps",
+            title="In-training evaluations" + (" (means only)" if stats["means_only"].any() else ""),
+        )
+        ends = stats.sort_values("steps").groupby(["group", "label"], sort=False).tail(1)
+        table = pivot_table(
+            ends.rename(columns={"group": "level"}),
+            "level",
+            "label",
+            row_title="training",
+            title="Last in-training evaluation (survival, decisions)",
+        )
+    doc.section(
+        "In-training evaluations",
+        "Survival in the periodic evaluations during training against env steps (summed over a "
+        "curriculum's stages): the worlds of model selection and tuning, never a published number. Where "
+        "`eval.csv` kept one mean per evaluation (its older format) the points are over those means: means "
+        "only.",
+        figure,
+        table,
+        "No in-training evaluation in the runs given.",
     )
 
 
@@ -539,10 +957,13 @@ def ablation_curves(doc: Document, inp: Inputs) -> None:
             ylabel="survival (decisions)",
             xlabel="env steps",
             title="Training curves per modality",
+            colour_by="modality",
         )
         final = inp.final
-        last = final[final["last"]].assign(
-            group=lambda d: d["run"].map(ab_lab), label=lambda d: d["run"].map(lambda x: by_dir[x].modality)
+        last = inp.labelled(
+            final[final["last"]].assign(group=lambda d: d["run"].map(ab_lab)),
+            {d: by_dir[d].modality for d in by_dir},
+            within=("group",),
         )
         fstats = across_seeds(last, ["group", "label"], "survival")
         doc.tables["ablation_final_survival"] = fstats
@@ -553,6 +974,7 @@ def ablation_curves(doc: Document, inp: Inputs) -> None:
                 "group",
                 row_title="modality",
                 rows=sorted(dict.fromkeys(fstats["label"]), key=_modality_key),
+                title="Survival at the end of each run, per modality set (decisions)",
             )
             if len(fstats)
             else ""
@@ -560,7 +982,7 @@ def ablation_curves(doc: Document, inp: Inputs) -> None:
         table += (
             f"\n\nCurves: survival of training episodes in {inp.bins} bins of env steps, IQM with its 95 % "
             "bootstrap interval (band). Table: survival at the end of each run ("
-            + ("last evaluation" if inp.survival == "eval" else f"last {inp.window} training episodes")
+            + inp.source_note[len("Survival: ") :].rstrip(".")
             + ")."
         )
     doc.section(
@@ -579,8 +1001,10 @@ def ablation_success(doc: Document, inp: Inputs) -> None:
     if len(inp.best):
         ab_ck = labels(inp.checkpoint_runs, ("algo", "reward", "extras", "training"))
         stats = across_seeds(
-            per_run(inp.best, "success").assign(
-                group=lambda d: d["run"].map(ab_ck), label=lambda d: d["run"].map(lambda x: inp.runs[x].modality)
+            inp.labelled(
+                per_run(inp.best, "success").assign(group=lambda d: d["run"].map(ab_ck)),
+                {d: inp.runs[d].modality for d in ab_ck},
+                within=("group",),
             ),
             ["group", "label", "level"],
             "success",
@@ -599,6 +1023,7 @@ def ablation_success(doc: Document, inp: Inputs) -> None:
             top=105,
             ylabel="success rate (%)",
             title="Testbed success per modality",
+            colour_by="modality",
         )
         stats = (
             stats.assign(column=stats["group"] + " · " + stats["label"])
@@ -606,7 +1031,13 @@ def ablation_success(doc: Document, inp: Inputs) -> None:
             else stats.assign(column=stats["label"])
         )
         table = pivot_table(
-            stats, "level", "column", rows=level_sorted(stats["level"]), percent=True, row_title="testbed"
+            stats,
+            "level",
+            "column",
+            rows=level_sorted(stats["level"]),
+            percent=True,
+            row_title="testbed",
+            title="Testbed success per modality set",
         )
     doc.section(
         "Modality ablations: testbed success (Fig. 26)",
@@ -637,6 +1068,27 @@ def _pooled_success(episodes: pd.DataFrame, by: Sequence[str]) -> pd.DataFrame:
     return grouped.agg(success="mean", scores=lambda v: tuple(v.dropna())).reset_index()
 
 
+def _one_mode(rows: pd.DataFrame) -> pd.DataFrame:
+    """``rows`` of one acting mode for the claims, the same for every agent where it can be: where networks were
+    evaluated in several ways, the way every run has (the deterministic ``mode…`` first, the one every algorithm
+    has; DQN has no other), else each run's most frequent (such agents are then not compared: :mod:`.claims`).  The
+    other ways stay in the tables, labelled."""
+    if not len(rows) or "acting" not in rows or rows["acting"].nunique() < 2:
+        return rows
+    per_run = rows.groupby("run")["acting"].agg(lambda a: set(a))
+    shared = sorted(set.intersection(*per_run), key=lambda a: (not a.startswith("mode"), a))
+    if shared:
+        return rows[rows["acting"] == shared[0]]
+    counts = (
+        rows.groupby(["run", "acting"])
+        .size()
+        .reset_index(name="k")
+        .sort_values(["k", "acting"], ascending=[True, False], kind="stable")
+    )
+    chosen = dict(zip(counts["run"], counts["acting"]))
+    return rows[rows["acting"] == rows["run"].map(chosen)]
+
+
 def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
     """The verdicts of claims (a)–(e) (:mod:`.claims`) from the report's inputs: survival per level from the final
     survival of every finished stage of runs with every sense (curriculum runs where an algorithm has them, else its
@@ -645,16 +1097,33 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
     order = list(evaaa.LEVELS)
     runs = inp.by_dir
     empty = pd.DataFrame(columns=["algo", "setup", "level", *STAT_COLUMNS])
-    final = inp.final
+    final = _one_mode(inp.final)
     full = final[final["run"].map(lambda d: runs[d].modality == "all")] if len(final) else final
     if len(full):
         full = full.assign(
             algo=full["run"].map(lambda d: runs[d].algo),
             setup=full["run"].map(lambda d: "curriculum" if runs[d].curriculum else "direct"),
+            seen=_seen(inp, full),
+        )
+        # (b) at matched total env steps where direct runs of a curriculum stage's total exist, else at equal env
+        # steps per stage
+        cur_seen = full[full["setup"] == "curriculum"].groupby(["algo", "level"])["seen"].max()
+        matched = full.apply(
+            lambda r: r["setup"] == "direct" and cur_seen.get((r["algo"], r["level"])) == r["seen"], axis=1
+        )
+        has_match = set(zip(full.loc[matched, "algo"], full.loc[matched, "level"]))
+        keep = full.apply(
+            lambda r: (
+                r["setup"] == "curriculum"
+                or (r["algo"], r["level"]) not in has_match
+                or cur_seen.get((r["algo"], r["level"])) == r["seen"]
+            ),
+            axis=1,
         )
         by_setup = across_seeds(full, ["algo", "setup", "level"], "survival")
+        cmp = across_seeds(full[keep], ["algo", "setup", "level"], "survival")
     else:
-        by_setup = empty
+        by_setup = cmp = empty
     with_cur = set(by_setup.loc[by_setup["setup"] == "curriculum", "algo"])
     survival = by_setup[(by_setup["setup"] == "curriculum") | ~by_setup["algo"].isin(with_cur)]
     random = inp.reference_training
@@ -664,7 +1133,7 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
         r = inp.runs[d]
         return f"{r.algo} · {r.training}"
 
-    best = inp.best
+    best = _one_mode(inp.best)
     best = best[best["run"].map(lambda d: inp.runs[d].modality == "all")] if len(best) else best
     if len(best):
         best = best[best["run"].map(lambda d: inp.runs[d].curriculum or inp.runs[d].algo not in with_cur)]
@@ -685,7 +1154,7 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
         else pd.DataFrame(columns=["agent", "level", *STAT_COLUMNS])
     )
 
-    tests = inp.testbed_episodes
+    tests = _one_mode(inp.testbed_episodes)
     tests = (
         tests[
             tests["run"].map(lambda d: inp.runs[d].curriculum and inp.runs[d].modality == "all")
@@ -694,24 +1163,36 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
         if len(tests)
         else tests
     )
-    gen = (
-        across_seeds(
-            _pooled_success(tests, ["run", "ckpt_level"]).assign(
-                agent=lambda d: d["run"].map(lambda x: inp.runs[x].algo)
-            ),
-            ["agent", "ckpt_level"],
-            "success",
-            success=True,
-        ).rename(columns={"ckpt_level": "level"})
+    per_stage = (
+        _mean_testbed_success(tests).assign(agent=lambda d: d["run"].map(lambda x: inp.runs[x].algo))
         if len(tests)
+        else None
+    )
+    gen = (
+        across_seeds(per_stage, ["agent", "ckpt_level"], "success", success=True).rename(
+            columns={"ckpt_level": "level"}
+        )
+        if per_stage is not None
         else pd.DataFrame(columns=["agent", "level", *STAT_COLUMNS])
+    )
+    per_seed = (
+        pd.DataFrame(
+            {
+                "agent": per_stage["agent"],
+                "level": per_stage["ckpt_level"],
+                "seed": per_stage["run"].map(lambda x: inp.runs[x].seed),
+                "value": per_stage["success"],
+            }
+        )
+        if per_stage is not None
+        else None
     )
 
     verdicts = [
         rules.survival_falls(survival, order),
-        rules.curriculum_beats_direct(by_setup, order),
+        rules.curriculum_beats_direct(cmp, order),
         rules.algorithm_ordering(survival, random, order),
-        rules.testbeds_below_ceiling(success, ref_tests, gen, order),
+        rules.testbeds_below_ceiling(success, ref_tests, gen, order, per_seed),
     ]
     # ablations: runs of one algorithm and training set-up (a level, or the curriculum) with several modality sets
     groups: dict[tuple, list[RunRecord]] = {}
@@ -733,10 +1214,11 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
             if len(last)
             else pd.DataFrame(columns=["modality", *STAT_COLUMNS])
         )
-        ab_best = inp.best[inp.best["run"].isin(list(dirs))] if len(inp.best) else inp.best
+        ab_best = _one_mode(inp.best)
+        ab_best = ab_best[ab_best["run"].isin(list(dirs))] if len(ab_best) else ab_best
         succ = (
             across_seeds(
-                _pooled_success(ab_best, ["run"]).assign(modality=lambda d: d["run"].map(dirs)),
+                _pooled_success(ab_best, ["run"]).assign(modality=lambda d, dirs=dirs: d["run"].map(dirs)),
                 ["modality"],
                 "success",
                 success=True,
@@ -759,7 +1241,12 @@ def claims(doc: Document, inp: Inputs) -> None:
         "",
         "Each claim of the EVAAA paper judged against the numbers above by a fixed rule: two cells differ only "
         "where their 95 % intervals do not overlap, and overlapping intervals never decide a claim (not "
-        "resolvable at this scale). A claim of several parts is reproduced when every part is, contradicted "
+        f"resolvable at this scale). A part whose agent cells have fewer than {MIN_SEEDS} seeds has no "
+        "interval and is not decided (`not resolvable: 2 seeds`, with each seed's value); agents that acted "
+        "differently are not compared. (b) compares at matched total env steps where direct runs of a "
+        "curriculum stage's total exist, else at equal env steps per stage (the curriculum stage has seen "
+        "more). (d)'s drops: one-sided paired t-tests over seeds between every pair of training levels, "
+        "Holm-corrected. A claim of several parts is reproduced when every part is, contradicted "
         "when some part is and none is reproduced. Survival per level: "
         + inp.source_note[len("Survival: ") :].rstrip(".")
         + " (runs with every sense; curriculum runs where an "
@@ -779,7 +1266,9 @@ SECTIONS = (
     success_per_testbed,
     generalisation,
     evaluation_survival,
+    what_it_learned,
     training_curves,
+    evaluation_curves,
     ablation_curves,
     ablation_success,
     claims,

@@ -1,14 +1,35 @@
-"""Interval estimates for reports: interquartile mean and mean with stratified bootstrap intervals, and binomial
-intervals for success rates.
+"""Interval estimates for reports, with seeds as the unit: interquartile mean and mean with a two-stage stratified
+bootstrap over seeds and episodes within seeds, success rates with seed-clustered Wilson intervals, and the
+multiple-comparison correction the claims use.
 
-The field's reference for these estimators is rliable (Agarwal et al., 2021: "Deep RL at the edge of the statistical
-precipice"): interquartile mean (IQM, the mean of the middle 50 % of scores) with percentile intervals from a
-bootstrap stratified by run.  rliable 1.2 does not import beside pandas 3 (its dependency ``arch`` < 8 fails at
-import; ``arch`` 8 refuses rliable's ``random_state=None``), so the same estimators are computed here with scipy:
-``scipy.stats.trim_mean(x, 0.25)`` is the IQM, and ``scipy.stats.bootstrap`` over one sample per seed resamples
-each seed's episodes independently, which is rliable's stratified bootstrap with the seeds as strata.  Success rates
-get Wilson score intervals (``scipy.stats.binomtest``), which stay inside [0, 1] and are not degenerate at 0 % or
-100 % the way "mean ± standard error" is.
+The field's reference is rliable (Agarwal et al., 2021, "Deep RL at the edge of the statistical precipice"):
+interquartile mean (IQM, the mean of the middle 50 % of scores, ``scipy.stats.trim_mean(x, 0.25)``) with percentile
+intervals from a stratified bootstrap.  rliable 1.2 does not import beside pandas 3 (its dependency ``arch`` < 8
+fails at import), so the same estimator is computed here with numpy.
+
+**The resampling scheme** (:func:`replicates`).  A cell holds ``k`` seeds (training runs; for reference agents,
+which are not trained, each episode is its own unit), seed ``i`` with its ``m_i`` episode scores.  One bootstrap
+replicate
+
+1. draws ``k`` seeds uniformly with replacement from the ``k`` seeds (the between-seed variation: a new set of
+   training runs), then
+2. for every seed drawn, draws ``m_i`` episodes uniformly with replacement from that seed's own episodes (the
+   within-seed variation: new evaluation episodes of the same network; episodes are never mixed across seeds), and
+3. computes the statistic (IQM or mean) over all episodes of the replicate pooled.
+
+``resamples`` replicates (2,000) from ``numpy.random.default_rng(seed)`` give the percentile interval (2.5th and
+97.5th percentiles, ``numpy.percentile``'s linear interpolation).  rliable stratifies by task (levels) and redraws
+runs within each; a report's cell is one task, so its strata are the seeds and step 2 adds the episodes within
+them.  With fewer than :data:`MIN_SEEDS` seeds the seed-to-seed variation cannot be estimated (two draws bracket
+the median only half of the time), so :func:`interval` refuses; a report's cell then shows its points (each seed's
+value) and no interval, and no claim is decided on it.
+
+**Success rates** (:func:`clustered_rate`): the share of successful episodes of all seeds pooled, with a Wilson
+score interval (it stays inside [0, 1] and is not degenerate at 0 % or 100 %) computed on the effective number of
+episodes ``n / deff``: ``deff`` (Kish's design effect, at least 1) is the ratio of the seed-clustered variance of
+the pooled rate (the ratio estimator's sandwich variance, ``k/(k-1) · Σ (s_i − p·m_i)² / n²``) to the binomial
+variance ``p(1−p)/n``.  Episodes of one seed share a network and are not independent: eight of nine successes from
+one seed widen the interval, equal rates in every seed leave Wilson's as it is.
 """
 
 from __future__ import annotations
@@ -20,7 +41,26 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats as sps
 
-__all__ = ["Estimate", "iqm", "interval", "binomial_interval", "STATISTICS"]
+__all__ = [
+    "Estimate",
+    "MIN_SEEDS",
+    "TooFewSeeds",
+    "iqm",
+    "interval",
+    "replicates",
+    "binomial_interval",
+    "clustered_rate",
+    "holm",
+    "STATISTICS",
+]
+
+#: the fewest seeds (units) an interval is computed from
+MIN_SEEDS = 3
+Z95 = float(sps.norm.ppf(0.975))
+
+
+class TooFewSeeds(ValueError):
+    """An interval was asked of fewer than :data:`MIN_SEEDS` seeds."""
 
 
 def iqm(values: np.ndarray, axis: int | None = None) -> np.ndarray | float:
@@ -34,6 +74,44 @@ def _mean(values: np.ndarray, axis: int | None = None) -> np.ndarray | float:
 
 #: the statistics :func:`interval` accepts, by name
 STATISTICS = {"iqm": iqm, "mean": _mean}
+
+
+def _ragged(statistic: str, values: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """``statistic`` of each row of ``values`` over its first ``counts[row]`` entries (rows of unequal length, as
+    replicates of seeds with unequal episodes are): the rows are sorted and cut as ``trim_mean`` cuts."""
+    width = values.shape[1]
+    live = np.arange(width)[None, :] < counts[:, None]
+    ordered = np.sort(np.where(live, values, np.inf), axis=1)
+    cut = (0.25 * counts).astype(int) if statistic == "iqm" else np.zeros_like(counts)
+    keep = (np.arange(width)[None, :] >= cut[:, None]) & (np.arange(width)[None, :] < (counts - cut)[:, None])
+    return np.where(keep, ordered, 0.0).sum(axis=1) / keep.sum(axis=1)
+
+
+def replicates(
+    samples: Sequence[Sequence[float]], statistic: str = "iqm", *, resamples: int = 2000, seed: int = 0
+) -> np.ndarray:
+    """``resamples`` bootstrap replicates of ``statistic`` by the two-stage scheme of the module docstring: seeds
+    redrawn with replacement, then each drawn seed's episodes redrawn from that seed alone."""
+    if statistic not in STATISTICS:
+        raise ValueError(f"statistic must be one of {sorted(STATISTICS)}, got {statistic!r}")
+    strata = [np.asarray(s, dtype=float).ravel() for s in samples]
+    strata = [s for s in strata if s.size]
+    k = len(strata)
+    sizes = np.array([s.size for s in strata])
+    padded = np.full((k, sizes.max()), np.nan)
+    for i, s in enumerate(strata):
+        padded[i, : s.size] = s
+    rng = np.random.default_rng(seed)
+    chosen = rng.integers(0, k, size=(resamples, k))  # step 1: seeds
+    m = sizes[chosen]  # (resamples, k) episodes of each drawn seed
+    draws = np.floor(rng.random((resamples, k, sizes.max())) * m[:, :, None]).astype(int)  # step 2: episodes
+    values = padded[chosen[:, :, None], draws]
+    live = np.arange(sizes.max())[None, None, :] < m[:, :, None]
+    # pool each replicate's episodes into one row, those beyond a seed's own count left out
+    flat = np.where(live, values, np.nan).reshape(resamples, -1)
+    order = np.argsort(~live.reshape(resamples, -1), axis=1, kind="stable")
+    flat = np.take_along_axis(flat, order, axis=1)
+    return _ragged(statistic, flat, m.sum(axis=1))
 
 
 @dataclass(frozen=True)
@@ -61,58 +139,78 @@ def interval(
     resamples: int = 2000,
     seed: int = 0,
 ) -> Estimate:
-    """``statistic`` (``"iqm"`` or ``"mean"``) of all values of ``samples`` pooled, with a percentile bootstrap
-    interval stratified by sample: ``samples`` holds one sequence per seed (its episodes' scores), and every
-    bootstrap replicate redraws each seed's episodes from that seed alone.  Seeded, so a report is reproducible."""
+    """``statistic`` (``"iqm"`` or ``"mean"``) of all values of ``samples`` pooled (one sequence of episode scores
+    per seed), with its percentile interval from the two-stage bootstrap (module docstring).  Seeded, so a report
+    is reproducible.  ``n``: the seeds.  Raises :class:`TooFewSeeds` for fewer than :data:`MIN_SEEDS` seeds."""
     if statistic not in STATISTICS:
         raise ValueError(f"statistic must be one of {sorted(STATISTICS)}, got {statistic!r}")
     if not 0 < confidence < 1:
         raise ValueError(f"confidence must be in (0, 1), got {confidence}")
     strata = [np.asarray(s, dtype=float).ravel() for s in samples]
     strata = [s for s in strata if s.size]
-    pooled = np.concatenate(strata) if strata else np.empty(0)
-    if pooled.size == 0:
-        return Estimate(math.nan, math.nan, math.nan, 0)
+    if len(strata) < MIN_SEEDS:
+        raise TooFewSeeds(
+            f"an interval needs at least {MIN_SEEDS} seeds, got {len(strata)}: show the seeds' values instead"
+        )
+    pooled = np.concatenate(strata)
     if not np.isfinite(pooled).all():
         raise ValueError("interval: scores must be finite")
-    fn = STATISTICS[statistic]
-    value = float(fn(pooled))
-    if pooled.size < 2 or np.ptp(pooled) == 0:  # nothing to resample: every replicate is the point itself
-        return Estimate(
-            value, value if pooled.size > 1 else math.nan, value if pooled.size > 1 else math.nan, int(pooled.size)
-        )
+    value = float(STATISTICS[statistic](pooled))
+    reps = replicates(strata, statistic, resamples=resamples, seed=seed)
+    alpha = 100 * (1 - confidence) / 2
+    low, high = np.percentile(reps, [alpha, 100 - alpha])
+    return Estimate(value, float(low), float(high), len(strata))
 
-    # a seed with one episode has nothing to redraw: its score is in every replicate as it is (scipy's bootstrap
-    # refuses samples of one value)
-    varied = [s for s in strata if s.size > 1]
-    fixed = np.concatenate([s for s in strata if s.size == 1] or [np.empty(0)])
-    if all(np.ptp(s) == 0 for s in varied):  # every replicate is the point itself
-        return Estimate(value, value, value, int(pooled.size))
 
-    def pooled_statistic(*parts: np.ndarray, axis: int = -1) -> np.ndarray:
-        if fixed.size:
-            parts = (*parts, np.broadcast_to(fixed, (*parts[0].shape[:-1], fixed.size)))
-        return fn(np.concatenate(parts, axis=axis), axis=axis)
-
-    result = sps.bootstrap(
-        tuple(varied),
-        pooled_statistic,
-        n_resamples=resamples,
-        confidence_level=confidence,
-        method="percentile",
-        paired=False,
-        vectorized=True,
-        rng=np.random.default_rng(seed),
-    )
-    ci = result.confidence_interval
-    return Estimate(value, float(ci.low), float(ci.high), int(pooled.size))
+def _wilson(p: float, n: float, z: float = Z95) -> tuple[float, float]:
+    """Wilson score interval of a share ``p`` of ``n`` (possibly fractional: an effective size) trials."""
+    denom = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z / denom * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+    return max(0.0, centre - half), min(1.0, centre + half)
 
 
 def binomial_interval(successes: int, trials: int, *, confidence: float = 0.95) -> Estimate:
-    """Success rate ``successes / trials`` with its Wilson score interval."""
+    """Success rate ``successes / trials`` of independent trials (a reference agent's episodes) with its Wilson
+    score interval."""
     if trials < 0 or not 0 <= successes <= max(trials, 0):
         raise ValueError(f"binomial_interval: need 0 <= successes <= trials, got {successes} of {trials}")
     if trials == 0:
         return Estimate(math.nan, math.nan, math.nan, 0)
     ci = sps.binomtest(int(successes), int(trials)).proportion_ci(confidence_level=confidence, method="wilson")
     return Estimate(successes / trials, float(ci.low), float(ci.high), int(trials))
+
+
+def clustered_rate(samples: Sequence[Sequence[float]], *, confidence: float = 0.95) -> Estimate:
+    """Success rate of all episodes of ``samples`` (one sequence of 0/1 outcomes per seed) pooled, with a Wilson
+    interval on the effective number of episodes (design effect of the seeds; module docstring).  ``n``: the
+    seeds.  Raises :class:`TooFewSeeds` for fewer than :data:`MIN_SEEDS` seeds."""
+    strata = [np.asarray(s, dtype=float).ravel() for s in samples]
+    strata = [s for s in strata if s.size]
+    if len(strata) < MIN_SEEDS:
+        raise TooFewSeeds(
+            f"an interval needs at least {MIN_SEEDS} seeds, got {len(strata)}: show the seeds' values instead"
+        )
+    s = np.array([x.sum() for x in strata])
+    m = np.array([x.size for x in strata], dtype=float)
+    n, k = m.sum(), len(strata)
+    p = float(s.sum() / n)
+    deff = 1.0
+    if 0 < p < 1:
+        clustered = k / (k - 1) * float(((s - p * m) ** 2).sum()) / n**2
+        deff = max(1.0, clustered / (p * (1 - p) / n))
+    low, high = _wilson(p, n / deff, float(sps.norm.ppf(0.5 + confidence / 2)))
+    return Estimate(p, low, high, k)
+
+
+def holm(pvalues: Sequence[float], alpha: float = 0.05) -> np.ndarray:
+    """Holm's step-down procedure: which of ``pvalues`` are rejected at family-wise error ``alpha`` (the i-th
+    smallest p is compared with alpha / (m − i); the first that fails stops the rejections)."""
+    p = np.asarray(pvalues, dtype=float)
+    order = np.argsort(p, kind="stable")
+    reject = np.zeros(p.size, dtype=bool)
+    for rank, i in enumerate(order):
+        if not p[i] <= alpha / (p.size - rank):
+            break
+        reject[i] = True
+    return reject

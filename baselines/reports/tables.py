@@ -15,27 +15,79 @@ from .aggregate import estimate, mean_se
 from .load import LEVEL_ORDER, display_names
 
 
-def sample_size(n: int, episodes: int, unit: str = "seeds") -> str:
-    """``2 seeds × 20 ep.`` (or ``2 seeds, 37 ep.`` when the seeds have unequal numbers of episodes); reference
-    agents: ``20 ep.``, or ``3 participants, 30 ep.``."""
+def sample_size(n: int, episodes: int, unit: str = "seeds", means_only: bool = False) -> str:
+    """``2 seeds × 20 ep.`` (or ``2 seeds, 37 ep.`` when the seeds have unequal numbers of episodes; ``2 seeds ×
+    mean of 8 ep.`` where each seed gave one evaluation's mean); reference agents: ``20 ep.``, or ``3 participants,
+    30 ep.``."""
     if unit == "episodes":
         return f"{episodes} ep."
     word = unit if n != 1 else unit.rstrip("s")
+    if means_only:
+        return (
+            f"{n} {word} × mean of {episodes // n} ep."
+            if n and episodes % n == 0
+            else f"{n} {word}, means of {episodes} ep."
+        )
     return f"{n} {word} × {episodes // n} ep." if n and episodes % n == 0 else f"{n} {word}, {episodes} ep."
+
+
+def _points(row: Mapping[str, Any], k: float, pct: str) -> str:
+    points = row.get("points") or ()
+    if isinstance(points, str):  # read back from a CSV
+        points = [float(p) for p in points.split(";") if p]
+    return ", ".join(f"{k * p:.1f}{pct}" for p in points)
 
 
 def cell(row: Mapping[str, Any], percent: bool = False) -> str:
     """A table cell from a row of :data:`STAT_COLUMNS`: survival ``IQM [low, high]; mean ± se (n=…)``, success
-    ``rate% [low, high] (n=…)`` (one decimal)."""
+    ``rate% [low, high] (n=…)`` (one decimal); under three seeds no interval: ``IQM; seeds a, b (n=…)``."""
     if not row["n"] or np.isnan(row["value"]):
         return "–"
     k, pct = (100.0, "%") if percent else (1.0, "")
     text = f"{k * row['value']:.1f}{pct}"
     if not np.isnan(row["low"]):
         text += f" [{k * row['low']:.1f}, {k * row['high']:.1f}]"
-    if row["statistic"] == "iqm":
-        text += f"; {row['mean']:.1f}" + ("" if np.isnan(row["se"]) else f" ± {row['se']:.1f}")
-    return f"{text} (n={sample_size(int(row['n']), int(row['episodes']), row.get('unit', 'seeds'))})"
+    if row["statistic"] == "iqm" and not np.isnan(row["se"]):
+        text += f"; {row['mean']:.1f} ± {row['se']:.1f}"
+    points = _points(row, k, pct)
+    if points:
+        text += f"; {'seeds' if row.get('unit', 'seeds') == 'seeds' else row.get('unit')} {points}"
+    size = sample_size(int(row["n"]), int(row["episodes"]), row.get("unit", "seeds"), bool(row.get("means_only")))
+    return f"{text} (n={size})"
+
+
+def _named(stats: pd.DataFrame, column: str, col: str | None) -> str:
+    """What ``stats`` says in ``column`` (acting, worlds), with the algorithms (the first part of the ``col``
+    labels) it applies to where it differs."""
+    if column not in stats:
+        return "not recorded"
+    part = stats[stats[column].fillna("").astype(str) != ""]
+    ways = list(dict.fromkeys(part[column].astype(str)))
+    if not ways:
+        return "not recorded"
+    if len(ways) == 1 or col is None or col not in part:
+        return " / ".join(f"`{w}`" if column == "acting" else w for w in ways)
+    algo = part[col].astype(str).str.split(" · ").str[0].str.split(" [", regex=False).str[0]
+    return "; ".join(
+        (f"`{w}`" if column == "acting" else w) + f" ({', '.join(dict.fromkeys(algo[part[column] == w]))})"
+        for w in ways
+    )
+
+
+def caption(title: str, stats: pd.DataFrame, col: str | None = "label") -> str:
+    """A table's title line: what it shows, how the agents acted and on which worlds (per column where they differ;
+    reference agents follow their own rule and are not listed), and a warning where agents acted differently."""
+    agents = stats[stats["unit"] != "episodes"] if "unit" in stats else stats
+    agents = agents[agents["unit"] != "participants"] if "unit" in agents else agents
+    acting = _named(agents if len(agents) else stats, "acting", col)
+    worlds = _named(stats, "worlds", col)
+    text = f"**{title}.** Acting: {acting}. Worlds: {worlds}."
+    modes = {m for m in agents.get("acting", pd.Series(dtype=str)).fillna("").astype(str) if m}
+    if len(modes) > 1:
+        text += " Not one acting mode: cells of different modes are not compared."
+    if "means_only" in stats and stats["means_only"].fillna(False).astype(bool).any():
+        text += " Means only: some seeds gave only an evaluation's mean (eval.csv of the older format)."
+    return text
 
 
 def pivot_table(
@@ -47,12 +99,18 @@ def pivot_table(
     row_title: str = "level",
     rows: Sequence[str] | None = None,
     cols: Sequence[str] | None = None,
+    title: str = "Table",
 ) -> str:
     """A Markdown table of ``stats`` (:data:`STAT_COLUMNS`) with one row per ``row`` value and one column per
-    ``col`` value (cells: :func:`cell`)."""
+    ``col`` value (cells: :func:`cell`), under its :func:`caption`."""
     rows = list(rows if rows is not None else dict.fromkeys(stats[row]))
     cols = list(cols if cols is not None else dict.fromkeys(stats[col]))
-    lines = [f"| {row_title} | " + " | ".join(cols) + " |", "|---|" + "---|" * len(cols)]
+    lines = [
+        caption(title, stats, col),
+        "",
+        f"| {row_title} | " + " | ".join(cols) + " |",
+        "|---|" + "---|" * len(cols),
+    ]
     for r in rows:
         cells = []
         for c in cols:
@@ -67,9 +125,10 @@ def pivot_table(
 SUMMARY_NOTE = (
     "Testbeds: success rate `rate [low, high]`, the share of successful episodes with its 95 % Wilson "
     "score interval. Training levels: survival (decisions) `IQM [low, high]; mean ± se`, the "
-    "interquartile mean of the episodes with its 95 % percentile bootstrap interval (2000 resamples, "
-    "episodes redrawn within each seed; human play: within each participant), then the mean ± standard "
-    "error over episodes. n: episodes (and participants or seeds where there are several)."
+    "interquartile mean of the episodes with its 95 % percentile bootstrap interval (2000 resamples; "
+    "one policy's episodes are its units; human play: participants redrawn, then their episodes), then "
+    "the mean ± standard error over episodes. n: episodes (and participants where there are several; "
+    "under three participants, their values and no interval)."
 )
 
 
@@ -93,11 +152,16 @@ def summarize(rows: pd.DataFrame) -> pd.DataFrame:
         key = "participant" if unit == "participants" else ("seed" if "seed" in part else None)
         strata = [g for _, g in part.groupby(key, sort=False)] if key else [part]
         steps = [tuple(g["steps"].astype(float)) for g in strata]
-        surv = estimate(steps)
+        # one network's (or policy's) episodes are independent draws: episodes are the units, except for human
+        # play, where participants are
+        by = unit if unit == "participants" else "episodes"
+        surv = estimate(steps, unit=by)
         mean, se, _ = mean_se(part["steps"].astype(float))
         judged = part["success"].notna()
         success = (
-            estimate([tuple(g.loc[judged.loc[g.index], "success"].astype(float)) for g in strata], success=True)
+            estimate(
+                [tuple(g.loc[judged.loc[g.index], "success"].astype(float)) for g in strata], success=True, unit=by
+            )
             if judged.any()
             else {"value": np.nan, "low": np.nan, "high": np.nan}
         )
