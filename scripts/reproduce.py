@@ -3,8 +3,9 @@
 A protocol (``conf/protocol/<name>.yaml``, or a path) expands into cells — a training run, the evaluations of one
 model, a reference agent's evaluation, the report — each a subprocess of scripts/train.py, evaluate.py or report.py
 with EVAAA_THREADS and threads set as the protocol says. ``plan=true`` prints every cell with its status (done,
-partial, todo), estimated CPU-minutes and command; without it the cells not yet done run, ``jobs`` at a time, each
-once the models it needs exist, with a log per cell under ``root/logs``. Killed, the same command continues where it
+partial, todo), estimated CPU-minutes and command (a GPU protocol: its plan in GPU-hours); without it the cells not
+yet done run — ``jobs`` at a time on this machine, or as Ray tasks or SLURM jobs (``executor=ray|slurm``) — each once
+the models it needs exist, with a log per cell under ``root/logs``. Killed, the same command continues where it
 stopped: a started training run continues (resume=true), an unfinished evaluation's folder is moved aside
 (``<out>.partial-<UTC time>``) and the evaluation run again; a training that has to start from zero (its models
 and checkpoints gone, as on a fresh clone) has the evaluations made of its old models moved aside and made again.
@@ -39,7 +40,8 @@ from evaaa_baselines.protocol import (
 @dataclass
 class ReproduceConfig:
     protocol: str = option(
-        "paper_cpu", "a protocol of conf/protocol/ (paper_cpu, smoke) or the path of a protocol YAML file"
+        "paper_cpu",
+        "a protocol of conf/protocol/ (paper_cpu, paper_gpu, paper_learned, smoke) or the path of a protocol YAML file",
     )
     root: str | None = option(
         None,

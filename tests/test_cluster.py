@@ -1,18 +1,18 @@
 """reproduce.py's cells on Ray (a real local cluster on 127.0.0.1 with two workers) and through submitit's local
-executor; a Ray worker killed mid-cell. Needs the `cluster` extra (scripts/setup.sh installs it)."""
+executor; a Ray worker killed mid-cell. Needs the `cluster` extra (scripts/setup.sh installs it). train.py -m through
+the launcher presets: tests/test_launchers.py."""
 
 from __future__ import annotations
 
 import os
 import signal
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
 
 import pytest
-from helpers import load_script
+from helpers import load_script, ray_head
 
 from evaaa_baselines.protocol import Cell, Command, Layout, Runner, load_protocol, status
 
@@ -24,23 +24,8 @@ reproduce = load_script("reproduce")
 @pytest.fixture(scope="module")
 def ray_cluster(tmp_path_factory):
     """A Ray head on 127.0.0.1 with two worker CPUs; its address."""
-    temp = tmp_path_factory.mktemp("ray")
-    port = 20000 + os.getpid() % 20000
-    cmd = [
-        str(Path(sys.executable).parent / "ray"),
-        "start",
-        "--head",
-        "--node-ip-address=127.0.0.1",
-        f"--port={port}",
-        "--num-cpus=2",
-        "--num-gpus=0",
-        "--include-dashboard=false",
-        f"--temp-dir={temp}",
-        "--disable-usage-stats",
-    ]
-    subprocess.run(cmd, check=True, capture_output=True, timeout=180)
-    yield f"127.0.0.1:{port}"
-    subprocess.run([str(Path(sys.executable).parent / "ray"), "stop", "--force"], capture_output=True, timeout=120)
+    with ray_head(tmp_path_factory.mktemp("ray")) as address:
+        yield address
 
 
 def _cells(tmp_path: Path, train_code: str):
@@ -196,35 +181,7 @@ def test_the_smoke_protocol_end_to_end_on_an_engine(tmp_path, executor, request)
     cells = build_cells(load_protocol("smoke"), root)
     lay = Layout(root)
     assert all(status(c, lay, cells) == "done" for c in cells)
-    assert all(_runs(lay, c.name) == 1 for c in cells)  # every cell once
+    # every command of every cell ran once (an evaluation cell has one command per set of levels)
+    assert all(_runs(lay, c.name) == len(c.commands) for c in cells)
+    assert any(len(c.commands) > 1 for c in cells)
     assert "Fig. 4a, left" in (root / "report" / "report.md").read_text()
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("launcher", ["slurm_local"])
-def test_train_multirun_through_a_launcher_preset(tmp_path, launcher):
-    # (the default preset, joblib, is tests/test_train.py::test_train_script_multirun_sweeps_seeds)
-    root = Path(__file__).parents[1]
-    cmd = [
-        sys.executable,
-        str(root / "scripts" / "train.py"),
-        "-m",
-        f"hydra/launcher={launcher}",
-        "algo=ppo",
-        "preset=debug",
-        "logger=csv",
-        "progress=false",
-        "total_steps=64",
-        "seed=0,1",
-        f"run.root={tmp_path}",
-        f"hydra.sweep.dir={tmp_path / 'sweep'}",
-    ]
-    done = subprocess.run(
-        cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300, env={**os.environ, "HYDRA_FULL_ERROR": "1"}
-    )
-    assert done.returncode == 0, done.stderr[-3000:]
-    for seed in (0, 1):
-        # submitit's launcher puts each job's run directory under the sweep folder
-        run_dir = tmp_path / "sweep" / "1-1" / "ppo" / "all-squared-debug" / f"seed{seed}"
-        assert (run_dir / "model-0-1-1.pt").exists()
-    assert list((tmp_path / "sweep").rglob("*_submitted.pkl"))  # the jobs went through submitit
