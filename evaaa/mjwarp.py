@@ -1,0 +1,371 @@
+"""The MuJoCo Warp backend: every world's physics and camera at once on one device (``backend="warp"``).
+
+:class:`WarpSimulator` is a :class:`~evaaa.sim.Simulator` whose physics substeps and egocentric frames run through
+MuJoCo Warp (``mujoco-warp``, on NVIDIA Warp) over all worlds in one batch: one device model, one device data of N
+worlds, five ``step`` calls per decision, one batched ray-traced render.  The game logic (items, obstacles,
+triggers, predators, physiology, the other senses) is the CPU backend's, vectorised over worlds in numpy; each
+world keeps its host ``MjData``, which the game logic writes (mocap bodies, the body's pose and velocity) and which
+is synchronised with the device twice a decision: before the physics (pose, velocity, mocaps up; pose and
+velocity back down) and before the render (mocaps up).  Frames stay on the device as a torch ``uint8`` tensor
+(N, H, W, 3), so a learner on the same GPU never copies pixels; on Warp's CPU device they are CPU tensors.
+
+What differs from the CPU backend, and only this (docs/backends.md gives the numbers):
+
+- float32 physics and MuJoCo Warp's own contact pipeline (its collision functions, CCD for box-cylinder and
+  box-ellipsoid, its Newton solver); without contacts a decision's pose agrees with ``mj_step`` to ~1e-6.
+- Collision damage is computed on the device from the contact forces of each substep, through the same rule.
+- Frames are ray traced (per pixel lighting) rather than rasterised by OpenGL; the day/night light is per world
+  (the sun's direction and strength, the head light's dimming) and night's fog, far plane and black sky are a
+  post-process on the ray depth.
+
+Warp compiles its kernels the first time they run (minutes on a CPU) and keeps them in a cache:
+:func:`kernel_cache_dir` says where.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import warnings
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import torch
+
+from .daynight import _NIGHT_FOG, darkness, hour, original_darkness, sun
+from .scene import GROUP_FLOOR, GROUP_RESOURCE, GROUP_SOLID, build_mjcf
+from .sim import SUBSTEPS, Simulator
+
+#: the optional dependencies of this backend, installed by ``pip install 'evaaa[warp]'``
+EXTRA = "warp"
+INSTALL_HINT = (
+    "backend='warp' needs the optional packages mujoco-warp and warp-lang: "
+    "pip install -c constraints.txt -e '.[warp]' (from a checkout), or pip install 'evaaa[warp]'"
+)
+
+_warp = None  # the warp module, once initialised
+
+
+def kernel_cache_dir() -> Path:
+    """Where Warp keeps its compiled kernels for evaaa: ``EVAAA_WARP_CACHE`` when set, else ``WARP_CACHE_PATH`` when
+    set, else ``~/.cache/evaaa-warp`` (Warp adds a folder per Warp version).  Keep it between runs: a cold cache
+    costs minutes of compiling on the first step."""
+    for var in ("EVAAA_WARP_CACHE", "WARP_CACHE_PATH"):
+        if os.environ.get(var, "").strip():
+            return Path(os.environ[var]).expanduser()
+    return Path("~/.cache/evaaa-warp").expanduser()
+
+
+def available() -> bool:
+    """Whether the packages of this backend are installed (nothing is imported)."""
+    import importlib.util
+
+    return all(importlib.util.find_spec(name) is not None for name in ("warp", "mujoco_warp"))
+
+
+def load_warp():
+    """``(warp, mujoco_warp)``, Warp initialised with evaaa's kernel cache; a clear error when they are missing."""
+    global _warp
+    try:
+        import mujoco_warp as mjw
+        import warp as wp
+    except ImportError as exc:
+        raise ImportError(f"{INSTALL_HINT} ({exc})") from None
+    if _warp is None:
+        wp.config.quiet = True
+        if wp.config.kernel_cache_dir is None:  # not chosen by the program (nor Warp initialised before)
+            wp.config.kernel_cache_dir = str(kernel_cache_dir())
+        wp.init()
+        _warp = wp
+    return wp, mjw
+
+
+def default_device() -> str:
+    """Warp's device for the backend: the first CUDA GPU when there is one, else the CPU."""
+    wp, _ = load_warp()
+    return "cuda:0" if wp.is_cuda_available() else "cpu"
+
+
+def buffer_sizes(model: mujoco.MjModel) -> tuple[int, int]:
+    """Contacts and constraint rows to allocate per world, from the level's scene: the body (a box) meets at most
+    a few solid bodies at once (two walls and an obstacle in a corner), each box-box pair with up to 8 contact
+    points; every contact takes 4 rows of the pyramidal cone, and the two sliding joints' friction losses one each."""
+    solid = int(((model.geom_contype != 0) | (model.geom_conaffinity != 0)).sum())
+    nconmax = 8 * min(max(solid - 1, 1), 6)
+    friction_rows = int((model.dof_frictionloss > 0).sum())
+    return nconmax, 4 * nconmax + friction_rows
+
+
+def _contact_damage(impulse: torch.Tensor, constant, rate, offset, cap) -> torch.Tensor:
+    """:func:`evaaa.physiology.contact_damage` over a tensor of impulses."""
+    if constant <= 0.0 or cap <= 0.0:
+        return torch.zeros_like(impulse)
+    exponent = torch.clamp(rate * (impulse - offset), max=math.log(cap / constant))
+    return torch.clamp(constant * torch.exp(exponent), max=cap)
+
+
+class WarpSimulator(Simulator):
+    """A :class:`~evaaa.sim.Simulator` whose physics and camera run on MuJoCo Warp (see the module docstring).
+
+    Same arguments as :class:`~evaaa.sim.Simulator`, plus ``device`` (Warp's: ``"cpu"``, ``"cuda:0"``; None: the
+    first GPU, else the CPU).  ``threads`` is ignored: the device steps every world at once.  Observations are
+    numpy arrays like the CPU backend's, but for ``pixels``: a torch ``uint8`` tensor on ``device``.
+    """
+
+    backend = "warp"
+
+    def __init__(self, level, num_worlds=1, modalities=None, seed=None, threads=None, worlds="train", device=None):
+        self.wp, self.mjw = load_warp()
+        self.device = device or default_device()
+        self._dev = None  # the device model, data and render context, made on first use
+        super().__init__(level, num_worlds, modalities, seed=seed, threads=1, worlds=worlds)
+        self._setup_device()
+
+    # ------------------------------------------------------------------------------------------------ set-up
+    def _setup_device(self) -> None:
+        if self._dev is not None:
+            return
+        wp, mjw = self.wp, self.mjw
+        n, level = self.n, self.level
+        # the device's model: the host model's scene with the headlight as a model light, dimmed per world
+        mjm = mujoco.MjModel.from_xml_string(build_mjcf(level, self.pool, self.obstacles, head_light=True))
+        self.device_model_host = mjm
+        self._head_light = mujoco.mj_name2id(mjm, mujoco.mjtObj.mjOBJ_LIGHT, "head")
+        self._sun_light = mujoco.mj_name2id(mjm, mujoco.mjtObj.mjOBJ_LIGHT, "sun")
+        nconmax, njmax = buffer_sizes(mjm)
+        self.nconmax, self.njmax = nconmax, njmax
+        per_world = {"light_diffuse": n, "light_ambient": n} if self.daynight.enabled else None
+        with wp.ScopedDevice(self.device):
+            m = mjw.put_model(mjm, batch_sizes=per_world)
+            d = mjw.make_data(mjm, nworld=n, nconmax=nconmax, njmax=njmax)
+            self._cids = wp.array(np.arange(d.naconmax, dtype=np.int32), dtype=int)
+            self._force = wp.zeros(d.naconmax, dtype=wp.spatial_vector)
+        self.m, self.d = m, d
+        t = wp.to_torch
+        self._t = {
+            "qpos": t(d.qpos),
+            "qvel": t(d.qvel),
+            "qacc_warmstart": t(d.qacc_warmstart),
+            "mocap_pos": t(d.mocap_pos),
+            "mocap_quat": t(d.mocap_quat),
+            "light_xdir": t(d.light_xdir),
+            "nacon": t(d.nacon),
+            "geom": t(d.contact.geom),
+            "worldid": t(d.contact.worldid),
+            "force": t(self._force),
+        }
+        tdev = self._t["qpos"].device
+        self.torch_device = tdev
+        self._geom_body = torch.as_tensor(mjm.geom_bodyid, dtype=torch.int64, device=tdev)
+        self._slots = torch.arange(d.naconmax, device=tdev)
+        self._nbody = mjm.nbody
+        self._dt = float(mjm.opt.timestep)
+        self._overflow_warned = False
+        if self.daynight.enabled:
+            self._t["light_diffuse"] = t(m.light_diffuse)
+            self._t["light_ambient"] = t(m.light_ambient)
+        self._dev = True
+
+    def _make_renderer(self) -> None:
+        """The batched ray-traced camera of the eye (64 x 64 or the level's size), with its depth for the fog."""
+        self._setup_device()
+        wp, mjw = self.wp, self.mjw
+        v = self.level.sensors.vision
+        mjm = self.device_model_host
+        with wp.ScopedDevice(self.device):
+            self._rc = mjw.create_render_context(
+                mjm,
+                nworld=self.n,
+                cam_res=(v.width, v.height),
+                render_rgb=True,
+                render_depth=self.daynight.enabled,
+                cam_active=["eye"],
+                render_skybox=True,
+                use_shadows=False,
+                # what the CPU backend's eye sees: MuJoCo's default groups (the agent's own group 3 hidden)
+                enabled_geom_groups=[GROUP_SOLID, GROUP_RESOURCE, GROUP_FLOOR],
+            )
+        self._rgb = wp.to_torch(self._rc.rgb_data)
+        self._depth = wp.to_torch(self._rc.depth_data) if self.daynight.enabled else None
+        self._renderer = self._rc  # marks the camera as made (Simulator.render_eye's test)
+        if self.daynight.enabled:
+            self._fog_setup(mjm, v)
+
+    def _fog_setup(self, mjm: mujoco.MjModel, v) -> None:
+        """Per pixel, the cosine between its ray and the eye's axis: OpenGL's fog and far plane go by the depth
+        along the axis, the ray tracer's depth is the distance along the ray."""
+        cam = mujoco.mj_name2id(mjm, mujoco.mjtObj.mjOBJ_CAMERA, "eye")
+        fovy = math.radians(float(mjm.cam_fovy[cam]))
+        h, w = v.height, v.width
+        half_h = math.tan(fovy / 2)
+        half_w = half_h * w / h
+        ys = (1 - (np.arange(h) + 0.5) * 2 / h) * half_h
+        xs = ((np.arange(w) + 0.5) * 2 / w - 1) * half_w
+        cos = 1.0 / np.sqrt(1.0 + ys[:, None] ** 2 + xs[None, :] ** 2)
+        self._ray_cos = torch.as_tensor(cos.reshape(-1), dtype=torch.float32, device=self.torch_device)
+        self._fog_rgb = torch.as_tensor(np.array(_NIGHT_FOG[:3]) * 255.0, dtype=torch.float32, device=self.torch_device)
+
+    # ------------------------------------------------------------------------------------------------ sync
+    def _push(self) -> None:
+        """The host ``MjData`` of every world (pose, velocity, mocap bodies) to the device."""
+        datas, t = self.datas, self._t
+        dev = self.torch_device
+        qpos = np.stack([data.qpos for data in datas])
+        qvel = np.stack([data.qvel for data in datas])
+        t["qpos"].copy_(torch.from_numpy(qpos).to(dev, torch.float32))
+        t["qvel"].copy_(torch.from_numpy(qvel).to(dev, torch.float32))
+        if self.model.nmocap:
+            t["mocap_pos"].copy_(torch.from_numpy(np.stack([d.mocap_pos for d in datas])).to(dev, torch.float32))
+            t["mocap_quat"].copy_(torch.from_numpy(np.stack([d.mocap_quat for d in datas])).to(dev, torch.float32))
+
+    def _pull(self) -> None:
+        """Pose and velocity of every world from the device into its host ``MjData`` and the state."""
+        qpos = self._t["qpos"].cpu().numpy().astype(np.float64)
+        qvel = self._t["qvel"].cpu().numpy().astype(np.float64)
+        for w, data in enumerate(self.datas):
+            data.qpos[:] = qpos[w]
+            data.qvel[:] = qvel[w]
+        self.state.pos[:] = qpos[:, :2]
+
+    def _reset_world(self, w: int) -> None:
+        super()._reset_world(w)
+        if self._dev is not None:  # a new episode starts the solver afresh, as mj_resetData does on the CPU
+            self._t["qacc_warmstart"][w] = 0.0
+
+    # ------------------------------------------------------------------------------------------------ physics
+    def _physics(self, worlds, damage: np.ndarray, collided: np.ndarray) -> None:
+        """2. Five substeps of every world on the device; contact damage from each substep's contact forces."""
+        wp, mjw, m, d = self.wp, self.mjw, self.m, self.d
+        self._push()
+        n = self.n
+        dev = self.torch_device
+        total = torch.zeros(n, dtype=torch.float64, device=dev)
+        hit = torch.zeros(n, dtype=torch.bool, device=dev)
+        with wp.ScopedDevice(self.device):
+            for _ in range(SUBSTEPS):
+                mjw.step(m, d)
+                self._add_contact_damage(total, hit)
+        damage += total.cpu().numpy()
+        collided |= hit.cpu().numpy()
+        if not self._overflow_warned and int(self._t["nacon"][0]) >= d.naconmax:
+            self._overflow_warned = True
+            warnings.warn(
+                f"MuJoCo Warp's contact buffer ({d.naconmax} for {n} worlds) was full: contacts may have been dropped",
+                stacklevel=2,
+            )
+        self._pull()
+
+    def _add_contact_damage(self, total: torch.Tensor, hit: torch.Tensor) -> None:
+        """One substep's collision damage (the CPU backend's :class:`~evaaa.contact.ContactDamage`): the contact
+        forces on the body summed per touching body, as impulses through the level's damage rule."""
+        wp, mjw, t = self.wp, self.mjw, self._t
+        force = t["force"]
+        force.zero_()
+        mjw.contact_force(self.m, self.d, self._cids, True, self._force)
+        geom = t["geom"].long()
+        agent = self.index.agent_geom
+        first, second = geom[:, 0] == agent, geom[:, 1] == agent
+        valid = (self._slots < t["nacon"][0]) & (first | second)
+        other = torch.where(first, geom[:, 1], geom[:, 0]).clamp(min=0)
+        n, nbody = self.n, self._nbody
+        key = torch.where(valid, t["worldid"].long() * nbody + self._geom_body[other], n * nbody)
+        summed = torch.zeros((n * nbody + 1, 3), dtype=torch.float64, device=force.device)
+        summed.index_add_(0, key, force[:, :3].double())
+        touched = torch.zeros(n * nbody + 1, dtype=torch.bool, device=force.device)
+        touched[key] = True
+        constant, rate, offset, cap, threshold = self.contact.rule
+        impulse = torch.linalg.vector_norm(summed, dim=1) * self._dt
+        dmg = torch.where(touched, _contact_damage(impulse, constant, rate, offset, cap), 0.0)[:-1].view(n, nbody)
+        total += dmg.sum(1)
+        hit |= (dmg > threshold).any(1)
+
+    def _predators_act(self) -> np.ndarray:
+        """4. As on the CPU, without the host kinematics: the device computes them before drawing."""
+        attack = self.predators.step(self.state.pos, self.is_night(), self.rngs)
+        self.state.attacked = attack != 0
+        for w, data in enumerate(self.datas):
+            self.predators.write(w, data, self.index.predator_mocap)
+        return attack
+
+    # ------------------------------------------------------------------------------------------------ camera
+    def render_eye(self, worlds: np.ndarray, before_draw=None) -> torch.Tensor:
+        """The agent's view in ``worlds``, (len(worlds), H, W, 3) ``uint8`` on the device (drawn for every world)."""
+        if self._renderer is None:
+            self._make_renderer()
+        wp, mjw, m, d, rc = self.wp, self.mjw, self.m, self.d, self._rc
+        self._push()
+        with wp.ScopedDevice(self.device):
+            mjw.kinematics(m, d)
+            mjw.camlight(m, d)
+            if self.daynight.enabled:
+                self._light(self.state.sun_angle)
+            mjw.refit_bvh(m, d, rc)
+            mjw.render(m, d, rc)
+        v = self.level.sensors.vision
+        packed = self._rgb  # (N, H*W) 0xAARRGGBB
+        if packed.dtype != torch.int32:
+            packed = packed.view(torch.int32)
+        rgb = torch.stack([(packed >> 16) & 0xFF, (packed >> 8) & 0xFF, packed & 0xFF], dim=-1)
+        if self.daynight.enabled:
+            rgb = self._night(rgb)
+        frames = rgb.to(torch.uint8).view(self.n, v.height, v.width, 3)
+        if len(worlds) == self.n:
+            return frames
+        return frames[torch.as_tensor(np.asarray(worlds), device=frames.device)]
+
+    def _light(self, angle: np.ndarray) -> None:
+        """Each world's sun (direction, strength) and head light (dimmed by the dark), as the CPU's
+        :meth:`~evaaa.daynight.DayNight.light_world` sets them."""
+        t, dev = self._t, self.torch_device
+        dark = darkness(hour(angle))
+        direction, strength = sun(angle)
+        head = 1.0 - 0.8 * dark
+        ones = np.ones(3)
+        t["light_xdir"][:, self._sun_light] = torch.as_tensor(direction, dtype=torch.float32, device=dev)
+        diffuse = t["light_diffuse"]
+        ambient = t["light_ambient"]
+        diffuse[:, self._sun_light] = torch.as_tensor((0.6 * strength)[:, None] * ones, dtype=torch.float32, device=dev)
+        diffuse[:, self._head_light] = torch.as_tensor((0.3 * head)[:, None] * ones, dtype=torch.float32, device=dev)
+        ambient[:, self._head_light] = torch.as_tensor((0.35 * head)[:, None] * ones, dtype=torch.float32, device=dev)
+        dn = self.daynight.spec
+        haze = original_darkness(hour(angle)) if dn.fog_schedule == "original" else dark
+        density = dn.night_fog_density * haze
+        fog_end = np.where(density > 0, np.sqrt(3.0) / np.maximum(density, 1e-9), 0.0)
+        far = dn.day_far + (dn.night_far - dn.day_far) * haze
+        self._plan = {
+            "sky": torch.as_tensor(dark < 0.5, device=dev),
+            "fog_end": torch.as_tensor(fog_end, dtype=torch.float32, device=dev),
+            "far": torch.as_tensor(far, dtype=torch.float32, device=dev),
+        }
+
+    def _night(self, rgb: torch.Tensor) -> torch.Tensor:
+        """The night on ray-traced frames: past the far plane the sky (black once the skybox is off), and linear
+        fog from the eye to ``fog_end`` on what is nearer."""
+        plan = self._plan
+        depth = self._depth  # (N, H*W) distance along the ray (0: nothing hit)
+        z = depth * self._ray_cos
+        hit = (depth > 0) & (z < plan["far"][:, None])
+        color = rgb.float()
+        sky = plan["sky"][:, None, None]
+        # what the ray tracer drew where nothing is hit: the skybox; past the far plane as well
+        background = torch.where(sky, color, torch.zeros_like(color))
+        fog_end = plan["fog_end"][:, None]
+        fog = torch.where(fog_end > 0, torch.clamp(z / torch.clamp(fog_end, min=1e-6), 0.0, 1.0), 0.0)
+        fogged = color * (1 - fog[..., None]) + self._fog_rgb * fog[..., None]
+        out = torch.where(hit[..., None], fogged, background)
+        return torch.round(out)
+
+    def render_top(self, world: int = 0, size: int = 512) -> np.ndarray:
+        """A top-down picture of one world (OpenGL, from the host ``MjData``, as on the CPU backend)."""
+        mujoco.mj_kinematics(self.model, self.datas[world])
+        return super().render_top(world, size)
+
+    # ------------------------------------------------------------------------------------------------ snapshots
+    def restore(self, snapshot: dict) -> None:
+        super().restore(snapshot)
+        self._t["qacc_warmstart"].zero_()
+
+    def close(self) -> None:
+        self._renderer = None  # the device's buffers go with the object
+        super().close()
