@@ -259,7 +259,7 @@ class WarpSimulator(Simulator):
     def _add_contact_damage(self, total: torch.Tensor, hit: torch.Tensor) -> None:
         """One substep's collision damage (the CPU backend's :class:`~evaaa.contact.ContactDamage`): the contact
         forces on the body summed per touching body, as impulses through the level's damage rule."""
-        wp, mjw, t = self.wp, self.mjw, self._t
+        mjw, t = self.mjw, self._t
         force = t["force"]
         force.zero_()
         mjw.contact_force(self.m, self.d, self._cids, True, self._force)
