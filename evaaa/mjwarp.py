@@ -190,20 +190,9 @@ class WarpSimulator(Simulator):
         self._depth = wp.to_torch(self._rc.depth_data) if self.daynight.enabled else None
         self._renderer = self._rc  # marks the camera as made (Simulator.render_eye's test)
         if self.daynight.enabled:
-            self._fog_setup(mjm, v)
+            self._fog_setup()
 
-    def _fog_setup(self, mjm: mujoco.MjModel, v) -> None:
-        """Per pixel, the cosine between its ray and the eye's axis: OpenGL's fog and far plane go by the depth
-        along the axis, the ray tracer's depth is the distance along the ray."""
-        cam = mujoco.mj_name2id(mjm, mujoco.mjtObj.mjOBJ_CAMERA, "eye")
-        fovy = math.radians(float(mjm.cam_fovy[cam]))
-        h, w = v.height, v.width
-        half_h = math.tan(fovy / 2)
-        half_w = half_h * w / h
-        ys = (1 - (np.arange(h) + 0.5) * 2 / h) * half_h
-        xs = ((np.arange(w) + 0.5) * 2 / w - 1) * half_w
-        cos = 1.0 / np.sqrt(1.0 + ys[:, None] ** 2 + xs[None, :] ** 2)
-        self._ray_cos = torch.as_tensor(cos.reshape(-1), dtype=torch.float32, device=self.torch_device)
+    def _fog_setup(self) -> None:
         self._fog_rgb = torch.as_tensor(np.array(_NIGHT_FOG[:3]) * 255.0, dtype=torch.float32, device=self.torch_device)
 
     # ------------------------------------------------------------------------------------------------ sync
@@ -341,19 +330,23 @@ class WarpSimulator(Simulator):
 
     def _night(self, rgb: torch.Tensor) -> torch.Tensor:
         """The night on ray-traced frames: past the far plane the sky (black once the skybox is off), and linear
-        fog from the eye to ``fog_end`` on what is nearer."""
+        fog from the eye to ``fog_end`` on what is nearer, by each pixel's depth.  (OpenGL computes the fog at the
+        vertices of the coarse geometry and interpolates it, so its fog on a large face near the eye is denser:
+        the main part of the difference at dusk and dawn, docs/backends.md.)"""
         plan = self._plan
-        depth = self._depth  # (N, H*W) distance along the ray (0: nothing hit)
-        z = depth * self._ray_cos
-        hit = (depth > 0) & (z < plan["far"][:, None])
+        z = self._depth  # (N, H*W) depth along the eye's axis (0: nothing hit)
+        hit = (z > 0) & (z < plan["far"][:, None])
         color = rgb.float()
-        sky = plan["sky"][:, None, None]
-        # what the ray tracer drew where nothing is hit: the skybox; past the far plane as well
-        background = torch.where(sky, color, torch.zeros_like(color))
         fog_end = plan["fog_end"][:, None]
-        fog = torch.where(fog_end > 0, torch.clamp(z / torch.clamp(fog_end, min=1e-6), 0.0, 1.0), 0.0)
+        inverse_end = torch.where(fog_end > 0, 1.0 / torch.clamp(fog_end, min=1e-6), 0.0)
+        # linear fog by the depth along the eye's axis; OpenGL draws the skybox at the far plane, fogged there
+        fog = torch.where(
+            hit, torch.clamp(z * inverse_end, 0.0, 1.0), torch.clamp(plan["far"][:, None] * inverse_end, 0.0, 1.0)
+        )
         fogged = color * (1 - fog[..., None]) + self._fog_rgb * fog[..., None]
-        out = torch.where(hit[..., None], fogged, background)
+        # what the ray tracer drew where nothing is hit is the skybox, past the far plane too: black once it is off
+        sky = plan["sky"][:, None, None]
+        out = torch.where(hit[..., None] | sky, fogged, torch.zeros_like(color))
         return torch.round(out)
 
     def render_top(self, world: int = 0, size: int = 512) -> np.ndarray:
