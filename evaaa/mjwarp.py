@@ -179,7 +179,7 @@ class WarpSimulator(Simulator):
                 nworld=self.n,
                 cam_res=(v.width, v.height),
                 render_rgb=True,
-                render_depth=self.daynight.enabled,
+                render_depth=True,
                 cam_active=["eye"],
                 render_skybox=True,
                 use_shadows=False,
@@ -187,13 +187,26 @@ class WarpSimulator(Simulator):
                 enabled_geom_groups=[GROUP_SOLID, GROUP_RESOURCE, GROUP_FLOOR],
             )
         self._rgb = wp.to_torch(self._rc.rgb_data)
-        self._depth = wp.to_torch(self._rc.depth_data) if self.daynight.enabled else None
+        self._depth = wp.to_torch(self._rc.depth_data)
         self._renderer = self._rc  # marks the camera as made (Simulator.render_eye's test)
-        if self.daynight.enabled:
-            self._fog_setup()
-
-    def _fog_setup(self) -> None:
+        # OpenGL draws nothing nearer than the near plane nor past the far plane (without a day/night cycle)
+        extent = float(mjm.stat.extent)
+        self._near = float(mjm.vis.map.znear) * extent
+        self._far = float(mjm.vis.map.zfar) * extent
         self._fog_rgb = torch.as_tensor(np.array(_NIGHT_FOG[:3]) * 255.0, dtype=torch.float32, device=self.torch_device)
+        self._sky = self._sky_frame()
+
+    def _sky_frame(self) -> torch.Tensor:
+        """The skybox as the eye sees it, (H*W, 3): drawn once from far outside the arena, facing away from it.  The
+        gradient sky depends on the height of the view only, not on the heading (they differ by < 0.2/255)."""
+        data = self.datas[0]
+        saved = data.qpos.copy()
+        data.qpos[:3] = (0.0, -1e5, -math.pi / 2)  # heading 180: south, away from the arena
+        try:
+            rgb = self._draw()[0].float()
+        finally:
+            data.qpos[:] = saved
+        return rgb
 
     # ------------------------------------------------------------------------------------------------ sync
     def _push(self) -> None:
@@ -282,6 +295,18 @@ class WarpSimulator(Simulator):
         """The agent's view in ``worlds``, (len(worlds), H, W, 3) ``uint8`` on the device (drawn for every world)."""
         if self._renderer is None:
             self._make_renderer()
+        frames = self._finish(self._draw()).view(self.n, *self._frame_shape)
+        if len(worlds) == self.n:
+            return frames
+        return frames[torch.as_tensor(np.asarray(worlds), device=frames.device)]
+
+    @property
+    def _frame_shape(self) -> tuple[int, int, int]:
+        v = self.level.sensors.vision
+        return (v.height, v.width, 3)
+
+    def _draw(self) -> torch.Tensor:
+        """Ray trace every world's eye from the host state; (N, H*W, 3) int32 colours, depth in ``self._depth``."""
         wp, mjw, m, d, rc = self.wp, self.mjw, self.m, self.d, self._rc
         self._push()
         with wp.ScopedDevice(self.device):
@@ -291,17 +316,20 @@ class WarpSimulator(Simulator):
                 self._light(self.state.sun_angle)
             mjw.refit_bvh(m, d, rc)
             mjw.render(m, d, rc)
-        v = self.level.sensors.vision
         packed = self._rgb  # (N, H*W) 0xAARRGGBB
         if packed.dtype != torch.int32:
             packed = packed.view(torch.int32)
-        rgb = torch.stack([(packed >> 16) & 0xFF, (packed >> 8) & 0xFF, packed & 0xFF], dim=-1)
+        return torch.stack([(packed >> 16) & 0xFF, (packed >> 8) & 0xFF, packed & 0xFF], dim=-1)
+
+    def _finish(self, rgb: torch.Tensor) -> torch.Tensor:
+        """What OpenGL's frames have that ray tracing lacks, as ``uint8``: nothing drawn nearer than the near plane
+        nor past the far plane (the sky shows there), and by night the fog, the nearer far plane and the black sky
+        (:meth:`_night`)."""
         if self.daynight.enabled:
-            rgb = self._night(rgb)
-        frames = rgb.to(torch.uint8).view(self.n, v.height, v.width, 3)
-        if len(worlds) == self.n:
-            return frames
-        return frames[torch.as_tensor(np.asarray(worlds), device=frames.device)]
+            return self._night(rgb).to(torch.uint8)
+        z = self._depth  # (N, H*W) depth along the eye's axis (0: nothing hit)
+        clipped = (z > 0) & ((z < self._near) | (z >= self._far))
+        return torch.where(clipped[..., None], self._sky.to(rgb.dtype), rgb).to(torch.uint8)
 
     def _light(self, angle: np.ndarray) -> None:
         """Each world's sun (direction, strength) and head light (dimmed by the dark), as the CPU's
@@ -335,16 +363,15 @@ class WarpSimulator(Simulator):
         the main part of the difference at dusk and dawn, docs/backends.md.)"""
         plan = self._plan
         z = self._depth  # (N, H*W) depth along the eye's axis (0: nothing hit)
-        hit = (z > 0) & (z < plan["far"][:, None])
-        color = rgb.float()
+        hit = (z >= self._near) & (z < plan["far"][:, None])
+        color = torch.where(hit[..., None], rgb.float(), self._sky)  # the skybox wherever nothing is drawn
         fog_end = plan["fog_end"][:, None]
         inverse_end = torch.where(fog_end > 0, 1.0 / torch.clamp(fog_end, min=1e-6), 0.0)
         # linear fog by the depth along the eye's axis; OpenGL draws the skybox at the far plane, fogged there
-        fog = torch.where(
-            hit, torch.clamp(z * inverse_end, 0.0, 1.0), torch.clamp(plan["far"][:, None] * inverse_end, 0.0, 1.0)
-        )
+        sky_fog = torch.clamp(plan["far"][:, None] * inverse_end, 0.0, 1.0)
+        fog = torch.where(hit, torch.clamp(z * inverse_end, 0.0, 1.0), sky_fog)
         fogged = color * (1 - fog[..., None]) + self._fog_rgb * fog[..., None]
-        # what the ray tracer drew where nothing is hit is the skybox, past the far plane too: black once it is off
+        # once the skybox is off, black where nothing is drawn
         sky = plan["sky"][:, None, None]
         out = torch.where(hit[..., None] | sky, fogged, torch.zeros_like(color))
         return torch.round(out)
