@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 import os
+import time
 import warnings
 from pathlib import Path
 
@@ -162,6 +163,11 @@ class WarpSimulator(Simulator):
         self._nbody = mjm.nbody
         self._dt = float(mjm.opt.timestep)
         self._overflow_warned = False
+        #: seconds spent so far in the host-device exchanges (``sync``), the physics substeps with their contact
+        #: damage (``physics``) and the frames (``camera``); with ``wait_for_device`` the camera's are waited for
+        #: (for measurements: ``scripts/bench_env.py backend=warp``), else they may run on after the call returns
+        self.seconds = {"sync": 0.0, "physics": 0.0, "camera": 0.0}
+        self.wait_for_device = False
         if self.daynight.enabled:
             self._t["light_diffuse"] = t(m.light_diffuse)
             self._t["light_ambient"] = t(m.light_ambient)
@@ -239,7 +245,9 @@ class WarpSimulator(Simulator):
     def _physics(self, worlds, damage: np.ndarray, collided: np.ndarray) -> None:
         """2. Five substeps of every world on the device; contact damage from each substep's contact forces."""
         wp, mjw, m, d = self.wp, self.mjw, self.m, self.d
+        start = time.perf_counter()
         self._push()
+        pushed = time.perf_counter()
         n = self.n
         dev = self.torch_device
         total = torch.zeros(n, dtype=torch.float64, device=dev)
@@ -250,6 +258,7 @@ class WarpSimulator(Simulator):
                 self._add_contact_damage(total, hit)
         damage += total.cpu().numpy()
         collided |= hit.cpu().numpy()
+        stepped = time.perf_counter()
         if not self._overflow_warned and int(self._t["nacon"][0]) >= d.naconmax:
             self._overflow_warned = True
             warnings.warn(
@@ -257,6 +266,8 @@ class WarpSimulator(Simulator):
                 stacklevel=2,
             )
         self._pull()
+        self.seconds["sync"] += pushed - start + time.perf_counter() - stepped
+        self.seconds["physics"] += stepped - pushed
 
     def _add_contact_damage(self, total: torch.Tensor, hit: torch.Tensor) -> None:
         """One substep's collision damage (the CPU backend's :class:`~evaaa.contact.ContactDamage`): the contact
@@ -295,7 +306,13 @@ class WarpSimulator(Simulator):
         """The agent's view in ``worlds``, (len(worlds), H, W, 3) ``uint8`` on the device (drawn for every world)."""
         if self._renderer is None:
             self._make_renderer()
+        start = time.perf_counter()
         frames = self._finish(self._draw()).view(self.n, *self._frame_shape)
+        if self.wait_for_device:
+            self.wp.synchronize_device(self.device)
+            if frames.is_cuda:
+                torch.cuda.synchronize(frames.device)
+        self.seconds["camera"] += time.perf_counter() - start
         if len(worlds) == self.n:
             return frames
         return frames[torch.as_tensor(np.asarray(worlds), device=frames.device)]

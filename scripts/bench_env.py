@@ -268,9 +268,14 @@ def time_raw_parallel(level: str, per_worker_states: list[list[np.ndarray]]) -> 
 
 
 # ------------------------------------------------------------------------------------------------- report
-def time_decisions(env, decisions: int, warmup: int, seed: int) -> float:
+def _zero(seconds: dict | None) -> None:
+    for key in seconds or {}:
+        seconds[key] = 0.0
+
+
+def time_decisions(env, decisions: int, warmup: int, seed: int, on_start=lambda: None) -> float:
     """Env steps per second (worlds x decisions) of ``decisions`` random decisions through TorchRL after ``warmup``
-    (waiting for the device at both ends)."""
+    (waiting for the device at both ends; ``on_start()`` is called when the clock starts)."""
     n = env.num_envs
     acts = torch.from_numpy(random_actions(warmup + decisions, n, seed)).to(env.device)
     td = env.reset()
@@ -279,6 +284,7 @@ def time_decisions(env, decisions: int, warmup: int, seed: int) -> float:
         _, td = env.step_and_maybe_reset(td)
     sync = torch.cuda.synchronize if env.device.type == "cuda" else (lambda: None)
     sync()
+    on_start()
     start = time.perf_counter()
     for t in range(warmup, warmup + decisions):
         td["action"] = acts[t]
@@ -311,7 +317,7 @@ def measure_backends(args) -> dict:
         "rows": [],
     }
     print(f"evaaa bench_env backend=warp: Warp on {warp_device} ({gpu or results['processor']}), {decisions} decisions")
-    print(f"{'level':<8}{'worlds':>8}{'backend':>9}{'env steps/s':>14}{'make s':>9}")
+    print(f"{'level':<8}{'worlds':>8}{'backend':>9}{'env steps/s':>14}{'make s':>9}   per decision (warp)")
     for level in args.levels:
         for n in counts:
             for backend in ("warp", "cpu"):
@@ -321,13 +327,24 @@ def measure_backends(args) -> dict:
                 device = env_device if backend == "warp" else "cpu"
                 env = make_env(level, num_envs=n, seed=0, backend=backend, device=device)
                 made = time.perf_counter() - start
+                sim = env.sim
+                if backend == "warp":
+                    sim.wait_for_device = True
                 # the first decisions compile (or load) the device's kernels: warm up past them
-                rate = time_decisions(env, decisions, warmup=max(3, decisions // 10), seed=n)
+                warmup = max(3, decisions // 10)
+                seconds = getattr(sim, "seconds", None)
+                rate = time_decisions(env, decisions, warmup=warmup, seed=n, on_start=partial(_zero, seconds))
+                row = {"level": level, "worlds": n, "backend": backend, "env_steps_per_s": rate, "make_seconds": made}
+                if seconds is not None:  # where a decision's time went, per decision
+                    row["seconds_per_decision"] = {k: v / decisions for k, v in seconds.items()}
+                    row["seconds_per_decision"]["total"] = n / rate
                 env.close()
-                results["rows"].append(
-                    {"level": level, "worlds": n, "backend": backend, "env_steps_per_s": rate, "make_seconds": made}
-                )
-                print(f"{level:<8}{n:>8}{backend:>9}{rate:>14.0f}{made:>9.1f}", flush=True)
+                results["rows"].append(row)
+                shares = ""
+                if seconds is not None:
+                    per = row["seconds_per_decision"]
+                    shares = "   " + ", ".join(f"{k} {v * 1e3:.1f} ms" for k, v in per.items())
+                print(f"{level:<8}{n:>8}{backend:>9}{rate:>14.0f}{made:>9.1f}{shares}", flush=True)
     return results
 
 

@@ -251,3 +251,16 @@ def test_a_short_ppo_run_trains_on_the_warp_backend(tmp_path):
 
 def test_substeps_are_the_cpu_backends():
     assert SUBSTEPS == 5  # the device steps the same five substeps of 0.02 s per decision
+
+
+def test_training_refuses_an_unknown_backend_naming_the_key():
+    from hydra import compose, initialize_config_dir
+
+    from evaaa_baselines.config import CONF_DIR, ConfigError, check_values, register_levels
+
+    register_levels()
+    with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
+        cfg = compose("config", overrides=["env.backend=gpu", "device=cpu"])
+        assert compose("config").env.backend == "cpu"  # the default
+    with pytest.raises(ConfigError, match=r"env\.backend=gpu: expected one of cpu, warp"):
+        check_values(cfg)
