@@ -120,8 +120,10 @@ class WarpSimulator(Simulator):
         self.wp, self.mjw = load_warp()
         self.device = device or default_device()
         self._dev = None  # the device model, data and render context, made on first use
+        self._moved = self._posed = None  # which worlds to send to the device (None: all)
         super().__init__(level, num_worlds, modalities, seed=seed, threads=1, worlds=worlds)
         self._setup_device()
+        self._track_writes()
 
     # ------------------------------------------------------------------------------------------------ set-up
     def _setup_device(self) -> None:
@@ -159,7 +161,6 @@ class WarpSimulator(Simulator):
         tdev = self._t["qpos"].device
         self.torch_device = tdev
         self._geom_body = torch.as_tensor(mjm.geom_bodyid, dtype=torch.int64, device=tdev)
-        self._slots = torch.arange(d.naconmax, device=tdev)
         self._nbody = mjm.nbody
         self._dt = float(mjm.opt.timestep)
         self._overflow_warned = False
@@ -209,23 +210,65 @@ class WarpSimulator(Simulator):
         saved = data.qpos.copy()
         data.qpos[:3] = (0.0, -1e5, -math.pi / 2)  # heading 180: south, away from the arena
         try:
+            if self._posed is not None:
+                self._posed[0] = True
             rgb = self._draw()[0].float()
         finally:
             data.qpos[:] = saved
+            if self._posed is not None:
+                self._posed[0] = True  # the next push brings the body back
         return rgb
 
     # ------------------------------------------------------------------------------------------------ sync
-    def _push(self) -> None:
-        """The host ``MjData`` of every world (pose, velocity, mocap bodies) to the device."""
-        datas, t = self.datas, self._t
+    def _push(self, all_poses: bool) -> None:
+        """The host ``MjData`` to the device: pose and velocity (of every world, or of those the game logic moved
+        since the last push), and the mocap bodies of the worlds whose items, obstacles or predators were written."""
+        datas, t, n = self.datas, self._t, self.n
         dev = self.torch_device
-        qpos = np.stack([data.qpos for data in datas])
-        qvel = np.stack([data.qvel for data in datas])
-        t["qpos"].copy_(torch.from_numpy(qpos).to(dev, torch.float32))
-        t["qvel"].copy_(torch.from_numpy(qvel).to(dev, torch.float32))
-        if self.model.nmocap:
-            t["mocap_pos"].copy_(torch.from_numpy(np.stack([d.mocap_pos for d in datas])).to(dev, torch.float32))
-            t["mocap_quat"].copy_(torch.from_numpy(np.stack([d.mocap_quat for d in datas])).to(dev, torch.float32))
+        posed = np.arange(n) if all_poses or self._posed is None else np.flatnonzero(self._posed)
+        moved = np.arange(n) if self._moved is None else np.flatnonzero(self._moved)
+        if len(posed) == n:
+            t["qpos"].copy_(torch.from_numpy(np.stack([data.qpos for data in datas])).to(dev, torch.float32))
+            t["qvel"].copy_(torch.from_numpy(np.stack([data.qvel for data in datas])).to(dev, torch.float32))
+        elif len(posed):
+            rows = torch.from_numpy(posed).to(dev)
+            t["qpos"][rows] = torch.from_numpy(np.stack([datas[w].qpos for w in posed])).to(dev, torch.float32)
+            t["qvel"][rows] = torch.from_numpy(np.stack([datas[w].qvel for w in posed])).to(dev, torch.float32)
+        if self.model.nmocap and len(moved):
+            pos = torch.from_numpy(np.stack([datas[w].mocap_pos for w in moved])).to(dev, torch.float32)
+            quat = torch.from_numpy(np.stack([datas[w].mocap_quat for w in moved])).to(dev, torch.float32)
+            if len(moved) == n:
+                t["mocap_pos"].copy_(pos)
+                t["mocap_quat"].copy_(quat)
+            else:
+                rows = torch.from_numpy(moved).to(dev)
+                t["mocap_pos"][rows] = pos
+                t["mocap_quat"][rows] = quat
+        if self._moved is not None:
+            self._moved[:] = False
+            self._posed[:] = False
+
+    def _track_writes(self) -> None:
+        """Note which worlds the game logic changes on the host, so that only those are sent to the device."""
+        self._moved = np.ones(self.n, dtype=bool)  # mocap bodies written since the last push
+        self._posed = np.ones(self.n, dtype=bool)  # pose or velocity set since the last push (besides the actions)
+        moved = self._moved
+        write_items, write_obstacles = self.resources.write, self.obstacle_layout.write
+        write_predators = self.predators.write
+
+        def items(state, w, data):
+            write_items(state, w, data)
+            moved[w] = True
+
+        def obstacles(state, w, data):
+            write_obstacles(state, w, data)
+            moved[w] = True
+
+        def predators(w, data, mocap):
+            write_predators(w, data, mocap)
+            moved[w] = True
+
+        self.resources.write, self.obstacle_layout.write, self.predators.write = items, obstacles, predators
 
     def _pull(self) -> None:
         """Pose and velocity of every world from the device into its host ``MjData`` and the state."""
@@ -238,15 +281,19 @@ class WarpSimulator(Simulator):
 
     def _reset_world(self, w: int) -> None:
         super()._reset_world(w)
-        if self._dev is not None:  # a new episode starts the solver afresh, as mj_resetData does on the CPU
-            self._t["qacc_warmstart"][w] = 0.0
+        self._posed[w] = True
+        self._t["qacc_warmstart"][w] = 0.0  # a new episode starts the solver afresh, as mj_resetData does on the CPU
+
+    def set_agent_pose(self, world: int, xy, heading_deg: float) -> None:
+        self._posed[world] = True
+        super().set_agent_pose(world, xy, heading_deg)
 
     # ------------------------------------------------------------------------------------------------ physics
     def _physics(self, worlds, damage: np.ndarray, collided: np.ndarray) -> None:
         """2. Five substeps of every world on the device; contact damage from each substep's contact forces."""
         wp, mjw, m, d = self.wp, self.mjw, self.m, self.d
         start = time.perf_counter()
-        self._push()
+        self._push(all_poses=True)  # the actions set every pose and velocity
         pushed = time.perf_counter()
         n = self.n
         dev = self.torch_device
@@ -272,26 +319,30 @@ class WarpSimulator(Simulator):
     def _add_contact_damage(self, total: torch.Tensor, hit: torch.Tensor) -> None:
         """One substep's collision damage (the CPU backend's :class:`~evaaa.contact.ContactDamage`): the contact
         forces on the body summed per touching body, as impulses through the level's damage rule."""
-        mjw, t = self.mjw, self._t
-        force = t["force"]
-        force.zero_()
-        mjw.contact_force(self.m, self.d, self._cids, True, self._force)
-        geom = t["geom"].long()
+        t = self._t
+        k = min(int(t["nacon"][0]), self.d.naconmax)  # contacts of all worlds this substep (one wait for the device)
+        if not k:
+            return
+        self.mjw.contact_force(self.m, self.d, self._cids[:k], True, self._force[:k])
+        geom = t["geom"][:k].long()
         agent = self.index.agent_geom
         first, second = geom[:, 0] == agent, geom[:, 1] == agent
-        valid = (self._slots < t["nacon"][0]) & (first | second)
-        other = torch.where(first, geom[:, 1], geom[:, 0]).clamp(min=0)
-        n, nbody = self.n, self._nbody
-        key = torch.where(valid, t["worldid"].long() * nbody + self._geom_body[other], n * nbody)
-        summed = torch.zeros((n * nbody + 1, 3), dtype=torch.float64, device=force.device)
-        summed.index_add_(0, key, force[:, :3].double())
-        touched = torch.zeros(n * nbody + 1, dtype=torch.bool, device=force.device)
-        touched[key] = True
+        valid = first | second
+        other = torch.where(first, geom[:, 1], geom[:, 0])[valid]
+        if not len(other):
+            return
+        world = t["worldid"][:k][valid].long()
+        nbody = self._nbody
+        touched, which = torch.unique(world * nbody + self._geom_body[other], return_inverse=True)
+        summed = torch.zeros((len(touched), 3), dtype=torch.float64, device=total.device)
+        summed.index_add_(0, which, t["force"][:k, :3][valid].double())
         constant, rate, offset, cap, threshold = self.contact.rule
         impulse = torch.linalg.vector_norm(summed, dim=1) * self._dt
-        dmg = torch.where(touched, _contact_damage(impulse, constant, rate, offset, cap), 0.0)[:-1].view(n, nbody)
-        total += dmg.sum(1)
-        hit |= (dmg > threshold).any(1)
+        dmg = _contact_damage(impulse, constant, rate, offset, cap)
+        owner = touched // nbody
+        total.index_add_(0, owner, dmg)
+        hits = torch.zeros_like(total).index_add_(0, owner, (dmg > threshold).double())
+        hit |= hits > 0
 
     def _predators_act(self) -> np.ndarray:
         """4. As on the CPU, without the host kinematics: the device computes them before drawing."""
@@ -323,9 +374,9 @@ class WarpSimulator(Simulator):
         return (v.height, v.width, 3)
 
     def _draw(self) -> torch.Tensor:
-        """Ray trace every world's eye from the host state; (N, H*W, 3) int32 colours, depth in ``self._depth``."""
+        """Ray trace every world's eye from the host state; (N, H*W, 3) ``uint8`` colours, depth in ``self._depth``."""
         wp, mjw, m, d, rc = self.wp, self.mjw, self.m, self.d, self._rc
-        self._push()
+        self._push(all_poses=False)
         with wp.ScopedDevice(self.device):
             mjw.kinematics(m, d)
             mjw.camlight(m, d)
@@ -333,10 +384,9 @@ class WarpSimulator(Simulator):
                 self._light(self.state.sun_angle)
             mjw.refit_bvh(m, d, rc)
             mjw.render(m, d, rc)
-        packed = self._rgb  # (N, H*W) 0xAARRGGBB
-        if packed.dtype != torch.int32:
-            packed = packed.view(torch.int32)
-        return torch.stack([(packed >> 16) & 0xFF, (packed >> 8) & 0xFF, packed & 0xFF], dim=-1)
+        # (N, H*W) 0xAARRGGBB words: bytes B, G, R, A in memory (little-endian, as on every device Warp runs on)
+        packed = self._rgb if self._rgb.dtype == torch.int32 else self._rgb.view(torch.int32)
+        return packed.view(torch.uint8).view(self.n, -1, 4)[..., [2, 1, 0]]
 
     def _finish(self, rgb: torch.Tensor) -> torch.Tensor:
         """What OpenGL's frames have that ray tracing lacks, as ``uint8``: nothing drawn nearer than the near plane
@@ -402,6 +452,8 @@ class WarpSimulator(Simulator):
     def restore(self, snapshot: dict) -> None:
         super().restore(snapshot)
         self._t["qacc_warmstart"].zero_()
+        self._moved[:] = True
+        self._posed[:] = True
 
     def close(self) -> None:
         self._renderer = None  # the device's buffers go with the object
