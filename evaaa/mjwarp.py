@@ -83,9 +83,10 @@ def load_warp():
 
 
 def default_device() -> str:
-    """Warp's device for the backend: the first CUDA GPU when there is one, else the CPU."""
+    """Warp's device for the backend: the first CUDA GPU when Warp and torch (a CUDA build) both see one, else the
+    CPU."""
     wp, _ = load_warp()
-    return "cuda:0" if wp.is_cuda_available() else "cpu"
+    return "cuda:0" if wp.is_cuda_available() and torch.cuda.is_available() else "cpu"
 
 
 def buffer_sizes(model: mujoco.MjModel) -> tuple[int, int]:
