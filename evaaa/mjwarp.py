@@ -5,8 +5,9 @@ MuJoCo Warp (``mujoco-warp``, on NVIDIA Warp) over all worlds in one batch: one 
 worlds, five ``step`` calls per decision, one batched ray-traced render.  The game logic (items, obstacles,
 triggers, predators, physiology, the other senses) is the CPU backend's, vectorised over worlds in numpy; each
 world keeps its host ``MjData``, which the game logic writes (mocap bodies, the body's pose and velocity) and which
-is synchronised with the device twice a decision: before the physics (pose, velocity, mocaps up; pose and
-velocity back down) and before the render (mocaps up).  Frames stay on the device as a torch ``uint8`` tensor
+is synchronised with the device twice a decision: before the physics (every world's pose and velocity, and the
+mocap bodies of the worlds whose items, obstacles or predators were written, up; pose and velocity back down) and
+before the render (what the game logic changed since, up).  Frames stay on the device as a torch ``uint8`` tensor
 (N, H, W, 3), so a learner on the same GPU never copies pixels; on Warp's CPU device they are CPU tensors.
 
 What differs from the CPU backend, and only this (docs/backends.md gives the numbers):
