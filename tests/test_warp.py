@@ -249,6 +249,25 @@ def test_a_short_ppo_run_trains_on_the_warp_backend(tmp_path):
     assert (tmp_path / "run" / "model-0-1-1.pt").exists()
 
 
+@needs_warp
+@pytest.mark.slow
+def test_bench_env_measures_the_warp_backend_beside_the_cpu_one(tmp_path):
+    import json
+
+    from helpers import load_script
+
+    out = tmp_path / "bench" / "warp.json"
+    args = ["backend=warp", "levels=[1-1]", "counts=[2]", "warp_steps=3", "cpu_max_worlds=2", f"json={out}"]
+    assert load_script("bench_env").main(args) == 0
+    figures = json.loads(out.read_text())
+    assert figures["backend"] == "warp" and figures["warp_device"] == "cpu" and figures["counts"] == [2]
+    rows = {row["backend"]: row for row in figures["rows"]}
+    assert set(rows) == {"warp", "cpu"} and all(row["env_steps_per_s"] > 0 for row in rows.values())
+    split = rows["warp"]["seconds_per_decision"]
+    assert set(split) == {"sync", "physics", "camera", "total"} and split["physics"] > 0
+    assert split["sync"] + split["physics"] + split["camera"] <= split["total"] * 1.01
+
+
 def test_substeps_are_the_cpu_backends():
     assert SUBSTEPS == 5  # the device steps the same five substeps of 0.02 s per decision
 
