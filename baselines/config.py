@@ -44,10 +44,10 @@ def register_levels() -> None:
 
 
 def register_launchers() -> None:
-    """Make ``hydra/launcher=ray_cluster`` (evaaa's launcher plugin, hydra_plugins/evaaa_ray_launcher) known to Hydra. Hydra
-    finds launchers by walking the ``hydra_plugins`` namespace's folders, which misses the plugin of an editable
-    install (its folder is reached through setuptools' import hook, not a path); registering it is Hydra's way for
-    that (``Plugins.register``) and harmless where the walk found it."""
+    """Make ``hydra/launcher=ray_cluster`` (evaaa's launcher plugin, hydra_plugins/evaaa_ray_launcher) known to
+    Hydra. Hydra finds launchers by walking the ``hydra_plugins`` namespace's folders, which misses the plugin of an
+    editable install (its folder is reached through setuptools' import hook, not a path); registering it is Hydra's
+    way for that (``Plugins.register``) and harmless where the walk found it."""
     from hydra.core.plugins import Plugins
 
     from hydra_plugins.evaaa_ray_launcher.ray_launcher import RayLauncher
@@ -421,7 +421,7 @@ def typed_values(parsed: list[Override]) -> dict[str, str]:
 
 def check_values(cfg: DictConfig, typed: dict[str, str] | None = None) -> None:
     """What a composed config's types and bounds do not say, checked before anything is written: the device exists
-    here, the curriculum names levels, the algorithm accepts its settings (``check_config`` of its module, if it
+    here, the env's backend is known (and installed), the curriculum names levels, the algorithm accepts its settings (``check_config`` of its module, if it
     has one), and DreamerV3's GPU size is not started on a CPU unless asked for by name.  Raises
     :class:`ConfigError`."""
     from .algos import algorithm
@@ -431,6 +431,14 @@ def check_values(cfg: DictConfig, typed: dict[str, str] | None = None) -> None:
         device = resolve_device(cfg.device)
     except DeviceError as err:
         raise ConfigError(str(err)) from None
+    backend = cfg.env.get("backend", "cpu")
+    if backend not in evaaa.BACKENDS:
+        raise ConfigError(f"env.backend={_show(backend)}: expected one of {', '.join(evaaa.BACKENDS)}")
+    if backend == "warp":
+        from evaaa import mjwarp
+
+        if not mjwarp.available():
+            raise ConfigError(f"env.backend=warp: {mjwarp.INSTALL_HINT}")
     if "stages" in cfg.level and cfg.level.stages is not None:
         text = (typed or {}).get("level.stages")
         names = [str(n) for n in cfg.level.stages]

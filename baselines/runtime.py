@@ -382,6 +382,7 @@ class Run:
             seed=cfg.seed + stage.index,
             modalities=self.obs_keys,
             info=TRAINING_INFO,
+            backend=cfg.env.get("backend", "cpu"),
             **self.overrides,
         )
         #: per-world shapes of the enabled observation keys, before any frame stacking
@@ -716,6 +717,7 @@ class Run:
                 modalities=self.obs_keys,
                 info=EVALUATION_INFO,
                 worlds="validation",
+                backend=self.cfg.env.get("backend", "cpu"),
                 **self.overrides,
             )
             self._eval_env = wrap_env(base, self.algo.make_transforms(self.cfg.algo, self.obs_keys, self.model))

@@ -23,7 +23,7 @@ import mujoco  # noqa: E402
 from .env import EvaaaEnv, make_env  # noqa: E402
 from .physiology import END_TYPES, EV_NAMES, REWARDS  # noqa: E402
 from .sensors import MODALITIES  # noqa: E402
-from .sim import ACTION_NAMES  # noqa: E402
+from .sim import ACTION_NAMES, BACKENDS  # noqa: E402
 from .spec import LEVELS, TESTBEDS, Level, LevelError, load_level, register_level  # noqa: E402
 from .worlds import WORLD_SETS  # noqa: E402
 
@@ -31,6 +31,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "ACTION_NAMES",
+    "BACKENDS",
     "END_TYPES",
     "EV_NAMES",
     "EvaaaEnv",

@@ -16,7 +16,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from .sim import ACTION_NAMES, NUM_ACTIONS, Simulator
+from .sim import ACTION_NAMES, NUM_ACTIONS, check_backend, make_simulator
 from .spec import Level, load_level
 
 _TORCH_DTYPE = {np.dtype(np.float32): torch.float32, np.dtype(np.uint8): torch.uint8}
@@ -62,7 +62,10 @@ class EvaaaEnv(EnvBase):
         threads: how many threads work at once (1: everything in the calling thread; None: 2 when the process may
             use two cores, or as the environment variable ``EVAAA_THREADS`` says).  A batch is split into that many
             shares, stepped and drawn at once; a single world's frame is drawn while a helper advances its EVs and
-            reads its other senses.  Observations are the same either way.
+            reads its other senses.  Observations are the same either way.  Ignored by the ``warp`` backend.
+        backend: where the physics and the camera run: ``cpu`` (the default: MuJoCo and OpenGL, world by world) or
+            ``warp`` (MuJoCo Warp, every world at once on the first GPU, else on Warp's CPU device; frames stay on
+            that device; needs the optional extra ``warp``: docs/backends.md).  Same keys, shapes, dtypes and specs.
     """
 
     # numpy does the work; the output tensordicts are assembled once per call
@@ -81,12 +84,19 @@ class EvaaaEnv(EnvBase):
         threads: int | None = None,
         info: bool | Iterable[str] = False,
         worlds: str = "train",
+        backend: str = "cpu",
     ):
+        check_backend(backend)
         self._info_keys = _info_keys(info)
         spec = level if isinstance(level, Level) else load_level(level, overrides)
         if isinstance(level, Level) and overrides:
             spec = load_level(level.name, overrides)
-        self.sim = Simulator(spec, num_envs, modalities, seed=seed, threads=threads, worlds=worlds)
+        device = torch.device(device)
+        # the Warp backend steps on the env's GPU, or on the first GPU (else Warp's CPU device) for a CPU env
+        warp_device = str(device) if device.type == "cuda" else None
+        self.sim = make_simulator(
+            spec, num_envs, modalities, seed=seed, threads=threads, worlds=worlds, backend=backend, device=warp_device
+        )
         super().__init__(batch_size=torch.Size([num_envs]), device=device)
         self.level = spec
         self.num_envs = num_envs
@@ -129,9 +139,10 @@ class EvaaaEnv(EnvBase):
     def _to_td(self, obs: dict[str, np.ndarray], info: dict[str, np.ndarray], extra: dict[str, torch.Tensor]):
         device = self.device
         on_cpu = device.type == "cpu"
-        source: dict[str, Any] = {k: torch.from_numpy(v) for k, v in obs.items()}
+        # numpy arrays, and the Warp backend's frames: torch tensors on its device
+        source: dict[str, Any] = {k: v if isinstance(v, torch.Tensor) else torch.from_numpy(v) for k, v in obs.items()}
         source.update(extra)
-        if not on_cpu:
+        if not on_cpu or self.sim.backend != "cpu":
             source = {k: v.to(device, non_blocking=True) for k, v in source.items()}
         if self._info_keys:
             info_td = {k: torch.from_numpy(info[k]) for k in self._info_keys}
@@ -174,7 +185,7 @@ class EvaaaEnv(EnvBase):
         return (
             f"level={self.level.name!r}, num_envs={self.num_envs}, modalities={list(self.sim.modalities)}, "
             f"info={info}, device={self.device}, seed={self._seed_value}, worlds={self.worlds}, "
-            f"threads={self.sim.threads}"
+            f"threads={self.sim.threads}" + ("" if self.backend == "cpu" else f", backend={self.backend!r}")
         )
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
@@ -205,6 +216,11 @@ class EvaaaEnv(EnvBase):
                 "truncated": trunc,
             },
         )
+
+    @property
+    def backend(self) -> str:
+        """Where the physics and the camera run (``cpu`` or ``warp``: see :class:`EvaaaEnv`)."""
+        return self.sim.backend
 
     @property
     def worlds(self) -> str:
@@ -240,6 +256,7 @@ def make_env(
     threads: int | None = None,
     info: bool | Iterable[str] = False,
     worlds: str = "train",
+    backend: str = "cpu",
     **overrides: Any,
 ) -> EvaaaEnv:
     """Build the TorchRL env of a level or testbed.
@@ -248,6 +265,8 @@ def make_env(
     ``make_env("1-1", **{"agent.move_speed": 10, "episode.max_steps": 1000})``, or as nested dicts,
     ``make_env("1-1", episode={"max_steps": 1000})``.  ``threads``, ``info``, ``worlds``: see :class:`EvaaaEnv`;
     ``make_env("1-1", seed=0, worlds="test")`` gives held-out worlds that no training run of any seed steps.
+    ``backend``: one of :data:`evaaa.sim.BACKENDS`, ``make_env("1-1", num_envs=4096, backend="warp",
+    device="cuda")`` steps every world on the GPU with MuJoCo Warp (docs/backends.md).
     """
     return EvaaaEnv(
         name,
@@ -259,6 +278,7 @@ def make_env(
         threads=threads,
         info=info,
         worlds=worlds,
+        backend=backend,
     )
 
 

@@ -17,7 +17,7 @@ import numpy as np
 from gymnasium import spaces
 
 from .physiology import END_TYPES
-from .sim import ACTION_NAMES, NUM_ACTIONS, Simulator
+from .sim import ACTION_NAMES, NUM_ACTIONS, check_backend, make_simulator
 from .spec import level_names, load_level
 
 __all__ = ["EvaaaGymEnv", "register_envs"]
@@ -33,6 +33,8 @@ class EvaaaGymEnv(gymnasium.Env[dict[str, np.ndarray], int]):
         level: a level name (``evaaa.LEVELS`` / ``evaaa.TESTBEDS``).
         modalities: observation keys to emit (default all); a dropped modality's key is absent.
         render_mode: None or ``"rgb_array"`` (``render()`` returns the agent's egocentric frame).
+        backend: where the physics and the camera run, ``cpu`` (the default) or ``warp`` (MuJoCo Warp: see
+            :class:`evaaa.EvaaaEnv`); observations are numpy arrays either way.
         overrides: dotted-path changes to the level (``**{"episode.max_steps": 1000}``) or nested dicts.
     """
 
@@ -43,14 +45,16 @@ class EvaaaGymEnv(gymnasium.Env[dict[str, np.ndarray], int]):
         level: str = "1-1",
         modalities: Iterable[str] | str | None = None,
         render_mode: str | None = None,
+        backend: str = "cpu",
         **overrides: Any,
     ):
+        check_backend(backend)
         if render_mode is not None and render_mode not in _RENDER_MODES:
             raise ValueError(f"render_mode must be None or one of {list(_RENDER_MODES)}, got {render_mode!r}")
         self.level = load_level(level, overrides)
         self.render_mode = render_mode
         # seeded for real on the first reset, from the seed given there or from self.np_random
-        self.sim = Simulator(self.level, 1, modalities, seed=0)
+        self.sim = make_simulator(self.level, 1, modalities, seed=0, backend=backend)
         self._sim_seeded = False
         self._closed = False
         bounds = {sensor.key: sensor.bounds for sensor in self.sim.sensors}
@@ -113,7 +117,7 @@ class EvaaaGymEnv(gymnasium.Env[dict[str, np.ndarray], int]):
             return None
         self._check_open()
         # the simulator builds its eye renderer on first use, so this works when pixels are not observed
-        return self.sim.render_eye(_ONE_WORLD)[0]
+        return _numpy(self.sim.render_eye(_ONE_WORLD)[0])
 
     def close(self) -> None:
         self._closed = True
@@ -121,7 +125,12 @@ class EvaaaGymEnv(gymnasium.Env[dict[str, np.ndarray], int]):
 
 
 def _world0(obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    return {key: value[0] for key, value in obs.items()}
+    return {key: _numpy(value[0]) for key, value in obs.items()}
+
+
+def _numpy(value) -> np.ndarray:
+    """A numpy array (the Warp backend's frames are torch tensors on its device)."""
+    return value if isinstance(value, np.ndarray) else value.cpu().numpy()
 
 
 def _info(info: dict[str, np.ndarray]) -> dict[str, Any]:

@@ -135,8 +135,14 @@ def _predators(count: int) -> str:
     )
 
 
-def build_mjcf(level: Level, pool: ResourcePool, obstacles: ObstaclePool | None = None) -> str:
-    """MJCF text of a level's scene with one pooled body per resource, obstacle and predator slot."""
+def build_mjcf(
+    level: Level, pool: ResourcePool, obstacles: ObstaclePool | None = None, head_light: bool = False
+) -> str:
+    """MJCF text of a level's scene with one pooled body per resource, obstacle and predator slot.
+
+    ``head_light``: the headlight as a light of the model (``head``, in the agent's body, shining where the eye
+    looks) instead of MuJoCo's headlight, for renderers that can dim a model light per world but not the headlight
+    (the MuJoCo Warp backend, :mod:`evaaa.mjwarp`).  Same light, same frames."""
     obstacles = obstacles if obstacles is not None else ObstaclePool.from_level(level)
     a, arena, vis = level.agent, level.arena, level.sensors.vision
     hx, hy = arena.size[0] / 2, arena.size[1] / 2
@@ -158,6 +164,14 @@ def build_mjcf(level: Level, pool: ResourcePool, obstacles: ObstaclePool | None 
     friction = a.floor_friction * a.mass * GRAVITY  # Coulomb floor friction, as a joint friction loss
     damping = a.linear_drag * a.mass  # linear drag as joint damping
     top_height = max(hx, hy) / np.tan(np.radians(45 / 2)) + 1.0
+    headlight = '<headlight ambient="0.35 0.35 0.35" diffuse="0.3 0.3 0.3" specular="0 0 0"/>'
+    eye_light = ""
+    if head_light:
+        headlight = '<headlight active="0"/>'
+        eye_light = (
+            '      <light name="head" directional="true" pos="0 0 0" dir="1 0 0" ambient="0.35 0.35 0.35" '
+            'diffuse="0.3 0.3 0.3" specular="0 0 0" castshadow="false"/>\n'
+        )
     return f"""<mujoco model="evaaa-{level.name}">
   <compiler angle="radian"/>
   <option timestep="0.02" gravity="0 0 -{GRAVITY}"/>
@@ -165,7 +179,7 @@ def build_mjcf(level: Level, pool: ResourcePool, obstacles: ObstaclePool | None 
   <visual>
     <quality offsamples="0" shadowsize="0" numquads="1" numslices="8" numstacks="4"/>
     <map znear="{_f(vis.near)}" zfar="{_f(vis.far)}"/>
-    <headlight ambient="0.35 0.35 0.35" diffuse="0.3 0.3 0.3" specular="0 0 0"/>
+    {headlight}
     <global offwidth="1024" offheight="1024"/>
   </visual>
   <default>
@@ -189,7 +203,7 @@ def build_mjcf(level: Level, pool: ResourcePool, obstacles: ObstaclePool | None 
       <joint name="yaw" type="hinge" axis="0 0 1" armature="1e6"/>
       <geom name="agent" type="box" size="{_f(AGENT_HALF)} {_f(AGENT_HALF)} {_f(AGENT_HALF)}" mass="{_f(a.mass)}" rgba="0.93 0.86 0.7 1" group="{GROUP_AGENT}"/>
       <geom type="box" size="0.12 0.35 0.08" pos="0.45 0 0.25" rgba="0.3 0.25 0.2 1" group="{GROUP_AGENT}" contype="0" conaffinity="0" mass="0"/>
-      <camera name="eye" pos="{_f(EYE_FORWARD)} 0 {_f(EYE_HEIGHT)}" xyaxes="0 -1 0 0 0 1" fovy="{_f(vis.fovy)}"/>
+{eye_light}      <camera name="eye" pos="{_f(EYE_FORWARD)} 0 {_f(EYE_HEIGHT)}" xyaxes="0 -1 0 0 0 1" fovy="{_f(vis.fovy)}"/>
     </body>
 {_resources(pool)}
 {_obstacles(obstacles)}

@@ -58,6 +58,9 @@ from .worldgen import (
 from .worlds import check_worlds, world_seeds
 
 NUM_ACTIONS = 5
+#: where a simulator's physics and camera run: ``cpu`` (MuJoCo and OpenGL, world by world) or ``warp`` (MuJoCo Warp,
+#: every world at once on a GPU or Warp's CPU device: :mod:`evaaa.mjwarp`, the optional extra ``warp``)
+BACKENDS: tuple[str, ...] = ("cpu", "warp")
 ACTION_NAMES: tuple[str, ...] = ("none", "forward", "left", "right", "eat")
 NONE, FORWARD, LEFT, RIGHT, EAT = range(NUM_ACTIONS)
 SUBSTEPS = 5
@@ -92,13 +95,46 @@ def default_threads() -> int:
     return 2 if usable_cores() >= 2 else 1
 
 
+def check_backend(backend) -> str:
+    """``backend`` if it names one of :data:`BACKENDS`, else a clear error."""
+    if not isinstance(backend, str) or backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {', '.join(repr(b) for b in BACKENDS)}; got {backend!r}")
+    return backend
+
+
+def make_simulator(
+    level: Level,
+    num_worlds: int = 1,
+    modalities=None,
+    *,
+    seed: int | None = None,
+    threads: int | None = None,
+    worlds: str = "train",
+    backend: str = "cpu",
+    device: str | None = None,
+) -> Simulator:
+    """A simulator of ``level`` on ``backend`` (:data:`BACKENDS`); ``device``: Warp's device for ``warp`` (None:
+    the first GPU, else the CPU), ignored by ``cpu``."""
+    if check_backend(backend) == "warp":
+        from .mjwarp import WarpSimulator  # imports mujoco_warp: only when asked for
+
+        return WarpSimulator(level, num_worlds, modalities, seed=seed, threads=threads, worlds=worlds, device=device)
+    return Simulator(level, num_worlds, modalities, seed=seed, threads=threads, worlds=worlds)
+
+
+def _copy(value):
+    """A copy of an observation: a numpy array, or a torch tensor (the Warp backend's frames)."""
+    return value.clone() if hasattr(value, "clone") else value.copy()
+
+
 def _state(name: str, doc: str) -> property:
     """A read-only view of one field of the simulator's :class:`WorldState`."""
     return property(attrgetter(f"state.{name}"), doc=doc)
 
 
 class Simulator:
-    """N worlds of one level.  Arrays are indexed by world first.
+    """N worlds of one level.  Arrays are indexed by world first.  Physics and camera on the CPU (MuJoCo, OpenGL);
+    :class:`evaaa.mjwarp.WarpSimulator` runs them on MuJoCo Warp (:func:`make_simulator`).
 
     Args:
         level: a validated level.
@@ -114,6 +150,8 @@ class Simulator:
             None: :func:`default_threads` (2 when two cores are free to the process).  Results are the same
             whatever the number.
     """
+
+    backend = "cpu"
 
     def __init__(
         self,
@@ -495,7 +533,7 @@ class Simulator:
             if full:
                 obs[sensor.key] = reading
             else:
-                merged = self.last_obs[sensor.key].copy()
+                merged = _copy(self.last_obs[sensor.key])
                 merged[worlds] = reading
                 obs[sensor.key] = merged
         self.last_obs = obs
@@ -573,7 +611,7 @@ class Simulator:
                 "areas": [None if a is None else a.points.copy() for a in self.predators.areas],
                 "landmarks": [p.copy() for p in self.predators.landmarks],
             },
-            "last_obs": {k: v.copy() for k, v in self.last_obs.items()},
+            "last_obs": {k: _copy(v) for k, v in self.last_obs.items()},
             "last_info": {k: v.copy() for k, v in self.last_info.items()},
         }
 
@@ -602,7 +640,7 @@ class Simulator:
             a if a is None or isinstance(a, PatrolArea) else PatrolArea(np.asarray(a)) for a in predators["areas"]
         ]
         self.predators.landmarks = [p.copy() for p in predators["landmarks"]]
-        self.last_obs = {k: v.copy() for k, v in snapshot["last_obs"].items()}
+        self.last_obs = {k: _copy(v) for k, v in snapshot["last_obs"].items()}
         self.last_info = {k: v.copy() for k, v in snapshot["last_info"].items()}
         self._res_d2 = None
 

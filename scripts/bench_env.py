@@ -26,6 +26,14 @@ skipped with the reason.
     python scripts/bench_env.py                      # level 1-1, all settings
     python scripts/bench_env.py level=1-2 steps=2000 json=bench.json
 
+With ``backend=warp`` it measures the MuJoCo Warp backend instead (docs/backends.md): env steps/s at the level's
+64x64 frames for each number of worlds in ``counts`` on each of ``levels``, beside the CPU backend (one process, its
+default threads) at the counts up to ``cpu_max_worlds``, through the same TorchRL loop.  On a GPU:
+
+    python scripts/bench_env.py backend=warp json=docs/bench/bench_env_warp_h100.json
+
+and on a CPU, where Warp's CPU device is for development (tiny counts): ``backend=warp counts=[2,8]``.
+
 Arguments are ``key=value``, the keys of :class:`BenchConfig`; ``--help`` lists them.
 """
 
@@ -262,6 +270,106 @@ def time_raw_parallel(level: str, per_worker_states: list[list[np.ndarray]]) -> 
 
 
 # ------------------------------------------------------------------------------------------------- report
+def _zero(seconds: dict | None) -> None:
+    for key in seconds or {}:
+        seconds[key] = 0.0
+
+
+def time_decisions(env, decisions: int, warmup: int, seed: int, on_start=lambda: None) -> float:
+    """Env steps per second (worlds x decisions) of ``decisions`` random decisions through TorchRL after ``warmup``
+    (waiting for the device at both ends; ``on_start()`` is called when the clock starts)."""
+    n = env.num_envs
+    acts = torch.from_numpy(random_actions(warmup + decisions, n, seed)).to(env.device)
+    td = env.reset()
+    for t in range(warmup):
+        td["action"] = acts[t]
+        _, td = env.step_and_maybe_reset(td)
+    sync = torch.cuda.synchronize if env.device.type == "cuda" else (lambda: None)
+    sync()
+    on_start()
+    start = time.perf_counter()
+    for t in range(warmup, warmup + decisions):
+        td["action"] = acts[t]
+        _, td = env.step_and_maybe_reset(td)
+    sync()
+    return decisions * n / (time.perf_counter() - start)
+
+
+def measure_backends(args) -> dict:
+    """``backend=warp``: the Warp backend's env steps/s at each count of worlds, beside the CPU backend's."""
+    from evaaa import mjwarp
+
+    warp_device = mjwarp.default_device()
+    env_device = "cuda" if warp_device.startswith("cuda") else "cpu"
+    gpu = torch.cuda.get_device_name(0) if env_device == "cuda" else None
+    counts = args.counts or ([256, 1024, 4096, 8192] if gpu else [2, 8])
+    decisions = args.warp_steps
+    results: dict = {
+        "backend": "warp",
+        "levels": list(args.levels),
+        "counts": counts,
+        "decisions": decisions,
+        "frame": "64x64 RGB, every sense on",
+        "warp_device": warp_device,
+        "gpu": gpu,
+        "processor": _processor(),
+        "machine": f"{platform.machine()}, {os.cpu_count()} cores",
+        "versions": {"mujoco_warp": _version("mujoco-warp"), "warp": _version("warp-lang"), "torch": torch.__version__},
+        "kernel_cache": str(mjwarp.kernel_cache_dir()),
+        "rows": [],
+    }
+    print(f"evaaa bench_env backend=warp: Warp on {warp_device} ({gpu or results['processor']}), {decisions} decisions")
+    print(f"{'level':<8}{'worlds':>8}{'backend':>9}{'env steps/s':>14}{'make s':>9}   per decision (warp)")
+    for level in args.levels:
+        for n in counts:
+            for backend in ("warp", "cpu"):
+                if backend == "cpu" and n > args.cpu_max_worlds:
+                    continue
+                start = time.perf_counter()
+                device = env_device if backend == "warp" else "cpu"
+                env = make_env(level, num_envs=n, seed=0, backend=backend, device=device)
+                made = time.perf_counter() - start
+                sim = env.sim
+                if backend == "warp":
+                    sim.wait_for_device = True
+                # the first decisions compile (or load) the device's kernels: warm up past them
+                warmup = max(3, decisions // 10)
+                seconds = getattr(sim, "seconds", None)
+                rate = time_decisions(env, decisions, warmup=warmup, seed=n, on_start=partial(_zero, seconds))
+                row = {"level": level, "worlds": n, "backend": backend, "env_steps_per_s": rate, "make_seconds": made}
+                if seconds is not None:  # where a decision's time went, per decision
+                    row["seconds_per_decision"] = {k: v / decisions for k, v in seconds.items()}
+                    row["seconds_per_decision"]["total"] = n / rate
+                env.close()
+                results["rows"].append(row)
+                shares = ""
+                if seconds is not None:
+                    per = row["seconds_per_decision"]
+                    shares = "   " + ", ".join(f"{k} {v * 1e3:.1f} ms" for k, v in per.items())
+                print(f"{level:<8}{n:>8}{backend:>9}{rate:>14.0f}{made:>9.1f}{shares}", flush=True)
+    return results
+
+
+def _processor() -> str:
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def _version(package: str) -> str | None:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(package)
+    except PackageNotFoundError:
+        return None
+
+
 def measure(args) -> dict:
     from torchrl.envs import ParallelEnv
 
@@ -433,6 +541,27 @@ class BenchConfig:
     peer: bool = option(True, "also time MiniWorld-CollectHealth (installed on demand into peer_venv)")
     peer_venv: str = option("~/.cache/evaaa/bench-miniworld", "virtual environment the peer is installed into")
     json: str | None = option(None, "also write the figures to this file")
+    backend: str = option(
+        "cpu", "cpu: the settings above; warp: the MuJoCo Warp backend beside the CPU one", choices=("cpu", "warp")
+    )
+    levels: list[str] = option(
+        ["1-1", "4-2"], "backend=warp: levels measured", choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS]
+    )
+    counts: list[int] = option(
+        [],
+        "backend=warp: numbers of worlds ([]: 256, 1024, 4096, 8192 on a GPU, 2 and 8 on a CPU)",
+        check=(lambda v: v >= 1, "positive integers"),
+    )
+    warp_steps: int = option(
+        100,
+        "backend=warp: decisions timed per setting (after a tenth of that, at least 3, warming up)",
+        check=(lambda v: v >= 1, "a positive integer"),
+    )
+    cpu_max_worlds: int = option(
+        64,
+        "backend=warp: the CPU backend is measured at the counts up to this",
+        check=(lambda v: v >= 0, "an integer >= 0"),
+    )
 
 
 def main(argv=None) -> int:
@@ -441,10 +570,15 @@ def main(argv=None) -> int:
         argv,
         prog="bench_env.py",
         description=__doc__.split("\n\n")[0],
-        examples=["", "level=4-2 steps=1500 skip_parallel=true json=docs/bench_env_4-2.json"],
+        examples=[
+            "",
+            "level=4-2 steps=1500 skip_parallel=true json=docs/bench_env_4-2.json",
+            "backend=warp json=docs/bench/bench_env_warp_h100.json",
+        ],
     )
-    results = measure(args)
+    results = measure_backends(args) if args.backend == "warp" else measure(args)
     if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         with open(args.json, "w") as f:
             json.dump(results, f, indent=2)
     return 0
