@@ -43,6 +43,18 @@ def register_levels() -> None:
         store.store(group="level", name=name, node={"name": name, "overrides": {}})
 
 
+def register_launchers() -> None:
+    """Make ``hydra/launcher=ray_cluster`` (evaaa's launcher plugin, hydra_plugins/evaaa_ray_launcher) known to
+    Hydra. Hydra finds launchers by walking the ``hydra_plugins`` namespace's folders, which misses the plugin of an
+    editable install (its folder is reached through setuptools' import hook, not a path); registering it is Hydra's
+    way for that (``Plugins.register``) and harmless where the walk found it."""
+    from hydra.core.plugins import Plugins
+
+    from hydra_plugins.evaaa_ray_launcher.ray_launcher import RayLauncher
+
+    Plugins.instance().register(RayLauncher)
+
+
 @dataclass(frozen=True)
 class Stage:
     """One level trained for ``budget`` env steps; a direct run has one stage, a curriculum several."""

@@ -3,8 +3,9 @@
 A protocol (``conf/protocol/<name>.yaml``, or a path) expands into cells — a training run, the evaluations of one
 model, a reference agent's evaluation, the report — each a subprocess of scripts/train.py, evaluate.py or report.py
 with EVAAA_THREADS and threads set as the protocol says. ``plan=true`` prints every cell with its status (done,
-partial, todo), estimated CPU-minutes and command; without it the cells not yet done run, ``jobs`` at a time, each
-once the models it needs exist, with a log per cell under ``root/logs``. Killed, the same command continues where it
+partial, todo), estimated CPU-minutes and command (a GPU protocol: its plan in GPU-hours); without it the cells not
+yet done run — ``jobs`` at a time on this machine, or as Ray tasks or SLURM jobs (``executor=ray|slurm``) — each once
+the models it needs exist, with a log per cell under ``root/logs``. Killed, the same command continues where it
 stopped: a started training run continues (resume=true), an unfinished evaluation's folder is moved aside
 (``<out>.partial-<UTC time>``) and the evaluation run again; a training that has to start from zero (its models
 and checkpoints gone, as on a fresh clone) has the evaluations made of its old models moved aside and made again.
@@ -22,10 +23,11 @@ from pathlib import Path
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
 from evaaa_baselines.protocol import (
+    EXECUTORS,
     REPO,
     Layout,
     ProtocolError,
-    Scheduler,
+    Runner,
     build_cells,
     keep_out_of_git,
     load_protocol,
@@ -38,7 +40,8 @@ from evaaa_baselines.protocol import (
 @dataclass
 class ReproduceConfig:
     protocol: str = option(
-        "paper_cpu", "a protocol of conf/protocol/ (paper_cpu, smoke) or the path of a protocol YAML file"
+        "paper_cpu",
+        "a protocol of conf/protocol/ (paper_cpu, paper_gpu, paper_learned, smoke) or the path of a protocol YAML file",
     )
     root: str | None = option(
         None,
@@ -71,6 +74,37 @@ class ReproduceConfig:
         check=(lambda v: v >= 0, "0 or more"),
     )
     out: str | None = option(None, "the report's folder (default: the protocol's report.out)")
+    executor: str = option(
+        "local",
+        "what runs the cells: local (a pool of jobs subprocesses on this machine), ray "
+        "(each cell a Ray task with the CPUs and GPUs it needs) or slurm (each cell a "
+        "SLURM job through submitit)",
+        choices=EXECUTORS,
+    )
+    ray_address: str | None = option(
+        None,
+        "executor=ray: the cluster to join (auto, or ray://<head>:10001); "
+        "default: a Ray instance on this machine with jobs CPUs",
+    )
+    ray_retries: int = option(
+        3,
+        "executor=ray: times Ray runs a cell again whose worker or node was lost (it "
+        "continues from the files the lost one left)",
+        check=(lambda v: v >= 0, "0 or more"),
+    )
+    slurm_partition: str | None = option(None, "executor=slurm: the partition of the jobs")
+    slurm_minutes: int = option(
+        2880, "executor=slurm: each job's time limit in minutes", check=(lambda v: v > 0, "a positive integer")
+    )
+    slurm_parallel: int = option(
+        64, "executor=slurm: jobs of one array running at once", check=(lambda v: v > 0, "a positive integer")
+    )
+    submitit_cluster: str = option(
+        "slurm",
+        "executor=slurm: slurm, or local (submitit's local executor: the jobs "
+        "as subprocesses of this machine, to try a set-up)",
+        choices=("slurm", "local"),
+    )
     progress: bool = option(True, "a progress bar over the cells")
 
 
@@ -120,26 +154,40 @@ def main(argv: list[str] | None = None) -> int:
     lock.truncate()
     lock.write(str(os.getpid()))
     lock.flush()
+    where = {
+        "local": f"{cfg.jobs} at a time",
+        "ray": f"as Ray tasks on {cfg.ray_address or 'a local Ray instance'}",
+        "slurm": f"as jobs of submitit's {cfg.submitit_cluster} executor",
+    }[cfg.executor]
     print(
-        f"reproduce.py: {len(todo)} of {len(cells)} cells to run under {lay.root}, {cfg.jobs} at a time; logs in "
-        f"{lay.logs}",
+        f"reproduce.py: {len(todo)} of {len(cells)} cells to run under {lay.root}, {where}; logs in {lay.logs}",
         flush=True,
     )
-    scheduler = Scheduler(
+    slurm = {"timeout_min": cfg.slurm_minutes, "slurm_array_parallelism": cfg.slurm_parallel}
+    if cfg.slurm_partition:
+        slurm["slurm_partition"] = cfg.slurm_partition
+    runner = Runner(
         p,
         cells,
         lay,
+        executor=cfg.executor,
         jobs=cfg.jobs,
         max_minutes=cfg.max_minutes,
         redo=cfg.redo,
         retries=cfg.retries,
         progress=cfg.progress,
+        ray_address=cfg.ray_address,
+        ray_retries=cfg.ray_retries,
+        submitit_cluster=cfg.submitit_cluster,
+        slurm=slurm if cfg.submitit_cluster == "slurm" else {"timeout_min": cfg.slurm_minutes},
         selects=" ".join(
             f"{k}={v}" for k, v in (("protocol", cfg.protocol), ("root", cfg.root), ("out", cfg.out)) if v
         ),
     )
     try:
-        rc = scheduler.run(todo)
+        rc = runner.run(todo)
+    except ProtocolError as err:
+        cli.fail("reproduce.py", str(err))
     except KeyboardInterrupt:
         print("reproduce.py: stopped; the same command continues where it stopped", file=sys.stderr)
         return 130

@@ -2,8 +2,9 @@
 # Set up everything evaaa needs on a fresh Debian/Ubuntu machine, and check it works:
 #   1. the system libraries for headless OpenGL (EGL through Mesa) and Debian's Chromium with its driver for the
 #      browser test of scripts/play.py (installed with apt-get when run as root),
-#   2. a virtual environment in .venv with the pinned packages of constraints.txt (torch 2.13.0 CPU build; the extra
-#      `warp` too, so that the tests of the MuJoCo Warp backend run: tests/test_warp.py),
+#   2. a virtual environment in .venv with the pinned packages of constraints.txt (torch 2.13.0 CPU build; the
+#      extras train, dev, cluster (Ray, submitit: tests/test_cluster.py and test_launchers.py run them) and `warp`
+#      (the tests of the MuJoCo Warp backend: tests/test_warp.py)),
 #   3. one off-screen render.
 # Safe to run again: each step is skipped when already done. Called by `make setup`, `make train`, `make demo` and
 # `make test`.
@@ -81,7 +82,7 @@ stamp=.venv/.evaaa-installed
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ constraints.txt -nt "$stamp" ]; then
   say "installing packages (pinned by constraints.txt; first time takes a few minutes)"
   .venv/bin/python -m pip install --quiet --upgrade pip
-  .venv/bin/python -m pip install --quiet -c constraints.txt -e ".[train,dev,warp]"
+  .venv/bin/python -m pip install --quiet -c constraints.txt -e ".[train,cluster,dev,warp]"
   touch "$stamp"
 fi
 

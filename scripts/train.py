@@ -57,11 +57,12 @@ import evaaa  # noqa: E402,F401  (sets MUJOCO_GL before mujoco loads)
 from evaaa.records import DISK_ERRNOS, DiskError  # noqa: E402
 from evaaa_baselines import train  # noqa: E402
 from evaaa_baselines.checkpoint import CheckpointError  # noqa: E402
-from evaaa_baselines.config import CONF_DIR, check_command_line, register_levels  # noqa: E402
+from evaaa_baselines.config import CONF_DIR, check_command_line, register_launchers, register_levels  # noqa: E402
 from evaaa_baselines.runner import RunRefused, summary  # noqa: E402
 from evaaa_baselines.runtime import DeviceError, Interrupted  # noqa: E402
 
 register_levels()
+register_launchers()
 # a crash in native code (MuJoCo, OpenGL, torch) leaves every thread's Python stack in the run's output
 faulthandler.enable(all_threads=True)
 

@@ -95,3 +95,54 @@ def train_scalars(run_dir: Path) -> dict[str, dict[int, str]]:
 #: last bits, so only a resume on the same device can equal the uninterrupted run (the crossing from CUDA to the
 #: CPU has its own test there).
 RESUME_DEVICE = "auto" if torch.cuda.is_available() else "cpu"
+
+
+@contextmanager
+def ray_head(temp: Path, cpus: int = 2, start_timeout: float = 300) -> Iterator[str]:
+    """A Ray head on 127.0.0.1 with ``cpus`` worker CPUs and no GPU, its files under ``temp``: yields its address.
+
+    ``ray start --block`` in a session of its own, ended by signalling that session (``ray stop`` would stop every
+    Ray instance of the machine's user, not only this one)."""
+    import os
+    import signal
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    log_path = temp / "ray-start.log"
+    cmd = [
+        str(Path(sys.executable).parent / "ray"),
+        "start",
+        "--head",
+        "--block",
+        "--node-ip-address=127.0.0.1",
+        f"--port={port}",
+        f"--num-cpus={cpus}",
+        "--num-gpus=0",
+        "--include-dashboard=false",
+        f"--temp-dir={temp}",
+        "--disable-usage-stats",
+    ]
+    # no token authentication (Ray turns it on where ~/.ray/auth_token exists, and the tests' clients send none)
+    env = {**os.environ, "RAY_AUTH_MODE": "disabled"}
+    with open(log_path, "w") as log:
+        head = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True, env=env)
+    try:
+        deadline = time.monotonic() + start_timeout
+        while "Ray runtime started" not in log_path.read_text():
+            if head.poll() is not None or time.monotonic() > deadline:
+                pytest.fail(f"ray start did not start a head: {log_path.read_text()[-2000:]}")
+            time.sleep(0.5)
+        yield f"127.0.0.1:{port}"
+    finally:
+        # SIGTERM: ray start stops the processes it started; SIGKILL: whatever of its session is left
+        for sig, wait in ((signal.SIGTERM, 60), (signal.SIGKILL, 30)):
+            try:
+                os.killpg(head.pid, sig)
+            except ProcessLookupError:
+                break
+            try:
+                head.wait(timeout=wait)
+            except subprocess.TimeoutExpired:
+                pass

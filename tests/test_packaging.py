@@ -27,7 +27,11 @@ def test_the_install_provides_evaaa_baselines_and_no_top_level_baselines(tmp_pat
 def test_every_package_folder_is_listed_in_pyproject():
     listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
     found = set()
-    for init in [*(ROOT / "evaaa").rglob("__init__.py"), *(ROOT / "baselines").rglob("__init__.py")]:
-        parts = init.parent.relative_to(ROOT).parts
-        found.add(".".join(("evaaa_baselines", *parts[1:]) if parts[0] == "baselines" else parts))
+    # (hydra_plugins is a namespace shared with Hydra's launchers: only evaaa's plugin in it is evaaa's)
+    for folder in ("evaaa", "baselines", "hydra_plugins"):
+        found |= {
+            ".".join(("evaaa_baselines", *parts[1:]) if parts[0] == "baselines" else parts)
+            for parts in (i.parent.relative_to(ROOT).parts for i in (ROOT / folder).rglob("__init__.py"))
+        }
     assert found == listed
+    assert not (ROOT / "hydra_plugins" / "__init__.py").exists()  # a namespace package, as Hydra's plugins need

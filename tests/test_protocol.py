@@ -17,7 +17,7 @@ from evaaa_baselines.protocol import (
     Command,
     Layout,
     ProtocolError,
-    Scheduler,
+    Runner,
     build_cells,
     load_protocol,
     provenance,
@@ -176,11 +176,16 @@ def test_a_second_session_on_the_same_root_is_refused(tmp_path, capsys):
 
 def test_an_unknown_protocol_name_and_a_bad_key_are_one_line_errors(capsys):
     with pytest.raises(SystemExit) as stop:
-        reproduce.main(["protocol=paper_nowhere", "plan=true"])
+        reproduce.main(["protocol=paper_tpu", "plan=true"])
     assert stop.value.code == 2
     assert (
-        "protocol=paper_nowhere: no such protocol; allowed: paper_cpu, paper_learned, smoke" in capsys.readouterr().err
+        "protocol=paper_tpu: no such protocol; allowed: paper_cpu, paper_gpu, paper_learned, smoke"
+        in capsys.readouterr().err
     )
+    with pytest.raises(SystemExit) as stop:
+        reproduce.main(["protocol=smoke", "executor=kubernetes"])
+    err = capsys.readouterr().err
+    assert stop.value.code == 2 and "executor=kubernetes" in err and "local, ray, slurm" in err
     with pytest.raises(SystemExit):
         reproduce.main(["protocol=smoke", "cells=[train/nothing]", "plan=true"])
     assert "no cell named 'train/nothing'" in capsys.readouterr().err
@@ -219,7 +224,7 @@ def _fake(tmp_path: Path, fail_train: bool = False):
 
 def _scheduler(lay, cells, **kw):
     p = load_protocol("smoke")
-    return Scheduler(p, cells, lay, progress=False, echo=lambda s: None, **kw)
+    return Runner(p, cells, lay, progress=False, echo=lambda s: None, **kw)
 
 
 def test_cells_run_when_what_they_need_exists_and_a_second_run_has_nothing_to_do(tmp_path):
@@ -260,7 +265,7 @@ def test_every_finished_cell_records_the_wall_time_it_took_and_the_plan_sums_the
 def test_a_failed_training_blocks_its_evaluation_and_the_report(tmp_path):
     lay, cells = _fake(tmp_path, fail_train=True)
     messages = []
-    sched = Scheduler(load_protocol("smoke"), cells, lay, progress=False, echo=messages.append, jobs=2)
+    sched = Runner(load_protocol("smoke"), cells, lay, progress=False, echo=messages.append, jobs=2)
     assert sched.run(cells) == 1
     assert not lay.marker("train/a").exists()  # exited 3: not done, although its model file exists
     assert status(cells[0], lay, cells) == "partial"
@@ -467,7 +472,7 @@ def test_a_failed_cell_is_tried_again_once_and_continues(tmp_path):
     )
     cells[0].commands = [Command(_py(code))]
     messages = []
-    sched = Scheduler(load_protocol("smoke"), cells, lay, progress=False, echo=messages.append, retries=1)
+    sched = Runner(load_protocol("smoke"), cells, lay, progress=False, echo=messages.append, retries=1)
     assert sched.run(cells) == 0
     assert any("train/a: exit status 245; trying again (1 of 1)" in m for m in messages)
     log = lay.log("train/a").read_text()
@@ -518,7 +523,7 @@ def test_a_training_from_zero_has_its_earlier_evaluations_made_again_from_the_ne
     todo = [c for c in cells if status(c, lay, cells) != "done"]
     assert names(todo) == ["train/a", "eval/b", "report"]  # eval/a looks done before the training restarts
     messages = []
-    sched = Scheduler(load_protocol("smoke"), cells, lay, progress=False, echo=messages.append)
+    sched = Runner(load_protocol("smoke"), cells, lay, progress=False, echo=messages.append)
     assert sched.run(todo) == 0
     assert first.read_text() == "x"  # made again from the new model
     aside = list(lay.evals.glob("a.old-*"))

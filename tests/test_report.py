@@ -840,13 +840,16 @@ def test_launcher_presets_compose_with_hydra_config():
     assert slurm._target_ == "hydra_plugins.hydra_submitit_launcher.submitit_launcher.SlurmLauncher"
     assert slurm.partition == "cpu" and slurm.cpus_per_task == 4 and slurm.max_num_timeout > 0
     assert "export MUJOCO_GL=egl" in slurm.setup
-    # Ray: a plain config that composes whether or not hydra-ray-launcher is installed (evaaa does not install it)
-    ray = make_cfg("hydra/launcher=ray_cluster", "hydra.launcher.ray.init.address=auto", hydra=True).hydra.launcher
-    assert ray._target_ == "hydra_plugins.hydra_ray_launcher.ray_launcher.RayLauncher"
-    assert ray.ray.init.address == "auto" and ray.ray.remote.num_cpus == 4
+    # a SLURM sweep tried through submitit's local executor
+    slurm_local = make_cfg("hydra/launcher=slurm_local", hydra=True).hydra.launcher
+    assert slurm_local._target_ == "hydra_plugins.hydra_submitit_launcher.submitit_launcher.LocalLauncher"
+    # Ray: evaaa's own launcher plugin (Hydra's, hydra-ray-launcher, does not install beside the pinned packages)
+    ray = make_cfg("hydra/launcher=ray_cluster", "hydra.launcher.address=auto", hydra=True).hydra.launcher
+    assert ray._target_ == "hydra_plugins.evaaa_ray_launcher.ray_launcher.RayLauncher"
+    assert ray.address == "auto" and ray.num_cpus == 4 and ray.num_gpus == 0
     # the presets do not shadow the plugins' own options
     names = {p.stem for p in (CONF_DIR / "hydra" / "launcher").glob("*.yaml")}
-    assert names == {"local", "slurm", "ray_cluster"}
+    assert names == {"local", "slurm", "slurm_local", "ray_cluster"}
     assert not names & {"joblib", "submitit_local", "submitit_slurm", "ray", "ray_aws"}
 
 

@@ -452,6 +452,7 @@ def test_train_script_multirun_sweeps_seeds(tmp_path):
         cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300, env={**os.environ, "HYDRA_FULL_ERROR": "1"}
     )
     assert done.returncode == 0, done.stderr[-3000:]
+    assert "Joblib.Parallel(" in done.stdout + done.stderr  # the default launcher preset (hydra/launcher=local)
     for seed in (0, 1):
         run_dir = tmp_path / "1-1" / "ppo" / "all-squared-debug" / f"seed{seed}"  # the preset has its own folders
         assert (run_dir / checkpoint.CHECKPOINT).exists() and (run_dir / ".hydra" / "config.yaml").exists()

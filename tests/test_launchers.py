@@ -1,0 +1,143 @@
+"""train.py -m through the launcher presets of conf/hydra/launcher/ (tiny budgets): submitit's local executor,
+SLURM (sbatch, srun and sacct stand-ins that run each array task on this machine) and evaaa's Ray launcher on a real
+local Ray cluster. The default preset (joblib) is tests/test_train.py::test_train_script_multirun_sweeps_seeds.
+Needs the `cluster` extra (scripts/setup.sh installs it)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from helpers import ray_head
+
+pytest.importorskip("ray")
+pytest.importorskip("submitit")
+
+
+@pytest.fixture(scope="module")
+def ray_cluster(tmp_path_factory):
+    """A Ray head on 127.0.0.1 with two worker CPUs; its address."""
+    with ray_head(tmp_path_factory.mktemp("ray")) as address:
+        yield address
+
+
+FAKE_SBATCH = """#!{python}
+# sbatch: runs every task of the submitted script (an array: each index) on this machine, in the background, with the
+# variables SLURM sets; records its exit status for sacct
+import os, pathlib, re, subprocess, sys
+script = pathlib.Path(sys.argv[-1])
+text = script.read_text()
+state = pathlib.Path(os.environ["FAKE_SLURM"])
+state.mkdir(exist_ok=True)
+job = str(1000 + len(list(state.glob("*.sbatch"))))
+(state / f"{{job}}.sbatch").write_text(text)
+array = re.search(r"^#SBATCH --array=(\\d+)-(\\d+)", text, re.M)
+for task in range(int(array[1]), int(array[2]) + 1) if array else [None]:
+    name = job if task is None else f"{{job}}_{{task}}"
+    env = dict(os.environ, SLURM_JOB_ID=job, SLURM_NTASKS="1", SLURM_JOB_NUM_NODES="1", SLURM_NODEID="0",
+               SLURM_JOB_NODELIST="localhost", SLURM_PROCID="0", SLURM_LOCALID="0")
+    if task is not None:
+        env.update(SLURM_ARRAY_JOB_ID=job, SLURM_ARRAY_TASK_ID=str(task))
+    (state / f"{{name}}.task").write_text("")
+    subprocess.Popen(["bash", "-c", f"bash {{script}}; echo $? > {{state / name}}.rc"], env=env,
+                     stdout=subprocess.DEVNULL, stderr=open(state / f"{{name}}.err", "w"), start_new_session=True)
+print(f"Submitted batch job {{job}}")
+"""
+
+FAKE_SRUN = """#!{python}
+# srun: the command after the options, its output and error in the files asked for (SLURM's %j %A %a %t filled in)
+import os, sys
+args, files = sys.argv[1:], {{}}
+while args and args[0].startswith("--"):
+    opt = args.pop(0)
+    if opt in ("--output", "--error"):
+        files[opt] = args.pop(0)
+fill = {{"%j": os.environ["SLURM_JOB_ID"], "%A": os.environ.get("SLURM_ARRAY_JOB_ID", ""),
+        "%a": os.environ.get("SLURM_ARRAY_TASK_ID", ""), "%t": "0"}}
+for opt, fd in (("--output", 1), ("--error", 2)):
+    if opt in files:
+        path = files[opt]
+        for k, v in fill.items():
+            path = path.replace(k, v)
+        os.dup2(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND), fd)
+os.execvp(args[0], args)
+"""
+
+FAKE_SACCT = """#!{python}
+# sacct -o JobID,State,NodeList --parsable2 -j ID ...: each task's state from the files sbatch keeps
+import os, pathlib
+state = pathlib.Path(os.environ["FAKE_SLURM"])
+print("JobID|State|NodeList")
+for task in sorted(state.glob("*.task")):
+    rc = task.with_suffix(".rc")
+    done = rc.exists() and rc.read_text().strip()
+    print(f"{{task.stem}}|{{'RUNNING' if not done else 'COMPLETED' if done == '0' else 'FAILED'}}|localhost")
+"""
+
+
+def _fake_slurm(tmp_path: Path) -> dict[str, str]:
+    """sbatch, srun, sacct and scancel that run SLURM jobs on this machine: the environment that puts them first."""
+    bin_dir = tmp_path / "fake-slurm-bin"
+    bin_dir.mkdir()
+    scripts = {
+        "sbatch": FAKE_SBATCH,
+        "srun": FAKE_SRUN,
+        "sacct": FAKE_SACCT,
+        "scancel": "#!{python}\n",
+    }
+    for name, text in scripts.items():
+        (bin_dir / name).write_text(text.format(python=sys.executable))
+        (bin_dir / name).chmod(0o755)
+    return {"PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}", "FAKE_SLURM": str(tmp_path / "fake-slurm")}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("launcher", ["slurm_local", "slurm", "ray_cluster"])
+def test_train_multirun_through_a_launcher_preset(tmp_path, launcher, request):
+    root = Path(__file__).parents[1]
+    env = {**os.environ, "HYDRA_FULL_ERROR": "1"}
+    extra = []
+    if launcher == "slurm":
+        # SLURM itself is not here: sbatch, srun and sacct stand-ins run each array task on this machine
+        env.update(_fake_slurm(tmp_path))
+        extra = ["hydra.launcher.partition=debug", "hydra.launcher.cpus_per_task=1"]
+    elif launcher == "ray_cluster":
+        # the two-worker Ray cluster on 127.0.0.1; one CPU per run
+        extra = [f"hydra.launcher.address={request.getfixturevalue('ray_cluster')}", "hydra.launcher.num_cpus=1"]
+    cmd = [
+        sys.executable,
+        str(root / "scripts" / "train.py"),
+        "-m",
+        f"hydra/launcher={launcher}",
+        *extra,
+        "algo=ppo",
+        "preset=debug",
+        "logger=csv",
+        "progress=false",
+        "threads=1",
+        "total_steps=64",
+        "seed=0,1",
+        f"run.root={tmp_path}",
+        f"hydra.sweep.dir={tmp_path / 'sweep'}",
+    ]
+    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=400, env=env)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    for seed in (0, 1):
+        # the launchers put each job's run directory under the sweep folder
+        run_dir = tmp_path / "sweep" / "1-1" / "ppo" / "all-squared-debug" / f"seed{seed}"
+        assert (run_dir / "model-0-1-1.pt").exists()
+    if launcher.startswith("slurm"):
+        assert list((tmp_path / "sweep").rglob("*_submitted.pkl"))  # the jobs went through submitit
+    if launcher == "slurm":
+        # one job array of two tasks (at most 64 at once: submitit writes no more than there are), with the preset's
+        # settings and the overrides
+        (script,) = (tmp_path / "fake-slurm").glob("*.sbatch")
+        text = script.read_text()
+        assert "#SBATCH --array=0-1%2" in text and "#SBATCH --partition=debug" in text
+        assert "#SBATCH --time=2880" in text and "#SBATCH --cpus-per-task=1" in text and "MUJOCO_GL=egl" in text
+    if launcher == "ray_cluster":
+        # every run was a Ray task: Ray's worker prefixes its output with the task's name
+        assert "(_run_one pid=" in done.stdout + done.stderr
