@@ -6,8 +6,32 @@ providing ``make_model(cfg, obs_shapes)``, ``make_transforms(cfg, obs_keys, mode
 :func:`load_policy` turns a checkpoint back into a policy; :func:`evaluate` runs deterministic episodes.
 """
 
-from .algos import algorithm, register
-from .evaluation import EvalResult, LoadedPolicy, evaluate, load_policy
-from .runner import train
+from __future__ import annotations
 
-__all__ = ["EvalResult", "LoadedPolicy", "algorithm", "evaluate", "load_policy", "register", "train"]
+import importlib
+
+#: what ``from evaaa_baselines import X`` gives, by module: imported when first used, so that a command's
+#: ``--help`` and its argument checks run before torch loads
+_EXPORTS = {
+    "algorithm": "algos",
+    "register": "algos",
+    "LoadedPolicy": "policies",
+    "load_policy": "policies",
+    "EvalResult": "rollout",
+    "evaluate": "rollout",
+    "train": "training",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        value = getattr(importlib.import_module(f".{_EXPORTS[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_EXPORTS})

@@ -5,7 +5,7 @@ An algorithm is one module and one config.  The module has the four functions of
 named like the algorithm is the one (``dqn.py`` for ``algo=dqn``, ``dreamer/`` for ``algo=dreamer``); a variant that
 shares another's code is a module that re-exports it (``ppo_lstm.py`` is PPO's code, the LSTM chosen by its
 config).  A module outside this package joins with :func:`register`.  Modules are imported when first asked for,
-so they may import the modules that look them up (``runner``, ``evaluation``) without an import cycle.
+so they may import the modules that look them up (``training``, ``policies``, ``rollout``) without an import cycle.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from collections.abc import Mapping, Sequence
 from types import ModuleType
 from typing import TYPE_CHECKING, Any, Protocol
 
-from .config import CONF_DIR
+from .paths import CONF_DIR
 
 if TYPE_CHECKING:
     from omegaconf import DictConfig
@@ -25,7 +25,7 @@ if TYPE_CHECKING:
     from torch import nn
     from torchrl.envs import Transform
 
-    from .runtime import Run
+    from .run import Run
 
 
 class Algorithm(Protocol):
@@ -41,7 +41,7 @@ class Algorithm(Protocol):
         """The acting policy of a trained model (what evaluations run)."""
 
     def train(self, run: Run) -> None:
-        """One stage of training, driving :class:`~evaaa_baselines.runtime.Run` until ``run.done``."""
+        """One stage of training, driving :class:`~evaaa_baselines.run.Run` until ``run.done``."""
 
 
 #: the functions every algorithm module defines

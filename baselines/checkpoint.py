@@ -3,8 +3,8 @@ verified loading, and the global generators a resumed run must restore.
 
 A checkpoint is one ``torch.save`` file (``checkpoint.pt`` for the latest state of a run, ``model-*.pt`` for a
 stage's final or best network) holding ``{"evaaa_checkpoint": FILE_FORMAT, "checksum": ..., "state": ...}``.  The
-state is a dict whose ``format`` is :data:`CHECKPOINT_FORMAT`; ``baselines/runtime.py`` decides what goes in,
-``baselines/evaluation.py`` reads the network back.
+state is a dict whose ``format`` is :data:`CHECKPOINT_FORMAT`; ``baselines/run.py`` decides what goes in,
+``baselines/policies.py`` reads the network back.
 
 Only tensors and plain data are stored (dicts, lists, tuples, str, numbers, ``None``), so a file loads with
 ``torch.load(weights_only=True)``: a file from someone else cannot run code here.  Numpy arrays, tensordicts and
@@ -36,7 +36,7 @@ from evaaa.records import disk_error
 CHECKPOINT = "checkpoint.pt"
 #: the checkpoint before the latest, kept so that a damaged latest one costs one checkpoint interval, not the run
 PREVIOUS = "checkpoint-previous.pt"
-#: what the ``state`` of a checkpoint holds (identity keys, ``model``, ...): baselines/runtime.py
+#: what the ``state`` of a checkpoint holds (identity keys, ``model``, ...): baselines/run.py
 CHECKPOINT_FORMAT = 2
 #: the envelope around a state: checksum and plain-data encoding
 FILE_FORMAT = 1

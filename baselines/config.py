@@ -1,5 +1,7 @@
-"""The Hydra side of training: where the configs live, the ``level`` options taken from evaaa, and the values the
-training code derives from a composed config (observation keys, env overrides, curriculum stages).
+"""The Hydra side of training: the ``level`` options taken from evaaa, a composed config checked key by key
+(:func:`compose_checked`: types, bounds, what this machine and the algorithm accept), and the values the training
+code derives from it (observation keys, env overrides, curriculum stages).  The command line around it (sweeps,
+``--help``) is :mod:`evaaa_baselines.cli.training`'s; the config files' folder is :data:`~.paths.CONF_DIR`.
 
 Every level and testbed evaaa lists is a ``level=<name>`` option without a file to keep in sync: :func:`register_levels`
 stores one ``{name, overrides}`` node per name in Hydra's ConfigStore.  Files in ``conf/level/`` add options
@@ -10,12 +12,7 @@ level.file=path/to/my.yaml``) and would take precedence over a registered name.
 from __future__ import annotations
 
 import contextlib
-import copy
 import difflib
-import re
-import sys
-import tempfile
-import textwrap
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,13 +21,10 @@ import yaml
 from hydra.core.config_store import ConfigStore
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import Override
-from omegaconf import DictConfig, OmegaConf, open_dict
+from omegaconf import DictConfig, OmegaConf
 
 import evaaa
-from evaaa.records import DiskError
 from evaaa.sensors import SENSORS, resolve_modalities
-
-CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
 
 
 def register_levels() -> None:
@@ -235,7 +229,7 @@ def _matches(value: Any, types: tuple[type, ...]) -> bool:
     return isinstance(value, types)
 
 
-def _show(value: Any) -> str:
+def show(value: Any) -> str:
     if OmegaConf.is_config(value):
         value = OmegaConf.to_container(value)
     if value is None:
@@ -243,9 +237,9 @@ def _show(value: Any) -> str:
     if isinstance(value, bool):
         return str(value).lower()
     if isinstance(value, list):
-        return "[" + ",".join(_show(v) for v in value) + "]"
+        return "[" + ",".join(show(v) for v in value) + "]"
     if isinstance(value, dict):
-        return "{" + ", ".join(f"{k}: {_show(v)}" for k, v in value.items()) + "}"
+        return "{" + ", ".join(f"{k}: {show(v)}" for k, v in value.items()) + "}"
     return str(value)
 
 
@@ -258,7 +252,7 @@ def validate(cfg: DictConfig, defaults: DictConfig, path: str = "", typed: dict[
     typed = typed or {}
 
     def shown(full: str, value: Any) -> str:
-        return typed.get(full, _show(value))
+        return typed.get(full, show(value))
 
     for key in cfg.keys() if OmegaConf.is_dict(cfg) else ():
         full = f"{path}{key}"
@@ -284,12 +278,11 @@ def validate(cfg: DictConfig, defaults: DictConfig, path: str = "", typed: dict[
             if full in NULLABLE:
                 continue
             raise ConfigError(
-                f"{full}={shown(full, value)}: expected {_type_text(_allowed_types(default))} "
-                f"(default {_show(default)})"
+                f"{full}={shown(full, value)}: expected {_type_text(_allowed_types(default))} (default {show(default)})"
             )
         elif OmegaConf.is_dict(default):
             if not OmegaConf.is_dict(value):
-                raise ConfigError(f"{full}={_show(value)}: expected a mapping of {', '.join(default.keys())}")
+                raise ConfigError(f"{full}={show(value)}: expected a mapping of {', '.join(default.keys())}")
             validate(value, default, f"{full}.", typed)
             continue
         elif OmegaConf.is_list(default):
@@ -299,22 +292,22 @@ def validate(cfg: DictConfig, defaults: DictConfig, path: str = "", typed: dict[
         plain = OmegaConf.to_container(value) if OmegaConf.is_config(value) else value
         if not _matches(plain, tuple(list if t is list else dict if t is dict else t for t in types)):
             read_as = ""
-            if full in typed and typed[full] != _show(value) and not isinstance(plain, (list, dict)):
-                read_as = f"; YAML reads it as {_show(value)}"  # 1e3 is a float to YAML, 3_2 the integer 32
+            if full in typed and typed[full] != show(value) and not isinstance(plain, (list, dict)):
+                read_as = f"; YAML reads it as {show(value)}"  # 1e3 is a float to YAML, 3_2 the integer 32
             if str in types and not isinstance(plain, str):
                 read_as += f": quote it to keep the text, e.g. '{full}=\"{shown(full, value)}\"'"
             elif int in types and float not in types and isinstance(plain, float) and plain.is_integer():
                 read_as += f": write it as an integer, e.g. {full}={int(plain)} or {full}={int(plain):_}"
             raise ConfigError(
                 f"{full}={shown(full, value)}: expected {_type_text(types)}"
-                + ("" if default is None else f" (default {_show(default)})")
+                + ("" if default is None else f" (default {show(default)})")
                 + read_as
             )
         bounds = limit_of(full)
         if bounds is not None and not isinstance(plain, (list, dict, bool, str)) and not bounds[0](plain):
             raise ConfigError(
                 f"{full}={shown(full, value)}: expected {bounds[1]}"
-                + ("" if default is None else f" (default {_show(default)})")
+                + ("" if default is None else f" (default {show(default)})")
             )
         if (
             OmegaConf.is_list(default)
@@ -327,18 +320,18 @@ def validate(cfg: DictConfig, defaults: DictConfig, path: str = "", typed: dict[
             if bad:
                 raise ConfigError(
                     f"{full}={shown(full, value)}: expected a list of {_type_text(item_types, plural=True)} "
-                    f"(default {_show(default)}), got {_show(bad[0])}"
+                    f"(default {show(default)}), got {show(bad[0])}"
                 )
 
 
-def _group_of(override: Override, groups: set[str]) -> bool:
+def one_line(err: BaseException) -> str:
+    return " ".join(str(err).split("\n")[0].split())
+
+
+def group_choice(override: Override, groups: set[str]) -> bool:
     """Whether an override chooses a config group option (``algo=dqn``, ``hydra/launcher=basic``)."""
     key = override.key_or_group.split("@")[0]
     return "/" in key or key in groups
-
-
-def _one_line(err: BaseException) -> str:
-    return " ".join(str(err).split("\n")[0].split())
 
 
 _DEFAULTS: dict[tuple[str, ...], DictConfig] = {}
@@ -356,9 +349,9 @@ def compose_checked(overrides: list[str], values: bool = True) -> DictConfig:
     try:
         parsed = OverridesParser.create().parse_overrides(overrides)
     except OverrideParseException as err:
-        raise ConfigError(f"{_one_line(err)} (in {' '.join(overrides)}; lists are key=[a,b])") from None
+        raise ConfigError(f"{one_line(err)} (in {' '.join(overrides)}; lists are key=[a,b])") from None
     groups = set(loader.list_groups(""))
-    chosen = [o.input_line for o in parsed if _group_of(o, groups)]
+    chosen = [o.input_line for o in parsed if group_choice(o, groups)]
     for o in parsed:
         group = o.key_or_group.split("@")[0]
         if group in NOT_TRAINING[1:]:
@@ -366,7 +359,7 @@ def compose_checked(overrides: list[str], values: bool = True) -> DictConfig:
                 f"{o.input_line}: {group} is not a key of train.py (scripts/reproduce.py "
                 f"{group}=<name> runs a protocol)"
             )
-        if _group_of(o, groups) and o.value() is not None and not isinstance(o.value(), list):
+        if group_choice(o, groups) and o.value() is not None and not isinstance(o.value(), list):
             options = loader.get_group_options(group)
             text = _typed_text(o)  # YAML reads level=3_2 as the integer 32: the message quotes what was typed
             if options and (not isinstance(o.value(), str) or o.value() not in options):
@@ -378,7 +371,7 @@ def compose_checked(overrides: list[str], values: bool = True) -> DictConfig:
         try:
             _DEFAULTS[key] = compose("config", overrides=chosen)
         except MissingConfigException as err:
-            raise ConfigError(_one_line(err)) from None
+            raise ConfigError(one_line(err)) from None
     defaults = _DEFAULTS[key]
     try:
         cfg = compose("config", overrides=list(overrides))
@@ -400,7 +393,7 @@ def compose_checked(overrides: list[str], values: bool = True) -> DictConfig:
                 line = next((o.input_line for o in parsed if o.key_or_group.startswith(full_key)), full_key)
                 raise ConfigError(f"'{full_key}' is not in {parent} yet: add it with ++{line.lstrip('+')}") from None
             raise ConfigError(f"unknown key '{full_key}'; keys here: {keys} (see --help)") from None
-        raise ConfigError(_one_line(err)) from None
+        raise ConfigError(one_line(err)) from None
     typed = typed_values(parsed)
     validate(cfg, defaults, typed=typed)
     if values:
@@ -425,7 +418,7 @@ def check_values(cfg: DictConfig, typed: dict[str, str] | None = None) -> None:
     has one), and DreamerV3's GPU size is not started on a CPU unless asked for by name.  Raises
     :class:`ConfigError`."""
     from .algos import algorithm
-    from .runtime import DeviceError, resolve_device
+    from .devices import DeviceError, resolve_device
 
     try:
         device = resolve_device(cfg.device)
@@ -433,7 +426,7 @@ def check_values(cfg: DictConfig, typed: dict[str, str] | None = None) -> None:
         raise ConfigError(str(err)) from None
     backend = cfg.env.get("backend", "cpu")
     if backend not in evaaa.BACKENDS:
-        raise ConfigError(f"env.backend={_show(backend)}: expected one of {', '.join(evaaa.BACKENDS)}")
+        raise ConfigError(f"env.backend={show(backend)}: expected one of {', '.join(evaaa.BACKENDS)}")
     if backend == "warp":
         from evaaa import mjwarp
 
@@ -449,7 +442,7 @@ def check_values(cfg: DictConfig, typed: dict[str, str] | None = None) -> None:
         unknown = [n for n in names if n not in (*evaaa.LEVELS, *evaaa.TESTBEDS)]
         if unknown or not names:
             raise ConfigError(
-                f"level.stages={text or _show(cfg.level.stages)}: "
+                f"level.stages={text or show(cfg.level.stages)}: "
                 + (f"'{unknown[0]}' is not a level" if unknown else "expected at least one level")
                 + f"; allowed: {', '.join((*evaaa.LEVELS, *evaaa.TESTBEDS))}"
             )
@@ -479,240 +472,7 @@ CPU_DREAMER = (
 _LAST: list[DictConfig] = []  # the last config compose_checked composed, and its defaults
 
 
-def job_overrides(overrides: list[str], multirun: bool) -> list[list[str]]:
-    """The override lists of the jobs to check: one, or for a sweep (``-m seed=0,1 algo=dqn,ppo``) each value of each
-    swept key once (the others at their first value), so that every value given is composed and checked."""
-    from hydra.errors import OverrideParseException
-
-    try:
-        parsed = OverridesParser.create().parse_overrides(overrides)
-    except OverrideParseException as err:
-        raise ConfigError(f"{_one_line(err)} (in {' '.join(overrides)}; lists are key=[a,b])") from None
-    swept = {i: list(o.sweep_string_iterator()) for i, o in enumerate(parsed) if o.is_sweep_override()}
-    if swept and not multirun:
-        first = parsed[next(iter(swept))]
-        raise ConfigError(
-            f"{first.input_line}: several values make a sweep: add -m (--multirun); a list is "
-            f"written {first.key_or_group}=[a,b]"
-        )
-    if not swept:
-        return [list(overrides)]
-
-    def line(i: int, value: str) -> str:
-        return f"{parsed[i].get_key_element()}={value}"
-
-    base = [
-        line(i, values[0]) if i in swept else o.input_line
-        for i, (o, values) in enumerate((o, swept.get(i, [])) for i, o in enumerate(parsed))
-    ]
-    jobs = [base]
-    for i, values in swept.items():
-        for value in values[1:]:
-            jobs.append([*base[:i], line(i, value), *base[i + 1 :]])
-    return jobs
-
-
-def check_overrides(overrides: list[str], multirun: bool, values: bool = True) -> None:
-    """Compose and check every job of :func:`job_overrides`; a job that differs from the first only in the value of
-    a plain key (``seed=0,1,2``) is checked by setting that value in the first job's config, which is much faster
-    than composing it again and gives the same verdict.  ``values=False``: keys and types only, not what depends on
-    this machine (:func:`check_values`).  Raises :class:`ConfigError`."""
-    jobs = job_overrides(overrides, multirun)
-    compose_checked(jobs[0], values)
-    first, defaults = _LAST
-    from hydra.core.global_hydra import GlobalHydra
-
-    groups = set(GlobalHydra.instance().config_loader().list_groups(""))
-    parser = OverridesParser.create()
-    for job in jobs[1:]:
-        changed = [parser.parse_override(new) for new, old in zip(job, jobs[0]) if new != old]
-        if len(changed) != 1 or _group_of(changed[0], groups) or changed[0].key_or_group.startswith("hydra"):
-            compose_checked(job, values)
-            continue
-        trial = copy.deepcopy(first)
-        with open_dict(trial):
-            OmegaConf.update(trial, changed[0].key_or_group, changed[0].value(), force_add=True)
-        validate(trial, defaults, typed=typed_values(changed))
-
-
-def check_command_line(argv: list[str], doc: str = "") -> None:
-    """``scripts/train.py``'s command line, before Hydra starts (and writes anything): ``--help`` prints
-    :func:`help_text` and exits 0; a malformed value, unknown key or option prints one line naming it and exits 2.
-    Every job of a sweep is composed and checked.  Hydra's other flags are Hydra's (``--hydra-help``, ``--info``)."""
-    from hydra import initialize_config_dir
-    from hydra._internal.utils import get_args_parser
-
-    register_levels()
-    args = get_args_parser().parse_args(argv)  # Hydra's own flags, parsed as Hydra will (a bad flag exits 2 here)
-    if args.hydra_help or args.info or args.shell_completion or args.config_name or args.config_path or args.config_dir:
-        return  # Hydra's own answers, or another config than conf/config.yaml: Hydra checks it
-    with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
-        try:
-            if args.help:
-                print(help_text(args.overrides, "train.py", doc.split("\n\n")[0].replace("``", "")))
-                raise SystemExit(0)
-            check_overrides(args.overrides, args.multirun)
-        except ConfigError as err:
-            print(f"train.py: error: {err}", file=sys.stderr)
-            raise SystemExit(2) from None
-    root = Path(str(OmegaConf.select(_LAST[0], "run.root", default="runs")))
-    try:
-        check_writable(root)
-    except DiskError as err:  # Hydra would make the run folder and end in a traceback
-        print(f"train.py: {err}; nothing was written", file=sys.stderr)
-        raise SystemExit(1) from None
-
-
-def check_writable(folder: Path) -> None:
-    """Raise :class:`~evaaa.records.DiskError` where ``folder`` (or, while it does not exist, the folder it would
-    be made in) cannot take files: a real write, since root passes every permission check on a read-only disk."""
-    existing = folder
-    while not existing.exists() and existing != existing.parent:
-        existing = existing.parent
-    try:
-        with tempfile.TemporaryDirectory(dir=existing, prefix=".write-test-"):
-            pass
-    except OSError as exc:
-        raise DiskError(folder, exc) from None
-
-
-# ------------------------------------------------------------------------------------------------- --help
-_LINE = re.compile(r"^(?P<indent>\s*)(?P<key>[\w.-]+):(?P<rest>.*)$")
-
-
-def comments(path: Path, prefix: str) -> dict[str, str]:
-    """The trailing ``# comment`` of every ``key: value`` line of a YAML config file, by dotted key (``prefix`` is
-    the file's package: ``algo.`` for conf/algo/*.yaml, nothing for the primary config and ``_global_`` files)."""
-    text = path.read_text()
-    if "# @package _global_" in text:
-        prefix = ""
-    found: dict[str, str] = {}
-    stack: list[tuple[int, str]] = []
-    last, column = None, -1  # the key whose comment a comment-only line at the same column continues
-    for line in text.splitlines():
-        if line.lstrip().startswith("#") and last is not None and line.index("#") == column:
-            found[last] += " " + line.strip().lstrip("#").strip()
-            continue
-        last = None
-        match = _LINE.match(line)
-        if not match or line.lstrip().startswith(("#", "-")):
-            continue
-        indent = len(match["indent"])
-        while stack and stack[-1][0] >= indent:
-            stack.pop()
-        stack.append((indent, match["key"]))
-        value, _, comment = match["rest"].partition(" #")
-        key = prefix + ".".join(k for _, k in stack)
-        if comment.strip() and key not in found:
-            found[key], last, column = comment.strip(), key, line.index(" #") + 1
-    return found
-
-
-def _config_files(choices: dict[str, Any]) -> list[tuple[Path, str]]:
-    """The files a composition read, primary config first, with the package of each."""
-    files = [(CONF_DIR / "config.yaml", "")]
-    for group, option in choices.items():
-        if option is None or group.startswith("hydra"):
-            continue
-        path, package = group.split("@")[0], (group.split("@")[1] if "@" in group else group)
-        names = [option]
-        while (CONF_DIR / path / f"{names[-1]}.yaml").is_file():  # an option may extend another (ppo_lstm: ppo)
-            base = re.search(
-                r"^defaults:\n\s+-\s+([\w-]+)\s*$", (CONF_DIR / path / f"{names[-1]}.yaml").read_text(), re.M
-            )
-            if base is None or base[1] in names:
-                break
-            names.append(base[1])
-        files += [(CONF_DIR / path / f"{name}.yaml", f"{package}.") for name in names]
-    return [(p, pkg) for p, pkg in files if p.is_file()]
-
-
-def help_text(overrides: list[str], prog: str = "train.py", description: str = "") -> str:
-    """``train.py --help``: the groups and their options, then every key of the config composed from ``overrides``
-    (``--help algo=dqn`` shows DQN's keys) with its type, default and the meaning its config file gives it."""
-    from hydra import compose
-    from hydra.core.global_hydra import GlobalHydra
-
-    loader = GlobalHydra.instance().config_loader()
-    compose_checked(list(overrides), values=False)  # a bad override is refused as it would be without --help
-    cfg = compose("config", overrides=list(overrides), return_hydra_config=True)
-    choices = dict(cfg.hydra.runtime.choices)
-    with open_dict(cfg):
-        del cfg["hydra"]
-    meanings = dict(GROUP_KEYS)
-    for path, package in _config_files(choices):
-        for key, text in comments(path, package).items():
-            meanings.setdefault(key, text)
-    lines = [
-        f"usage: python scripts/{prog} [key=value ...]        (one run)",
-        f"       python scripts/{prog} -m key=a,b ... [key=value ...]   (a sweep: one run per combination)",
-        "",
-    ]
-    if description:
-        lines += [*textwrap.wrap(" ".join(description.split()), width=114), ""]
-    lines.append("groups (group=option; the config below is composed from the options chosen):")
-    for group in sorted(g for g in loader.list_groups("") if g not in NOT_TRAINING):
-        options = loader.get_group_options(group)
-        lines += textwrap.wrap(
-            f"{group}: {', '.join(options)} (now {choices.get(group)})",
-            width=114,
-            initial_indent="  ",
-            subsequent_indent="      ",
-            break_on_hyphens=False,
-        )
-    groups = set(loader.list_groups(""))
-    lines += [
-        "",
-        "keys (key=value, nested keys dotted: eval.every=50000; lists key=[a,b]; values read as YAML; "
-        "a key not listed needs ++key=value):",
-    ]
-
-    def walk(node: DictConfig, path: str) -> None:
-        for key in node.keys():
-            full = f"{path}{key}"
-            if OmegaConf.is_interpolation(node, key):  # shown as written; its type is that of what it refers to
-                value = node._get_node(key)._value()
-                try:
-                    kind = _kind(full, node[key])
-                except Exception:  # noqa: BLE001  (a reference only a running job resolves)
-                    kind = "reference"
-            else:
-                value = node[key]
-                if OmegaConf.is_dict(value) and full in groups and not len(value):
-                    continue  # a group whose option sets nothing (preset=none)
-                if OmegaConf.is_dict(value) and len(value) and full not in FREE_FORM:
-                    if full in meanings:  # what the keys below have in common
-                        lines.append(f"  {full}.*:")
-                        lines.extend(
-                            textwrap.wrap(meanings[full], width=114, initial_indent=" " * 6, subsequent_indent=" " * 6)
-                        )
-                    walk(value, f"{full}.")
-                    continue
-                kind = _kind(full, value)
-            lines.append(f"  {full}: {kind} = {_show(value)}")
-            if full in meanings:
-                lines.extend(
-                    textwrap.wrap(meanings[full], width=114, initial_indent=" " * 6, subsequent_indent=" " * 6)
-                )
-
-    walk(cfg, "")
-    lines += [
-        "",
-        "Hydra's own flags: --cfg job (print the composed config), --hydra-help, -m/--multirun. See docs/training.md.",
-    ]
-    return "\n".join(lines)
-
-
-def _kind(full: str, value: Any) -> str:
-    """A key's type as --help names it."""
-    if value is None:
-        kinds = NULLABLE.get(full)
-        if kinds is None:
-            return "any"
-        kinds = tuple(t for t in kinds if not (t is int and float in kinds))  # an int is a float here
-        return " or ".join({dict: "mapping"}.get(t, t.__name__) for t in kinds) + " or null"
-    if OmegaConf.is_list(value):
-        return "list"
-    if OmegaConf.is_dict(value):
-        return "mapping"
-    return type(value).__name__
+def last_composed() -> tuple[DictConfig, DictConfig]:
+    """The config :func:`compose_checked` composed last, and the defaults it was checked against."""
+    cfg, defaults = _LAST
+    return cfg, defaults

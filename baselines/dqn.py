@@ -28,7 +28,7 @@ from torchrl.objectives import DQNLoss, HardUpdate
 from evaaa import ACTION_NAMES
 
 from .nets import MultimodalEncoder, compile_networks, head, stacked_shapes
-from .runtime import Counters, Run
+from .run import Counters, Run
 
 #: Q-values are no distribution to sample from: asked to sample, the policy still acts greedily, and evaluations
 #: say so (``mode``)

@@ -35,7 +35,7 @@ from torchrl.objectives.value import GAE
 from evaaa import ACTION_NAMES
 
 from .nets import MultimodalEncoder, compile_networks, head, stacked_shapes
-from .runtime import Run
+from .run import Run
 
 LOSS_TERMS = ("loss_objective", "loss_critic", "loss_entropy")
 LOGGED = ("entropy", "kl_approx", "clip_fraction")  # the loss's diagnostics worth a curve

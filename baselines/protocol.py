@@ -45,8 +45,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 import evaaa
 
 from .algos import names as algorithm_names
-from .config import CONF_DIR
-from .evaluation import samples_actions
+from .paths import CONF_DIR
+from .rollout import samples_actions
 
 REPO = CONF_DIR.parent
 PROTOCOL_DIR = CONF_DIR / "protocol"
@@ -56,7 +56,7 @@ REWARDS = sorted(p.stem for p in (CONF_DIR / "reward").glob("*.yaml"))
 LEVEL_GROUPS = {"testbeds": evaaa.TESTBEDS, "training": evaaa.LEVELS, "all": evaaa.LEVELS + evaaa.TESTBEDS}
 #: seconds a script takes to start (imports, first env) on the 2-core box, added to every cell's estimate
 STARTUP_SECONDS = 10.0
-#: a run's checkpoints (baselines/runner.py), deleted once it is done where keep_checkpoints is false
+#: a run's checkpoints (baselines/training.py), deleted once it is done where keep_checkpoints is false
 CHECKPOINTS = ("checkpoint.pt", "checkpoint-previous.pt")
 
 

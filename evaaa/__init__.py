@@ -20,14 +20,33 @@ import logging  # noqa: E402
 
 import mujoco  # noqa: E402
 
-from .env import EvaaaEnv, make_env  # noqa: E402
+from .backends import BACKENDS  # noqa: E402
 from .physiology import END_TYPES, EV_NAMES, REWARDS  # noqa: E402
 from .sensors import MODALITIES  # noqa: E402
-from .sim import ACTION_NAMES, BACKENDS  # noqa: E402
+from .sim import ACTION_NAMES  # noqa: E402
 from .spec import LEVELS, TESTBEDS, Level, LevelError, load_level, register_level  # noqa: E402
 from .worlds import WORLD_SETS  # noqa: E402
 
 __version__ = "0.1.0"
+
+#: imported when first used (they load torch, TorchRL and tensordict): ``import evaaa`` alone stays light, so
+#: the gymnasium adapter and the scripts' ``--help`` do not wait for torch
+_LAZY = {"EvaaaEnv": "env", "make_env": "env"}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_LAZY})
+
 
 __all__ = [
     "ACTION_NAMES",

@@ -16,7 +16,8 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from .sim import ACTION_NAMES, NUM_ACTIONS, check_backend, make_simulator
+from .backends import check_backend, make_simulator
+from .sim import ACTION_NAMES, NUM_ACTIONS
 from .spec import Level, load_level
 
 _TORCH_DTYPE = {np.dtype(np.float32): torch.float32, np.dtype(np.uint8): torch.uint8}
@@ -265,7 +266,7 @@ def make_env(
     ``make_env("1-1", **{"agent.move_speed": 10, "episode.max_steps": 1000})``, or as nested dicts,
     ``make_env("1-1", episode={"max_steps": 1000})``.  ``threads``, ``info``, ``worlds``: see :class:`EvaaaEnv`;
     ``make_env("1-1", seed=0, worlds="test")`` gives held-out worlds that no training run of any seed steps.
-    ``backend``: one of :data:`evaaa.sim.BACKENDS`, ``make_env("1-1", num_envs=4096, backend="warp",
+    ``backend``: one of :data:`evaaa.backends.BACKENDS`, ``make_env("1-1", num_envs=4096, backend="warp",
     device="cuda")`` steps every world on the GPU with MuJoCo Warp (docs/backends.md).
     """
     return EvaaaEnv(

@@ -58,9 +58,6 @@ from .worldgen import (
 from .worlds import check_worlds, world_seeds
 
 NUM_ACTIONS = 5
-#: where a simulator's physics and camera run: ``cpu`` (MuJoCo and OpenGL, world by world) or ``warp`` (MuJoCo Warp,
-#: every world at once on a GPU or Warp's CPU device: :mod:`evaaa.mjwarp`, the optional extra ``warp``)
-BACKENDS: tuple[str, ...] = ("cpu", "warp")
 ACTION_NAMES: tuple[str, ...] = ("none", "forward", "left", "right", "eat")
 NONE, FORWARD, LEFT, RIGHT, EAT = range(NUM_ACTIONS)
 SUBSTEPS = 5
@@ -95,33 +92,6 @@ def default_threads() -> int:
     return 2 if usable_cores() >= 2 else 1
 
 
-def check_backend(backend) -> str:
-    """``backend`` if it names one of :data:`BACKENDS`, else a clear error."""
-    if not isinstance(backend, str) or backend not in BACKENDS:
-        raise ValueError(f"backend must be one of {', '.join(repr(b) for b in BACKENDS)}; got {backend!r}")
-    return backend
-
-
-def make_simulator(
-    level: Level,
-    num_worlds: int = 1,
-    modalities=None,
-    *,
-    seed: int | None = None,
-    threads: int | None = None,
-    worlds: str = "train",
-    backend: str = "cpu",
-    device: str | None = None,
-) -> Simulator:
-    """A simulator of ``level`` on ``backend`` (:data:`BACKENDS`); ``device``: Warp's device for ``warp`` (None:
-    the first GPU, else the CPU), ignored by ``cpu``."""
-    if check_backend(backend) == "warp":
-        from .mjwarp import WarpSimulator  # imports mujoco_warp: only when asked for
-
-        return WarpSimulator(level, num_worlds, modalities, seed=seed, threads=threads, worlds=worlds, device=device)
-    return Simulator(level, num_worlds, modalities, seed=seed, threads=threads, worlds=worlds)
-
-
 def _copy(value):
     """A copy of an observation: a numpy array, or a torch tensor (the Warp backend's frames)."""
     return value.clone() if hasattr(value, "clone") else value.copy()
@@ -134,7 +104,7 @@ def _state(name: str, doc: str) -> property:
 
 class Simulator:
     """N worlds of one level.  Arrays are indexed by world first.  Physics and camera on the CPU (MuJoCo, OpenGL);
-    :class:`evaaa.mjwarp.WarpSimulator` runs them on MuJoCo Warp (:func:`make_simulator`).
+    :class:`evaaa.mjwarp.WarpSimulator` runs them on MuJoCo Warp (:func:`evaaa.backends.make_simulator`).
 
     Args:
         level: a validated level.

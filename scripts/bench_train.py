@@ -243,7 +243,9 @@ def check_runs(args: BenchConfig, device: str) -> None:
     value in ``overrides``)."""
     from hydra import initialize_config_dir
 
-    from evaaa_baselines.config import CONF_DIR, ConfigError, check_overrides, register_levels
+    from evaaa_baselines.cli.training import check_overrides
+    from evaaa_baselines.config import ConfigError, register_levels
+    from evaaa_baselines.paths import CONF_DIR
 
     register_levels()
     with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
@@ -373,7 +375,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.json:
             write_json(args.json, {"runs": args.runs, "rows": [asdict(r) for r in rows]})
         return 0
-    from evaaa_baselines.runtime import DeviceError, resolve_device
+    from evaaa_baselines.devices import DeviceError, resolve_device
 
     try:
         device = resolve_device(args.device)

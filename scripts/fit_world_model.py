@@ -26,8 +26,8 @@ import torch
 from evaaa.sensors import SENSORS, resolve_modalities
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
+from evaaa_baselines.devices import DeviceError, resolve_device
 from evaaa_baselines.dreamer.probes import eat_success_readout, fit_world_model
-from evaaa_baselines.runtime import DeviceError, resolve_device
 
 
 @dataclass

@@ -22,7 +22,7 @@ import sys
 
 def _stop_before_start(signum, frame):
     # Ctrl-C while no run is training (libraries loading, config being composed): no run has anything unsaved
-    # (baselines/runner.py handles Ctrl-C while a run trains)
+    # (baselines/training.py handles Ctrl-C while a run trains)
     print("train.py: interrupted while no run was training; nothing was lost", file=sys.stderr, flush=True)
     os._exit(130)
 
@@ -55,11 +55,9 @@ from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
 import evaaa  # noqa: E402,F401  (sets MUJOCO_GL before mujoco loads)
 from evaaa.records import DISK_ERRNOS, DiskError  # noqa: E402
-from evaaa_baselines import train  # noqa: E402
-from evaaa_baselines.checkpoint import CheckpointError  # noqa: E402
-from evaaa_baselines.config import CONF_DIR, check_command_line, register_launchers, register_levels  # noqa: E402
-from evaaa_baselines.runner import RunRefused, summary  # noqa: E402
-from evaaa_baselines.runtime import DeviceError, Interrupted  # noqa: E402
+from evaaa_baselines.cli.training import check_command_line  # noqa: E402
+from evaaa_baselines.config import register_launchers, register_levels  # noqa: E402
+from evaaa_baselines.paths import CONF_DIR  # noqa: E402
 
 register_levels()
 register_launchers()
@@ -71,6 +69,13 @@ faulthandler.enable(all_threads=True)
 def main(cfg: DictConfig) -> None:
     if _sweep_stopping:  # Ctrl-C between two jobs of a sweep run in this process
         raise SystemExit(130)
+    # the training code (torch, TorchRL) loads here, once --help and the command line's checks have passed
+    from evaaa_baselines import train
+    from evaaa_baselines.checkpoint import CheckpointError
+    from evaaa_baselines.devices import DeviceError
+    from evaaa_baselines.run import Interrupted
+    from evaaa_baselines.training import RunRefused, summary
+
     hydra_cfg = HydraConfig.get()
     # what Hydra would have written to .hydra/ itself (conf/config.yaml: output_subdir null)
     records = {

@@ -80,7 +80,7 @@ RATES = "time/"
 def _cfg(algo: str, *overrides: str):
     from hydra import compose, initialize_config_dir
 
-    from evaaa_baselines.config import CONF_DIR
+    from evaaa_baselines.paths import CONF_DIR
 
     with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
         return compose(
@@ -114,7 +114,7 @@ def record(out: Path) -> None:
     import evaaa
     from evaaa_baselines import load_policy
     from evaaa_baselines.config import register_levels
-    from evaaa_baselines.runner import train
+    from evaaa_baselines.training import train
 
     register_levels()
     torch.set_num_threads(1)
@@ -145,7 +145,7 @@ def _fresh_acting() -> dict[str, torch.Tensor]:
     import evaaa
     from evaaa_baselines.config import observation_keys
     from evaaa_baselines.dreamer import model as dreamer_model
-    from evaaa_baselines.evaluation import wrap_env
+    from evaaa_baselines.rollout import wrap_env
 
     cfg = _cfg("dreamer")
     keys = observation_keys(cfg)

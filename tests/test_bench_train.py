@@ -96,7 +96,7 @@ def test_a_resumed_run_adds_its_sessions_wall_time(tmp_path):
     rows = [(500, 10.0), (1000, 10.0), (1500, 20.0), (2000, 20.0)]
     write_log(tmp_path, rows, [(500, 5), (1000, 10), (1500, 15), (2000, 20)])
     (tmp_path / "train.log").write_text(
-        "[x][evaaa_baselines.runner][INFO] - resuming /r at stage 0 (1-1), env step 1000\n"
+        "[x][evaaa_baselines.training][INFO] - resuming /r at stage 0 (1-1), env step 1000\n"
     )
     got = load_bench().read_throughput(tmp_path, "dqn", skip=0.0)
     assert got.seconds == pytest.approx(150.0) and got.env_steps_per_s == pytest.approx(2000 / 150)

@@ -23,14 +23,16 @@ from hydra import compose, initialize_config_dir
 from tensordict import TensorDict
 
 import evaaa
-from evaaa_baselines import checkpoint, dreamer, evaluate, load_policy, runtime
-from evaaa_baselines.config import CONF_DIR, observation_keys, register_levels
+from evaaa_baselines import checkpoint, dreamer, evaluate, load_policy
+from evaaa_baselines import run as run_loop
+from evaaa_baselines.config import observation_keys, register_levels
+from evaaa_baselines.devices import resolve_device
 from evaaa_baselines.dreamer import model as dreamer_model
 from evaaa_baselines.dreamer import probes as dreamer_probes
 from evaaa_baselines.dreamer import replay as dreamer_replay
 from evaaa_baselines.nets import symlog
-from evaaa_baselines.runner import train
-from evaaa_baselines.runtime import resolve_device
+from evaaa_baselines.paths import CONF_DIR
+from evaaa_baselines.training import train
 
 register_levels()
 
@@ -94,7 +96,7 @@ class Killed(Exception):
 def killed_and_resumed(run_dir: Path, *overrides: str, resume_with: tuple[str, ...] = ()) -> dict:
     """Train until KILL_AT env steps and stop as a kill would (that iteration's checkpoint is lost), then resume;
     returns the checkpoint the kill left."""
-    end_iteration = runtime.Run.end_iteration
+    end_iteration = run_loop.Run.end_iteration
 
     def killing(self, td):
         if self.steps >= KILL_AT:
@@ -102,7 +104,7 @@ def killed_and_resumed(run_dir: Path, *overrides: str, resume_with: tuple[str, .
         end_iteration(self, td)
 
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(runtime.Run, "end_iteration", killing)
+        patch.setattr(run_loop.Run, "end_iteration", killing)
         with pytest.raises(Killed):
             train(debug_cfg(*overrides), run_dir)
     at_kill = checkpoint.load_checkpoint(run_dir / checkpoint.CHECKPOINT)
@@ -479,15 +481,15 @@ def test_ctrl_c_stops_between_two_gradient_steps_and_the_resume_finishes_the_ite
     # 41st owed by the same iteration; a size-S gradient step takes a minute on a CPU, an iteration several
     ratio = ("algo.replay_ratio=1.0", "total_steps=96")
     train(debug_cfg(*ratio), tmp_path / "whole")
-    updated = runtime.Run.updated
+    updated = run_loop.Run.updated
 
     def ctrl_c_after_40(self, count, seconds, total, ratio=None):
         updated(self, count, seconds, total, ratio)
         if total == 40:
             os.kill(os.getpid(), signal.SIGINT)
 
-    monkeypatch.setattr(runtime.Run, "updated", ctrl_c_after_40)
-    with pytest.raises(runtime.Interrupted, match="interrupted at env step"):
+    monkeypatch.setattr(run_loop.Run, "updated", ctrl_c_after_40)
+    with pytest.raises(run_loop.Interrupted, match="interrupted at env step"):
         train(debug_cfg(*ratio), tmp_path / "resumed")
     monkeypatch.undo()
     at_stop = checkpoint.load_checkpoint(tmp_path / "resumed" / checkpoint.CHECKPOINT)

@@ -16,10 +16,11 @@ from tensordict import TensorDict
 
 from evaaa import ACTION_NAMES
 from evaaa_baselines import dreamer
-from evaaa_baselines.config import CONF_DIR, register_levels
+from evaaa_baselines.config import register_levels
 from evaaa_baselines.dreamer import losses as dreamer_losses
 from evaaa_baselines.dreamer import model as dreamer_model
 from evaaa_baselines.dreamer import replay as dreamer_replay
+from evaaa_baselines.paths import CONF_DIR
 from evaaa_baselines.ppo import ReturnScale
 
 register_levels()
@@ -188,7 +189,7 @@ def test_the_replay_value_loss_targets_the_real_rewards_after_each_state(model):
 
 
 def test_the_replay_stores_the_scaled_reward_and_the_episodes_keep_the_envs(tmp_path):
-    from evaaa_baselines.runner import train
+    from evaaa_baselines.training import train
 
     def run(scale: float):
         with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
@@ -220,7 +221,7 @@ def test_the_replay_stores_the_scaled_reward_and_the_episodes_keep_the_envs(tmp_
 
 
 def test_a_ppo_run_made_without_reward_scaling_resumes_only_with_it_off(tmp_path):
-    from evaaa_baselines.runner import train
+    from evaaa_baselines.training import train
 
     def cfg(*extra):
         with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
@@ -360,7 +361,7 @@ def test_raw_keys_must_be_vector_keys_of_the_run():
 def test_vector_scale_changes_what_the_world_model_learns(tmp_path):
     """The vector keys' extra reconstruction term reaches the world model's gradient: the same run with
     vector_scale 1 and 10 takes the same first batch but a different gradient, and logs its own loss."""
-    from evaaa_baselines.runner import train
+    from evaaa_baselines.training import train
 
     def run(scale: float) -> dict[str, list[float]]:
         with initialize_config_dir(str(CONF_DIR), version_base="1.3"):

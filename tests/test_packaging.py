@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_the_install_provides_evaaa_baselines_and_no_top_level_baselines(tmp_path):
     # from another directory, so that the checkout itself is not on the path
     code = (
-        "import importlib.util, evaaa_baselines, evaaa_baselines.runner, evaaa; "
+        "import importlib.util, evaaa_baselines, evaaa_baselines.training, evaaa; "
         "print(importlib.util.find_spec('baselines') is None, evaaa_baselines.__file__)"
     )
     out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, check=True)

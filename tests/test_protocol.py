@@ -78,7 +78,8 @@ def test_paper_cpu_expands_into_the_issue_cells(tmp_path):
 def test_every_training_command_of_paper_cpu_composes_as_train_py_would(tmp_path):
     from hydra import initialize_config_dir
 
-    from evaaa_baselines.config import CONF_DIR, compose_checked, register_levels
+    from evaaa_baselines.config import compose_checked, register_levels
+    from evaaa_baselines.paths import CONF_DIR
 
     register_levels()
     trains = [c for c in build_cells(load_protocol("paper_cpu"), tmp_path) if c.kind == "train"]
@@ -649,7 +650,8 @@ def test_a_stopped_protocol_passes_one_ctrl_c_to_each_cell_and_keeps_its_time(tm
 def test_paper_learned_compute_matches_1_1_and_gives_direct_runs_the_curriculum_s_steps(tmp_path):
     from hydra import initialize_config_dir
 
-    from evaaa_baselines.config import CONF_DIR, compose_checked, register_levels
+    from evaaa_baselines.config import compose_checked, register_levels
+    from evaaa_baselines.paths import CONF_DIR
 
     p = load_protocol("paper_learned")
     cells = build_cells(p, tmp_path)

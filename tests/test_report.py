@@ -25,7 +25,8 @@ from omegaconf import OmegaConf
 
 import evaaa
 from evaaa.records import TRAINING_EPISODE_FIELDS, append_rows
-from evaaa_baselines.config import CONF_DIR, observation_keys, register_levels
+from evaaa_baselines.config import observation_keys, register_levels
+from evaaa_baselines.paths import CONF_DIR
 from evaaa_baselines.reports import ReportError, build_report
 from evaaa_baselines.reports.stats import clustered_rate, interval
 

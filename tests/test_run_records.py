@@ -26,9 +26,10 @@ from tensordict import TensorDict
 
 from evaaa_baselines import checkpoint, load_policy
 from evaaa_baselines.checkpoint import CheckpointError, load_checkpoint, load_latest, save_checkpoint
-from evaaa_baselines.config import CONF_DIR, register_levels
+from evaaa_baselines.config import register_levels
 from evaaa_baselines.evaluation import EvaluatedPolicy, EvaluationError
-from evaaa_baselines.runner import RunExists, train
+from evaaa_baselines.paths import CONF_DIR
+from evaaa_baselines.training import RunExists, train
 
 register_levels()
 
@@ -190,7 +191,7 @@ def test_start_over_moves_the_old_run_aside_and_says_where(finished, tmp_path, c
     subprocess.run(["cp", "-a", str(root), str(copy)], check=True)
     run_dir = copy / "1-1" / "ppo" / "all-squared-debug" / "seed0"
     before = snapshot(run_dir)
-    with caplog.at_level(logging.INFO, logger="evaaa_baselines.runner"):
+    with caplog.at_level(logging.INFO, logger="evaaa_baselines.training"):
         train(debug_cfg("start_over=true", "total_steps=32"), run_dir)
     aside = [p for p in run_dir.parent.iterdir() if p.name != "seed0"]
     assert len(aside) == 1 and aside[0].name.startswith(".seed0.replaced-") and str(aside[0]) in caplog.text
@@ -308,7 +309,7 @@ def test_resume_with_no_checkpoint_yet_starts_from_zero_and_says_so(tmp_path, ca
     (run_dir / ".hydra").mkdir(parents=True)
     (run_dir / "train.log").write_text("started\n")
     (run_dir / "episodes.csv").write_text("env_steps,stage\n")  # stopped before any episode and checkpoint
-    with caplog.at_level(logging.INFO, logger="evaaa_baselines.runner"):
+    with caplog.at_level(logging.INFO, logger="evaaa_baselines.training"):
         train(debug_cfg("resume=true", "total_steps=32"), run_dir)
     assert "holds no checkpoint yet: starting from zero" in caplog.text
     assert (run_dir / "train.log").read_text() == "started\n"

@@ -28,11 +28,14 @@ from hydra import compose, initialize_config_dir
 
 import evaaa
 from evaaa.records import TRAINING_EPISODE_FIELDS
-from evaaa_baselines import checkpoint, evaluate, load_policy, runner, runtime
-from evaaa_baselines.config import CONF_DIR, Stage, env_overrides, observation_keys, register_levels, stages
+from evaaa_baselines import checkpoint, devices, evaluate, load_policy, training
+from evaaa_baselines import run as run_loop
+from evaaa_baselines.config import Stage, env_overrides, observation_keys, register_levels, stages
+from evaaa_baselines.devices import DeviceError, resolve_device
 from evaaa_baselines.evaluation import EvaluatedPolicy, EvaluationError
-from evaaa_baselines.runner import make_logger, summary, train
-from evaaa_baselines.runtime import DeviceError, Progress, resolve_device
+from evaaa_baselines.paths import CONF_DIR
+from evaaa_baselines.run import Progress
+from evaaa_baselines.training import make_logger, summary, train
 
 register_levels()
 
@@ -122,7 +125,7 @@ class Killed(Exception):
 
 def run_killed(cfg, run_dir: Path, at: int, monkeypatch, stage: int = 0) -> None:
     """Train until ``at`` env steps of ``stage``, then stop as a kill would: that iteration's checkpoint is lost."""
-    end_iteration = runtime.Run.end_iteration
+    end_iteration = run_loop.Run.end_iteration
 
     def killing(self, td):
         if self.stage.index == stage and self.steps >= at:
@@ -130,7 +133,7 @@ def run_killed(cfg, run_dir: Path, at: int, monkeypatch, stage: int = 0) -> None
         end_iteration(self, td)
 
     with monkeypatch.context() as patch:
-        patch.setattr(runtime.Run, "end_iteration", killing)
+        patch.setattr(run_loop.Run, "end_iteration", killing)
         with pytest.raises(Killed):
             train(cfg, run_dir)
 
@@ -318,14 +321,14 @@ def test_loader_gives_a_policy_and_refuses_other_observation_keys(runs):
 def test_curriculum_hands_weights_over_and_resumes_mid_curriculum(tmp_path, monkeypatch):
     overrides = ("level=curriculum", "level.stages=[1-1,1-2]")
     started: list[tuple[int, dict]] = []
-    start = runtime.Run.start
+    start = run_loop.Run.start
 
     def recording_start(self, model, components):
         td = start(self, model, components)
         started.append((self.stage.index, {k: v.clone() for k, v in model.state_dict().items()}))
         return td
 
-    monkeypatch.setattr(runtime.Run, "start", recording_start)
+    monkeypatch.setattr(run_loop.Run, "start", recording_start)
     train(debug_cfg("ppo", *overrides, total_steps=128), tmp_path / "whole")
     stage0_final = checkpoint.load_checkpoint(tmp_path / "whole" / "model-0-1-1.pt")["model"]
     stage1_start = dict(started)[1]
@@ -378,7 +381,7 @@ def test_a_damaged_latest_checkpoint_resumes_exactly_from_the_previous_one(runs,
     data[start + 256 : start + 1280] = bytes(1024)  # 1 KB zeroed inside a weight
     latest.write_bytes(bytes(data))
     (run_dir / ".checkpoint.pt.tmp").write_bytes(b"cut short by a kill")
-    with caplog.at_level(logging.INFO, logger="evaaa_baselines.runner"):
+    with caplog.at_level(logging.INFO, logger="evaaa_baselines.training"):
         train(debug_cfg("ppo", "resume=true"), run_dir)
     assert f"{latest} is damaged" in caplog.text
     assert f"previous checkpoint {run_dir / checkpoint.PREVIOUS}" in caplog.text
@@ -388,16 +391,16 @@ def test_a_damaged_latest_checkpoint_resumes_exactly_from_the_previous_one(runs,
 
 def test_ctrl_c_checkpoints_after_the_iteration_and_resume_continues_exactly(runs, tmp_path, monkeypatch):
     """The first SIGINT lets the iteration finish, writes a checkpoint and stops; the resumed run is the whole run."""
-    end_iteration = runtime.Run.end_iteration
+    end_iteration = run_loop.Run.end_iteration
 
     def ctrl_c_at(self, td):
         if self.steps == 96:
             os.kill(os.getpid(), signal.SIGINT)
         end_iteration(self, td)
 
-    monkeypatch.setattr(runtime.Run, "end_iteration", ctrl_c_at)
+    monkeypatch.setattr(run_loop.Run, "end_iteration", ctrl_c_at)
     before = signal.getsignal(signal.SIGINT)  # Python's default, or SIG_IGN in a job started in the background
-    with pytest.raises(runtime.Interrupted, match="interrupted at env step 96 of 1-1: checkpoint written to"):
+    with pytest.raises(run_loop.Interrupted, match="interrupted at env step 96 of 1-1: checkpoint written to"):
         train(debug_cfg("ppo"), tmp_path / "run")
     monkeypatch.undo()
     assert signal.getsignal(signal.SIGINT) is before  # the handler is put back
@@ -407,7 +410,7 @@ def test_ctrl_c_checkpoints_after_the_iteration_and_resume_continues_exactly(run
 
 
 def test_a_second_ctrl_c_stops_at_once_and_names_the_checkpoint_left(tmp_path, monkeypatch):
-    end_iteration = runtime.Run.end_iteration
+    end_iteration = run_loop.Run.end_iteration
 
     def ctrl_c_twice_at(self, td):
         if self.steps == 96:
@@ -415,9 +418,9 @@ def test_a_second_ctrl_c_stops_at_once_and_names_the_checkpoint_left(tmp_path, m
             os.kill(os.getpid(), signal.SIGINT)
         end_iteration(self, td)
 
-    monkeypatch.setattr(runtime.Run, "end_iteration", ctrl_c_twice_at)
+    monkeypatch.setattr(run_loop.Run, "end_iteration", ctrl_c_twice_at)
     latest = tmp_path / "run" / checkpoint.CHECKPOINT
-    with pytest.raises(runtime.Interrupted, match=f"stopped at once: .*from the last one, {re.escape(str(latest))}"):
+    with pytest.raises(run_loop.Interrupted, match=f"stopped at once: .*from the last one, {re.escape(str(latest))}"):
         train(debug_cfg("ppo"), tmp_path / "run")
     assert checkpoint.load_checkpoint(latest)["counters"]["steps"] == 64  # the last one due (every 64 env steps)
 
@@ -515,12 +518,12 @@ def test_deterministic_kernels_are_chosen_on_cuda_only(monkeypatch):
     monkeypatch.setattr(torch, "use_deterministic_algorithms", lambda on, warn_only: calls.append((on, warn_only)))
     monkeypatch.setattr(torch.backends.cudnn, "deterministic", False)
     monkeypatch.delenv("CUBLAS_WORKSPACE_CONFIG", raising=False)
-    runtime.deterministic_kernels(True, torch.device("cpu"))  # the CPU's kernels repeat as they are
+    devices.deterministic_kernels(True, torch.device("cpu"))  # the CPU's kernels repeat as they are
     assert calls == [] and "CUBLAS_WORKSPACE_CONFIG" not in os.environ
-    runtime.deterministic_kernels(True, torch.device("cuda"))
+    devices.deterministic_kernels(True, torch.device("cuda"))
     assert calls == [(True, True)] and torch.backends.cudnn.deterministic
     assert os.environ["CUBLAS_WORKSPACE_CONFIG"] == ":4096:8"
-    runtime.deterministic_kernels(False, torch.device("cuda"))
+    devices.deterministic_kernels(False, torch.device("cuda"))
     assert calls[-1] == (False, True) and not torch.backends.cudnn.deterministic
     assert make_cfg("algo=ppo").deterministic is True  # the default
 
@@ -611,7 +614,7 @@ def test_progress_eta_counts_the_gradient_steps_owed():
     assert meter.seconds_per_step == pytest.approx(0.1 / 8)
     left = 2_000_000 - steps
     assert meter.eta(left, left) == pytest.approx(left * (10.0 + 0.1 / 8))
-    assert runtime._duration(meter.eta(left, left)) == "231.6 d"  # (2,000,000 - 1,064) x 10.0125 s
+    assert run_loop._duration(meter.eta(left, left)) == "231.6 d"  # (2,000,000 - 1,064) x 10.0125 s
 
 
 def test_a_level_from_the_users_own_file_trains(tmp_path):
@@ -654,7 +657,7 @@ def test_every_algorithm_config_has_its_module():
         assert make_cfg(f"algo={name}").algo.name == name
     assert algos.algorithm("ppo_lstm").train is algos.algorithm("ppo").train  # a variant shares its code
     with pytest.raises(ValueError, match="is not an algorithm: it lacks make_model"):
-        algos.algorithm("runner")  # a module of the package, but not an algorithm
+        algos.algorithm("training")  # a module of the package, but not an algorithm
     with pytest.raises(ValueError, match="unknown algo '../dqn'"):
         algos.algorithm("../dqn")
 
@@ -752,7 +755,7 @@ def test_a_run_states_its_budget_and_ends_with_its_folder_and_final_evaluation(t
     # PPO's debug iteration is 32 env steps (2 worlds x 16): 100 asked is 128 trained, and the first line says why;
     # progress=true draws no bar here, where the output is not a terminal
     cfg = debug_cfg("ppo", "progress=true", "eval.every=64", total_steps=100)
-    with caplog.at_level(logging.INFO, logger="evaaa_baselines.runtime"):
+    with caplog.at_level(logging.INFO, logger="evaaa_baselines.run"):
         run_dir = train(cfg, tmp_path / "run")
     assert (
         "100 env steps asked: 128 trained, as the stage ends with the iteration that reaches its budget and one "
@@ -772,13 +775,13 @@ def test_a_run_states_its_budget_and_ends_with_its_folder_and_final_evaluation(t
 
 def test_the_time_estimate_comes_from_the_run_s_own_speed(caplog, monkeypatch):
     now = [0.0]
-    monkeypatch.setattr(runtime.time, "perf_counter", lambda: now[0])
-    run = runtime.Run.__new__(runtime.Run)  # the estimate alone: no worlds, no networks
+    monkeypatch.setattr(run_loop.time, "perf_counter", lambda: now[0])
+    run = run_loop.Run.__new__(run_loop.Run)  # the estimate alone: no worlds, no networks
     run.cfg, run.stage = debug_cfg("ppo"), Stage(0, "1-1", 1000)
     run.iteration, run.updates, run.planned_updates = (100, "test"), 0, None
     run.counters, run._estimated, run._session = {"steps": 0}, False, (0.0, 0)
     run.meter = Progress(60, 0, now=0.0)
-    with caplog.at_level(logging.INFO, logger="evaaa_baselines.runtime"):
+    with caplog.at_level(logging.INFO, logger="evaaa_baselines.run"):
         for t, steps in ((10, 100), (20, 200), (30, 300)):  # 10 env steps/s
             now[0], run.counters["steps"] = float(t), steps
             run.meter.add(steps)
@@ -801,15 +804,15 @@ def test_two_ctrl_c_inside_one_long_call_still_stop_the_run_at_once(tmp_path, mo
 
     iterations = int(100_000 * 2.5 / max(long_call(100_000), 1e-3))  # about 2.5 s here
     ended: list[float] = []
-    monkeypatch.setattr(runner.StopRequest, "GRACE", 0.5)
-    monkeypatch.setattr(runner.os, "_exit", lambda code: ended.append(time.perf_counter()) if code == 130 else None)
+    monkeypatch.setattr(training.StopRequest, "GRACE", 0.5)
+    monkeypatch.setattr(training.os, "_exit", lambda code: ended.append(time.perf_counter()) if code == 130 else None)
 
     def ctrl_c_twice():
         for _ in range(2):
             time.sleep(0.3)
             os.kill(os.getpid(), signal.SIGINT)
 
-    with runner._graceful_interrupts(tmp_path / "run"):
+    with training._graceful_interrupts(tmp_path / "run"):
         threading.Thread(target=ctrl_c_twice).start()
         try:
             began = time.perf_counter()

@@ -16,7 +16,8 @@ from torchrl.envs.utils import check_env_specs
 
 import evaaa
 from evaaa import mjwarp
-from evaaa.sim import SUBSTEPS, Simulator, make_simulator
+from evaaa.backends import make_simulator
+from evaaa.sim import SUBSTEPS, Simulator
 from evaaa.spec import load_level
 
 needs_warp = pytest.mark.skipif(
@@ -227,8 +228,9 @@ def test_a_short_ppo_run_trains_on_the_warp_backend(tmp_path):
     from hydra import compose, initialize_config_dir
 
     from evaaa_baselines import checkpoint
-    from evaaa_baselines.config import CONF_DIR, register_levels
-    from evaaa_baselines.runner import train
+    from evaaa_baselines.config import register_levels
+    from evaaa_baselines.paths import CONF_DIR
+    from evaaa_baselines.training import train
 
     register_levels()
     with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
@@ -275,7 +277,8 @@ def test_substeps_are_the_cpu_backends():
 def test_training_refuses_an_unknown_backend_naming_the_key():
     from hydra import compose, initialize_config_dir
 
-    from evaaa_baselines.config import CONF_DIR, ConfigError, check_values, register_levels
+    from evaaa_baselines.config import ConfigError, check_values, register_levels
+    from evaaa_baselines.paths import CONF_DIR
 
     register_levels()
     with initialize_config_dir(str(CONF_DIR), version_base="1.3"):

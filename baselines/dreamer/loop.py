@@ -22,7 +22,7 @@ from torchrl.objectives import DreamerV3ActorLoss, DreamerV3ValueLoss, SoftUpdat
 from torchrl.objectives.utils import ValueEstimators
 
 from ..nets import compile_networks
-from ..runtime import Counters, Run, parameter_count
+from ..run import Counters, Run, parameter_count
 from .losses import WorldModelLoss, diagnostics, replay_value_loss
 from .model import (
     LATENT,

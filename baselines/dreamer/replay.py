@@ -23,7 +23,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import LazyMemmapStorage, LazyTensorStorage, ReplayBuffer, SliceSampler
 
 if TYPE_CHECKING:
-    from ..runtime import Run
+    from ..run import Run
 
 # the package's logger, not the module's: a run's train.log names DreamerV3's lines as before the package split
 log = logging.getLogger(__package__)

@@ -31,7 +31,7 @@ from ..config import stages as config_stages
 
 REFERENCES = ("oracle", "random", "still", "human")
 MODEL_FILE = re.compile(r"^model-(\d+)-(.+)\.pt$")
-#: the network of a stage's best evaluation (runtime.Run.best_model_path)
+#: the network of a stage's best evaluation (run.Run.best_model_path)
 BEST_MODEL_FILE = re.compile(r"^model-best-(\d+)-(.+)\.pt$")
 #: Settings that do not change what is trained: runs differing only in these (and the seed) are pooled
 #: (``deterministic`` picks CUDA kernels that repeat; runs made before it existed have no such key).
@@ -81,7 +81,7 @@ class ReportError(ValueError):
 @dataclass
 class RunRecord:
     """One training run directory as a report reads it: what it was configured to do and how far it got
-    (the training loop's own view of a stage is :class:`evaaa_baselines.runtime.Run`)."""
+    (the training loop's own view of a stage is :class:`evaaa_baselines.run.Run`)."""
 
     dir: Path
     config: dict = field(default_factory=dict)

@@ -12,7 +12,7 @@ checkpoint by the killed process are not duplicated).  Evaluation uses its own w
 deterministic policy (or, with ``eval.sample``, a sampling one on a forked torch RNG), so it draws nothing from the
 training RNGs.  The model of the best evaluation so far is kept as ``model-best-<stage>-<level>.pt``.
 
-Interrupts: when ``stop_requested`` says so (the first Ctrl-C, see ``baselines/runner.py``), the iteration under way
+Interrupts: when ``stop_requested`` says so (the first Ctrl-C, see ``baselines/training.py``), the iteration under way
 finishes, a checkpoint is written and :class:`Interrupted` says where, so an interrupted run always resumes exactly.
 
 Devices: the worlds live on the CPU; the networks, losses, optimisers and replay live on ``device``
@@ -28,7 +28,6 @@ import csv
 import logging
 import math
 import os
-import re
 import time
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
@@ -53,7 +52,8 @@ from evaaa.records import TRAINING_EPISODE_FIELDS, DiskError
 
 from .checkpoint import CHECKPOINT, CHECKPOINT_FORMAT, rng_state, save_checkpoint, set_rng_state
 from .config import Stage, env_overrides, observation_keys
-from .evaluation import EVALUATION_INFO, acting_mode, evaluate, wrap_env
+from .devices import OnDevice, autocast, resolve_device
+from .rollout import EVALUATION_INFO, acting_mode, evaluate, wrap_env
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +61,7 @@ log = logging.getLogger(__name__)
 #: DreamerV3 replay's consumed flag the last two; the rest would cost every step and be read by no one
 TRAINING_INFO = ("step_count", "end_type", *EV_NAMES, "food_eaten", "water_eaten")
 #: Columns of ``eval.csv``: one row per episode of every periodic evaluation, on the run's validation worlds
-#: (``worlds``), acting as ``acting`` says (:func:`~.evaluation.acting_mode`).  Files written before held one row per
+#: (``worlds``), acting as ``acting`` says (:func:`~.rollout.acting_mode`).  Files written before held one row per
 #: evaluation (``episodes, survival_mean, survival_min, survival_max, return_mean, end_types``): reports read both.
 EVAL_COLUMNS = (
     "env_steps",
@@ -83,70 +83,6 @@ EVAL_COLUMNS = (
 
 class Interrupted(KeyboardInterrupt):
     """Training stopped on request; the message says what a resume continues from."""
-
-
-# ------------------------------------------------------------------------------------------------ devices
-class DeviceError(ValueError):
-    """``device=`` names a device this machine does not have, or is not a device at all."""
-
-
-def resolve_device(spec: str | torch.device) -> torch.device:
-    """``auto`` (CUDA when available, else the CPU), ``cpu``, ``cuda`` or ``cuda:N`` as a ``torch.device``;
-    :class:`DeviceError` names the key and the allowed values, or says why this machine has no such device."""
-    text = str(spec).strip().lower()
-    if text == "auto":
-        return torch.device("cuda") if torch.cuda.is_available() else torch.device("cpu")
-    if text == "cpu":
-        return torch.device("cpu")
-    match = re.fullmatch(r"cuda(?::(\d+))?", text)
-    if match is None:
-        raise DeviceError(f"device={spec}: not a device; allowed: auto, cpu, cuda, cuda:N")
-    if not torch.cuda.is_available():
-        build = f"CUDA {torch.version.cuda}" if torch.version.cuda else "without CUDA"
-        raise DeviceError(
-            f"device={spec}: no CUDA device is available here (torch {torch.__version__}, built "
-            f"{build}); use device=cpu or device=auto"
-        )
-    index, count = int(match.group(1) or 0), torch.cuda.device_count()
-    if index >= count:
-        raise DeviceError(f"device={spec}: this machine has {count} CUDA device(s): cuda:0 to cuda:{count - 1}")
-    return torch.device("cuda", index)
-
-
-def deterministic_kernels(on: bool, device: torch.device) -> None:
-    """``deterministic=true`` on CUDA: cuDNN's deterministic convolutions and torch's deterministic algorithms (a
-    warning names any operation that has none), so that a run repeats and a killed run resumes to the same
-    weights as an uninterrupted one; ``false`` leaves torch's faster defaults.  The CPU's kernels repeat as they
-    are: nothing changes there."""
-    if device.type != "cuda":
-        return
-    if on:  # cuBLAS repeats its sums only with a fixed workspace (read when torch creates one)
-        os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
-        torch.backends.cudnn.benchmark = False
-    torch.backends.cudnn.deterministic = on
-    torch.use_deterministic_algorithms(on, warn_only=True)
-
-
-class OnDevice(TensorDictModuleBase):
-    """A policy whose networks live on ``device``, acting on tensordicts of CPU worlds: the observations go to the
-    device, the policy's outputs come back (tensordict's ``to`` overlaps the copies and synchronises once).  On
-    the CPU it is the policy itself, at no cost."""
-
-    def __init__(self, policy: TensorDictModuleBase, device: torch.device):
-        super().__init__()
-        self.policy, self.device = policy, torch.device(device)
-        self.in_keys, self.out_keys = policy.in_keys, policy.out_keys
-
-    def forward(self, td: TensorDictBase) -> TensorDictBase:
-        if self.device.type == "cpu":
-            return self.policy(td)
-        acted = self.policy(td.select(*self.in_keys, strict=False).to(self.device))
-        return td.update(acted.select(*self.out_keys, strict=False).to(td.device or "cpu"))
-
-
-def autocast(device: torch.device, enabled: bool):
-    """bf16 autocast of the networks' forward passes on ``device`` (``bf16=true``); a no-op when disabled."""
-    return torch.autocast(device.type, dtype=torch.bfloat16, enabled=bool(enabled))
 
 
 def parameter_count(model: nn.Module) -> int:
@@ -340,9 +276,24 @@ class Counters(dict):
 class Run:
     """One stage of a training run as an algorithm's loop sees it.
 
-    The loop builds its model from :attr:`obs_shapes`, then calls :meth:`train_env`, :meth:`start` (fresh start,
-    curriculum hand-over or exact resume), and per iteration :meth:`step` or :meth:`collect`, :meth:`log` and
-    :meth:`end_iteration`, until :attr:`done`.
+    The contract: what an algorithm's ``train(run)`` does with a Run, in this order (``baselines/ppo.py`` is the
+    shortest example):
+
+    1. build its networks from :attr:`obs_shapes` and :attr:`obs_keys` (config in :attr:`cfg`), on :attr:`device`;
+    2. optionally say how it steps: :attr:`iteration` (env steps per iteration, and how, for the budget's
+       arithmetic), :attr:`planned_updates` (gradient steps owed by an env step, for the ETA),
+       :attr:`stops_between_updates` (it checks :attr:`stop_requested` between gradient steps);
+    3. ``env = run.train_env(transforms)``: the stage's training worlds with the algorithm's transforms;
+    4. ``td = run.start(model, components)``: a fresh start, the curriculum's hand-over or an exact resume;
+       ``components`` are the stateful objects a checkpoint keeps (optimisers, buffers, counters);
+    5. while not :attr:`done`: act with :meth:`step` or :meth:`collect` (the policy wrapped by :meth:`acting`),
+       update under :meth:`autocast` and report the gradient steps with :meth:`updated` (:meth:`set_phase` names a
+       phase such as ``prefill``), :meth:`log` metrics when :attr:`log_due`, and end every iteration with
+       :meth:`end_iteration` (periodic evaluation, checkpoint, Ctrl-C); one that stops between gradient steps calls
+       :meth:`stop_now` when :attr:`stop_requested` says so.
+
+    :attr:`steps`, :attr:`updates`, :attr:`stage` and :attr:`dir` may be read; names starting with ``_`` are the
+    Run's own, read by no algorithm (``tests/test_imports.py`` checks).
 
     Args:
         cfg: the composed config.

@@ -15,7 +15,7 @@ leaves every file of the existing run as it was:
 - ``start_over=true`` moves an existing run aside (a hidden sibling folder, named in the log) and starts from zero.
 
 Ctrl-C: the first one lets the gradient step (DreamerV3) or iteration (the others) under way finish, writes a
-checkpoint and stops (:class:`~baselines.runtime.Interrupted`, one line); a second one stops within seconds, even
+checkpoint and stops (:class:`~baselines.run.Interrupted`, one line); a second one stops within seconds, even
 inside a minute-long gradient step (:class:`StopRequest`).
 """
 
@@ -41,7 +41,8 @@ from torchrl.record.loggers import Logger, get_logger
 from .algos import algorithm
 from .checkpoint import CHECKPOINT, PREVIOUS, CheckpointError, load_latest, remove_stale_temporaries, seed_everything
 from .config import observation_keys, stages
-from .runtime import Interrupted, Run, deterministic_kernels, resolve_device
+from .devices import deterministic_kernels, resolve_device
+from .run import Interrupted, Run
 
 log = logging.getLogger(__name__)
 
@@ -358,7 +359,7 @@ def train(cfg: DictConfig, run_dir: str | Path, *, records: Mapping[str, Any] | 
     With ``resume=true`` a run with a checkpoint continues exactly where that checkpoint was taken.
 
     Raises :class:`RunRefused` (or ``CheckpointError``) before writing anything when the command would change an
-    existing run (see the module docstring), and :class:`~baselines.runtime.Interrupted` on Ctrl-C.
+    existing run (see the module docstring), and :class:`~baselines.run.Interrupted` on Ctrl-C.
     """
     run_dir = Path(run_dir)
     # from the start: a Ctrl-C while the checks run or an old run is moved aside waits for a consistent state too
