@@ -7,8 +7,10 @@ per gradient step and gradient steps per second (on batches already on the devic
 operations it dispatches instead), peak GPU memory; the replay's time split on a memory-mapped buffer of
 ``transitions`` steps: drawing a batch (the O(batch) sampler, and torchrl's ``SliceSampler`` it replaced), moving
 it to the device, and a whole step (draw + move + update) with and without the next batch drawn ahead
-(``algo.update.prefetch``).  Then PPO and DQN trained for ``loop_seconds`` each with ``env.num_envs`` worlds from
-``worlds`` (default: 8, and one per core of the box when it has more): whole-loop env steps per second.
+(``algo.update.prefetch``).  Then PPO and DQN trained for ``loop_seconds`` each, with ``env.num_envs`` worlds
+stepped in one process on ``EVAAA_THREADS`` threads (``worlds`` and ``env_threads``, paired; default 8 worlds on
+2 threads, and on a box of more than 4 cores twice as many worlds as cores on half as many threads as cores):
+whole-loop env steps per second.
 
 The compiled variants come last (compiling S takes minutes): whatever ``budget_s`` leaves is theirs, and a variant
 not started in time is recorded as skipped.  The JSON is rewritten after every measurement, so a call stopped
@@ -68,7 +70,12 @@ class GpuBenchConfig:
         32_768, "steps in the memory-mapped replay the sampling is timed on", check=(lambda v: v >= 1, ">= 1")
     )
     algos: list[str] = option(["ppo", "dqn"], "algorithms whose whole training loop is timed", choices=["ppo", "dqn"])
-    worlds: list[int] = option([], "env.num_envs values of those runs (empty: 8, and the box's cores if more)")
+    worlds: list[int] = option(
+        [], "env.num_envs of those runs (empty: 8, and twice the usable cores when there are more than 4)"
+    )
+    env_threads: list[int] = option(
+        [], "EVAAA_THREADS of each of those runs, paired with worlds (empty: 2, and half the usable cores)"
+    )
     loop_seconds: float = option(30.0, "seconds of each whole-loop run", check=(lambda v: v > 0, "a number > 0"))
     budget_s: float = option(
         540.0, "no measurement starts after this many seconds", check=(lambda v: v > 0, "a number > 0")
@@ -337,18 +344,19 @@ def loops_section(bench: Bench, scratch: Path) -> None:
     args = bench.args
     bench_train = load_bench_train()
     cores = len(os.sched_getaffinity(0))
-    worlds = args.worlds or sorted({8, cores} if cores > 8 else {8})
-    if args.tiny:
-        worlds = args.worlds or [2]
+    worlds = args.worlds or ([2] if args.tiny else [8, 2 * cores] if cores > 4 else [8])
+    threads = args.env_threads or [2, max(2, cores // 2)][: len(worlds)]
+    if len(threads) != len(worlds):
+        cli.fail("bench_gpu.py", f"env_threads={threads}: give one per worlds value ({worlds})")
     for algo in args.algos:
-        for n in worlds:
+        for n, env_threads in zip(worlds, threads):
             if bench.left() < args.loop_seconds + 20:
                 bench.data["skipped"].append(f"{algo} with {n} worlds: budget_s spent")
                 bench.save()
                 continue
             span = f"{n * 64} env steps of the debug preset" if args.tiny else f"{args.loop_seconds:g} s"
-            print(f"  {algo}, {n} worlds, {span} ...", flush=True)
-            run_dir = scratch / f"{algo}-{n}"
+            print(f"  {algo}, {n} worlds on {env_threads} env threads, {span} ...", flush=True)
+            run_dir = scratch / f"{algo}-{n}-{env_threads}"
             overrides = [
                 f"algo={algo}",
                 f"level={args.level}",
@@ -367,7 +375,9 @@ def loops_section(bench: Bench, scratch: Path) -> None:
             ]
             if algo == "ppo":
                 overrides.append(f"algo.frames_per_batch={n * (16 if args.tiny else 128)}")
-            row: dict = {"algo": algo, "num_envs": n, "overrides": overrides}
+            row: dict = {"algo": algo, "num_envs": n, "env_threads": env_threads, "overrides": overrides}
+            previous = os.environ.get("EVAAA_THREADS")
+            os.environ["EVAAA_THREADS"] = str(env_threads)  # read when the run makes its env
             try:
                 with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
                     cfg = compose("config", overrides=overrides)
@@ -386,6 +396,11 @@ def loops_section(bench: Bench, scratch: Path) -> None:
             except (Exception, SystemExit) as err:
                 row["error"] = f"{type(err).__name__}: {err}"[:2000]
                 print(f"    failed: {row['error'][:300]}", flush=True)
+            finally:
+                if previous is None:
+                    os.environ.pop("EVAAA_THREADS", None)
+                else:
+                    os.environ["EVAAA_THREADS"] = previous
             bench.data["loops"].append(row)
             bench.save()
 

@@ -20,6 +20,7 @@ def test_the_gpu_bench_runs_on_a_cpu_at_tiny_sizes_and_writes_its_json(tmp_path)
             "updates=1",
             "algos=[ppo]",
             "worlds=[2]",
+            "env_threads=[1]",
             f"out={out}",
         ]
     )
@@ -38,5 +39,5 @@ def test_the_gpu_bench_runs_on_a_cpu_at_tiny_sizes_and_writes_its_json(tmp_path)
     replay = figures["replay"]["XS"]
     assert replay["transitions"] == 256 and replay["draw_ms"] > 0 and replay["draw_slice_sampler_ms"] > 0
     (loop,) = figures["loops"]
-    assert loop["algo"] == "ppo" and loop["num_envs"] == 2 and loop["env_steps"] == 128
+    assert loop["algo"] == "ppo" and loop["num_envs"] == 2 and loop["env_threads"] == 1 and loop["env_steps"] == 128
     assert loop["steady_env_steps_per_s"] > 0 and "error" not in loop
