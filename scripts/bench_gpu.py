@@ -346,8 +346,7 @@ def loops_section(bench: Bench, scratch: Path) -> None:
     cores = len(os.sched_getaffinity(0))
     worlds = args.worlds or ([2] if args.tiny else [8, 2 * cores] if cores > 4 else [8])
     threads = args.env_threads or [2, max(2, cores // 2)][: len(worlds)]
-    if len(threads) != len(worlds):
-        cli.fail("bench_gpu.py", f"env_threads={threads}: give one per worlds value ({worlds})")
+    threads += [2] * (len(worlds) - len(threads))  # worlds given alone: 2 env threads each
     for algo in args.algos:
         for n, env_threads in zip(worlds, threads):
             if bench.left() < args.loop_seconds + 20:
@@ -424,6 +423,11 @@ def main(argv: list[str] | None = None) -> int:
         description=__doc__.split("\n\n")[0],
         examples=["out=docs/bench/gpu-h100.json", "device=cpu tiny=true out=/tmp/gpu.json"],
     )
+    if args.env_threads and len(args.env_threads) != len(args.worlds):
+        cli.fail(
+            "bench_gpu.py",
+            f"env_threads={cli._show(args.env_threads)}: give worlds= too, one value per env_threads value",
+        )
     from evaaa_baselines.config import register_levels
     from evaaa_baselines.runtime import DeviceError, resolve_device
 
