@@ -81,6 +81,7 @@ class GpuBenchConfig:
         540.0, "no measurement starts after this many seconds", check=(lambda v: v > 0, "a number > 0")
     )
     level: str = option("1-1", "level the PPO and DQN runs train on", choices=lambda: list(evaaa.LEVELS))
+    deterministic: bool = option(True, "deterministic CUDA kernels, as training's default deterministic=true")
 
 
 class Bench:
@@ -238,7 +239,7 @@ def count_launches(learner, batch, device: torch.device) -> dict:
     if device.type == "cuda":
         out["kernels"] = sum(1 for e in events if str(e.device_type).endswith("CUDA"))
         out["kernel_launch_calls"] = sum(
-            n in ("cudaLaunchKernel", "cuLaunchKernel", "cudaLaunchKernelExC") for n in names
+            n in ("cudaLaunchKernel", "cudaLaunchKernelExC", "cuLaunchKernel", "cuLaunchKernelEx") for n in names
         )
         out["graph_launches"] = sum(n == "cudaGraphLaunch" for n in names)
     return out
@@ -361,6 +362,7 @@ def loops_section(bench: Bench, scratch: Path) -> None:
                 f"level={args.level}",
                 f"env.num_envs={n}",
                 f"device={bench.device}",
+                f"deterministic={str(args.deterministic).lower()}",
                 "eval.every=0",
                 "checkpoint.every=1000000000",
                 "logger=csv",
@@ -436,6 +438,9 @@ def main(argv: list[str] | None = None) -> int:
     except DeviceError as err:
         cli.fail("bench_gpu.py", str(err))
     register_levels()
+    from evaaa_baselines.runtime import deterministic_kernels
+
+    deterministic_kernels(args.deterministic, device)  # as a training run of the same setting
     bench = Bench(args, device)
     bench.replays = {}
     info = bench.data["machine"]
