@@ -34,6 +34,7 @@ from torchrl.objectives.value import GAE
 
 from evaaa import ACTION_NAMES
 
+from .devices import to_device
 from .nets import MultimodalEncoder, compile_networks, head, stacked_shapes
 from .run import Run
 
@@ -99,7 +100,11 @@ def _minibatches(batch: TensorDictBase, cfg: DictConfig) -> Iterator[TensorDictB
         units = batch.reshape(worlds, steps // cfg.sequence_length, cfg.sequence_length).flatten(0, 1)
     else:
         units = batch.reshape(-1)
-    for index in torch.randperm(units.shape[0]).chunk(cfg.num_minibatches):  # drawn on the CPU on every device
+    # drawn on the CPU on every device (the same minibatches everywhere), sent to the batch's device once per epoch
+    order = torch.randperm(units.shape[0])
+    if units.device is not None and units.device.type == "cuda":
+        order = order.to(units.device, non_blocking=True)
+    for index in order.chunk(cfg.num_minibatches):
         yield units[index]
 
 
@@ -240,7 +245,7 @@ def train(run: Run) -> None:
         began = time.perf_counter()
         if return_scale is not None:
             return_scale(batch)  # the episodes' logged returns stay the env's own
-        batch = batch.to(run.device)
+        batch = to_device(batch, run.device)  # on a GPU through pinned memory, without blocking the host
         with torch.no_grad(), set_recurrent_mode(recurrent), run.autocast():
             advantage(batch)
 

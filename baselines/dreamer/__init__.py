@@ -10,13 +10,16 @@ order a gradient step uses them:
 * :mod:`.replay` — the sequence replay buffer, on disk or in memory;
 * :mod:`.losses` — the world-model loss with its extra reconstruction terms, the critic's loss on replayed
   sequences, and the diagnostics a logged gradient step reports;
+* :mod:`.update` — :class:`~.update.Learner`, the gradient step in three phases (world model, actor, critic),
+  each replayable as a CUDA graph, with the optimisers and the slow critic (``algo.update``);
 * :mod:`.openloop` — the open-loop prediction pictures written during training;
-* :mod:`.loop` — :func:`train`, the training loop and its gradient step;
+* :mod:`.loop` — :func:`train`, the training loop;
 * :mod:`.probes` — offline probes of a finished run's checkpoint and replay (used by ``scripts/probe_dreamer.py``
   and ``scripts/fit_world_model.py``, never by training).
 """
 
 from .loop import train
 from .model import make_model, make_policy, make_transforms
+from .update import check_config
 
-__all__ = ["make_model", "make_policy", "make_transforms", "train"]
+__all__ = ["check_config", "make_model", "make_policy", "make_transforms", "train"]

@@ -78,6 +78,11 @@ class SequenceReplay:
         #: sequences of each training batch drawn around a step that ended an episode (``terminated``)
         self.terminal_sequences = min(round(terminal_share * batch_size), batch_size - self.consume_sequences)
         self._sampled = torch.Generator().manual_seed(0)
+        #: the uniform draws' generator: None (the global torch RNG) unless :meth:`use_own_generator`
+        self._prefetch_rng: torch.Generator | None = None
+        #: a batch drawn ahead (:meth:`prefetch`) and the generators' states from before its draw
+        self._pending: TensorDictBase | None = None
+        self._pending_states: dict[str, torch.Tensor] | None = None
         self.capacity = capacity - capacity % num_envs
         if directory is not None:
             storage = LazyMemmapStorage(self.capacity, scratch_dir=directory, ndim=2, existsok=True)
@@ -115,8 +120,16 @@ class SequenceReplay:
         return batch.to(self.device)
 
     def sample(self, sequences: int | None = None, length: int | None = None) -> TensorDictBase:
-        """``[sequences, length]`` consecutive steps of random worlds (default: the training batch), on the device."""
+        """``[sequences, length]`` consecutive steps of random worlds (default: the training batch), on the device.
+
+        The training batch is drawn on the global torch RNG, or on the replay's own generator once
+        :meth:`use_own_generator` was called (``algo.update.prefetch``: the next batch is drawn while the current
+        gradient step runs, so it must not take its draws from the stream the gradient step uses)."""
         if sequences is None and length is None:
+            if self._pending is not None:
+                batch, self._pending, self._pending_states = self._pending, None, None
+                return batch
+            generator = self._prefetch_rng
             around = [
                 part
                 for key, count in (
@@ -125,17 +138,56 @@ class SequenceReplay:
                 )
                 if count and (part := self._around(key, count)) is not None
             ]
-            if not around:
-                batch = self.buffer.sample()
-                return self._to_device(batch.reshape(self.batch_size, self.sequence_length))
             uniform = self.batch_size - sum(len(part) for part in around)
             if uniform:
-                index, _ = self.buffer.sampler.sample(self.buffer.storage, uniform * self.sequence_length)
-                around.insert(0, self.buffer.storage[index].reshape(uniform, self.sequence_length))
-            return self._to_device(torch.cat(around, dim=0))
-        sampler = SliceSampler(slice_len=length, traj_key="world", truncated_key=None)
-        index, _ = sampler.sample(self.buffer.storage, sequences * length)
-        return self._to_device(self.buffer.storage[index].reshape(sequences, length))
+                around.insert(0, self._uniform(uniform, self.sequence_length, generator))
+            return self._to_device(torch.cat(around, dim=0) if len(around) > 1 else around[0])
+        return self._to_device(self._uniform(sequences, length))
+
+    def _uniform(self, sequences: int, length: int, generator: torch.Generator | None = None) -> TensorDictBase:
+        """``[sequences, length]`` consecutive steps, each sequence of a uniformly drawn world from a uniformly drawn
+        start, in O(sequences x length): the same draws (the same RNG calls on the same stream) as torchrl's
+        ``SliceSampler`` over the worlds' streams, which recomputes every world's trajectory bounds over the whole
+        buffer at each sample.  A world's stream is its column: rows 0.. until the buffer is full, then from the
+        writer's cursor (the oldest row) round to the newest, so no sequence crosses the cursor."""
+        rows, storage_rows = self.rows, self.capacity // self.num_envs
+        if rows < length:
+            raise RuntimeError(f"the replay holds {rows} steps per world, fewer than a sequence's {length}")
+        data = self.buffer.storage._storage
+        device = data.device if data.device is not None else torch.device("cpu")
+        first = int(self.buffer._writer._cursor) % storage_rows if rows == storage_rows else 0
+        world = torch.randint(self.num_envs, (sequences,), device=device, generator=generator)
+        windows = torch.full((sequences,), rows - length + 1, dtype=torch.long, device=device)
+        start = (torch.rand(sequences, device=device, generator=generator) * windows).floor().long() + first
+        time = (start[:, None] + torch.arange(length, device=device)) % storage_rows
+        return data[time.reshape(-1), world.repeat_interleave(length)].reshape(sequences, length)
+
+    def prefetch(self) -> None:
+        """Draw the next training batch now and start its copy to the device (without waiting for it): the next
+        :meth:`sample` returns it.  Called while a gradient step runs on the GPU, it takes the sampling off the
+        critical path.  A checkpoint taken while a batch is pending keeps the generators' states from before its
+        draw, so that the resumed run draws it again (the buffer does not change between the two)."""
+        if self._prefetch_rng is None:
+            raise RuntimeError("SequenceReplay.prefetch needs the replay's own generator (use_own_generator)")
+        if self._pending is None:
+            states = self._generator_states()
+            self._pending = self.sample()
+            self._pending_states = states
+
+    def _generator_states(self) -> dict[str, torch.Tensor]:
+        states = {"sampled": self._sampled.get_state()}
+        if self._prefetch_rng is not None:
+            states["prefetch"] = self._prefetch_rng.get_state()
+        return states
+
+    def use_own_generator(self, seed: int) -> None:
+        """Draw the training batches' uniform sequences on a generator of their own, seeded with ``seed`` (and
+        checkpointed), instead of the global torch RNG: for ``algo.update.prefetch``."""
+        self._prefetch_rng = torch.Generator(device=self._sample_device).manual_seed(seed)
+
+    @property
+    def _sample_device(self) -> torch.device:
+        return torch.device("cpu") if self.directory is not None else self.device
 
     def _around(self, key: tuple[str, str], count: int) -> TensorDictBase | None:
         """``count`` sequences, each holding a stored step whose ``key`` is set (``("next", "consumed")``: it ate or
@@ -175,9 +227,15 @@ class SequenceReplay:
     def state_dict(self) -> dict:
         storage = self.buffer.storage
         writer = self.buffer._writer.state_dict()
+        # the sampling generators (kept only where they matter, so that a checkpoint of a run without them holds
+        # what it always held): those of the shares' draws and of the prefetched batches
+        generators = dict(self._pending_states or self._generator_states())
+        if not (self.consume_sequences or self.terminal_sequences):
+            generators.pop("sampled")
+        extra = {"generators": generators} if generators else {}
         if self.directory is None:
             rows = storage._storage[: self.rows].clone() if self.rows else None
-            return {"rows": rows, "writer": writer}
+            return {"rows": rows, "writer": writer, **extra}
         guard = self._overwritten_next() if self.rows else torch.zeros(0, dtype=torch.long)
         self.flush()
         return {
@@ -186,6 +244,7 @@ class SequenceReplay:
             "writer": writer,
             "guard_index": guard,
             "guard_rows": storage._storage[guard].clone() if len(guard) else None,
+            **extra,
         }
 
     def load_state_dict(self, state: Mapping) -> None:
@@ -196,6 +255,21 @@ class SequenceReplay:
                 + f"; this run's is {self.place}: resume with the algo.buffer_on_disk it was made with"
             )
         self.buffer.empty()
+        self._pending, self._pending_states = None, None
+        generators = state.get("generators", {})
+        if "sampled" in generators:
+            self._sampled.set_state(generators["sampled"])
+        if "prefetch" in generators:
+            if self._prefetch_rng is None:
+                raise ValueError(
+                    "the checkpoint's replay drew its batches ahead (algo.update.prefetch=true); resume with it"
+                )
+            self._prefetch_rng.set_state(generators["prefetch"])
+        elif self._prefetch_rng is not None and ("rows" in state or state.get("length")):
+            raise ValueError(
+                "the checkpoint's replay drew its batches on the global RNG (algo.update.prefetch=false); resume "
+                "with it"
+            )
         if self.directory is None:
             if state["rows"] is not None:
                 self.buffer.extend(state["rows"].transpose(0, 1))  # rows 0.. in storage order, as they were
