@@ -22,19 +22,9 @@ from pathlib import Path
 
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
-from evaaa_baselines.protocol import (
-    EXECUTORS,
-    REPO,
-    Layout,
-    ProtocolError,
-    Runner,
-    build_cells,
-    keep_out_of_git,
-    load_protocol,
-    plan_text,
-    select,
-    status,
-)
+from evaaa_baselines.paper.cells import Layout, build_cells, keep_out_of_git, plan_text, status
+from evaaa_baselines.paper.protocol import REPO, ProtocolError, load_protocol
+from evaaa_baselines.paper.running import EXECUTORS, Runner, select
 
 
 @dataclass

@@ -1,4 +1,4 @@
-"""The rules that judge the paper's claims (a)–(e) (evaaa_baselines.reports.claims), on aggregated tables written
+"""The rules that judge the paper's claims (a)–(e) (evaaa_baselines.paper.claims), on aggregated tables written
 here by hand: every rule reaches each of its verdicts — reproduced, contradicted, not resolvable at this scale —
 from the numbers that should give it, and says which numbers it used."""
 
@@ -7,7 +7,7 @@ from __future__ import annotations
 import pandas as pd
 import pytest
 
-from evaaa_baselines.reports import claims as c
+from evaaa_baselines.paper import claims as c
 
 LEVELS = ["1-1", "1-2", "2-1", "2-2", "3-1", "3-2", "4-1", "4-2"]
 

@@ -14,7 +14,9 @@ from pathlib import Path
 import pytest
 from helpers import load_script, ray_head
 
-from evaaa_baselines.protocol import Cell, Command, Layout, Runner, load_protocol, status
+from evaaa_baselines.paper.cells import Cell, Command, Layout, status
+from evaaa_baselines.paper.protocol import load_protocol
+from evaaa_baselines.paper.running import Runner
 
 ray = pytest.importorskip("ray")
 submitit = pytest.importorskip("submitit")
@@ -176,7 +178,7 @@ def test_the_smoke_protocol_end_to_end_on_an_engine(tmp_path, executor, request)
         args.append("submitit_cluster=local")
     assert reproduce.main(args) == 0
     root = tmp_path / "root"
-    from evaaa_baselines.protocol import build_cells
+    from evaaa_baselines.paper.cells import build_cells
 
     cells = build_cells(load_protocol("smoke"), root)
     lay = Layout(root)

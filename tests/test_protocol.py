@@ -1,4 +1,4 @@
-"""The paper's protocol (baselines/protocol.py, scripts/reproduce.py): the paper_cpu file expands into the cells the
+"""The paper's protocol (baselines/paper/, scripts/reproduce.py): the paper_cpu file expands into the cells the
 issue asks for with the decisions it encodes; a bad field is refused naming it; the scheduler respects what each cell
 needs, moves an unfinished evaluation aside, blocks what a failed cell would have fed, and runs again only what is
 not done; a tiny real protocol runs end to end into a report and a second run does nothing."""
@@ -12,17 +12,9 @@ import pytest
 import yaml
 from helpers import load_script
 
-from evaaa_baselines.protocol import (
-    Cell,
-    Command,
-    Layout,
-    ProtocolError,
-    Runner,
-    build_cells,
-    load_protocol,
-    provenance,
-    status,
-)
+from evaaa_baselines.paper.cells import Cell, Command, Layout, build_cells, provenance, status
+from evaaa_baselines.paper.protocol import ProtocolError, load_protocol
+from evaaa_baselines.paper.running import Runner
 
 reproduce = load_script("reproduce")
 
@@ -240,7 +232,7 @@ def test_cells_run_when_what_they_need_exists_and_a_second_run_has_nothing_to_do
 def test_every_finished_cell_records_the_wall_time_it_took_and_the_plan_sums_them(tmp_path):
     import json
 
-    from evaaa_baselines.protocol import plan_text
+    from evaaa_baselines.paper.cells import plan_text
 
     lay, cells = _fake(tmp_path)
     train = cells[0]
@@ -295,7 +287,7 @@ def test_an_unfinished_evaluation_is_moved_aside_and_run_again(tmp_path):
 def test_a_started_training_run_continues_with_resume_and_redo_starts_over(tmp_path):
     lay, cells = _fake(tmp_path)
     train = cells[0]
-    from evaaa_baselines.protocol import command_now
+    from evaaa_baselines.paper.cells import command_now
 
     assert command_now(train, lay)[0].argv == train.commands[0].argv
     train.run_dir.mkdir(parents=True)
@@ -484,7 +476,7 @@ def test_a_failed_cell_is_tried_again_once_and_continues(tmp_path):
 
 # ------------------------------------------------------------------------------------------------ committed results
 def test_a_finished_training_whose_models_are_gone_is_trained_again_only_for_evaluations_left(tmp_path):
-    from evaaa_baselines.protocol import command_now
+    from evaaa_baselines.paper.cells import command_now
 
     lay, cells = _fake(tmp_path)
     train, ev, _ = cells
@@ -545,7 +537,7 @@ def test_a_training_from_zero_has_its_earlier_evaluations_made_again_from_the_ne
 
 
 def test_commands_name_files_inside_the_repository_relative_to_it(tmp_path):
-    from evaaa_baselines.protocol import REPO
+    from evaaa_baselines.paper.protocol import REPO
 
     inside = REPO / "runs" / "protocol" / "named-relative"
     for root, prefix in ((inside, "runs/protocol/named-relative/"), (tmp_path, f"{tmp_path.resolve()}/")):
@@ -561,7 +553,8 @@ def test_a_root_inside_the_repository_keeps_models_and_logs_out_of_git(tmp_path)
     import shutil
     import subprocess
 
-    from evaaa_baselines.protocol import GITIGNORE, REPO, keep_out_of_git
+    from evaaa_baselines.paper.cells import GITIGNORE, keep_out_of_git
+    from evaaa_baselines.paper.protocol import REPO
 
     assert keep_out_of_git(Layout(tmp_path / "outside")) is None and not (tmp_path / "outside").exists()
     inside = REPO / "runs" / "protocol" / "gitignore-test"

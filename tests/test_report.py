@@ -971,7 +971,7 @@ def test_training_writes_the_episode_fields_of_evaluations():
 
 # ------------------------------------------------------------------------------------------------ the claims
 def test_the_claims_are_judged_on_the_numbers_of_the_report(world):
-    from evaaa_baselines.reports import claims as rules
+    from evaaa_baselines.paper import claims as rules
     from evaaa_baselines.reports.sections import claim_verdicts, read_inputs
 
     text = world["text"]
@@ -1228,7 +1228,7 @@ def test_curriculum_and_direct_are_shown_with_the_env_steps_each_has_seen(world,
     assert equal["1-2"]["ppo · direct"] == expect(
         [[sim.runs[d]["final"]["1-2"]] for d in direct] + [[other.runs[d]["final"]["1-2"]] for d in short], per_seed=2
     )
-    from evaaa_baselines.reports import claims as rules
+    from evaaa_baselines.paper import claims as rules
     from evaaa_baselines.reports.sections import claim_verdicts, read_inputs
 
     (b,) = [v for v in claim_verdicts(read_inputs([tmp_path / "runs"], [])) if v.claim.startswith("(b)")]

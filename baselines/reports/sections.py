@@ -17,7 +17,7 @@ import pandas as pd
 
 import evaaa
 
-from . import claims as rules
+from ..paper import claims as rules
 from .aggregate import STAT_COLUMNS, across_seeds, curves, evaluation_points, final_survival, per_run, reference_stats
 from .figures import plot_bars, plot_lines
 from .load import (

@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats as sps
 
-from .stats import MIN_SEEDS, holm
+from ..reports.stats import MIN_SEEDS, holm
 
 REPRODUCED, CONTRADICTED, UNRESOLVED = "reproduced", "contradicted", "not resolvable at this scale"
 

@@ -1,0 +1,690 @@
+"""A protocol's cells (training runs, evaluations, references, the report), each a few subprocess commands; their status read
+from the files they write; the plan (CPU- and GPU-hours) and the provenance of a record."""
+
+from __future__ import annotations
+
+import json
+import os
+import shlex
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from functools import cache
+from pathlib import Path
+from typing import Literal
+
+import evaaa
+
+from ..rollout import samples_actions
+from .protocol import CHECKPOINTS, LEVEL_GROUPS, REPO, STARTUP_SECONDS, AlgorithmSpec, EvaluationSpec, Protocol
+
+
+# ------------------------------------------------------------------------------------------------ cells
+@dataclass
+class Command:
+    """One subprocess of a cell; ``out``: the evaluation folder it writes (None for training and the report)."""
+
+    argv: list[str]
+    out: Path | None = None
+
+    def text(self, threads: int) -> str:
+        return f"EVAAA_THREADS={threads} python " + " ".join(shlex.quote(a) for a in self.argv)
+
+
+@dataclass
+class Cell:
+    """One experiment of the protocol: its name, what kind, its commands, the files it needs and makes."""
+
+    name: str
+    kind: Literal["train", "eval", "ref", "report"]
+    commands: list[Command]
+    minutes: float  # estimated CPU-minutes
+    group: str  # the budget line it counts in (e.g. "ppo curriculum", "evaluation")
+    run_dir: Path | None = None  # training: the run directory
+    final_model: Path | None = None  # training: the last stage's model
+    needs: list[Path] = field(default_factory=list)  # files that must exist before it starts (models)
+    needs_cells: list[str] = field(default_factory=list)  # cells whose outputs those are
+    keep_checkpoints: bool = True  # training: false deletes the run's checkpoints once it is done
+    report_out: Path | None = None  # the report: its folder
+
+
+def _safe(name: str) -> str:
+    return name.replace("/", os.sep)
+
+
+@cache
+def max_steps(level: str) -> int:
+    """A level's episode cap (decisions), for the estimates."""
+    return int(evaaa.load_level(level).episode.max_steps)
+
+
+def expand_levels(names: Sequence[str]) -> list[str]:
+    out: list[str] = []
+    for n in names:
+        out += [x for x in LEVEL_GROUPS.get(n, (n,)) if x not in out]
+    return out
+
+
+class Layout:
+    """Where a protocol's files go under ``root``."""
+
+    def __init__(self, root: Path):
+        self.root = root.resolve()
+        self.runs = self.root / "runs"
+        self.evals = self.root / "evals"
+        self.logs = self.root / "logs"
+        self.done = self.root / "done"
+
+    def marker(self, cell: str) -> Path:
+        return self.done / f"{_safe(cell)}.done"
+
+    def log(self, cell: str) -> Path:
+        return self.logs / f"{_safe(cell)}.log"
+
+    def clock(self, cell: str) -> Path:
+        """The wall and CPU seconds the cell's commands have run so far, over every session (JSON)."""
+        return self.done / f"{_safe(cell)}.seconds"
+
+    def took(self, cell: str, key: str = "cpu_seconds") -> float | None:
+        """CPU seconds a done cell took (its marker), or None where it was not timed; ``key="seconds"``: the wall
+        seconds of its commands."""
+        marker = self.marker(cell)
+        try:
+            seconds = json.loads(marker.read_text()).get(key) if marker.exists() else None
+        except (ValueError, AttributeError):
+            return None
+        return float(seconds) if isinstance(seconds, (int, float)) else None
+
+    def wall(self, cell: str) -> float | None:
+        """Wall seconds a done cell's commands ran (its marker), or None where it was not timed."""
+        return self.took(cell, "seconds")
+
+
+def read_clock(path: Path) -> dict[str, float]:
+    """A cell's running account (:meth:`Layout.clock`); zeros where there is none or it cannot be read."""
+    try:
+        account = json.loads(path.read_text())
+        return {k: float(account[k]) for k in ("seconds", "cpu_seconds")}
+    except (OSError, ValueError, KeyError, TypeError):
+        return {"seconds": 0.0, "cpu_seconds": 0.0}
+
+
+def arg(path: Path) -> str:
+    """``path`` as a command line names it: relative to the repository root (where every cell runs) when it lies
+    inside it, so that the files a protocol writes there (evaluations name their checkpoints) hold on any clone."""
+    try:
+        return str(Path(path).resolve().relative_to(REPO.resolve()))
+    except ValueError:
+        return str(path)
+
+
+#: what keep_out_of_git writes: a protocol's committed results are its settings, CSV logs, evaluation episodes and
+#: done-markers, never its models, checkpoints, logs of text or per-evaluation figures (each report draws its own);
+#: ``runs/``, which the repository's own .gitignore leaves out everywhere, is taken back in
+GITIGNORE = """\
+# written by scripts/reproduce.py: commit the results, not the models, checkpoints, text logs or figures
+!/runs/
+*.pt
+*.log
+/logs/
+/evals/**/*.png
+.reproduce.lock
+*.seconds
+*.partial-*/
+*.old-*/
+.*.replaced-*/
+"""
+
+
+def keep_out_of_git(lay: Layout) -> Path | None:
+    """Inside the repository, give ``lay.root`` its ``.gitignore`` (:data:`GITIGNORE`; one already there is kept
+    as it is); returns the file written, or None."""
+    try:
+        lay.root.resolve().relative_to(REPO.resolve())
+    except ValueError:
+        return None
+    path = lay.root / ".gitignore"
+    if path.exists():
+        return None
+    lay.root.mkdir(parents=True, exist_ok=True)
+    path.write_text(GITIGNORE)
+    return path
+
+
+def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list[Cell]:
+    """Every cell of ``p`` with its files under ``root``, in the order the scheduler prefers: the parts in
+    ``p.order`` (within a part, per algorithm each training run followed by the evaluations of its models; the
+    matched comparison seed by seed), then the report."""
+    lay = Layout(root)
+    S, levels, th = p.stage_steps, p.stage_levels, p.threads
+    ev = p.evaluation
+    parts: dict[str, list[Cell]] = {part: [] for part in p.order}
+    eval_outs: list[Path] = []
+    modes = eval_modes(ev)
+
+    def eval_cell(name: str, model: Path, own: str, train_cell: str, sps: float, algo: str) -> Cell:
+        cmds, seconds = [], 0.0
+        # an algorithm without an action distribution acts the same when asked to sample: evaluated once
+        own_modes = [m for m in modes if m == "mode" or samples_actions(algo)] or modes
+        for mode in own_modes:
+            suffix = "" if len(modes) == 1 else f"-{mode}"
+            common = [
+                f"seed={ev.seed}",
+                f"epsilon={ev.epsilon:g}",
+                f"sample={str(mode == 'sample').lower()}",
+                f"threads={th}",
+                f"policy=[{arg(model)}]",
+            ]
+            if ev.worlds != "test":
+                common.append(f"worlds={ev.worlds}")
+            if ev.testbeds is not None:
+                out = lay.evals / _safe(name.removeprefix("eval/")) / f"testbeds{suffix}"
+                tb = expand_levels(ev.testbeds.levels)
+                cmds.append(
+                    Command(
+                        [
+                            "scripts/evaluate.py",
+                            *common,
+                            f"levels=[{','.join(ev.testbeds.levels)}]",
+                            f"episodes={ev.testbeds.episodes}",
+                            f"num_envs={ev.testbeds.num_envs}",
+                            f"out={arg(out)}",
+                        ],
+                        out,
+                    )
+                )
+                seconds += STARTUP_SECONDS + ev.testbeds.episodes * sum(max_steps(t) for t in tb) / sps
+            if ev.own_level is not None:
+                out = lay.evals / _safe(name.removeprefix("eval/")) / f"level{suffix}"
+                cmds.append(
+                    Command(
+                        [
+                            "scripts/evaluate.py",
+                            *common,
+                            f"levels=[{own}]",
+                            f"episodes={ev.own_level.episodes}",
+                            f"num_envs={ev.own_level.num_envs}",
+                            f"out={arg(out)}",
+                        ],
+                        out,
+                    )
+                )
+                seconds += STARTUP_SECONDS + ev.own_level.episodes * max_steps(own) / sps
+        eval_outs.extend(c.out for c in cmds if c.out is not None)
+        return Cell(name, "eval", cmds, seconds / 60, f"{algo} evaluation", needs=[model], needs_cells=[train_cell])
+
+    if p.references is not None:
+        ref = p.references
+        for policy in ref.policies:
+            names = ref.levels_of.get(policy, ref.levels)
+            ref_levels = expand_levels(names)
+            out = lay.evals / "ref" / policy
+            cmd = Command(
+                [
+                    "scripts/evaluate.py",
+                    f"policy=[{policy}]",
+                    f"levels=[{','.join(names)}]",
+                    f"episodes={ref.episodes}",
+                    f"num_envs={ref.num_envs}",
+                    f"seed={ev.seed}",
+                    f"threads={th}",
+                    *([f"worlds={ev.worlds}"] if ev.worlds != "test" else []),
+                    f"out={arg(out)}",
+                ],
+                out,
+            )
+            seconds = STARTUP_SECONDS + ref.episodes * sum(max_steps(lv) for lv in ref_levels) / ref.steps_per_second
+            parts["references"].append(Cell(f"ref/{policy}", "ref", [cmd], seconds / 60, "references"))
+            eval_outs.append(out)
+
+    def train_cell(
+        part: str,
+        algo: str,
+        spec: AlgorithmSpec,
+        setup: str,
+        seed: int,
+        level_args: list[str],
+        stages: list[str],
+        group: str,
+        extra: Sequence[str] = (),
+        steps: int | None = None,
+        minutes: float | None = None,
+    ) -> None:
+        name = f"train/{algo}/{setup}/seed{seed}"
+        run_name = f"{algo}/{setup}/seed{seed}"
+        run_dir = lay.runs / _safe(run_name)
+        argv = [
+            "scripts/train.py",
+            f"algo={algo}",
+            *level_args,
+            f"seed={seed}",
+            f"threads={th}",
+            *p.training.overrides,
+            *spec.overrides,
+            *extra,
+            f"run.root={arg(lay.runs)}",
+            f"run.name={run_name}",
+        ]
+        if minutes is None:
+            minutes = (STARTUP_SECONDS + (steps or S * len(stages)) / spec.steps_per_second) / 60
+        final = run_dir / f"model-{len(stages) - 1}-{stages[-1]}.pt"
+        cells = parts[part]
+        cells.append(
+            Cell(
+                name,
+                "train",
+                [Command(argv)],
+                minutes,
+                f"{algo} {group}",
+                run_dir=run_dir,
+                final_model=final,
+                keep_checkpoints=spec.keep_checkpoints,
+            )
+        )
+        if len(stages) > 1:
+            for i, lv in enumerate(stages):
+                cells.append(
+                    eval_cell(
+                        f"eval/{algo}/{setup}/seed{seed}/stage{i}-{lv}",
+                        run_dir / f"model-{i}-{lv}.pt",
+                        lv,
+                        name,
+                        ev.steps_per_second,
+                        algo,
+                    )
+                )
+        else:
+            cells.append(
+                eval_cell(f"eval/{algo}/{setup}/seed{seed}", final, stages[0], name, ev.steps_per_second, algo)
+            )
+
+    enabled = [a for a, spec in p.algorithms.items() if spec.enabled]
+    trained = p.training.algorithms if p.training.algorithms is not None else enabled
+    ab = p.ablations if p.ablations is not None and p.ablations.enabled else None
+    for algo in enabled:
+        spec = p.algorithms[algo]
+        if algo in trained and p.training.curriculum:
+            for seed in p.seeds:
+                train_cell(
+                    "curriculum",
+                    algo,
+                    spec,
+                    "curriculum",
+                    seed,
+                    ["level=curriculum", f"level.stages=[{','.join(levels)}]", f"level.stage_steps={S}"],
+                    levels,
+                    "curriculum",
+                )
+        direct_levels = list(p.training.direct_levels or levels) if p.training.direct and algo in trained else []
+        shares_all = ab is not None and ab.algorithm == algo and "all" in ab.modalities
+        for lv in dict.fromkeys([*direct_levels, *([ab.level] if shares_all else [])]):
+            # the ablation's `all` condition is the direct run on its level, trained once
+            ablation_only = lv not in direct_levels
+            seeds = (ab.seeds or p.seeds) if ablation_only else p.seeds
+            if shares_all and lv == ab.level:
+                seeds = list(dict.fromkeys([*seeds, *(ab.seeds or p.seeds)]))
+            k = levels.index(lv) if lv in levels else 0
+            steps = S * (k + 1) if p.training.direct_steps == "matched" and not ablation_only else S
+            part = "ablations" if ablation_only or (shares_all and lv == ab.level and k == 0) else "direct"
+            for seed in seeds:
+                train_cell(
+                    part,
+                    algo,
+                    spec,
+                    f"direct-{lv}",
+                    seed,
+                    [f"level={lv}", f"total_steps={steps}"],
+                    [lv],
+                    "direct",
+                    steps=steps,
+                )
+        if ab is not None and ab.algorithm == algo:
+            for mod in ab.modalities:
+                if mod == "all":
+                    continue
+                for seed in ab.seeds or p.seeds:
+                    train_cell(
+                        "ablations",
+                        algo,
+                        spec,
+                        f"ablation-{mod}",
+                        seed,
+                        [f"level={ab.level}", f"total_steps={S}"],
+                        [ab.level],
+                        "ablations",
+                        extra=[f"modality={mod}"],
+                    )
+    if p.matched is not None:
+        m = p.matched
+        for seed in m.seeds or p.seeds:
+            for algo in m.algorithms or enabled:
+                # a step budget no run reaches: the CPU minutes end every run
+                train_cell(
+                    "matched",
+                    algo,
+                    p.algorithms[algo],
+                    f"matched-{m.level}",
+                    seed,
+                    [f"level={m.level}", f"total_steps={MATCHED_STEPS}", f"max_cpu_minutes={m.cpu_minutes:g}"],
+                    [m.level],
+                    "matched",
+                    extra=m.overrides.get(algo, []),
+                    minutes=m.cpu_minutes + STARTUP_SECONDS / 60,
+                )
+    cells = [c for part in p.order for c in parts[part]]
+
+    out = (
+        Path(report_out)
+        if report_out is not None
+        else lay.root / "report"
+        if p.report.out is None
+        else REPO / p.report.out
+    )
+    out = out.resolve()
+    title = p.report.title or default_title(p)
+    argv = [
+        "scripts/report.py",
+        f"runs=[{arg(lay.runs)}]",
+        "evals=[" + ",".join(map(arg, eval_outs)) + "]",
+        f"out={arg(out)}",
+        f"survival={p.report.survival}",
+        f"title={title}",
+    ]
+    if any(c.kind == "eval" for c in cells) and len(modes) == 1:
+        # several modes: the report shows each, labelled, and its claims take the mode every agent has
+        argv.append(f"acting={acting(ev)}")
+    cells.append(
+        Cell(
+            "report",
+            "report",
+            [Command(argv, None)],
+            1.0,
+            "report",
+            needs_cells=[c.name for c in cells],
+            report_out=out,
+        )
+    )
+    return cells
+
+
+#: the env-step budget of a compute-matched run: more than any run reaches in its CPU minutes
+MATCHED_STEPS = 1_000_000_000
+
+
+def eval_modes(ev: EvaluationSpec) -> list[str]:
+    """The acting modes every model is evaluated in, the report's first."""
+    return list(ev.modes) if ev.modes is not None else ["sample" if ev.sample else "mode"]
+
+
+def acting(ev: EvaluationSpec) -> str:
+    """How evaluate.py names the acting mode of the protocol's checkpoint evaluations the report compares (its
+    ``acting`` column; the first of several modes)."""
+    return eval_modes(ev)[0] + (f"+epsilon={ev.epsilon:g}" if ev.epsilon else "")
+
+
+def default_title(p: Protocol) -> str:
+    algos = ", ".join(n for n, a in p.algorithms.items() if a.enabled)
+    return (
+        f"evaaa: the paper's protocol at CPU scale ({p.name}: {algos}; {p.stage_steps:,} env steps per "
+        f"stage; seeds {', '.join(map(str, p.seeds))}; checkpoints act {acting_text(p.evaluation)})"
+    )
+
+
+def acting_text(ev: EvaluationSpec) -> str:
+    """How the protocol's checkpoints act, in words that hold for every algorithm (DQN has no distribution)."""
+    eps = f", epsilon {ev.epsilon:g}" if ev.epsilon else ""
+    modes = eval_modes(ev)
+    if modes == ["mode"]:
+        return f"by their most likely action{eps}"
+    if modes == ["sample"]:
+        return f"by sampling (DQN: its greedy action){eps}"
+    return f"by their most likely action, and by sampling where they have a distribution{eps}"
+
+
+# ------------------------------------------------------------------------------------------------ status
+def _newest(paths: Sequence[Path]) -> float:
+    return max((q.stat().st_mtime for q in paths if q.exists()), default=0.0)
+
+
+def outputs(cell: Cell, lay: Layout) -> list[Path]:
+    """The files whose presence makes ``cell`` done."""
+    if cell.kind == "train":
+        return [cell.final_model, lay.marker(cell.name)]  # type: ignore[list-item]
+    if cell.kind in ("eval", "ref"):
+        return [c.out / "episodes.csv" for c in cell.commands if c.out is not None]
+    return [cell.report_out / "report.md", lay.marker(cell.name)]  # type: ignore[operator]
+
+
+def status(cell: Cell, lay: Layout, cells: Sequence[Cell] = ()) -> Literal["done", "partial", "todo"]:
+    """done: every output complete; partial: started (a run directory, an ``out`` folder) but not complete; todo."""
+    outs = outputs(cell, lay)
+    lost = cell.kind == "train" and not cell.final_model.exists()  # type: ignore[union-attr]
+    if lost and lay.marker(cell.name).exists():
+        # finished, and its models are gone (a clone of committed results holds no checkpoints): done while every
+        # evaluation of it is; otherwise it is trained again for the evaluations still to make
+        dependents = [c for c in cells if c.kind == "eval" and cell.name in c.needs_cells]
+        return "done" if all(status(c, lay) == "done" for c in dependents) else "partial"
+    if all(o.exists() for o in outs):
+        if cell.kind != "report":
+            return "done"
+        others = [c for c in cells if c.kind != "report"]
+        if all(status(c, lay) == "done" for c in others) and lay.marker(cell.name).stat().st_mtime >= _newest(
+            [o for c in others for o in outputs(c, lay)]
+        ):
+            return "done"
+        return "partial"  # written before some cell was (re)done
+    if cell.kind == "train":
+        return (
+            "partial" if cell.run_dir is not None and cell.run_dir.is_dir() and any(cell.run_dir.iterdir()) else "todo"
+        )
+    if cell.kind in ("eval", "ref"):
+        return "partial" if any(c.out is not None and c.out.exists() for c in cell.commands) else "todo"
+    return "partial" if any(o.exists() for o in outs) else "todo"
+
+
+def command_now(cell: Cell, lay: Layout, redo: bool = False) -> list[Command]:
+    """The commands that bring ``cell`` to done from where it stands: a started training run continues
+    (``resume=true``; with ``redo``: ``start_over=true``); evaluations whose ``episodes.csv`` exists are skipped (all
+    run again with ``redo``)."""
+    if cell.kind == "train":
+        (cmd,) = cell.commands
+        if lay.marker(cell.name).exists() and not cell.final_model.exists():  # type: ignore[union-attr]
+            # a finished run whose models are gone, with evaluations still to make: trained again from zero (the
+            # old run directory is moved aside by train.py, never deleted)
+            return [Command([*cmd.argv, "start_over=true"])]
+        started = cell.run_dir is not None and cell.run_dir.is_dir() and any(cell.run_dir.iterdir())
+        pruned = not any((cell.run_dir / n).exists() for n in CHECKPOINTS)  # type: ignore[operator]
+        if started and not redo and cell.final_model.exists() and pruned:  # type: ignore[union-attr]
+            return []  # finished, checkpoints deleted: only the done-marker is missing
+        if started:
+            # without a checkpoint (never reached, or a clone of committed files) there is nothing to resume
+            return [Command([*cmd.argv, "start_over=true" if redo or pruned else "resume=true"])]
+        return [cmd]
+    if cell.kind in ("eval", "ref"):
+        return [c for c in cell.commands if redo or not (c.out / "episodes.csv").exists()]  # type: ignore[operator]
+    return list(cell.commands)
+
+
+# ------------------------------------------------------------------------------------------------ plan
+def budget(cells: Sequence[Cell]) -> dict[str, float]:
+    """Estimated CPU-minutes per budget line, in order."""
+    lines: dict[str, float] = {}
+    for c in cells:
+        lines[c.group] = lines.get(c.group, 0.0) + c.minutes
+    return lines
+
+
+def plan_text(p: Protocol, cells: Sequence[Cell], lay: Layout, threads: int) -> str:
+    """The plan: every cell with its status and estimate, the budget split, the totals, each cell's command."""
+    states = {c.name: status(c, lay, cells) for c in cells}
+    width = max(len(c.name) for c in cells)
+    lines = [
+        f"protocol {p.name}: {len(cells)} cells under {lay.root}; S = {p.stage_steps:,} env steps per stage "
+        f"(curriculum stage and direct run), seeds {p.seeds}; checkpoints act {acting_text(p.evaluation)}",
+        "",
+        f"{'cell':<{width}}  {'status':<7}  {'CPU-min':>8}  {'took':>8}",
+    ]
+    took = {c.name: lay.took(c.name) if states[c.name] == "done" else None for c in cells}
+    for c in cells:
+        t = took[c.name]
+        lines.append(
+            f"{c.name:<{width}}  {states[c.name]:<7}  {c.minutes:8.1f}  "
+            f"{'' if t is None else f'{t / 60:8.1f}'}".rstrip()
+        )
+    total = sum(c.minutes for c in cells)
+    left = sum(c.minutes for c in cells if states[c.name] != "done")
+    counts = {s: sum(1 for v in states.values() if v == s) for s in ("done", "partial", "todo")}
+    lines += [
+        "",
+        f"estimated CPU-hours (threads={p.threads} per cell, hours of one cell; rates in the protocol file; evaluation episodes "
+        "taken to their step limit):",
+    ]
+    split = budget(cells)
+    parts = (
+        "curriculum",
+        "direct",
+        "ablations",
+        *(("matched",) if any(g.endswith(" matched") for g in split) else ()),
+        "evaluation",
+    )
+    algos = list(dict.fromkeys(g.split(" ")[0] for g in split if " " in g))
+    lines.append(f"  {'':<12}" + "".join(f"{x:>12}" for x in (*parts, "all")))
+    for a in algos:
+        row = [split.get(f"{a} {x}", 0.0) / 60 for x in parts]
+        lines.append(f"  {a:<12}" + "".join(f"{v:12.2f}" for v in (*row, sum(row))))
+    for g in (g for g in split if " " not in g):
+        lines.append(f"  {g:<12}" + " " * 12 * len(parts) + f"{split[g] / 60:12.2f}")
+    lines.append(
+        f"  {'total':<12}" + " " * 12 * len(parts) + f"{total / 60:12.2f}  ({len(cells)} cells: "
+        f"{counts['done']} done, {counts['partial']} partial, {counts['todo']} todo; {left / 60:.2f} h left)"
+    )
+    timed = [c for c in cells if took[c.name] is not None]
+    if timed:
+        # the CPU time of each cell's processes, summed over the sessions that ran them
+        spent = sum(took[c.name] for c in timed) / 3600  # type: ignore[misc]
+        planned = sum(c.minutes for c in timed) / 60
+        lines.append(
+            f"  measured: the {len(timed)} timed done cells took {spent:.2f} CPU-hours, against "
+            f"{planned:.2f} estimated for them"
+        )
+    if p.budget_cpu_hours is not None and total / 60 > p.budget_cpu_hours:
+        lines.append(f"  WARNING: over the protocol's budget of {p.budget_cpu_hours:g} CPU-hours")
+    lines += gpu_plan(p, cells)
+    lines += ["", "commands (run from the repository root; a started training run gets resume=true):"]
+    for c in cells:
+        for cmd in command_now(c, lay) if states[c.name] != "done" else c.commands:
+            lines.append(f"[{c.name}] {cmd.text(threads)}")
+    return "\n".join(lines)
+
+
+#: the cluster sizes plan=true gives the wall time for
+GPU_COUNTS = (1, 8, 64)
+
+
+def wall_hours(hours: Sequence[float], gpus: int) -> float:
+    """The wall hours of runs of ``hours`` on ``gpus`` GPUs, one run per GPU, longest first onto the GPU free
+    soonest (an estimate: the engine, not this, places the runs)."""
+    free = [0.0] * gpus
+    for h in sorted(hours, reverse=True):
+        free[free.index(min(free))] += h
+    return max(free, default=0.0)
+
+
+def gpu_plan(p: Protocol, cells: Sequence[Cell]) -> list[str]:
+    """The plan in GPU-hours per algorithm (training runs on ``gpus`` > 0 GPUs, at the algorithm's measured rate)
+    and the wall time of the training runs on :data:`GPU_COUNTS` GPUs; empty for a protocol without GPUs."""
+    train = [c for c in cells if c.kind == "train" and cell_resources(p, c)[1] > 0]
+    if not train:
+        return []
+    hours = {c.name: c.minutes / 60 * cell_resources(p, c)[1] for c in train}
+    lines = [
+        "",
+        "estimated GPU-hours (training runs at each algorithm's measured env steps/s, rate_from; "
+        "evaluations and references run on the CPUs):",
+        f"  {'':<12}{'runs':>6}{'steps/s':>10}{'GPU-hours':>12}{'GPU-days':>10}  rate",
+    ]
+    for algo, spec in p.algorithms.items():
+        mine = [c for c in train if c.name.split("/")[1] == algo]
+        if not mine:
+            continue
+        h = sum(hours[c.name] for c in mine)
+        source = f"{spec.rate_from.file} ({spec.rate_from.algo})" if spec.rate_from else "steps_per_second"
+        lines.append(f"  {algo:<12}{len(mine):>6}{spec.steps_per_second:>10.1f}{h:>12.1f}{h / 24:>10.1f}  {source}")
+    total = sum(hours.values())
+    longest = max(train, key=lambda c: hours[c.name])
+    lines.append(f"  {'total':<12}{len(train):>6}{'':>10}{total:>12.1f}{total / 24:>10.1f}")
+    lines.append(
+        f"  wall time of the training runs (one GPU each; the longest run, {longest.name}, takes "
+        f"{hours[longest.name]:.1f} h): "
+        + "; ".join(
+            f"{n} GPU{'s' if n > 1 else ''}: {wall_hours(list(hours.values()), n):.0f} h "
+            f"({wall_hours(list(hours.values()), n) / 24:.1f} days)"
+            for n in GPU_COUNTS
+        )
+    )
+    return lines
+
+
+def provenance(p: Protocol, cells: Sequence[Cell], lay: Layout, selects: str | None = None) -> list[str]:
+    """The report's last section: the commands that re-run the protocol or one cell of it (``selects``: the
+    reproduce.py arguments that name this protocol, root and report folder; default ``protocol=<name>``), and the CPU
+    time its done cells took (their markers), per budget line, beside what the protocol file estimates for them."""
+    states = {c.name: status(c, lay, cells) for c in cells}
+    done = [c for c in cells if states[c.name] == "done" and c.kind != "report"]
+    took = {c.name: lay.took(c.name) for c in done}
+    timed = [c for c in done if took[c.name] is not None]
+    selects = selects or f"protocol={p.name}"
+    example = next((c.name for c in cells if c.kind == "train"), cells[0].name)
+    lines = [
+        "## How this report was made",
+        "",
+        f"The protocol `{p.name}`: S = {p.stage_steps:,} env steps per stage (curriculum "
+        f"stage and direct run), seeds {', '.join(map(str, p.seeds))}, checkpoints act {acting_text(p.evaluation)}; "
+        f"{len(cells)} cells, {len(done)} of them done (the report not counted) when this report was made. From "
+        "the repository root:",
+        "",
+        "```bash",
+        f"python scripts/reproduce.py {selects} plan=true   # every cell: status, command, CPU time",
+        f"python scripts/reproduce.py {selects} jobs=2      # what is not done (killed: the same continues)",
+        f'python scripts/reproduce.py {selects} "cells=[{example}]" redo=true   # one cell again',
+        "```",
+        "",
+    ]
+    if not timed:
+        return lines + ["No done cell was timed.", ""]
+    lines += [
+        "CPU time each done cell's processes took (their own `rusage`, summed over the sessions that ran them; "
+        "`threads=1`, one core each), per budget line, against the protocol file's estimate for the same cells:",
+        "",
+        "| budget line | timed cells | CPU-hours | estimated | wall hours of its commands |",
+        "|---|---|---|---|---|",
+    ]
+    wall = {c.name: lay.wall(c.name) for c in timed}
+    for group in dict.fromkeys(c.group for c in timed):
+        part = [c for c in timed if c.group == group]
+        lines.append(
+            f"| {group} | {len(part)} | {sum(took[c.name] for c in part) / 3600:.2f} | "
+            f"{sum(c.minutes for c in part) / 60:.2f} | {sum(wall[c.name] or 0.0 for c in part) / 3600:.2f} |"
+        )
+    spent = sum(took[c.name] for c in timed) / 3600  # type: ignore[misc]
+    lines.append(
+        f"| **all** | {len(timed)} | **{spent:.2f}** | {sum(c.minutes for c in timed) / 60:.2f} | "
+        f"{sum(wall[c.name] or 0.0 for c in timed) / 3600:.2f} |"
+    )
+    untimed = [c for c in done if took[c.name] is None]
+    if untimed:
+        lines += [
+            "",
+            f"{len(untimed)} done cells were not timed (run before cells were): "
+            f"{', '.join(c.name for c in untimed)}; the protocol file estimates them at "
+            f"{sum(c.minutes for c in untimed) / 60:.2f} CPU-hours.",
+        ]
+    return lines + [""]
+
+
+def cell_resources(p: Protocol, cell: Cell) -> tuple[int, float]:
+    """(CPUs, GPUs) one cell needs: ``threads`` cores each; a training run the GPUs its algorithm asks for."""
+    gpus = 0.0
+    if cell.kind == "train":
+        algo = cell.name.split("/")[1]
+        gpus = p.algorithms[algo].gpus if algo in p.algorithms else 0.0
+    return p.threads, gpus

@@ -1,0 +1,340 @@
+"""The paper's experiments as a protocol: a YAML file (``conf/protocol/<name>.yaml``) read into a validated
+:class:`Protocol`, expanded into named **cells** (one training run, the evaluations of one model, a reference agent's
+evaluation, the report), each a subprocess of ``scripts/train.py``, ``scripts/evaluate.py`` or
+``scripts/report.py``; and the scheduler that runs the cells not yet done, a few at a time, resumably
+(``scripts/reproduce.py``; docs/reports.md, "The paper's protocol at CPU scale").
+
+A cell is *done* only when its outputs are complete: a training run when the final model of its last stage exists
+and the done-marker written after ``train.py`` exited 0 (``<root>/done/<cell>.done``); an evaluation when every
+``out`` folder of it holds ``episodes.csv`` (evaluate.py writes it last); the report when its marker is newer than
+every other cell's outputs and every other cell is done.  A training cell that was started and not finished is
+continued with ``resume=true`` (started over, ``start_over=true``, where it holds no checkpoint); an evaluation's
+``out`` folder without ``episodes.csv`` is moved aside (``<out>.partial-<UTC time>``, never deleted) and the
+evaluation run again.
+
+A protocol's ``root`` may lie inside the repository (paper_cpu's does): commands name the files there relative to
+the repository root, the folder's ``.gitignore`` keeps checkpoints, models and logs out of git, and the rest (run
+settings and CSV logs, evaluation episodes, done-markers) can be committed.  On a clone of it a finished training
+run whose models are gone counts as done while every evaluation of it is; one with evaluations still to make is
+trained again (``start_over=true``).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+import evaaa
+
+from ..algos import names as algorithm_names
+from ..paths import CONF_DIR
+
+REPO = CONF_DIR.parent
+PROTOCOL_DIR = CONF_DIR / "protocol"
+MODALITIES = sorted(p.stem for p in (CONF_DIR / "modality").glob("*.yaml"))
+REWARDS = sorted(p.stem for p in (CONF_DIR / "reward").glob("*.yaml"))
+#: the level groups evaluate.py expands (scripts/evaluate.py GROUPS)
+LEVEL_GROUPS = {"testbeds": evaaa.TESTBEDS, "training": evaaa.LEVELS, "all": evaaa.LEVELS + evaaa.TESTBEDS}
+#: seconds a script takes to start (imports, first env) on the 2-core box, added to every cell's estimate
+STARTUP_SECONDS = 10.0
+#: a run's checkpoints (baselines/training.py), deleted once it is done where keep_checkpoints is false
+CHECKPOINTS = ("checkpoint.pt", "checkpoint-previous.pt")
+
+
+class ProtocolError(ValueError):
+    """A protocol file that cannot be used; the message names the file, the field and what it accepts."""
+
+
+# ------------------------------------------------------------------------------------------------ the file
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+def _check_levels(names: Sequence[str], allowed: Sequence[str], what: str) -> list[str]:
+    bad = [n for n in names if n not in allowed]
+    if bad:
+        raise ValueError(f"{bad[0]!r} is not {what}; allowed: {', '.join(allowed)}")
+    return list(names)
+
+
+class RateFrom(_Strict):
+    """A measured rate: the steady env steps/s of ``algo``'s row in a JSON of scripts/bench_train.py (a path relative
+    to the repository root; a file of several runs, ``{"runs": {...}}``, gives its first run's)."""
+
+    file: str
+    algo: str
+
+    def rate(self) -> float:
+        path = REPO / self.file
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, ValueError) as err:
+            raise ValueError(f"rate_from.file: cannot read {self.file}: {err}") from None
+        runs = list(data["runs"].values()) if isinstance(data, dict) and "runs" in data else [data]
+        rows = [r for run in runs for r in run.get("rows", []) if r.get("algo") == self.algo]
+        if not rows:
+            have = sorted({r.get("algo") for run in runs for r in run.get("rows", [])})
+            raise ValueError(f"rate_from.algo: {self.algo!r} has no row in {self.file}; allowed: {', '.join(have)}")
+        return float(rows[0]["steady_env_steps_per_s"])
+
+
+class AlgorithmSpec(_Strict):
+    enabled: bool = True
+    # measured env steps/s of one training run (estimates); or rate_from: the measurement it is read from
+    steps_per_second: float | None = Field(default=None, gt=0)
+    rate_from: RateFrom | None = None
+    overrides: list[str] = []  # train.py overrides of this algorithm's runs (reward, hyperparameters)
+    # false: once a run is done, its checkpoint.pt and checkpoint-previous.pt are deleted (a DQN checkpoint holds
+    # its replay buffer, ~2.4 GB); the models, logs and records stay, but the run cannot be continued further
+    keep_checkpoints: bool = True
+    gpus: float = Field(default=0, ge=0)  # GPUs of one training run (a Ray task's num_gpus, a SLURM job's GPUs)
+
+    @model_validator(mode="after")
+    def _rate(self) -> AlgorithmSpec:
+        if (self.steps_per_second is None) == (self.rate_from is None):
+            raise ValueError("give steps_per_second or rate_from (one of them)")
+        if self.rate_from is not None:
+            self.steps_per_second = self.rate_from.rate()
+        return self
+
+
+class TrainingSpec(_Strict):
+    overrides: list[str] = []  # train.py overrides of every training run
+    curriculum: bool = True  # one run through all `levels` per algorithm and seed
+    direct: bool = True  # one run per level per algorithm and seed
+    algorithms: list[str] | None = None  # the algorithms of the curriculum and direct runs (null: every enabled one)
+    direct_levels: list[str] | None = None  # the levels of the direct runs (null: every level of `levels`)
+    # env steps of the direct run on the k-th level of `levels` (k from 0): `stage` gives every one S; `matched`
+    # gives (k + 1) * S, what the curriculum had seen by the end of that stage (curriculum vs direct at equal steps)
+    direct_steps: Literal["stage", "matched"] = "stage"
+
+    @field_validator("direct_levels")
+    @classmethod
+    def _direct_levels(cls, v: list[str] | None) -> list[str] | None:
+        return None if v is None else _check_levels(v, evaaa.LEVELS, "a training level")
+
+
+class MatchedSpec(_Strict):
+    """Every algorithm on one level for the same CPU minutes (``max_cpu_minutes``), whatever env steps that buys."""
+
+    level: str
+    cpu_minutes: float = Field(gt=0)
+    algorithms: list[str] | None = None  # null: every enabled algorithm
+    seeds: list[int] | None = None  # null: the protocol's seeds
+    overrides: dict[str, list[str]] = {}  # per algorithm: train.py overrides of its matched runs (evaluation rate)
+
+    @field_validator("level")
+    @classmethod
+    def _level(cls, v: str) -> str:
+        return _check_levels([v], [*evaaa.LEVELS, *evaaa.TESTBEDS], "a level or testbed")[0]
+
+
+class AblationSpec(_Strict):
+    enabled: bool = True
+    algorithm: str
+    level: str
+    modalities: list[str]  # `all` is the direct run of `algorithm` on `level` (trained once)
+    seeds: list[int] | None = None  # null: the protocol's seeds
+
+    @field_validator("level")
+    @classmethod
+    def _level(cls, v: str) -> str:
+        return _check_levels([v], evaaa.LEVELS, "a training level")[0]
+
+    @field_validator("modalities")
+    @classmethod
+    def _modalities(cls, v: list[str]) -> list[str]:
+        return _check_levels(v, MODALITIES, "a modality option (conf/modality)")
+
+
+def _any_levels(v: list[str]) -> list[str]:
+    return _check_levels(v, [*LEVEL_GROUPS, *evaaa.LEVELS, *evaaa.TESTBEDS], "a level, testbed or group")
+
+
+class EvalPart(_Strict):
+    levels: list[str] = ["testbeds"]
+    episodes: int = Field(ge=1)
+    num_envs: int = Field(default=4, ge=1)
+
+    _levels = field_validator("levels")(_any_levels)
+
+
+class OwnLevelPart(_Strict):
+    episodes: int = Field(ge=1)
+    num_envs: int = Field(default=4, ge=1)
+
+
+class EvaluationSpec(_Strict):
+    seed: int = 0
+    epsilon: float = Field(default=0.05, ge=0, le=1)
+    sample: bool = False
+    # several acting modes: every model is evaluated in each (its folders get a `-<mode>` suffix; an algorithm with no
+    # action distribution, DQN, only in `mode`), and the report compares them in the first; null: as `sample` says
+    modes: list[Literal["mode", "sample"]] | None = Field(default=None, min_length=1)
+    worlds: Literal["test", "validation"] = "test"  # the evaluations' worlds (evaaa/worlds.py): published: test
+    testbeds: EvalPart | None = None  # every evaluated model on these levels (null: none)
+    own_level: OwnLevelPart | None = None  # every evaluated model on the level it was trained up to (null: none)
+    steps_per_second: float = Field(gt=0, description="measured world steps/s of evaluate.py (estimates)")
+
+
+class ReferenceSpec(_Strict):
+    policies: list[Literal["oracle", "random", "still"]] = ["oracle", "random", "still"]
+    levels: list[str] = ["all"]
+    # a policy's own levels where they differ from `levels` (the oracle survives every training level to its step
+    # limit: hours of CPU for a number known in advance)
+    levels_of: dict[Literal["oracle", "random", "still"], list[str]] = {}
+    episodes: int = Field(default=20, ge=1)
+    num_envs: int = Field(default=10, ge=1)
+    steps_per_second: float = Field(gt=0)
+
+    _levels = field_validator("levels")(_any_levels)
+
+    @field_validator("levels_of")
+    @classmethod
+    def _levels_of(cls, v: dict[str, list[str]]) -> dict[str, list[str]]:
+        return {k: _any_levels(lv) for k, lv in v.items()}
+
+
+class ReportSpec(_Strict):
+    out: str | None = None  # relative paths: to the repository root; null: <root>/report
+    survival: Literal["eval", "train"] = "eval"
+    title: str | None = None
+
+
+class Protocol(_Strict):
+    name: str
+    description: str = ""
+    stage_steps: int = Field(gt=0)  # S: env steps of every curriculum stage and every direct run
+    seeds: list[int] = Field(min_length=1)
+    levels: list[str] | None = None  # curriculum stages and direct levels (null: every level of evaaa.LEVELS)
+    threads: int = Field(default=1, ge=1)  # torch threads and EVAAA_THREADS of every training and evaluation
+    budget_cpu_hours: float | None = Field(default=None, gt=0)  # plan=true says when the estimate exceeds it
+    algorithms: dict[str, AlgorithmSpec]
+    training: TrainingSpec = TrainingSpec()
+    ablations: AblationSpec | None = None
+    evaluation: EvaluationSpec
+    references: ReferenceSpec | None = None
+    matched: MatchedSpec | None = None  # the compute-matched comparison on one level
+    # the order of the parts' cells, and so of the scheduler's work: the first ones answer something on their own
+    order: list[Literal["references", "matched", "ablations", "curriculum", "direct"]] = [
+        "references",
+        "curriculum",
+        "direct",
+        "ablations",
+        "matched",
+    ]
+    report: ReportSpec
+    # where the runs, evaluations, logs and done-markers go (reproduce.py's root= overrides it); relative paths: to
+    # the repository root. A folder inside the repository can be committed (its .gitignore keeps the checkpoints
+    # and logs out): a cell whose outputs are committed is done on any clone, so a protocol longer than one
+    # session continues on another machine
+    root: str | None = None
+
+    @field_validator("levels")
+    @classmethod
+    def _levels(cls, v: list[str] | None) -> list[str] | None:
+        return None if v is None else _check_levels(v, evaaa.LEVELS, "a training level")
+
+    @field_validator("algorithms")
+    @classmethod
+    def _algorithms(cls, v: dict[str, AlgorithmSpec]) -> dict[str, AlgorithmSpec]:
+        _check_levels(list(v), algorithm_names(), "an algorithm")
+        if not any(a.enabled for a in v.values()):
+            raise ValueError("no algorithm is enabled")
+        return v
+
+    @model_validator(mode="after")
+    def _part_algorithms(self) -> Protocol:
+        enabled = [n for n, a in self.algorithms.items() if a.enabled]
+        for where, names in (
+            ("training.algorithms", self.training.algorithms),
+            ("matched.algorithms", self.matched.algorithms if self.matched else None),
+            ("matched.overrides", list(self.matched.overrides) if self.matched else None),
+        ):
+            bad = [n for n in names or () if n not in enabled]
+            if bad:
+                raise ValueError(
+                    f"{where}: {bad[0]!r} is not an enabled algorithm of this protocol; allowed: {', '.join(enabled)}"
+                )
+        if sorted(self.order) != sorted(set(self.order)) or len(set(self.order)) != 5:
+            raise ValueError("order: name each of references, matched, ablations, curriculum, direct once")
+        return self
+
+    @model_validator(mode="after")
+    def _ablation_algorithm(self) -> Protocol:
+        ab = self.ablations
+        if ab is not None and ab.enabled:
+            enabled = [n for n, a in self.algorithms.items() if a.enabled]
+            if ab.algorithm not in enabled:
+                raise ValueError(
+                    f"ablations.algorithm: {ab.algorithm!r} is not an enabled algorithm of this "
+                    f"protocol; allowed: {', '.join(enabled)}"
+                )
+        return self
+
+    @property
+    def stage_levels(self) -> list[str]:
+        return list(self.levels or evaaa.LEVELS)
+
+
+# integer arithmetic for settings derived from stage_steps in a protocol file: ${idiv:${stage_steps},2}
+OmegaConf.register_new_resolver("idiv", lambda a, b: int(a) // int(b), replace=True)
+OmegaConf.register_new_resolver("sub", lambda a, b: int(a) - int(b), replace=True)
+
+
+def _field_path(loc: Sequence[Any]) -> str:
+    return ".".join(str(p) for p in loc if p not in ("function-after", "function-before"))
+
+
+def _fields_at(loc: Sequence[Any]) -> list[str] | None:
+    """The fields allowed where ``loc`` points (for an unknown field's message)."""
+    model: Any = Protocol
+    for part in loc[:-1]:
+        info = getattr(model, "model_fields", {}).get(part) if isinstance(part, str) else None
+        if info is None:
+            if model is Protocol and loc[0] == "algorithms":
+                model = AlgorithmSpec
+                continue
+            return None
+        tp = info.annotation
+        args = [a for a in getattr(tp, "__args__", (tp,)) if isinstance(a, type) and issubclass(a, BaseModel)]
+        model = args[0] if args else tp
+    return list(getattr(model, "model_fields", {})) or None
+
+
+def load_protocol(spec: str | Path) -> Protocol:
+    """The protocol named ``spec`` (``conf/protocol/<spec>.yaml``) or in the YAML file ``spec``; interpolations
+    (``${stage_steps}``, ``${idiv:${stage_steps},16}``) resolved.  Raises :class:`ProtocolError`."""
+    path = Path(spec)
+    if not path.suffix:
+        path = PROTOCOL_DIR / f"{spec}.yaml"
+    if not path.is_file():
+        known = ", ".join(sorted(p.stem for p in PROTOCOL_DIR.glob("*.yaml")))
+        raise ProtocolError(f"protocol={spec}: no such protocol; allowed: {known}, or a path to a .yaml file")
+    try:
+        raw = OmegaConf.to_container(OmegaConf.load(path), resolve=True)
+    except (yaml.YAMLError, OmegaConfBaseException) as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f" (line {mark.line + 1})" if mark is not None else ""
+        raise ProtocolError(f"{path}: not a valid protocol file{where}: {' '.join(str(err).split())}") from None
+    if not isinstance(raw, dict):
+        raise ProtocolError(f"{path}: a protocol is a mapping of fields ({', '.join(Protocol.model_fields)})")
+    try:
+        return Protocol.model_validate(raw)
+    except ValidationError as err:
+        first = err.errors()[0]
+        where = _field_path(first["loc"]) or "(top level)"
+        msg = first["msg"].removeprefix("Value error, ")
+        if first["type"] == "extra_forbidden":
+            allowed = _fields_at(first["loc"])
+            msg = "unknown field" + (f"; allowed: {', '.join(allowed)}" if allowed else "")
+        elif first["type"] == "missing":
+            msg = "required field missing"
+        raise ProtocolError(f"{path}: field {where}: {msg}") from None
