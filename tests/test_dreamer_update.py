@@ -18,7 +18,8 @@ from torchrl.data import SliceSampler
 from torchrl.objectives import DreamerV3ActorLoss, DreamerV3ValueLoss, SoftUpdate
 from torchrl.objectives.utils import ValueEstimators
 
-from evaaa_baselines import checkpoint, runtime
+from evaaa_baselines import checkpoint
+from evaaa_baselines import run as run_loop
 from evaaa_baselines.config import observation_keys, register_levels
 from evaaa_baselines.dreamer import model as dreamer_model
 from evaaa_baselines.dreamer.losses import WorldModelLoss, diagnostics, replay_value_loss
@@ -366,15 +367,15 @@ def test_a_run_stopped_with_a_batch_drawn_ahead_resumes_exactly(tmp_path, monkey
     # and owed; the resumed run draws it again, and ends where the uninterrupted run ended
     run = ("algo.replay_ratio=1.0", "total_steps=96", "algo.update.prefetch=true", "algo.consume_share=0.5")
     train(debug_cfg(*run), tmp_path / "whole")
-    updated = runtime.Run.updated
+    updated = run_loop.Run.updated
 
     def ctrl_c_after_31(self, count, seconds, total, ratio=None):
         updated(self, count, seconds, total, ratio)
         if total == 31:
             os.kill(os.getpid(), signal.SIGINT)
 
-    monkeypatch.setattr(runtime.Run, "updated", ctrl_c_after_31)
-    with pytest.raises(runtime.Interrupted):
+    monkeypatch.setattr(run_loop.Run, "updated", ctrl_c_after_31)
+    with pytest.raises(run_loop.Interrupted):
         train(debug_cfg(*run), tmp_path / "resumed")
     monkeypatch.undo()
     at_stop = checkpoint.load_checkpoint(tmp_path / "resumed" / checkpoint.CHECKPOINT)
