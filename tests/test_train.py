@@ -88,7 +88,7 @@ def test_group_options_are_the_documented_ones():
 
 
 def test_squared_death_is_squared_with_a_death_of_minus_3000():
-    """DreamerV3-XS's reward option (README, DreamerV3-XS): the level's squared reward, only the death costs -3,000."""
+    """DreamerV3-XS's reward option (docs/results.md, DreamerV3-XS): the level's squared reward, only the death costs -3,000."""
     squared = evaaa.load_level("1-1", env_overrides(make_cfg("reward=squared"))).reward
     death = evaaa.load_level("1-1", env_overrides(make_cfg("reward=squared_death"))).reward
     assert death.name == squared.name == "squared" and squared.terminal_penalty == -100.0
