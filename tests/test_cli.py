@@ -44,6 +44,7 @@ SCHEMAS = {
     "reproduce": "ReproduceConfig",
     "probe_dreamer": "ProbeConfig",
     "fit_world_model": "FitConfig",
+    "pack_record": "PackConfig",
 }
 
 
