@@ -1,6 +1,6 @@
 """The documentation holds together: every relative link of README.md and docs/*.md (and of the reports committed
 under docs/) points at a file that exists, and at a heading of it where it names one; README.md stays a product page
-(at most 300 lines); no page names a path of the machine it was written on."""
+(at most 300 lines); no page, report or table names a path of the machine it was written on."""
 
 from __future__ import annotations
 
@@ -58,7 +58,20 @@ def test_the_readme_is_a_product_page():
     assert "## Reproduce the paper" in text and "## Documentation" in text
 
 
-@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(ROOT)))
+#: what docs/ publishes beside the pages: reports, their tables and benchmark files (not the raw records of runs, where
+#: Hydra keeps the directory each run was started in)
+PUBLISHED = sorted(
+    p
+    for p in (ROOT / "docs").rglob("*")
+    if p.suffix in (".md", ".csv", ".json") and "record" not in p.relative_to(ROOT).parts
+)
+
+
+def test_published_files_are_found():
+    assert ROOT / "docs" / "results" / "paper-cpu" / "report.md" in PUBLISHED
+
+
+@pytest.mark.parametrize("page", PAGES + PUBLISHED, ids=lambda p: str(p.relative_to(ROOT)))
 def test_no_page_names_a_path_of_the_machine_it_was_written_on(page):
     found = re.findall(r"(?<![\w.])/(?:work|root|tmp|home)/\S*", page.read_text())
     assert not found, found
