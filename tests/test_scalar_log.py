@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+import yaml
 from helpers import load_script
 
 from evaaa_baselines.scalar_log import PACKED, SCALARS, has_scalar, pack, read_scalar, tags
@@ -63,3 +64,31 @@ def test_pack_record_packs_every_run_of_a_record(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "2 run directories" in out and "8 scalar files packed" in out
     assert not list(tmp_path.rglob("logs/scalars/*")) and len(list(tmp_path.rglob("logs/scalars.csv"))) == 2
+
+
+HYDRA = """hydra:
+  run:
+    dir: docs/results/x/record/runs/ppo/direct-1-1/seed0
+  runtime:
+    version: 1.3.2
+    cwd: /some/machine/repo
+    config_sources:
+    - path: /some/machine/repo/conf
+      schema: file
+    output_dir: /some/machine/repo/docs/results/x/record/runs/ppo/direct-1-1/seed0
+"""
+
+
+def test_pack_record_makes_the_hydra_files_name_paths_relative_to_where_the_run_ran(tmp_path):
+    run = tmp_path / "runs" / "ppo" / "direct-1-1" / "seed0"
+    write_run(run)
+    (run / ".hydra" / "hydra.yaml").write_text(HYDRA)
+    (run / ".hydra" / "hydra.session-1.yaml").write_text(HYDRA)
+    assert load_script("pack_record").main([f"root={tmp_path}"]) == 0
+    for name in ("hydra.yaml", "hydra.session-1.yaml"):
+        text = (run / ".hydra" / name).read_text()
+        assert "/some/machine" not in text
+        runtime = yaml.safe_load(text)["hydra"]["runtime"]
+        assert runtime["cwd"] == "." and runtime["config_sources"][0]["path"] == "conf"
+        assert runtime["output_dir"] == "docs/results/x/record/runs/ppo/direct-1-1/seed0"
+    assert (run / ".hydra" / "config.yaml").read_text() == "algo: {name: ppo}\n"  # the settings are left alone
