@@ -70,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     if not cfg.root or not root.is_dir():
         cli.fail(
             "pack_record.py",
-            f"root={cfg.root!r}: not a folder; give the record's folder, e.g. root=docs/results/paper-cpu/record",
+            f"root={cfg.root}: not a folder; give the record's folder, e.g. root=docs/results/paper-cpu/record",
         )
     runs = sorted(p.parent.parent for p in root.rglob(".hydra/config.yaml"))
     files = hydra = 0
