@@ -39,7 +39,12 @@ SAMPLES_ACTIONS = False
 def make_model(cfg: DictConfig, obs_shapes: Mapping[str, Sequence[int]]) -> QValueActor:
     """Observations -> ``"action_value"`` (one Q-value per action) -> greedy ``"action"``."""
     keys = list(obs_shapes)
-    encoder = MultimodalEncoder(stacked_shapes(obs_shapes, keys, cfg.frame_stack), cfg.encoder.cnn, cfg.encoder.mlp)
+    encoder = MultimodalEncoder(
+        stacked_shapes(obs_shapes, keys, cfg.frame_stack),
+        cfg.encoder.cnn,
+        cfg.encoder.mlp,
+        cfg.encoder.get("mlp_default"),
+    )
     q_values = TensorDictSequential(
         TensorDictModule(encoder, in_keys=keys, out_keys=["embed"]),
         TensorDictModule(

@@ -28,10 +28,17 @@ class MultimodalEncoder(nn.Module):
 
     ``pixels`` (uint8 ``[..., H, W, C]``, frames stacked on C) are scaled to x/255 − 0.5 and go through a CNN and a
     linear layer to ``cnn.features``; every vector key goes through symlog and its own one-layer MLP of
-    ``mlp[key]`` units.  The features are concatenated; :attr:`out_features` is their size.
+    ``mlp[key]`` units, or ``mlp_default`` units for a key ``mlp`` does not list (a sense of one's own trains
+    without a config edit).  The features are concatenated; :attr:`out_features` is their size.
     """
 
-    def __init__(self, obs_shapes: Mapping[str, Sequence[int]], cnn: Mapping, mlp: Mapping[str, int]):
+    def __init__(
+        self,
+        obs_shapes: Mapping[str, Sequence[int]],
+        cnn: Mapping,
+        mlp: Mapping[str, int],
+        mlp_default: int | None = None,
+    ):
         super().__init__()
         self.keys = tuple(obs_shapes)
         self.branches = nn.ModuleDict()
@@ -52,8 +59,14 @@ class MultimodalEncoder(nn.Module):
                 self.branches[key] = nn.Sequential(conv, nn.Linear(flat, cnn["features"]), nn.ReLU())
                 self.out_features += cnn["features"]
             else:
-                self.branches[key] = nn.Sequential(nn.Linear(shape[-1], mlp[key]), nn.ReLU())
-                self.out_features += mlp[key]
+                units = mlp.get(key, mlp_default)
+                if units is None:
+                    raise ValueError(
+                        f"observation key {key!r} has no MLP width: set algo.encoder.mlp.{key} or "
+                        f"algo.encoder.mlp_default (listed: {', '.join(mlp)})"
+                    )
+                self.branches[key] = nn.Sequential(nn.Linear(shape[-1], units), nn.ReLU())
+                self.out_features += units
 
     def forward(self, *obs: torch.Tensor) -> torch.Tensor:
         features = []

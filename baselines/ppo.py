@@ -47,7 +47,10 @@ def make_model(cfg: DictConfig, obs_shapes: Mapping[str, Sequence[int]]) -> Acto
     """Trunk (encoder [+ LSTM]) -> ``"hidden"``; actor head -> ``"logits"`` -> action; critic head -> value."""
     keys = list(obs_shapes)
     encoder = MultimodalEncoder(
-        stacked_shapes(obs_shapes, ["pixels"], cfg.frame_stack), cfg.encoder.cnn, cfg.encoder.mlp
+        stacked_shapes(obs_shapes, ["pixels"], cfg.frame_stack),
+        cfg.encoder.cnn,
+        cfg.encoder.mlp,
+        cfg.encoder.get("mlp_default"),
     )
     features = encoder.out_features
     if cfg.lstm:

@@ -9,12 +9,8 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
-
-if TYPE_CHECKING:  # spec takes the reward names from here, so this module must not import it at run time
-    from .spec import Level
 
 EV_NAMES: tuple[str, ...] = ("satiation", "hydration", "temperature", "damage")
 SATIATION, HYDRATION, TEMPERATURE, DAMAGE = range(4)
@@ -69,7 +65,8 @@ def contact_damage(impulse: float, constant: float, rate: float, offset: float, 
 
 @dataclass(frozen=True)
 class PhysiologyParams:
-    """A level's physiology and reward settings as arrays, ready for the batched functions below."""
+    """A level's physiology and reward settings as arrays, ready for the batched functions below (a level's own:
+    :meth:`evaaa.spec.Level.physiology_params`)."""
 
     start: np.ndarray  # (4,)
     low: np.ndarray  # (4,)
@@ -87,33 +84,6 @@ class PhysiologyParams:
     penalize_consumption: bool = False
     action_cost: float = 0.0
     clip: float | None = None
-
-    @classmethod
-    def from_level(cls, level: Level) -> PhysiologyParams:
-        p, r = level.physiology, level.reward
-
-        def vec(evs) -> np.ndarray:
-            return np.array([getattr(evs, n) for n in EV_NAMES], dtype=np.float64)
-
-        bounds = np.array([getattr(p.bounds, n) for n in EV_NAMES], dtype=np.float64)
-        return cls(
-            start=vec(p.start),
-            low=bounds[:, 0],
-            high=bounds[:, 1],
-            setpoint=vec(p.setpoint),
-            decay=np.array([p.decay.satiation, p.decay.hydration, 0.0, p.decay.damage]),
-            thermal_coupling=p.thermal_coupling,
-            food_value=p.food_value,
-            water_value=p.water_value,
-            reward=r.name,
-            weights=vec(r.weights),
-            terminal_penalty=r.terminal_penalty,
-            penalize_truncation=r.penalize_truncation,
-            terminal_mode=r.terminal_mode,
-            penalize_consumption=r.penalize_consumption,
-            action_cost=r.action_cost,
-            clip=r.clip,
-        )
 
 
 def step_evs(
@@ -176,50 +146,95 @@ def drive(ev: np.ndarray, params: PhysiologyParams) -> np.ndarray:
     return ((ev - params.setpoint) ** 2 * params.weights).sum(axis=-1)
 
 
-# A reward function maps (EV before, EV after, params, senses) to the step's reward before the action cost, the
-# terminal penalty and clipping.  Its name is a level's ``reward.name``: the level schema, the ``reward=<name>``
-# training options and :func:`reward` all read this one table.
-RewardFunction = Callable[..., np.ndarray]
+# A reward function maps (EV before, EV after, params, what it reads) to the step's reward before the action cost,
+# the terminal penalty and clipping.  Its name is a level's ``reward.name``: the level schema, the ``reward=<name>``
+# training options and :func:`reward` all read this one registry, and :func:`register_reward` adds to it.
+@dataclass(frozen=True)
+class RewardFunction:
+    """A reward function and what it reads beyond the EVs.
+
+    ``reads`` names what the simulator passes to ``fn`` as keyword arguments of those names, each an (N, ...) array:
+    a sensor's observation key (``olfaction``, ``thermoception``, ... : its reading, whether the agent observes that
+    sense or not) or an event of the decision (:data:`REWARD_EVENTS`).  A reward that reads nothing gets only the EVs.
+    """
+
+    fn: Callable[..., np.ndarray]
+    reads: tuple[str, ...] = ()
 
 
-def _squared(ev_before, ev_after, params, **senses) -> np.ndarray:
+#: the events of a decision a reward function may read, (N,) booleans, with their meaning
+REWARD_EVENTS: dict[str, str] = {
+    "consumed": "anything was eaten or drunk this decision",
+    "collided": "the body collided this decision",
+}
+
+#: every reward function by its name (``reward.name`` of a level)
+REWARD_FUNCTIONS: dict[str, RewardFunction] = {}
+
+
+def register_reward(name: str, *, reads: tuple[str, ...] | list[str] = ()) -> Callable:
+    """Decorator: make ``fn(ev_before, ev_after, params, **reads)`` the reward function ``reward.name = name``.
+
+    ``reads`` names the sensor keys and decision events (:data:`REWARD_EVENTS`) it reads; the simulator checks
+    them against its sensors when it is built.  A name already taken is refused.
+    """
+    if not isinstance(name, str) or not name.isidentifier():
+        raise ValueError(f"a reward function's name must be an identifier, got {name!r}")
+    reads = tuple(reads)
+    if not all(isinstance(r, str) and r for r in reads):
+        raise ValueError(f"reward {name!r}: reads must be names of sensor keys or events, got {reads!r}")
+
+    def add(fn: Callable[..., np.ndarray]) -> Callable[..., np.ndarray]:
+        known = REWARD_FUNCTIONS.get(name)
+        if known is not None and known.fn is not fn:
+            raise ValueError(f"reward name {name!r} is already taken by {known.fn.__module__}.{known.fn.__qualname__}")
+        REWARD_FUNCTIONS[name] = RewardFunction(fn, reads)
+        return fn
+
+    return add
+
+
+@register_reward("squared")
+def _squared(ev_before, ev_after, params) -> np.ndarray:
     return -drive(ev_after, params)
 
 
-def _drive_reduction(ev_before, ev_after, params, **senses) -> np.ndarray:
+@register_reward("drive_reduction")
+def _drive_reduction(ev_before, ev_after, params) -> np.ndarray:
     return drive(ev_before, params) - drive(ev_after, params)
 
 
-def _neg_distance(ev_before, ev_after, params, **senses) -> np.ndarray:
+@register_reward("neg_distance")
+def _neg_distance(ev_before, ev_after, params) -> np.ndarray:
     sigma = np.maximum(np.abs(params.high - params.setpoint), np.abs(params.low - params.setpoint))
     sigma = np.where(sigma > 0, sigma, 1.0)
     return -np.sqrt((((ev_after - params.setpoint) / sigma) ** 2).sum(axis=-1))
 
 
-def _sparse(ev_before, ev_after, params, **senses) -> np.ndarray:
+@register_reward("sparse")
+def _sparse(ev_before, ev_after, params) -> np.ndarray:
     return np.zeros(len(ev_after))
 
 
-def _shaped(ev_before, ev_after, params, *, odour=None, thermal=None, consumed=None, collided=None) -> np.ndarray:
-    if odour is None or thermal is None or consumed is None or collided is None:
-        raise ValueError("reward 'shaped' needs odour, thermal, consumed and collided")
+@register_reward("shaped", reads=("olfaction", "thermoception", "consumed", "collided"))
+def _shaped(ev_before, ev_after, params, *, olfaction, thermoception, consumed, collided) -> np.ndarray:
     return (
-        np.asarray(odour, dtype=np.float64).sum(axis=-1) / SHAPED_ODOUR_DIVISOR
-        - np.abs(np.asarray(thermal, dtype=np.float64)).sum(axis=-1) / SHAPED_HEAT_DIVISOR
+        np.asarray(olfaction, dtype=np.float64).sum(axis=-1) / SHAPED_ODOUR_DIVISOR
+        - np.abs(np.asarray(thermoception, dtype=np.float64)).sum(axis=-1) / SHAPED_HEAT_DIVISOR
         + SHAPED_CONSUMPTION_BONUS * np.asarray(consumed, dtype=bool)
         - SHAPED_COLLISION_COST * np.asarray(collided, dtype=bool)
     )
 
 
-#: every reward function by its name (``reward.name`` of a level)
-REWARD_FUNCTIONS: dict[str, RewardFunction] = {
-    "squared": _squared,
-    "drive_reduction": _drive_reduction,
-    "neg_distance": _neg_distance,
-    "sparse": _sparse,
-    "shaped": _shaped,
-}
+#: the packaged reward functions' names (:data:`REWARD_FUNCTIONS` also holds any registered since)
 REWARDS: tuple[str, ...] = tuple(REWARD_FUNCTIONS)
+
+
+def reward_reads(name: str) -> tuple[str, ...]:
+    """What the reward function ``name`` reads beyond the EVs (a clear error for an unknown name)."""
+    if name not in REWARD_FUNCTIONS:
+        raise ValueError(f"reward.name must be one of {', '.join(REWARD_FUNCTIONS)}, got {name!r}")
+    return REWARD_FUNCTIONS[name].reads
 
 
 def reward(
@@ -229,12 +244,9 @@ def reward(
     params: PhysiologyParams,
     *,
     costly: np.ndarray | None = None,
-    odour: np.ndarray | None = None,
-    thermal: np.ndarray | None = None,
-    consumed: np.ndarray | None = None,
-    collided: np.ndarray | None = None,
+    **reads: np.ndarray,
 ) -> np.ndarray:
-    """Reward of a decision from the internal state (and, for ``shaped``, from the senses).
+    """Reward of a decision from the internal state (and from what the reward function reads, given as ``reads``).
 
     * ``squared`` (default): ``-drive(EV_after)`` — what the original baselines trained on.
     * ``drive_reduction``: ``drive(EV_before) - drive(EV_after)`` — reward for moving toward the set points.
@@ -242,19 +254,19 @@ def reward(
       to a bound of EV i.
     * ``sparse``: 0.
     * ``shaped``: the original's hand-shaped reward, ``sum(odour) / 10 - sum(|thermal|) / 1000 + 100 consumed
-      - 1 collided``, from the 10 odour values, the 8 thermal readings (as the level's thermoception reports
-      them), whether anything was consumed and whether the body collided, all (N, ...) arrays.
+      - 1 collided``; it reads ``olfaction`` (the 10 odour values), ``thermoception`` (the 8 thermal readings, as
+      the level's thermoception reports them), ``consumed`` and ``collided``, all (N, ...) arrays.
 
     ``action_cost`` is then subtracted where ``costly`` (a Forward or Eat decision).  The terminal penalty applies
     where an EV left its range, on truncation if ``penalize_truncation`` and on a single-trial consumption if
     ``penalize_consumption``; ``terminal_mode`` says whether it is added to the step's reward or replaces it.
     Last, the reward is clipped to ``[-clip, clip]`` when ``clip`` is set.
     """
-    if params.reward not in REWARD_FUNCTIONS:  # the level schema rules this out; guards direct construction
-        raise ValueError(f"reward.name must be one of {', '.join(REWARDS)}, got {params.reward!r}")
-    r = REWARD_FUNCTIONS[params.reward](
-        ev_before, ev_after, params, odour=odour, thermal=thermal, consumed=consumed, collided=collided
-    )
+    wanted = reward_reads(params.reward)  # the level schema rules an unknown name out; guards direct construction
+    missing = [k for k in wanted if reads.get(k) is None]
+    if missing:
+        raise ValueError(f"reward {params.reward!r} reads {', '.join(wanted)}; not given: {', '.join(missing)}")
+    r = REWARD_FUNCTIONS[params.reward].fn(ev_before, ev_after, params, **{k: reads[k] for k in wanted})
     if params.action_cost and costly is not None:
         r = r - params.action_cost * np.asarray(costly, dtype=bool)
     penalised = _IS_DEATH[end]

@@ -40,7 +40,7 @@ from .predator import PREDATOR_HALF, NavGrid, Predators
 from .render import BatchRenderer, SplitRenderer
 from .resources import Resources
 from .scene import GROUP_AGENT, build_model
-from .sensors import SENSORS, resolve_modalities
+from .sensors import SENSORS, Sensor, resolve_modalities
 from .spec import Level
 from .state import StepEvents, WorldState
 from .thermal import FieldSampler, build_field, hotspot_cells
@@ -138,7 +138,7 @@ class Simulator:
         self.level = level
         self.n = n = num_worlds
         self.modalities = resolve_modalities(modalities)
-        self.params = phys.PhysiologyParams.from_level(level)
+        self.params = level.physiology_params()
         self.pool = ResourcePool.from_level(level)
         self.obstacles = ObstaclePool.from_level(level)
         self.model, self.index = build_model(level, self.pool, self.obstacles)
@@ -182,12 +182,23 @@ class Simulator:
         self._agent_z_col = np.full((n, 1), AGENT_HALF)
 
         self.sensors = [SENSORS[k](self) for k in self.modalities]
-        self._shaping_senses = (SENSORS["olfaction"](self), SENSORS["thermoception"](self))
+        self._reward_reads = self._reward_readers(phys.reward_reads(self.params.reward))
         if "pixels" in self.modalities:
             self._make_renderer()
         self.seed(seed)
 
     # ------------------------------------------------------------------------------------------------ set-up
+    def _reward_readers(self, reads: tuple[str, ...]) -> dict[str, Sensor | None]:
+        """What the level's reward function reads: a sensor of its own for each sensor key (read whether the agent
+        observes that sense or not), None for each event of the decision (taken from its :class:`StepEvents`)."""
+        unknown = [k for k in reads if k not in SENSORS and k not in phys.REWARD_EVENTS]
+        if unknown:
+            raise ValueError(
+                f"reward {self.params.reward!r} reads {', '.join(unknown)}, which is neither a sensor key "
+                f"({', '.join(SENSORS)}) nor an event ({', '.join(phys.REWARD_EVENTS)})"
+            )
+        return {k: SENSORS[k](self) if k in SENSORS else None for k in reads}
+
     def _make_renderer(self) -> None:
         v = self.level.sensors.vision
         adjust = self.daynight.light_world if self.daynight.enabled else None
@@ -455,15 +466,11 @@ class Simulator:
             steps=state.steps,
             max_steps=self.level.episode.max_steps,
         )
-        shaping = {}
-        if params.reward == "shaped":  # the original's hand-shaped reward reads the senses, enabled or not
-            shaping = dict(
-                odour=self._shaping_senses[0].read(self._all),
-                thermal=self._shaping_senses[1].read(self._all),
-                consumed=consumed,
-                collided=events.collided,
-            )
-        reward = phys.reward(ev_before, state.ev, end, params, costly=events.costly, **shaping)
+        happened = {"consumed": consumed, "collided": events.collided}  # phys.REWARD_EVENTS
+        reads = {
+            k: happened[k] if sensor is None else sensor.read(self._all) for k, sensor in self._reward_reads.items()
+        }
+        reward = phys.reward(ev_before, state.ev, end, params, costly=events.costly, **reads)
         truncated = end == phys.END_MAX_STEPS
         terminated = (end != phys.END_NONE) & ~truncated
         success = self._success(end, events)

@@ -19,6 +19,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
+import numpy as np
 import yaml
 from pydantic import (
     AfterValidator,
@@ -33,7 +34,7 @@ from pydantic import (
 )
 
 from .entities import OBSTACLE_KINDS, RESOURCE_KINDS
-from .physiology import REWARDS
+from .physiology import EV_NAMES, REWARD_FUNCTIONS, PhysiologyParams
 
 __all__ = [
     "Level",
@@ -462,7 +463,8 @@ class Episode(_Spec):
 
 
 class Reward(_Spec):
-    name: Literal[REWARDS]  # type: ignore[valid-type]  # evaaa.physiology.REWARD_FUNCTIONS
+    #: a reward function of evaaa.physiology.REWARD_FUNCTIONS (the packaged ones, and any registered since)
+    name: str
     #: added on the step an EV leaves its range
     terminal_penalty: float
     #: also add the terminal penalty when the episode is truncated at max_steps (the original did)
@@ -478,6 +480,13 @@ class Reward(_Spec):
     action_cost: NonNegative = 0.0
     #: the final reward is clipped to [-clip, clip] (the original DQN: 10); null: no clipping
     clip: Positive | None = None
+
+    @field_validator("name", mode="after")
+    @classmethod
+    def _known(cls, name: str) -> str:
+        if name not in REWARD_FUNCTIONS:
+            raise ValueError(f"must be one of {', '.join(repr(n) for n in REWARD_FUNCTIONS)}")
+        return name
 
 
 # --------------------------------------------------------------------------------------------------- level
@@ -498,6 +507,33 @@ class Level(_Spec):
     sensors: Sensors
     episode: Episode
     reward: Reward
+
+    def physiology_params(self) -> PhysiologyParams:
+        """The level's physiology and reward settings as the arrays :mod:`evaaa.physiology` computes with."""
+        p, r = self.physiology, self.reward
+
+        def vec(evs: EVs) -> np.ndarray:
+            return np.array([getattr(evs, n) for n in EV_NAMES], dtype=np.float64)
+
+        bounds = np.array([getattr(p.bounds, n) for n in EV_NAMES], dtype=np.float64)
+        return PhysiologyParams(
+            start=vec(p.start),
+            low=bounds[:, 0],
+            high=bounds[:, 1],
+            setpoint=vec(p.setpoint),
+            decay=np.array([p.decay.satiation, p.decay.hydration, 0.0, p.decay.damage]),
+            thermal_coupling=p.thermal_coupling,
+            food_value=p.food_value,
+            water_value=p.water_value,
+            reward=r.name,
+            weights=vec(r.weights),
+            terminal_penalty=r.terminal_penalty,
+            penalize_truncation=r.penalize_truncation,
+            terminal_mode=r.terminal_mode,
+            penalize_consumption=r.penalize_consumption,
+            action_cost=r.action_cost,
+            clip=r.clip,
+        )
 
     @model_validator(mode="after")
     def _inside_arena(self) -> Level:

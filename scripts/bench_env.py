@@ -315,7 +315,7 @@ def measure_backends(args) -> dict:
         "processor": _processor(),
         "machine": f"{platform.machine()}, {os.cpu_count()} cores",
         "versions": {"mujoco_warp": _version("mujoco-warp"), "warp": _version("warp-lang"), "torch": torch.__version__},
-        "kernel_cache": str(mjwarp.kernel_cache_dir()),
+        "kernel_cache": str(mjwarp.kernel_cache_dir()).replace(str(Path.home()), "~", 1),  # no machine path in the JSON
         "rows": [],
     }
     print(f"evaaa bench_env backend=warp: Warp on {warp_device} ({gpu or results['processor']}), {decisions} decisions")

@@ -10,7 +10,8 @@ the memory it took.
 Each algorithm trains with its defaults (``scripts/train.py algo=<name> level=<level>``, ``env.num_envs=8``, all
 modalities) for ``minutes`` of wall time in a scratch run directory, one after another, so that the runs do not
 share the machine.  The figures come from the run's own log (``logs/scalars/time/env_steps_per_s.csv``: env steps
-per second of the session so far, written every ``log_every`` env steps, and the gradient-step counter where the
+per second of the session so far, written every ``log_every`` env steps — or its rows in a packed record's
+``logs/scalars.csv`` — and the gradient-step counter where the
 algorithm logs one; a resumed run's sessions, found in its ``train.log``, are added up):
 
 * **whole run**: env steps / wall time from the start of training to the last log row (warm-up, evaluations and
@@ -51,6 +52,7 @@ import evaaa  # noqa: E402
 from evaaa_baselines import cli  # noqa: E402
 from evaaa_baselines.algos import names as algo_names  # noqa: E402
 from evaaa_baselines.cli import option  # noqa: E402
+from evaaa_baselines.scalar_log import has_scalar, scalar_csv  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_ALGOS = ("ppo", "ppo_lstm", "dqn", "dreamer_xs")
@@ -74,15 +76,16 @@ class Throughput:
 def read_throughput(run_dir: Path, algo: str, skip: float = 0.25) -> Throughput:
     """The rates of a finished run from its CSV log (see the module docstring); ``skip``: share of the run's
     wall time left out of the steady rates."""
-    rate_file = run_dir / "logs" / "scalars" / "time" / "env_steps_per_s.csv"
-    if not rate_file.exists() and (session := session_totals(run_dir, algo)) is not None:
+    rate_file = run_dir / "logs" / "scalars" / "time" / "env_steps_per_s.csv"  # or its rows in logs/scalars.csv
+    if not has_scalar(run_dir, "time/env_steps_per_s") and (session := session_totals(run_dir, algo)) is not None:
         return session
-    if not rate_file.exists():
+    if not has_scalar(run_dir, "time/env_steps_per_s"):
         raise SystemExit(
             f"bench_train.py: {algo}: no {rate_file.relative_to(run_dir)} in {run_dir} (the run logged "
             "nothing: give it more minutes=, or see its train.log)"
         )
-    rates = pd.read_csv(rate_file, header=None, names=["step", "rate"]).drop_duplicates("step", keep="last")
+    rates = pd.read_csv(scalar_csv(run_dir, "time/env_steps_per_s"), header=None, names=["step", "rate"])
+    rates = rates.drop_duplicates("step", keep="last")
     rates = rates[rates["rate"] > 0]
     if len(rates) < 2:
         session = session_totals(run_dir, algo)
@@ -106,15 +109,19 @@ def read_throughput(run_dir: Path, algo: str, skip: float = 0.25) -> Throughput:
     span = last["seconds"] - first["seconds"]
     steady = (last["step"] - first["step"]) / span
     grad_steps = grad_rate = None
-    update_file = run_dir / "logs" / "scalars" / "train" / "updates.csv"
-    if update_file.exists():
-        updates = pd.read_csv(update_file, header=None, names=["step", "updates"]).drop_duplicates("step", keep="last")
+    if has_scalar(run_dir, "train/updates"):
+        updates = pd.read_csv(scalar_csv(run_dir, "train/updates"), header=None, names=["step", "updates"])
+        updates = updates.drop_duplicates("step", keep="last")
         by_step = updates.set_index("step")["updates"]
         if first["step"] in by_step.index and last["step"] in by_step.index:
             grad_steps = int(by_step[last["step"]])
             grad_rate = (by_step[last["step"]] - by_step[first["step"]]) / span
-    gpu = run_dir / "logs" / "scalars" / "time" / "gpu_memory_peak_gb.csv"
-    gpu_gb = float(pd.read_csv(gpu, header=None, names=["step", "gb"])["gb"].max()) if gpu.exists() else None
+    gpu = "time/gpu_memory_peak_gb"
+    gpu_gb = (
+        float(pd.read_csv(scalar_csv(run_dir, gpu), header=None, names=["step", "gb"])["gb"].max())
+        if has_scalar(run_dir, gpu)
+        else None
+    )
     return Throughput(
         algo,
         int(last["step"]),

@@ -6,7 +6,7 @@ The agent starts at rest 4 to 6 m from the north wall of an empty 1-1 arena (41 
 every point of a decision's five substeps), turned 0, 10, 20 or 30 degrees off the wall's normal, and takes four
 Forward decisions; the first two are in the open, the impact comes in the third or fourth (a Forward at the wall
 drives the body into it again).  Prints, per angle, the range of the damage of the decisions that hit (damage
-over 0.01) and of the four decisions' total.  The README's wall-hit figure comes from this command.
+over 0.01) and of the four decisions' total.  The wall-hit figures of docs/faithfulness.md come from this command.
 """
 
 from __future__ import annotations

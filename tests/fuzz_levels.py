@@ -20,6 +20,7 @@ from typing import Any
 from pydantic import BaseModel
 
 import evaaa
+from evaaa.physiology import REWARDS
 from evaaa.spec import MAX_INTEGER, MAX_MAGNITUDE, Level, load_level
 
 BASES = evaaa.LEVELS + evaaa.TESTBEDS
@@ -92,6 +93,8 @@ def mutate(rng: random.Random, path: str, value: Any) -> Any:
     annotation = field.annotation if field is not None else None
     if typing.get_origin(annotation) is typing.Literal and rng.random() < 0.7:
         return rng.choice(typing.get_args(annotation))
+    if path == "reward.name" and rng.random() < 0.7:  # a name of the reward registry, as its Literal was
+        return rng.choice(REWARDS)
     if isinstance(value, bool):
         return rng.choice([not value, "maybe", 2])
     if isinstance(value, int):

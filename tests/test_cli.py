@@ -39,6 +39,7 @@ SCHEMAS = {
     "reproduce": "ReproduceConfig",
     "probe_dreamer": "ProbeConfig",
     "fit_world_model": "FitConfig",
+    "pack_record": "PackConfig",
 }
 
 
@@ -301,6 +302,8 @@ BAD_VALUES = [
     ("fit_world_model", "updates=-5", "updates=-5: expected >= 1"),
     ("fit_world_model", "updates=1e3", "updates=1e3: expected an integer"),
     ("fit_world_model", "keys=[3_2]", "keys=[3_2]: '3_2' is not allowed"),
+    ("pack_record", "root=nowhere", "root=nowhere: not a folder"),
+    ("pack_record", "root=", "root=: expected a string"),
     ("play", "level=3_2", "level=3_2: '3_2' is not allowed"),
     ("play", "port=1e3", "port=1e3: expected an integer"),
     ("play", "step_log=on", "step_log=on: expected true or false"),

@@ -29,6 +29,7 @@ from evaaa.physiology import (
     reward,
 )
 from evaaa.records import EPISODE_FIELDS, STEP_FIELDS, EpisodeTracker, StepLog, append_rows, new_log_path, read_rows
+from evaaa.sensors import SENSORS
 from evaaa.sim import EAT, FORWARD, LEFT, NONE, RIGHT, Simulator
 from evaaa.spec import LevelError
 from evaaa.worldgen import ObstaclePool, place_obstacles
@@ -140,7 +141,7 @@ def reward_option(option: str) -> dict:
 
 
 def params_for(option: str, level: str = "two-resource-food") -> PhysiologyParams:
-    return PhysiologyParams.from_level(evaaa.load_level(level, {"reward": reward_option(option)}))
+    return evaaa.load_level(level, {"reward": reward_option(option)}).physiology_params()
 
 
 def squared_by_hand(f, w, t, d):
@@ -209,7 +210,7 @@ def test_the_hand_shaped_reward_by_hand():
     collided = np.array([True, False, False])
     end = np.array([END_NONE, END_NONE, END_RESOURCE])
     ev = np.zeros((3, 4))
-    r = reward(ev, ev, end, p, odour=odour, thermal=thermal, consumed=consumed, collided=collided)
+    r = reward(ev, ev, end, p, olfaction=odour, thermoception=thermal, consumed=consumed, collided=collided)
     expected = [1.5 / 10 - 160 / 1000 + 100 - 1, 0 - 40 / 1000, -100.0]
     np.testing.assert_allclose(r, expected, rtol=1e-6, atol=1e-5)
     with pytest.raises(ValueError, match="shaped"):
@@ -263,8 +264,8 @@ def test_the_shaped_reward_in_the_env_reads_the_senses_even_when_they_are_not_ob
     )
     sim.reset()
     _, r, *_ = sim.step(np.array([NONE]))
-    odour = sim._shaping_senses[0].read(np.array([0]))
-    thermal = sim._shaping_senses[1].read(np.array([0]))
+    odour = SENSORS["olfaction"](sim).read(np.array([0]))
+    thermal = SENSORS["thermoception"](sim).read(np.array([0]))
     assert odour.sum() > 0
     assert r[0] == pytest.approx(odour.sum() / 10 - np.abs(thermal).sum() / 1000, rel=1e-5)
     sim.close()

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
+import yaml
 
 import evaaa
 from evaaa import daynight
@@ -313,3 +316,33 @@ def test_collision_rays_agree_with_mujoco_ray_casting(level, overrides):
             assert np.array_equal(sim.last_obs["collision"][w] > 0, expected), w
             seen += expected.any()
     assert seen > 90  # the walks did meet things
+
+
+# ------------------------------------------------------------------------------------------------ python -m evaaa.levels
+@pytest.mark.parametrize("name", [evaaa.LEVELS[-1], evaaa.TESTBEDS[0]])
+def test_the_printed_level_is_the_resolved_level_and_loads_back_as_itself(name, tmp_path, capsys):
+    from evaaa.levels.__main__ import main
+
+    assert main([name, "episode.max_steps=1234"]) == 0
+    text = capsys.readouterr().out
+    printed = yaml.safe_load(text)
+    level = evaaa.load_level(name, {"episode.max_steps": 1234})
+    assert printed == level.model_dump(mode="json") and printed["episode"]["max_steps"] == 1234
+    # extends applied: the file itself names only what it changes, the print holds every field
+    own = yaml.safe_load((Path(evaaa.__file__).parent / "levels" / f"{name}.yaml").read_text())
+    assert "extends" not in printed and set(printed) - set(own)
+    (tmp_path / "resolved.yaml").write_text(text)  # a standalone level file: the same level again
+    assert evaaa.load_level(tmp_path / "resolved.yaml") == level
+
+
+def test_the_level_printer_lists_levels_and_refuses_bad_input(capsys):
+    from evaaa.levels.__main__ import main
+
+    assert main([]) == 0
+    listed = capsys.readouterr().out
+    assert all(name in listed for name in evaaa.LEVELS + evaaa.TESTBEDS)
+    assert main(["1-1", "reward.name=dense"]) == 2
+    assert "reward.name: must be one of 'squared'" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["1-1", "not-an-override"])
+    assert "an override is dotted.path=value, got 'not-an-override'" in capsys.readouterr().err

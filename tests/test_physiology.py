@@ -38,7 +38,7 @@ N_SENSORS = 8
 
 @pytest.fixture(scope="module")
 def params() -> PhysiologyParams:
-    return PhysiologyParams.from_level(load_level("1-1"))
+    return load_level("1-1").physiology_params()
 
 
 def _step(ev, p, *, food=False, water=False, thermal_sum=0.0, damage=0.0):

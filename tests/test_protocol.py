@@ -12,6 +12,7 @@ import pytest
 import yaml
 from helpers import load_script
 
+import evaaa
 from evaaa_baselines.paper.cells import Cell, Command, Layout, build_cells, provenance, status
 from evaaa_baselines.paper.protocol import ProtocolError, load_protocol
 from evaaa_baselines.paper.running import Runner
@@ -30,8 +31,9 @@ def test_paper_cpu_expands_into_the_issue_cells(tmp_path):
     got = names(cells)
     S = p.stage_steps
     assert len(got) == len(set(got))
-    algos = ("ppo", "dqn", "ppo_lstm")
-    levels = ("1-1", "1-2", "2-1", "2-2", "3-1", "3-2", "4-1", "4-2")
+    algos = [n for n, a in p.algorithms.items() if a.enabled]
+    assert algos == ["ppo", "dqn", "ppo_lstm"]  # the paper's three on CPU; the counts below follow from the protocol
+    levels = evaaa.LEVELS
     for a in algos:
         for seed in (0, 1):
             assert f"train/{a}/curriculum/seed{seed}" in got
@@ -46,9 +48,10 @@ def test_paper_cpu_expands_into_the_issue_cells(tmp_path):
     assert {"ref/oracle", "ref/random"} <= set(got) and got[-1] == "report"
     refs = {c.name: " ".join(c.commands[0].argv) for c in cells if c.kind == "ref"}
     assert "levels=[testbeds]" in refs["ref/oracle"] and "levels=[all]" in refs["ref/random"]  # levels_of
-    # 3 algorithms x 2 seeds x (1 curriculum + 8 direct) + 10 ablations trainings, their evaluations, refs, report
-    trains = 3 * 2 * 9 + 10
-    evals = 3 * 2 * (8 + 8) + 10
+    # algorithms x seeds x (1 curriculum + one direct per level) + the ablations' trainings, their evaluations (each
+    # curriculum stage and each direct run), the references, the report
+    trains = len(algos) * 2 * (1 + len(levels)) + len(ablations) * 2
+    evals = len(algos) * 2 * (len(levels) + len(levels)) + len(ablations) * 2
     assert len(got) == trains + evals + 2 + 1
     by = {c.name: c for c in cells}
     cur = " ".join(by["train/dqn/curriculum/seed1"].commands[0].argv)
@@ -107,7 +110,7 @@ def test_plan_lists_every_cell_its_status_estimate_total_and_command(tmp_path, c
     # docs/reports.md quotes this plan: its budget table and S must be what the code prints
     docs = (Path(__file__).parents[1] / "docs/reports.md").read_text()
     assert f"| **total** | | | | | **{total:.2f}** |" in docs
-    for algo in ("ppo", "dqn", "ppo_lstm"):
+    for algo in (n for n, a in load_protocol("paper_cpu").algorithms.items() if a.enabled):
         row = re.search(rf"^  {algo}\s+([\d. ]+)$", out, re.M).group(1).split()
         assert f"| {algo} | " + " | ".join("–" if v == "0.00" else v for v in row) + " |" in docs
     assert f"S = **{load_protocol('paper_cpu').stage_steps:,}** env steps" in docs
@@ -689,7 +692,7 @@ def test_docs_quote_the_paper_learned_plan(tmp_path, capsys):
     docs = docs[docs.index("## The paper's claims between agents that learned") :]
     total = float(re.search(r"^  total\s+(\d+\.\d+)", out, re.M).group(1))
     assert f"| **total** | | | | | | **{total:.2f}** |" in docs and "WARNING" not in out
-    for algo in ("ppo", "dqn", "ppo_lstm", "dreamer_xs"):
+    for algo in (n for n, a in load_protocol("paper_learned").algorithms.items() if a.enabled):
         row = re.search(rf"^  {algo}\s+([\d. ]+)$", out, re.M).group(1).split()
         assert f"| {algo} | " + " | ".join("–" if v == "0.00" else v for v in row) + " |" in docs
     assert f"**S = {load_protocol('paper_learned').stage_steps:,}** env steps" in docs

@@ -89,3 +89,38 @@ def test_a_key_already_taken_is_refused(compass):
     assert SENSORS["pixels"].__name__ == "Vision"
     with pytest.raises(ValueError, match=r"unknown modality 'sonar'; allowed: pixels, .*collision, compass"):
         evaaa.make_env("1-1", modalities=["sonar"])
+
+
+@pytest.mark.parametrize("algo", ["ppo", "dqn"])
+def test_a_sensor_of_ones_own_trains_with_ppo_and_dqn_without_a_config_edit(compass, algo, tmp_path):
+    """The encoders give a vector key their config does not list ``algo.encoder.mlp_default`` units: enabling the
+    sense on the command line is all it takes."""
+    from hydra import compose, initialize_config_dir
+
+    from evaaa_baselines import checkpoint
+    from evaaa_baselines.config import register_levels
+    from evaaa_baselines.paths import CONF_DIR
+    from evaaa_baselines.training import train
+
+    register_levels()  # the level=<name> options
+    with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
+        cfg = compose(
+            "config",
+            overrides=[
+                f"algo={algo}",
+                "preset=debug",
+                "logger=csv",
+                "progress=false",
+                "total_steps=256",
+                "device=cpu",
+                "modality.enabled.pixels=false",
+                "+modality.enabled.compass=true",
+            ],
+        )
+    assert "compass" not in cfg.algo.encoder.mlp
+    train(cfg, tmp_path / "run")
+    state = checkpoint.load_checkpoint(tmp_path / "run" / checkpoint.CHECKPOINT)
+    assert list(state["obs_keys"]) == ["interoception", "olfaction", "thermoception", "collision", "compass"]
+    assert state["counters"]["steps"] >= 256
+    widths = {k: v.shape for k, v in state["model"].items() if "branches.compass" in k and k.endswith("weight")}
+    assert widths and all(shape[0] == cfg.algo.encoder.mlp_default for shape in widths.values()), widths

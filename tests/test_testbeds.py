@@ -1,9 +1,10 @@
-"""The ten testbeds: layouts, success criteria (a scripted success and a scripted failure each), the oracle,
+"""The testbeds: layouts, success criteria (a scripted success and a scripted failure each), the oracle,
 and the evaluation tool."""
 
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -39,8 +40,11 @@ def outcome(step) -> tuple[bool, bool, str]:
     return bool(info["success"][0, 0]), bool(terminated[0] or truncated[0]), END_TYPES[int(info["end_type"][0, 0])]
 
 
-def test_the_testbed_list():
-    assert len(evaaa.TESTBEDS) == 10 and not set(evaaa.TESTBEDS) & set(evaaa.LEVELS)
+def test_the_testbed_list_is_every_packaged_testbed_file():
+    files = sorted(p.stem for p in (Path(evaaa.__file__).parent / "levels").glob("*.yaml") if p.stem[0] != "_")
+    assert evaaa.TESTBEDS and not set(evaaa.TESTBEDS) & set(evaaa.LEVELS)
+    assert sorted(evaaa.LEVELS + evaaa.TESTBEDS) == files  # every file is listed, under the kind it declares
+    assert [n for n in files if evaaa.load_level(n).kind == "testbed"] == sorted(evaaa.TESTBEDS)
     for name in evaaa.TESTBEDS:
         level = evaaa.load_level(name)
         assert level.kind == "testbed" and level.thermal.relative and level.arena.floor == "gray"

@@ -1,0 +1,77 @@
+"""The documentation holds together: every relative link of README.md and docs/*.md (and of the reports committed
+under docs/) points at a file that exists, and at a heading of it where it names one; README.md stays a product page
+(at most 300 lines); no page, report or table names a path of the machine it was written on."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+REPORTS = sorted((ROOT / "docs").glob("*/**/*.md"))
+LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)")
+FENCE = re.compile(r"^```.*?^```", re.M | re.S)
+
+
+def anchors(page: Path) -> set[str]:
+    """The heading anchors GitHub makes for a Markdown page: lower case, punctuation dropped, spaces to hyphens,
+    a repeated heading numbered."""
+    seen: dict[str, int] = {}
+    out = set()
+    for heading in re.findall(r"^#{1,6}\s+(.+?)\s*#*$", FENCE.sub("", page.read_text()), re.M):
+        slug = re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+        n = seen.get(slug, 0)
+        seen[slug] = n + 1
+        out.add(slug if n == 0 else f"{slug}-{n}")
+    return out
+
+
+def links(page: Path) -> list[str]:
+    return [t for t in LINK.findall(FENCE.sub("", page.read_text())) if not re.match(r"[a-z]+:", t)]
+
+
+def test_the_pages_link_somewhere():
+    assert sum(len(links(p)) for p in PAGES) > 50
+
+
+@pytest.mark.parametrize("page", PAGES + REPORTS, ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_relative_link_resolves(page):
+    broken = []
+    for target in links(page):
+        path, _, anchor = target.partition("#")
+        where = (page.parent / path).resolve() if path else page
+        if not where.exists():
+            broken.append(f"{target}: no such file")
+        elif anchor and where.suffix == ".md" and anchor not in anchors(where):
+            broken.append(f"{target}: no heading #{anchor} in {where.relative_to(ROOT)}")
+    assert not broken, broken
+
+
+def test_the_readme_is_a_product_page():
+    text = (ROOT / "README.md").read_text()
+    assert len(text.splitlines()) <= 300
+    for section in ("## Install", "## Quick start", "## Using the environment", "## Train", "## Evaluate"):
+        assert f"\n{section}\n" in text, section
+    assert "## Reproduce the paper" in text and "## Documentation" in text
+
+
+#: what docs/ publishes beside the pages: reports, their tables and benchmark files (not the raw records of runs, where
+#: Hydra keeps the directory each run was started in)
+PUBLISHED = sorted(
+    p
+    for p in (ROOT / "docs").rglob("*")
+    if p.suffix in (".md", ".csv", ".json") and "record" not in p.relative_to(ROOT).parts
+)
+
+
+def test_published_files_are_found():
+    assert ROOT / "docs" / "results" / "paper-cpu" / "report.md" in PUBLISHED
+
+
+@pytest.mark.parametrize("page", PAGES + PUBLISHED, ids=lambda p: str(p.relative_to(ROOT)))
+def test_no_page_names_a_path_of_the_machine_it_was_written_on(page):
+    found = re.findall(r"(?<![\w.])/(?:work|root|tmp|home)/\S*", page.read_text())
+    assert not found, found
