@@ -55,6 +55,13 @@ class ReportConfig:
         "several ways: mode, sample, mode+epsilon=0.05 ... (evaluate.py's acting "
         "column; reference agents are always kept)",
     )
+    compare: str | None = option(
+        None,
+        "the acting mode the claims compare when checkpoints were evaluated in several ways "
+        "(mode, sample, ...; every mode stays in the tables, labelled): each run's rows of that "
+        "mode, and where a run's algorithm has no action distribution (DQN) and sample is "
+        "compared, its greedy rows, labelled so; unset: the mode every run has (mode first)",
+    )
 
 
 def parse(argv: list[str] | None = None) -> ReportConfig:
@@ -83,6 +90,7 @@ def main(argv: list[str] | None = None) -> int:
             bins=cfg.bins,
             title=cfg.title,
             acting=cfg.acting,
+            compare=cfg.compare,
         )
     except ReportError as err:  # an input that does not hold what the key asks for: named in the message
         cli.fail("report.py", str(err))

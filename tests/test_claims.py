@@ -285,3 +285,18 @@ def test_fails_is_not_reproduced_on_levels_without_an_interval():
     v = c._fails("ppo_lstm", LEVELS[:3], one_seed, RANDOM)
     assert v.verdict == c.UNRESOLVED
     assert "no interval on 1-1, 1-2, 2-1" in v.evidence[-1]
+
+
+def test_a_greedy_agent_without_a_distribution_is_compared_in_a_sample_comparison_and_said_so():
+    # the report compares `sample` and DQN, which has no action distribution, takes part with its greedy action:
+    # labelled so, compared, and the evidence says how each acted
+    stand_in = "sample" + c.GREEDY_STAND_IN
+    rows = [cell(900.0, algo="dqn", level=lv, acting=stand_in) for lv in LEVELS[:4]]
+    rows += [cell(100.0, algo="ppo", level=lv, acting="sample") for lv in LEVELS[:4]]
+    v = c._ordered("dqn", "ppo", frame(rows), LEVELS)
+    assert v.verdict == c.REPRODUCED
+    assert f"dqn `{stand_in}`, ppo `sample`" in v.evidence[-1] and "takes its greedy action" in v.evidence[-1]
+    # a stand-in for `sample` is still not `mode`, and epsilon must match
+    for other in ("mode", "sample+epsilon=0.05"):
+        mixed = frame([r | {"acting": other} if r["algo"] == "ppo" else r for r in rows])
+        assert c._ordered("dqn", "ppo", mixed, LEVELS).verdict == c.UNRESOLVED

@@ -696,3 +696,39 @@ def test_docs_quote_the_paper_learned_plan(tmp_path, capsys):
         row = re.search(rf"^  {algo}\s+([\d. ]+)$", out, re.M).group(1).split()
         assert f"| {algo} | " + " | ".join("–" if v == "0.00" else v for v in row) + " |" in docs
     assert f"**S = {load_protocol('paper_learned').stage_steps:,}** env steps" in docs
+
+
+def test_paper_learned_compares_sampled_actions_and_its_done_evaluations_stay_done(tmp_path):
+    # modes [sample, mode]: the report's claims compare `sample` (DQN with its greedy action), every mode in its
+    # tables; the evaluation folders are those of [mode, sample], so evaluations made before stay done
+    p = load_protocol("paper_learned")
+    assert p.evaluation.modes == ["sample", "mode"]
+    before = p.model_copy(update={"evaluation": p.evaluation.model_copy(update={"modes": ["mode", "sample"]})})
+    one = p.model_copy(update={"evaluation": p.evaluation.model_copy(update={"modes": ["sample"]})})
+    now, old = build_cells(p, tmp_path), build_cells(before, tmp_path)
+    assert names(now) == names(old)
+    outs = {c.name: sorted(str(m.out) for m in c.commands) for c in now}
+    assert outs == {c.name: sorted(str(m.out) for m in c.commands) for c in old}
+    assert [Path(o).name for o in outs["eval/ppo/direct-1-1/seed0"]] == [
+        "level-mode",
+        "level-sample",
+        "testbeds-mode",
+        "testbeds-sample",
+    ]
+    assert [Path(o).name for o in outs["eval/dqn/matched-1-1/seed1"]] == ["level-mode", "testbeds-mode"]
+    lay = Layout(tmp_path)
+    for cmd in next(c for c in old if c.name == "eval/ppo/direct-1-1/seed0").commands:
+        cmd.out.mkdir(parents=True)
+        (cmd.out / "episodes.csv").write_text("policy\n")
+    assert status(next(c for c in now if c.name == "eval/ppo/direct-1-1/seed0"), lay) == "done"
+    report = {
+        tuple(m.modes): [a for a in c.commands[0].argv if a.startswith(("acting=", "compare="))]
+        for m, cells in ((p.evaluation, now), (before.evaluation, old), (one.evaluation, build_cells(one, tmp_path)))
+        for c in cells
+        if c.kind == "report"
+    }
+    assert report == {
+        ("sample", "mode"): ["compare=sample"],
+        ("mode", "sample"): ["compare=mode"],
+        ("sample",): ["acting=sample", "compare=sample"],
+    }

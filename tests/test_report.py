@@ -1350,3 +1350,75 @@ def test_the_claims_compare_agents_in_the_acting_mode_they_all_have():
     )
     # no mode shared by every run: each run's most frequent (such agents are then not compared)
     assert _one_mode(apart)["acting"].tolist() == ["sample", "sample", "mode", "mode", "mode"]
+
+
+def _learned_only_when_sampling(tmp_path: Path) -> tuple[list[Path], Path]:
+    """Three PPO runs on 1-1 whose final network stands still acting `mode` (about stand-still's 1,112 decisions)
+    and forages when sampling (3,000-4,000), and three DQN runs (no action distribution: `mode` alone, about
+    2,000), each evaluated on 1-1 (test worlds) as the protocol's cells write it."""
+    sim = Sim(tmp_path / "runs")
+    runs = []
+    for seed in (0, 1, 2):
+        for algo, ways in (("ppo", {"mode": (1100, 1125), "sample": (3000, 4000)}), ("dqn", {"mode": (1900, 2100)})):
+            run = sim.run(algo, seed, level="1-1", finish=1)
+            runs.append(run)
+            for acting, (low, high) in ways.items():
+                rows = [
+                    r | {"acting": acting, "worlds": "test", "steps": int(sim.rng.integers(low, high))}
+                    for r in sim.evaluate(str(run / "model-0-1-1.pt"), "1-1", 6)
+                ]
+                append_rows(tmp_path / "evals" / f"{algo}{seed}" / f"level-{acting}" / "episodes.csv", rows)
+    return runs, tmp_path / "evals"
+
+
+def _dqn_vs_ppo(inp):
+    from evaaa_baselines.reports.sections import claim_verdicts
+
+    (c,) = [v for v in claim_verdicts(inp) if v.claim.startswith("(c)")]
+    return next(p for p in c.parts if p.claim == "dqn > ppo in survival")
+
+
+def test_a_sample_comparison_takes_each_agent_s_sampled_rows_and_dqn_s_greedy_ones(tmp_path):
+    # PPO learned only when sampling, DQN is greedy: compared in `sample`, PPO's sampled rows face DQN's greedy ones
+    # (labelled so) and DQN is below; compared in `mode` (or as before, without `compare`), PPO's standing still
+    from evaaa_baselines.reports.sections import read_inputs
+
+    runs, evals = _learned_only_when_sampling(tmp_path)
+    sampled = read_inputs(runs, [evals], compare="sample")
+    v = _dqn_vs_ppo(sampled)
+    assert v.verdict == "contradicted", v.evidence
+    assert "dqn `sample (greedy: no action distribution)`, ppo `sample`" in v.evidence[-1]
+    for compare in (None, "mode"):
+        v = _dqn_vs_ppo(read_inputs(runs, [evals], compare=compare))
+        assert v.verdict == "reproduced" and "acting modes differ" not in " ".join(v.evidence)
+    # the report names the compared acting in its tables and keeps PPO's other mode there, labelled
+    text = build_report(runs, [evals], tmp_path / "out", compare="sample").markdown.read_text()
+    survival = table(text, "## Survival per training level")["1-1"]
+    assert {"ppo [mode]", "ppo [sample]", "dqn"} <= set(survival)
+    assert float(survival["ppo [mode]"].split()[0]) < 1125 < 3000 <= float(survival["ppo [sample]"].split()[0])
+    said = "The claims compare `sample` (sampled actions; dqn: `mode`, greedy: it has no action distribution)"
+    assert text.count(said) >= 2 and "**Compared acting.**" in text
+    from evaaa_baselines.reports.figures import how_measured
+
+    stats = pd.read_csv(tmp_path / "out" / "data" / "survival_per_level.csv")
+    assert how_measured(stats, sampled.compared).endswith(
+        "\nthe claims compare sample (sampled actions; dqn: mode, greedy: it has no action distribution)"
+    )
+    with pytest.raises(ReportError, match=r"compare: 'greedy' is no acting mode; allowed: mode, sample"):
+        read_inputs(runs, [evals], compare="greedy")
+    with pytest.raises(ReportError, match="compare: no checkpoint was evaluated acting 'sample"):
+        read_inputs(runs, [evals], compare="sample+epsilon=0.05")
+
+
+def test_acting_sample_keeps_a_dqn_checkpoint_s_greedy_episodes_as_evaluate_py_writes_them_now(tmp_path):
+    # evaluate.py sample=true records DQN's episodes as `mode…` (it has no distribution): `acting=sample…` keeps
+    # them (its greedy action is how it acts when asked to sample) and drops PPO's `mode…` ones
+    sim = Sim(tmp_path / "runs")
+    dqn, ppo = (sim.run(a, 0, level="1-1", finish=1) for a in ("dqn", "ppo"))
+    for run, acting in ((dqn, "mode+epsilon=0.05"), (ppo, "sample+epsilon=0.05"), (ppo, "mode+epsilon=0.05")):
+        rows = [r | {"acting": acting} for r in sim.evaluate(str(run / "model-0-1-1.pt"), "1-1", 3)]
+        append_rows(tmp_path / "eval" / f"{run.name}-{acting}" / "episodes.csv", rows)
+    text = build_report([dqn, ppo], [tmp_path / "eval"], tmp_path / "out", acting="sample+epsilon=0.05")
+    got = table(text.markdown.read_text(), "## Evaluation on training levels")["1-1"]
+    assert sorted(k for k in got if k != "level") == ["dqn", "ppo"]
+    assert "Acting: `mode+epsilon=0.05` (dqn); `sample+epsilon=0.05` (ppo)" in text.markdown.read_text()

@@ -389,9 +389,10 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
         f"survival={p.report.survival}",
         f"title={title}",
     ]
-    if any(c.kind == "eval" for c in cells) and len(modes) == 1:
-        # several modes: the report shows each, labelled, and its claims take the mode every agent has
-        argv.append(f"acting={acting(ev)}")
+    if any(c.kind == "eval" for c in cells):
+        # one mode: the report reports it alone; several: it shows each, labelled. Its claims compare the first (an
+        # algorithm without an action distribution, DQN, with its greedy action in a `sample` comparison)
+        argv += [f"acting={acting(ev)}"] * (len(modes) == 1) + [f"compare={acting(ev)}"]
     cells.append(
         Cell(
             "report",
@@ -433,11 +434,12 @@ def acting_text(ev: EvaluationSpec) -> str:
     """How the protocol's checkpoints act, in words that hold for every algorithm (DQN has no distribution)."""
     eps = f", epsilon {ev.epsilon:g}" if ev.epsilon else ""
     modes = eval_modes(ev)
-    if modes == ["mode"]:
-        return f"by their most likely action{eps}"
-    if modes == ["sample"]:
-        return f"by sampling (DQN: its greedy action){eps}"
-    return f"by their most likely action, and by sampling where they have a distribution{eps}"
+    said = {"mode": "by their most likely action", "sample": "by sampling (DQN: its greedy action)"}
+    if len(modes) == 1:
+        return said[modes[0]] + eps
+    if modes[0] == "mode":
+        said["sample"] = "by sampling where they have a distribution"
+    return f"{said[modes[0]]}{eps}, the mode the claims compare, and " + " and ".join(said[m] for m in modes[1:])
 
 
 # ------------------------------------------------------------------------------------------------ status

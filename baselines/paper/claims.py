@@ -6,9 +6,11 @@ The rules are deliberately conservative: two cells differ only where their inter
 seeds and episodes, seed-clustered Wilson for success; :mod:`.stats`) do not overlap; overlapping intervals never
 decide a claim.  A part whose agent cells have fewer than three seeds has no intervals and is not decided: its
 verdict is "not resolvable: 2 seeds", with the numbers (each seed's value).  Two agents that acted differently
-(greedy against sampled actions) are not compared.  The (d) "drop" rule looks at every pair of training levels of an
-agent, so its one-sided paired tests over seeds are corrected for the number of pairs (Holm).  A claim made of parts
-is reproduced when every part with data is, contradicted when some part is and none is reproduced, and otherwise not
+(greedy against sampled actions) are not compared — except where a report compares sampled actions and an agent
+without an action distribution (DQN) takes part with its greedy action, labelled so
+(:data:`..reports.load.GREEDY_STAND_IN`).  The (d) "drop" rule looks at every pair of training levels of an agent,
+so its one-sided paired tests over seeds are corrected for the number of pairs (Holm).  A claim made of parts is
+reproduced when every part with data is, contradicted when some part is and none is reproduced, and otherwise not
 resolvable (the parts' verdicts are listed).  A part without data (DreamerV3, human records) is said to be missing
 and counts as not resolvable.
 """
@@ -23,6 +25,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats as sps
 
+from ..reports.load import GREEDY_STAND_IN, same_acting
 from ..reports.stats import MIN_SEEDS, holm
 
 REPRODUCED, CONTRADICTED, UNRESOLVED = "reproduced", "contradicted", "not resolvable at this scale"
@@ -259,9 +262,14 @@ def _ordered(a: str, b: str, survival: pd.DataFrame, order: Sequence[str]) -> Ve
         else UNRESOLVED
     )
     modes = [" / ".join(dict.fromkeys(x.loc[levels, "acting"].astype(str))) if "acting" in x else "" for x in (sa, sb)]
-    if all(modes) and modes[0] != modes[1]:  # greedy against sampled actions says nothing about the algorithms
+    if all(modes) and not same_acting(*modes):  # greedy against sampled actions says nothing about the algorithms
         verdict = UNRESOLVED
         evidence.append(f"acting modes differ ({a}: `{modes[0]}`, {b}: `{modes[1]}`): not compared")
+    elif any(GREEDY_STAND_IN in m for m in modes):  # DQN in a `sample` comparison: its greedy action
+        evidence.append(
+            f"acting: {a} `{modes[0]}`, {b} `{modes[1]}` (an agent without an action distribution takes its greedy "
+            "action where the others sample)"
+        )
     return _gate(Verdict(f"{a} > {b} in survival", verdict, rule, evidence), sa.loc[levels], sb.loc[levels])
 
 

@@ -176,7 +176,8 @@ class EvaluationSpec(_Strict):
     epsilon: float = Field(default=0.05, ge=0, le=1)
     sample: bool = False
     # several acting modes: every model is evaluated in each (its folders get a `-<mode>` suffix; an algorithm with no
-    # action distribution, DQN, only in `mode`), and the report compares them in the first; null: as `sample` says
+    # action distribution, DQN, only in `mode`), and the report's claims compare them in the first (DQN with its
+    # greedy action where that is `sample`), every mode in its tables; null: as `sample` says
     modes: list[Literal["mode", "sample"]] | None = Field(default=None, min_length=1)
     worlds: Literal["test", "validation"] = "test"  # the evaluations' worlds (evaaa/worlds.py): published: test
     testbeds: EvalPart | None = None  # every evaluated model on these levels (null: none)

@@ -186,8 +186,9 @@ def interval_note(stats: pd.DataFrame, drawn: str = "whiskers") -> str:
     return "; ".join(parts)
 
 
-def how_measured(stats: pd.DataFrame) -> str:
-    """A figure title's line naming how the agents acted and on which worlds."""
+def how_measured(stats: pd.DataFrame, compared: str = "") -> str:
+    """A figure title's line naming how the agents acted and on which worlds (and a line with ``compared``, the
+    acting the report's claims compare, where agents acted)."""
     if "acting" not in stats and "worlds" not in stats:  # evaluate.py's summary: its own title says
         return ""
 
@@ -198,7 +199,9 @@ def how_measured(stats: pd.DataFrame) -> str:
         ways = [w for w in dict.fromkeys(agents[column].fillna("").astype(str)) if w]
         return " / ".join(ways) or "not recorded"
 
-    return f"acting: {named('acting')} · worlds: {named('worlds')}"
+    acting = named("acting")
+    claims = f"\nthe claims compare {compared.replace('`', '')}" if compared and acting != "not recorded" else ""
+    return f"acting: {acting} · worlds: {named('worlds')}{claims}"
 
 
 def _chunks(items: Sequence, size: int) -> list[list]:
@@ -221,12 +224,14 @@ def plot_bars(
     note: str = "",
     panel_height: float = 3.0,
     colour_by: str = "algo",
+    compared: str = "",
 ) -> Path:
     """Grouped bars — one group per ``level``, one bar per ``label`` (``value``, its interval as whiskers, the
     seeds' ``points`` as dots where there is no interval) — in one panel per ``panel`` value (or a single panel),
     levels wrapped into further rows so that the figure stays within :data:`MAX_WIDTH_PX`; the y axis starts at 0
     and ends at ``top`` if given.  ``stats`` has the columns of :data:`.aggregate.STAT_COLUMNS`; ``note``: a last
-    line of the title (e.g. what shortened labels stand for); colours: :func:`styles`."""
+    line of the title (e.g. what shortened labels stand for); ``compared``: the acting the report's claims compare
+    (:func:`how_measured`); colours: :func:`styles`."""
     plt = _plt()
     panels = list(dict.fromkeys(stats[panel])) if panel else [None]
     style = styles(list(dict.fromkeys(stats["label"])), colour_by)
@@ -277,7 +282,7 @@ def plot_bars(
         ax.set_ylim(0, top)
         if name is not None:
             ax.set_title(str(name), fontsize=9)
-    lines = [title, f"({interval_note(stats)})", how_measured(stats), note]
+    lines = [title, f"({interval_note(stats)})", how_measured(stats, compared), note]
     return _finish(fig, axes[:, 0], path, "\n".join(line for line in lines if line))
 
 
@@ -296,11 +301,13 @@ def plot_lines(
     hlines: pd.DataFrame | None = None,
     top: float | None = None,
     colour_by: str = "algo",
+    compared: str = "",
 ) -> Path:
     """Lines of ``value`` per ``label`` (one panel per ``panel`` value, two panels a row), with its interval as a
     band or whiskers; ``order``: categorical x values in this order (labels drawn side by side, slightly apart, so
     that equal values stay visible); ``hlines``: (label, value) rows drawn as dashed lines; the y axis starts at 0,
-    ends at ``top``; colours: :func:`styles`."""
+    ends at ``top``; ``compared``: the acting the report's claims compare (:func:`how_measured`); colours:
+    :func:`styles`."""
     plt = _plt()
     panels = list(dict.fromkeys(stats[panel])) if panel else [None]
     cols = min(len(panels), 2)
@@ -352,7 +359,7 @@ def plot_lines(
         if name is not None:
             ax.set_title(str(name), fontsize=9)
     note = interval_note(stats, "band" if band else "whiskers")
-    lines = [title, f"({note})", how_measured(stats)]
+    lines = [title, f"({note})", how_measured(stats, compared)]
     return _finish(fig, list(axes.flat[: len(panels)]), path, "\n".join(line for line in lines if line))
 
 

@@ -382,11 +382,56 @@ def load_evaluations(paths: Iterable[str | Path], notes: list[str] | None = None
     return pd.concat(frames, ignore_index=True)
 
 
-def select_acting(evals: pd.DataFrame, acting: str | None) -> pd.DataFrame:
+#: evaluate.py's ``acting`` values of checkpoints: how a report option names an acting mode
+ACTING = re.compile(r"(mode|sample)(\+epsilon=[0-9.eE+-]+)?")
+
+
+def check_acting(key: str, value: str | None) -> str | None:
+    """``value`` if it names an acting mode (``mode``, ``sample``, with ``+epsilon=<e>``), else a
+    :class:`ReportError` naming ``key`` and the allowed values."""
+    if value is not None and not ACTING.fullmatch(str(value)):
+        raise ReportError(
+            f"{key}: {value!r} is no acting mode; allowed: mode, sample, and either with +epsilon=<e> "
+            "(evaluate.py's acting column, e.g. mode+epsilon=0.05)"
+        )
+    return value
+
+
+def can_sample(algo: str | None) -> bool:
+    """Whether policies of ``algo`` have an action distribution to sample from (DQN's Q-values have none): such a
+    checkpoint asked to sample takes its greedy action (``mode``).  An algorithm this package does not know: yes."""
+    from ..rollout import samples_actions
+
+    try:
+        return samples_actions(str(algo))
+    except ValueError:
+        return True
+
+
+#: how a checkpoint's greedy rows are labelled where they take part in a ``sample`` comparison (its algorithm has no
+#: action distribution: :func:`stand_in`): ``sample (greedy: no action distribution)``
+GREEDY_STAND_IN = " (greedy: no action distribution)"
+
+
+def same_acting(a: str, b: str) -> bool:
+    """Whether agents acting ``a`` and ``b`` (``/``-joined modes of several cells) may be compared: the same modes,
+    a greedy stand-in (:data:`GREEDY_STAND_IN`) counting as the mode it stands in for."""
+    return a.replace(GREEDY_STAND_IN, "") == b.replace(GREEDY_STAND_IN, "")
+
+
+def stand_in(acting: str) -> str | None:
+    """The acting mode a checkpoint without an action distribution shows in a comparison of ``acting``: its greedy
+    action (``mode``, the same epsilon) for ``sample``; None where it acts as asked."""
+    return "mode" + acting[len("sample") :] if acting.startswith("sample") else None
+
+
+def select_acting(evals: pd.DataFrame, acting: str | None, runs: dict[Path, RunRecord] | None = None) -> pd.DataFrame:
     """Keep the checkpoints' episodes made acting ``acting`` (evaluate.py's ``acting`` column: ``mode``,
     ``sample``, ``mode+epsilon=0.05`` ...); reference agents' are always kept.  Without ``acting`` every way is
     kept: the report labels each checkpoint's cells with how it acted, so that greedy and sampled episodes are never
-    pooled."""
+    pooled.  With ``runs`` (checkpoints tied to them: :func:`attach`), a run whose algorithm has no action
+    distribution (DQN) and no episode asked to ``sample…`` keeps its greedy ones (:func:`stand_in`): evaluate.py
+    records those as ``mode…`` even when asked to sample."""
     if not len(evals) or acting is None:
         return evals
     if acting == "unknown":  # episodes written before evaluate.py recorded how checkpoints acted
@@ -396,6 +441,11 @@ def select_acting(evals: pd.DataFrame, acting: str | None) -> pd.DataFrame:
     # what the evaluation was asked for also selects (a DQN checkpoint's `sample` episodes, shown as `mode`)
     asked = evals["acting_recorded"].fillna(evals["acting"]).astype(str) if "acting_recorded" in evals else modes
     chosen = (evals["acting"].astype(str) == acting) | (asked.reindex(evals.index).astype(str) == acting)
+    sub = stand_in(acting)
+    if sub is not None and runs is not None and "run" in evals:
+        greedy = is_ckpt & evals["run"].map(lambda d: d in runs and not can_sample(runs[d].algo))
+        none_yet = ~chosen.groupby(evals["run"].astype(str)).transform("any")
+        chosen |= greedy & none_yet & (evals["acting"].astype(str) == sub)
     if not chosen[is_ckpt].any() and is_ckpt.any():
         raise ReportError(
             f"acting: no checkpoint was evaluated acting {acting!r}; the evaluations hold "
@@ -453,7 +503,7 @@ def attach(evals: pd.DataFrame, runs: dict[Path, RunRecord]) -> Evaluations:
         if not path.is_file():  # a committed record keeps no model files: not a problem, its episodes count
             absent.append(policy)
         info[policy] = (run_dir, stage, level)
-        if run.algo == "dqn":  # no action distribution: evaluate.py's `sample` took the greedy action all the same
+        if not can_sample(run.algo):  # DQN: evaluate.py's `sample` took the greedy action all the same
             relabel = (ckpts["policy"] == policy) & ckpts["acting"].astype(str).str.startswith("sample")
             ckpts.loc[relabel, "acting_recorded"] = ckpts.loc[relabel, "acting"]
             ckpts.loc[relabel, "acting"] = "mode" + ckpts.loc[relabel, "acting"].astype(str).str[len("sample") :]

@@ -21,11 +21,14 @@ from ..paper import claims as rules
 from .aggregate import STAT_COLUMNS, across_seeds, curves, evaluation_points, final_survival, per_run, reference_stats
 from .figures import plot_bars, plot_lines
 from .load import (
+    GREEDY_STAND_IN,
     MODEL_FILE,
     Evaluations,
     ReportError,
     RunRecord,
     attach,
+    can_sample,
+    check_acting,
     describe_extras,
     final_checkpoints,
     find_run_dirs,
@@ -34,6 +37,7 @@ from .load import (
     load_evaluations,
     load_run,
     select_acting,
+    stand_in,
 )
 from .stats import MIN_SEEDS
 from .tables import caption, pivot_table
@@ -78,6 +82,9 @@ class Inputs:
     survival: str
     window: int
     bins: int
+    # the acting mode the claims compare (report option ``compare``); None: the mode every run has, else each run's
+    # most frequent (:func:`_one_mode`)
+    compare: str | None = None
 
     @cached_property
     def run_list(self) -> list[RunRecord]:
@@ -143,6 +150,27 @@ class Inputs:
         return out.assign(**{column: out[column].where(ways < 2, out[column] + " [" + out["acting"] + "]")})
 
     @cached_property
+    def greedy_algos(self) -> list[str]:
+        """The algorithms without an action distribution (DQN) when the claims compare sampled actions: their
+        checkpoints take part with their greedy action (:func:`.load.stand_in`)."""
+        if self.compare is None or stand_in(self.compare) is None:
+            return []
+        return sorted({r.algo for r in self.runs.values() if r.algo and not can_sample(r.algo)})
+
+    @cached_property
+    def compared(self) -> str:
+        """The acting the claims compare, in words for the captions (Markdown); "" without ``compare``."""
+        if self.compare is None:
+            return ""
+        greedy = self.greedy_algos
+        said = {"mode": "the most likely action", "sample": "sampled actions"}[self.compare.split("+")[0]]
+        return f"`{self.compare}` ({said}" + (
+            f"; {', '.join(greedy)}: `{stand_in(self.compare)}`, greedy: it has no action distribution)"
+            if greedy
+            else ")"
+        )
+
+    @cached_property
     def testbed_episodes(self) -> pd.DataFrame:
         """The evaluated checkpoints' episodes on testbeds."""
         ck = self.evals.checkpoints
@@ -180,12 +208,14 @@ def read_inputs(
     window: int = 20,
     bins: int = 20,
     acting: str | None = None,
+    compare: str | None = None,
 ) -> Inputs:
     """Check the arguments, read the runs and evaluations and tie the evaluated checkpoints to their runs."""
     if survival not in ("eval", "train"):
         raise ReportError(f"survival must be eval or train, not {survival!r}")
     if window < 1 or bins < 1:
         raise ReportError("window and bins must be positive")
+    check_acting("compare", compare)
     if not run_paths and not eval_paths:
         raise ReportError(
             "nothing to report: give runs=[...] (run directories) and/or evals=[...] (evaluate.py outputs)"
@@ -194,10 +224,24 @@ def read_inputs(
     # attach may add the runs of evaluated checkpoints
     read_notes: list[str] = []
     evals = attach(load_evaluations(eval_paths, read_notes), runs)
-    evals.checkpoints = select_acting(evals.checkpoints, acting)
-    inputs = Inputs(runs, evals, read_notes, survival, window, bins)
+    evals.checkpoints = select_acting(evals.checkpoints, acting, runs)
+    if compare is not None and len(evals.checkpoints):
+        _check_compared(evals.checkpoints, runs, compare)
+    inputs = Inputs(runs, evals, read_notes, survival, window, bins, compare)
     describe_extras(inputs.usable)
     return inputs
+
+
+def _check_compared(ckpts: pd.DataFrame, runs: dict[Path, RunRecord], compare: str) -> None:
+    """A :class:`ReportError` when no checkpoint was evaluated acting ``compare`` (nor, for one without an action
+    distribution, acting its stand-in)."""
+    greedy = ckpts["run"].map(lambda d: d in runs and not can_sample(runs[d].algo))
+    acting = ckpts["acting"].astype(str)
+    if not ((acting == compare) | (greedy & (acting == (stand_in(compare) or compare)))).any():
+        raise ReportError(
+            f"compare: no checkpoint was evaluated acting {compare!r}; the evaluations hold "
+            f"{', '.join(repr(m) for m in dict.fromkeys(acting))}"
+        )
 
 
 # ------------------------------------------------------------------------------------------------ sections
@@ -242,6 +286,12 @@ def introduction(doc: Document, inp: Inputs, title: str) -> None:
         ways = ", ".join(f"`{w}`" if w else "not recorded" for w in dict.fromkeys(ck["acting"].astype(str)))
         worlds = ", ".join(dict.fromkeys(ck["worlds"].astype(str)))
         doc.md += [f"Checkpoints acted: {ways}; worlds: {worlds}.", ""]
+        if inp.compared:
+            doc.md += [
+                f"**Compared acting.** The claims compare the checkpoints acting {inp.compared}; the tables and "
+                "figures also show any other acting mode, labelled, which decides no claim.",
+                "",
+            ]
         if (ck["worlds"].astype(str).str.contains("not held out")).any():
             doc.md += [
                 "**Not held out.** Evaluations written before evaluate.py recorded its worlds were made on "
@@ -334,8 +384,11 @@ def survival_per_level(doc: Document, inp: Inputs) -> None:
             levels=levels,
             ylabel="survival (decisions)",
             title="Survival per training level",
+            compared=inp.compared,
         )
-        table = pivot_table(stats, "level", "label", rows=levels, title="Survival per training level (decisions)")
+        table = pivot_table(
+            stats, "level", "label", rows=levels, title="Survival per training level (decisions)", compared=inp.compared
+        )
     doc.section(
         "Survival per training level (Fig. 4a, left)",
         inp.source_note + " Curriculum runs where an algorithm has them, else its direct runs.",
@@ -397,6 +450,7 @@ def curriculum_vs_direct(doc: Document, inp: Inputs) -> None:
                 ylabel="survival (decisions)",
                 title="With and without curriculum, equal env steps "
                 "per stage (curriculum stage k has seen k+1 stages' env steps)",
+                compared=inp.compared,
             )
             steps_by_level = {
                 lv: "; ".join(
@@ -413,6 +467,7 @@ def curriculum_vs_direct(doc: Document, inp: Inputs) -> None:
                 "label",
                 rows=levels,
                 title="Curriculum vs direct at equal env steps per stage (survival, decisions)",
+                compared=inp.compared,
             )
             table += "\n\nEnv steps seen per cell: " + "; ".join(f"{lv}: {steps_by_level[lv]}" for lv in levels) + "."
         # matched view: a curriculum stage beside direct runs of the same level with as many env steps in total
@@ -430,6 +485,7 @@ def curriculum_vs_direct(doc: Document, inp: Inputs) -> None:
                     "label",
                     rows=level_sorted(mstats["level"]),
                     title="Curriculum vs direct at matched total env steps (survival, decisions)",
+                    compared=inp.compared,
                 ),
             ]
         unmatched = cur[~cur.set_index(["level", "seen"]).index.isin(pairs.set_index(["level", "seen"]).index)]
@@ -494,9 +550,17 @@ def success_per_testbed(doc: Document, inp: Inputs) -> None:
             top=105,
             ylabel="success rate (%)",
             title="Success per testbed",
+            compared=inp.compared,
         )
         table = pivot_table(
-            stats, "level", "label", rows=testbeds, percent=True, row_title="testbed", title="Success per testbed"
+            stats,
+            "level",
+            "label",
+            rows=testbeds,
+            percent=True,
+            row_title="testbed",
+            title="Success per testbed",
+            compared=inp.compared,
         )
     doc.section(
         "Success per testbed (Fig. 4b, left)", note, figure, table, "No testbed evaluation given (`evals=[...]`)."
@@ -543,6 +607,7 @@ def generalisation(doc: Document, inp: Inputs) -> None:
             band=False,
             title="Generalisation by training level",
             hlines=ref_mean,
+            compared=inp.compared,
         )
         tb_names = ", ".join(level_sorted(tests["level"]))
         table = pivot_table(
@@ -553,6 +618,7 @@ def generalisation(doc: Document, inp: Inputs) -> None:
             percent=True,
             row_title="trained up to",
             title="Mean testbed success by training level",
+            compared=inp.compared,
         )
         table += f"\n\nTestbeds averaged: {tb_names} (each checkpoint over the testbeds it was evaluated on)."
     doc.section(
@@ -614,6 +680,7 @@ def evaluation_survival(doc: Document, inp: Inputs) -> None:
             "label",
             rows=level_sorted(stats["level"]),
             title="Survival in evaluations on training levels (decisions)",
+            compared=inp.compared,
         ),
         "",
     ]
@@ -814,6 +881,7 @@ def what_it_learned(doc: Document, inp: Inputs) -> None:
             "What each agent learned on its own level",
             ordered.assign(unit=ordered["unit"], means_only=False),
             col="label",
+            compared=inp.compared,
         ),
         "",
         "| level | agent | n | food / ep. | water / ep. | collisions / ep. | ends | survival (IQM) | "
@@ -975,6 +1043,7 @@ def ablation_curves(doc: Document, inp: Inputs) -> None:
                 row_title="modality",
                 rows=sorted(dict.fromkeys(fstats["label"]), key=_modality_key),
                 title="Survival at the end of each run, per modality set (decisions)",
+                compared=inp.compared,
             )
             if len(fstats)
             else ""
@@ -1024,6 +1093,7 @@ def ablation_success(doc: Document, inp: Inputs) -> None:
             ylabel="success rate (%)",
             title="Testbed success per modality",
             colour_by="modality",
+            compared=inp.compared,
         )
         stats = (
             stats.assign(column=stats["group"] + " · " + stats["label"])
@@ -1038,6 +1108,7 @@ def ablation_success(doc: Document, inp: Inputs) -> None:
             percent=True,
             row_title="testbed",
             title="Testbed success per modality set",
+            compared=inp.compared,
         )
     doc.section(
         "Modality ablations: testbed success (Fig. 26)",
@@ -1068,11 +1139,31 @@ def _pooled_success(episodes: pd.DataFrame, by: Sequence[str]) -> pd.DataFrame:
     return grouped.agg(success="mean", scores=lambda v: tuple(v.dropna())).reset_index()
 
 
-def _one_mode(rows: pd.DataFrame) -> pd.DataFrame:
-    """``rows`` of one acting mode for the claims, the same for every agent where it can be: where networks were
-    evaluated in several ways, the way every run has (the deterministic ``mode…`` first, the one every algorithm
-    has; DQN has no other), else each run's most frequent (such agents are then not compared: :mod:`.claims`).  The
-    other ways stay in the tables, labelled."""
+def _one_mode(rows: pd.DataFrame, inp: Inputs | None = None) -> pd.DataFrame:
+    """``rows`` of one acting mode for the claims, the same for every agent where it can be.  With the report's
+    ``compare``: each run's rows acting so — for a run whose algorithm has no action distribution (DQN) in a
+    ``sample`` comparison, its greedy rows, their ``acting`` relabelled ``sample… (greedy: no action
+    distribution)`` so that :mod:`.claims` compares them with the others' sampled rows and says so.  Without it
+    (or for runs with neither): where networks were evaluated in several ways, the way every run has (the
+    deterministic ``mode…`` first, the one every algorithm has; DQN has no other), else each run's most frequent
+    (such agents are then not compared: :mod:`.claims`).  The other ways stay in the tables, labelled."""
+    if inp is not None and inp.compare is not None and len(rows) and "acting" in rows:
+        acting = rows["acting"].astype(str)
+        greedy = rows["run"].map(lambda d: d in inp.runs and not can_sample(inp.runs[d].algo))
+        sub = stand_in(inp.compare)
+        own = acting == inp.compare
+        standing_in = greedy & (acting == sub) if sub else pd.Series(False, index=rows.index)
+        chosen = own | standing_in
+        has = chosen.groupby(rows["run"]).transform("any")
+        out = rows[chosen].assign(
+            acting=acting[chosen].where(~standing_in[chosen], inp.compare + GREEDY_STAND_IN),
+        )
+        return pd.concat([out, _shared_mode(rows[~has])]) if (~has).any() else out
+    return _shared_mode(rows)
+
+
+def _shared_mode(rows: pd.DataFrame) -> pd.DataFrame:
+    """``rows`` of the acting mode every run has (``mode…`` first), else of each run's most frequent."""
     if not len(rows) or "acting" not in rows or rows["acting"].nunique() < 2:
         return rows
     per_run = rows.groupby("run")["acting"].agg(lambda a: set(a))
@@ -1097,7 +1188,7 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
     order = list(evaaa.LEVELS)
     runs = inp.by_dir
     empty = pd.DataFrame(columns=["algo", "setup", "level", *STAT_COLUMNS])
-    final = _one_mode(inp.final)
+    final = _one_mode(inp.final, inp)
     full = final[final["run"].map(lambda d: runs[d].modality == "all")] if len(final) else final
     if len(full):
         full = full.assign(
@@ -1133,7 +1224,7 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
         r = inp.runs[d]
         return f"{r.algo} · {r.training}"
 
-    best = _one_mode(inp.best)
+    best = _one_mode(inp.best, inp)
     best = best[best["run"].map(lambda d: inp.runs[d].modality == "all")] if len(best) else best
     if len(best):
         best = best[best["run"].map(lambda d: inp.runs[d].curriculum or inp.runs[d].algo not in with_cur)]
@@ -1154,7 +1245,7 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
         else pd.DataFrame(columns=["agent", "level", *STAT_COLUMNS])
     )
 
-    tests = _one_mode(inp.testbed_episodes)
+    tests = _one_mode(inp.testbed_episodes, inp)
     tests = (
         tests[
             tests["run"].map(lambda d: inp.runs[d].curriculum and inp.runs[d].modality == "all")
@@ -1214,7 +1305,7 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
             if len(last)
             else pd.DataFrame(columns=["modality", *STAT_COLUMNS])
         )
-        ab_best = _one_mode(inp.best)
+        ab_best = _one_mode(inp.best, inp)
         ab_best = ab_best[ab_best["run"].isin(list(dirs))] if len(ab_best) else ab_best
         succ = (
             across_seeds(
@@ -1236,6 +1327,11 @@ def claims(doc: Document, inp: Inputs) -> None:
     """The paper's claims (a)–(e), one by one: reproduced, contradicted or not resolvable at this scale, with the
     rule and the numbers (:mod:`.claims`)."""
     acting = list(dict.fromkeys(inp.evals.checkpoints["acting"].astype(str))) if len(inp.evals.checkpoints) else []
+    how = (
+        f", acting {inp.compared}"
+        if inp.compared
+        else (f", acting {', '.join(f'`{a}`' for a in acting)}" if acting else "")
+    )
     doc.md += [
         "## The paper's claims",
         "",
@@ -1243,16 +1339,21 @@ def claims(doc: Document, inp: Inputs) -> None:
         "where their 95 % intervals do not overlap, and overlapping intervals never decide a claim (not "
         f"resolvable at this scale). A part whose agent cells have fewer than {MIN_SEEDS} seeds has no "
         "interval and is not decided (`not resolvable: 2 seeds`, with each seed's value); agents that acted "
-        "differently are not compared. (b) compares at matched total env steps where direct runs of a "
+        "differently are not compared"
+        + (
+            f" — the claims compare the checkpoints acting {inp.compared}, and the other acting modes' numbers "
+            "in the tables decide nothing"
+            if inp.compared
+            else ""
+        )
+        + ". (b) compares at matched total env steps where direct runs of a "
         "curriculum stage's total exist, else at equal env steps per stage (the curriculum stage has seen "
         "more). (d)'s drops: one-sided paired t-tests over seeds between every pair of training levels, "
         "Holm-corrected. A claim of several parts is reproduced when every part is, contradicted "
         "when some part is and none is reproduced. Survival per level: "
         + inp.source_note[len("Survival: ") :].rstrip(".")
         + " (runs with every sense; curriculum runs where an "
-        "algorithm has them). Testbed success: each run's furthest-trained evaluated checkpoint"
-        + (f", acting {', '.join(f'`{a}`' for a in acting)}" if acting else "")
-        + ".",
+        "algorithm has them). Testbed success: each run's furthest-trained evaluated checkpoint" + how + ".",
         "",
     ]
     doc.md += rules.markdown(claim_verdicts(inp))
@@ -1286,11 +1387,15 @@ def build_report(
     bins: int = 20,
     title: str = "evaaa report",
     acting: str | None = None,
+    compare: str | None = None,
 ) -> Report:
     """Read runs and evaluations, write ``out/report.md``, its PNG figures and ``out/data/*.csv`` (the tables'
     numbers); returns what was written.  ``acting``: which of the checkpoints' evaluation modes to report
-    (:func:`.load.select_acting`)."""
-    inp = read_inputs(run_paths, eval_paths, survival=survival, window=window, bins=bins, acting=acting)
+    (:func:`.load.select_acting`); ``compare``: the one the claims compare, every mode staying in the tables
+    (:func:`_one_mode`)."""
+    inp = read_inputs(
+        run_paths, eval_paths, survival=survival, window=window, bins=bins, acting=acting, compare=compare
+    )
     doc = Document(Path(out))
     (doc.out / "data").mkdir(parents=True, exist_ok=True)
     introduction(doc, inp, title)

@@ -74,16 +74,22 @@ def _named(stats: pd.DataFrame, column: str, col: str | None) -> str:
     )
 
 
-def caption(title: str, stats: pd.DataFrame, col: str | None = "label") -> str:
+def caption(title: str, stats: pd.DataFrame, col: str | None = "label", compared: str = "") -> str:
     """A table's title line: what it shows, how the agents acted and on which worlds (per column where they differ;
-    reference agents follow their own rule and are not listed), and a warning where agents acted differently."""
+    reference agents follow their own rule and are not listed), and a warning where agents acted differently;
+    ``compared``: the acting the report's claims compare (Markdown; ``Inputs.compared``), named where agents
+    acted."""
     agents = stats[stats["unit"] != "episodes"] if "unit" in stats else stats
     agents = agents[agents["unit"] != "participants"] if "unit" in agents else agents
     acting = _named(agents if len(agents) else stats, "acting", col)
     worlds = _named(stats, "worlds", col)
     text = f"**{title}.** Acting: {acting}. Worlds: {worlds}."
     modes = {m for m in agents.get("acting", pd.Series(dtype=str)).fillna("").astype(str) if m}
-    if len(modes) > 1:
+    if compared and modes:
+        text += f" The claims compare {compared}" + (
+            "; cells of any other acting are shown, labelled, and compared with nothing." if len(modes) > 1 else "."
+        )
+    elif len(modes) > 1:
         text += " Not one acting mode: cells of different modes are not compared."
     if "means_only" in stats and stats["means_only"].fillna(False).astype(bool).any():
         text += " Means only: some seeds gave only an evaluation's mean (eval.csv of the older format)."
@@ -100,13 +106,14 @@ def pivot_table(
     rows: Sequence[str] | None = None,
     cols: Sequence[str] | None = None,
     title: str = "Table",
+    compared: str = "",
 ) -> str:
     """A Markdown table of ``stats`` (:data:`STAT_COLUMNS`) with one row per ``row`` value and one column per
-    ``col`` value (cells: :func:`cell`), under its :func:`caption`."""
+    ``col`` value (cells: :func:`cell`), under its :func:`caption` (``compared``: the acting the claims compare)."""
     rows = list(rows if rows is not None else dict.fromkeys(stats[row]))
     cols = list(cols if cols is not None else dict.fromkeys(stats[col]))
     lines = [
-        caption(title, stats, col),
+        caption(title, stats, col, compared),
         "",
         f"| {row_title} | " + " | ".join(cols) + " |",
         "|---|" + "---|" * len(cols),
