@@ -63,6 +63,8 @@ TRAINING_INFO = ("step_count", "end_type", *EV_NAMES, "food_eaten", "water_eaten
 #: Columns of ``eval.csv``: one row per episode of every periodic evaluation, on the run's validation worlds
 #: (``worlds``), acting as ``acting`` says (:func:`~.rollout.acting_mode`).  Files written before held one row per
 #: evaluation (``episodes, survival_mean, survival_min, survival_max, return_mean, end_types``): reports read both.
+#: ``cpu_seconds``: the CPU seconds the stage had taken when the evaluation ended (its earlier sessions included, as
+#: ``max_cpu_minutes`` counts them), so that curves can be drawn against compute as well as env steps.
 EVAL_COLUMNS = (
     "env_steps",
     "stage",
@@ -78,7 +80,10 @@ EVAL_COLUMNS = (
     "collisions",
     "damage_taken",
     "wall_time",
+    "cpu_seconds",
 )
+#: the columns of ``eval.csv`` files begun before ``cpu_seconds``: a run begun so goes on without it
+EVAL_COLUMNS_BEFORE_CPU = EVAL_COLUMNS[:-1]
 
 
 class Interrupted(KeyboardInterrupt):
@@ -249,17 +254,23 @@ class CsvLog:
             raise DiskError(self.path, exc) from None
 
 
-def _refuse_old_eval_csv(path: Path) -> None:
-    """A run begun before evaluations were written one row per episode cannot go on in the same file."""
+def _eval_columns(path: Path) -> tuple[str, ...]:
+    """The columns a stage goes on writing ``eval.csv`` with: the file's own where it was begun before
+    ``cpu_seconds`` (one header per file), else :data:`EVAL_COLUMNS`.  A run begun before evaluations were written
+    one row per episode cannot go on in the same file."""
+    header: tuple[str, ...] = ()
     if path.is_file():
         with open(path, newline="") as f:
-            header = next(csv.reader(f), [])
-        if header and tuple(header) != EVAL_COLUMNS:
-            raise ValueError(
-                f"{path} holds one row per evaluation (written by an earlier evaaa), and this version "
-                f"writes one row per episode on validation worlds: finish that run with the version "
-                f"that began it, or train it again (start_over=true keeps the old run aside)"
-            )
+            header = tuple(next(csv.reader(f), []))
+    if header == EVAL_COLUMNS_BEFORE_CPU:
+        return header
+    if header and header != EVAL_COLUMNS:
+        raise ValueError(
+            f"{path} holds one row per evaluation (written by an earlier evaaa), and this version "
+            f"writes one row per episode on validation worlds: finish that run with the version "
+            f"that began it, or train it again (start_over=true keeps the old run aside)"
+        )
+    return EVAL_COLUMNS
 
 
 class Counters(dict):
@@ -348,9 +359,8 @@ class Run:
         self.episodes_csv = CsvLog(
             self.dir / "episodes.csv", TRAINING_EPISODE_FIELDS, 0 if fresh_logs else offsets.get("episodes_csv")
         )
-        if not fresh_logs:
-            _refuse_old_eval_csv(self.dir / "eval.csv")
-        self.eval_csv = CsvLog(self.dir / "eval.csv", EVAL_COLUMNS, 0 if fresh_logs else offsets.get("eval_csv"))
+        columns = EVAL_COLUMNS if fresh_logs else _eval_columns(self.dir / "eval.csv")
+        self.eval_csv = CsvLog(self.dir / "eval.csv", columns, 0 if fresh_logs else offsets.get("eval_csv"))
         self.env: TransformedEnv | None = None
         self.model: nn.Module | None = None
         self._eval_env: TransformedEnv | None = None
@@ -698,9 +708,10 @@ class Run:
             "worlds": "validation",
             "acting": acting_mode(self.cfg.algo.name, sample),
             "wall_time": _now(),
+            "cpu_seconds": round(self.seconds_spent()[1], 2),
         }
         for row in result.rows:
-            self.eval_csv.write({k: row[k] for k in EVAL_COLUMNS if k in row} | common)
+            self.eval_csv.write({k: row[k] for k in self.eval_csv.columns if k in row} | common)
         self.logger.log_metrics(
             {"eval/survival_mean": result.survival_mean, "eval/return_mean": result.return_mean}, step=self.steps
         )

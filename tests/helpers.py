@@ -75,10 +75,14 @@ def decode_mp4(path: Path) -> list:
     return frames
 
 
+#: the columns two identical runs differ in: when a row was written and the CPU time spent until then
+CLOCK_COLUMNS = ("wall_time", "cpu_seconds")
+
+
 def read_csv(path: Path) -> list[dict]:
-    """A run's CSV rows without their wall-clock column (the one thing two identical runs differ in)."""
+    """A run's CSV rows without their clock columns (:data:`CLOCK_COLUMNS`)."""
     with open(path, newline="") as f:
-        return [{k: v for k, v in row.items() if k != "wall_time"} for row in csv.DictReader(f)]
+        return [{k: v for k, v in row.items() if k not in CLOCK_COLUMNS} for row in csv.DictReader(f)]
 
 
 def train_scalars(run_dir: Path) -> dict[str, dict[int, str]]:

@@ -502,8 +502,35 @@ def test_time_budgets_count_every_session_of_a_stage(tmp_path, monkeypatch):
     assert final["time"]["cpu_seconds"] > first["cpu_seconds"] and final["time"]["seconds"] > first["seconds"]
 
 
+def test_evaluations_record_the_cpu_time_of_the_stage_so_far(tmp_path, monkeypatch):
+    # three evaluations, killed after the second checkpoint and resumed: the CPU time goes on from the checkpoint's
+    cfg = debug_cfg("ppo", "eval.every=64", "checkpoint.every=64", total_steps=3 * 64)
+    run_killed(cfg, tmp_path / "run", 2 * 64, monkeypatch)
+    train(debug_cfg("ppo", "eval.every=64", "checkpoint.every=64", "resume=true", total_steps=3 * 64), tmp_path / "run")
+    rows = list(csv.DictReader(open(tmp_path / "run" / "eval.csv")))
+    per_eval = {int(r["env_steps"]): float(r["cpu_seconds"]) for r in rows}
+    assert sorted(per_eval) == [64, 128, 192]
+    assert 0 < per_eval[64] < per_eval[128] < per_eval[192]
+    final = checkpoint.load_checkpoint(tmp_path / "run" / "model-0-1-1.pt")
+    assert per_eval[192] <= final["time"]["cpu_seconds"]
+
+
+def test_a_run_begun_before_the_cpu_column_goes_on_without_it(tmp_path, monkeypatch):
+    cfg = debug_cfg("ppo", "eval.every=64", "checkpoint.every=64", total_steps=3 * 64)
+    with monkeypatch.context() as patch:  # the version before: eval.csv without cpu_seconds
+        patch.setattr(run_loop, "EVAL_COLUMNS", run_loop.EVAL_COLUMNS_BEFORE_CPU)
+        run_killed(cfg, tmp_path / "run", 2 * 64, monkeypatch)
+    train(debug_cfg("ppo", "eval.every=64", "checkpoint.every=64", "resume=true", total_steps=3 * 64), tmp_path / "run")
+    with open(tmp_path / "run" / "eval.csv", newline="") as f:
+        lines = list(csv.reader(f))
+    assert tuple(lines[0]) == run_loop.EVAL_COLUMNS_BEFORE_CPU  # one header per file: the file's own
+    assert {len(line) for line in lines} == {len(run_loop.EVAL_COLUMNS_BEFORE_CPU)}
+    assert sorted({int(line[0]) for line in lines[1:]}) == [64, 128, 192]
+
+
 # ------------------------------------------------------------------------------------------------ devices
 def test_device_names_only_devices_this_machine_has(monkeypatch):
+
     assert resolve_device("cpu") == torch.device("cpu")
     assert resolve_device("auto") == torch.device("cuda" if torch.cuda.is_available() else "cpu")
     with pytest.raises(DeviceError, match=r"device=gpu: not a device; allowed: auto, cpu, cuda, cuda:N"):
