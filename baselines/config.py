@@ -49,6 +49,11 @@ def register_launchers() -> None:
     Plugins.instance().register(RayLauncher)
 
 
+#: a step budget this large stands for none: the run is bounded by its time budget (``max_cpu_minutes``), as the
+#: protocols' compute-matched runs are (every algorithm given the same CPU minutes, whatever env steps they buy)
+COMPUTE_BOUND_STEPS = 1_000_000_000
+
+
 @dataclass(frozen=True)
 class Stage:
     """One level trained for ``budget`` env steps; a direct run has one stage, a curriculum several."""

@@ -62,6 +62,13 @@ class ReportConfig:
         "mode, and where a run's algorithm has no action distribution (DQN) and sample is "
         "compared, its greedy rows, labelled so; unset: the mode every run has (mode first)",
     )
+    learned: float | None = option(
+        None,
+        "an agent enters the claims' comparisons only if its network with every sense survives the first "
+        "level at least this many times the better of random and stand-still (e.g. 2); one that does not is "
+        "reported as 'did not learn at this budget'; unset: every agent is compared",
+        check=(lambda v: v is None or v > 0, "a positive factor"),
+    )
 
 
 def parse(argv: list[str] | None = None) -> ReportConfig:
@@ -91,6 +98,7 @@ def main(argv: list[str] | None = None) -> int:
             title=cfg.title,
             acting=cfg.acting,
             compare=cfg.compare,
+            learned=cfg.learned,
         )
     except ReportError as err:  # an input that does not hold what the key asks for: named in the message
         cli.fail("report.py", str(err))

@@ -14,6 +14,7 @@ from typing import Literal
 
 import evaaa
 
+from ..config import COMPUTE_BOUND_STEPS
 from ..rollout import samples_actions
 from .protocol import CHECKPOINTS, LEVEL_GROUPS, REPO, STARTUP_SECONDS, AlgorithmSpec, EvaluationSpec, Protocol
 
@@ -393,6 +394,8 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
         # one mode: the report reports it alone; several: it shows each, labelled. Its claims compare the first (an
         # algorithm without an action distribution, DQN, with its greedy action in a `sample` comparison)
         argv += [f"acting={acting(ev)}"] * (len(modes) == 1) + [f"compare={acting(ev)}"]
+    if p.report.learned is not None:
+        argv.append(f"learned={p.report.learned:g}")
     cells.append(
         Cell(
             "report",
@@ -408,7 +411,7 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
 
 
 #: the env-step budget of a compute-matched run: more than any run reaches in its CPU minutes
-MATCHED_STEPS = 1_000_000_000
+MATCHED_STEPS = COMPUTE_BOUND_STEPS
 
 
 def eval_modes(ev: EvaluationSpec) -> list[str]:

@@ -332,6 +332,112 @@ def algorithm_ordering(survival: pd.DataFrame, random: pd.DataFrame, order: Sequ
     return combine(claim, parts, "each part by its rule")
 
 
+#: what a part says of an agent that did not learn: it is compared with nothing
+NOT_LEARNED = "not resolvable: did not learn at this budget"
+
+
+def _not_learned(claim: str, who: Sequence[str], gate: pd.DataFrame) -> Verdict:
+    readings = gate.set_index("algo")["reading"] if len(gate) else pd.Series(dtype=str)
+    return Verdict(
+        claim,
+        NOT_LEARNED,
+        "an agent enters a comparison only if its network with every sense learned the level",
+        [str(readings.get(a, f"{a}: no evaluation of its network on the level")) for a in who],
+    )
+
+
+def _learned(gate: pd.DataFrame) -> list[str]:
+    return list(gate.loc[gate["learned"], "algo"]) if len(gate) else []
+
+
+def survives_longest(algo: str, survival: pd.DataFrame, gate: pd.DataFrame, level: str) -> Verdict:
+    """``algo`` survives longest on ``level`` at equal compute: its interval above every other agent that learned
+    (reproduced), some other's above its own (contradicted)."""
+    claim = f"{algo} survives longest on {level}"
+    rule = "its 95 % interval above every other agent's that learned; contradicted where one's lies above its own"
+    s = survival[survival["level"] == level].set_index("algo") if len(survival) else survival
+    if algo not in s.index:
+        return missing(claim, f"no compute-matched run of {algo}")
+    if algo not in _learned(gate):
+        return _not_learned(claim, [algo], gate)
+    others = [a for a in _learned(gate) if a != algo and a in s.index]
+    if not others:
+        return missing(claim, "no other agent learned the level")
+    up = [a for a in others if above(s.loc[algo], s.loc[a])]
+    down = [a for a in others if above(s.loc[a], s.loc[algo])]
+    evidence = [
+        "; ".join(f"{a}: {_fmt(s.loc[a])}" for a in [algo, *others]),
+        f"above {len(up)} of {len(others)} ({', '.join(up) or 'none'}), below {len(down)} ({', '.join(down) or 'none'})",
+    ]
+    verdict = CONTRADICTED if down else REPRODUCED if len(up) == len(others) else UNRESOLVED
+    return _gate(Verdict(claim, verdict, rule, evidence), s.loc[[algo, *others]].reset_index())
+
+
+def learns_fastest(algo: str, reach: pd.DataFrame, gate: pd.DataFrame, level: str) -> Verdict:
+    """``algo`` learns ``level`` fastest: the env steps at which each seed's in-training evaluations (validation
+    worlds) first reached the learning threshold; reproduced when every seed of ``algo`` got there before any seed
+    of every other agent that learned, contradicted when every seed of another got there before any of its own
+    (a seed that never got there counts as later than any that did)."""
+    claim = f"{algo} learns {level} fastest"
+    rule = (
+        "env steps at which a seed's in-training evaluation (validation worlds, IQM) first reached the threshold: "
+        "every seed of it before every seed of each other agent that learned (reproduced), or every seed of "
+        "another before every seed of it (contradicted)"
+    )
+    if not len(reach) or algo not in set(reach["algo"]):
+        return missing(claim, f"no compute-matched run of {algo}")
+    if algo not in _learned(gate):
+        return _not_learned(claim, [algo], gate)
+    others = [a for a in _learned(gate) if a != algo and a in set(reach["algo"])]
+    if not others:
+        return missing(claim, "no other agent learned the level")
+    steps = {
+        a: sorted(float(r.steps) if r.reached else math.inf for r in reach[reach["algo"] == a].itertuples(index=False))
+        for a in [algo, *others]
+    }
+
+    def said(values: list[float]) -> str:
+        return ", ".join(f"{v:,.0f}" if math.isfinite(v) else "never" for v in values)
+
+    evidence = ["; ".join(f"{a}: {said(v)}" for a, v in steps.items())]
+    first = [a for a in others if steps[algo][-1] < steps[a][0]]
+    later = [a for a in others if steps[a][-1] < steps[algo][0]]
+    evidence.append(
+        f"every seed before every seed of {len(first)} of {len(others)} ({', '.join(first) or 'none'}); "
+        f"after every seed of {len(later)} ({', '.join(later) or 'none'})"
+    )
+    verdict = CONTRADICTED if later else REPRODUCED if len(first) == len(others) else UNRESOLVED
+    fewest = min(len(v) for v in steps.values())
+    if fewest < MIN_SEEDS:
+        verdict = few_seeds(fewest)
+        evidence.append(f"fewer than {MIN_SEEDS} seeds ({fewest}): no verdict")
+    return Verdict(claim, verdict, rule, evidence)
+
+
+def matched_ordering(
+    survival: pd.DataFrame, random: pd.DataFrame, gate: pd.DataFrame, reach: pd.DataFrame, level: str, budget: str
+) -> Verdict:
+    """(c) where the paper states it for ``level``, at equal compute (``budget``, e.g. 110 CPU-min): DreamerV3
+    survives longest, DQN above PPO, DQN learns the level fastest, PPO+LSTM fails.  ``survival``: the compute-
+    matched runs' final networks per algo (columns algo, level, value, low, high, n, unit, acting); ``random``: the
+    random agent's survival per level; ``gate``: :func:`..reports.matched.learned_gate`; ``reach``:
+    :func:`..reports.matched.reaching`.  Only agents that learned the level are compared; "fails" needs no gate."""
+    claim = f"(c) at equal compute on {level} ({budget}): DreamerV3 survives longest, DQN > PPO, DQN learns fastest, PPO+LSTM fails"
+    algos = set(survival["algo"]) if len(survival) else set()
+    dreamer = next((a for a in ("dreamer", "dreamer_xs") if a in algos), "dreamer_xs")
+    learned = _learned(gate)
+    short = [a for a in ("dqn", "ppo") if a in algos and a not in learned]
+    parts = [
+        survives_longest(dreamer, survival, gate, level),
+        _not_learned("dqn > ppo in survival", short, gate)
+        if short
+        else _ordered("dqn", "ppo", survival[survival["level"] == level] if len(survival) else survival, [level]),
+        learns_fastest("dqn", reach, gate, level),
+        _fails("ppo_lstm", [level], survival, random),
+    ]
+    return combine(claim, parts, "each part by its rule; agents that did not learn are compared with nothing")
+
+
 # ------------------------------------------------------------------------------------------------ (d)
 def drops(per_seed: pd.DataFrame, order: Sequence[str], alpha: float = 0.05) -> tuple[list, list[str]]:
     """The resolved drops of one agent's testbed success between training levels: for every pair of levels i before

@@ -207,6 +207,9 @@ class ReportSpec(_Strict):
     out: str | None = None  # relative paths: to the repository root; null: <root>/report
     survival: Literal["eval", "train"] = "eval"
     title: str | None = None
+    # report.py's learned=: the factor over the better of random and stand-still an agent's all-senses network must
+    # reach on the first level to enter the claims' comparisons (null: every agent is compared)
+    learned: float | None = Field(default=None, gt=0)
 
 
 class Protocol(_Strict):

@@ -200,7 +200,8 @@ def curves(runs: Sequence[RunRecord], bins: int = 20) -> pd.DataFrame:
 def evaluation_points(runs: Sequence[RunRecord]) -> pd.DataFrame:
     """Every in-training evaluation of every run (``eval.csv``): its env steps summed over stages, the survival of
     its episodes in ``scores`` (one row per episode), or of ``eval.csv`` files of the older format its mean alone
-    (``means_only``), with its acting mode and worlds."""
+    (``means_only``), with its acting mode and worlds; ``cpu_minutes``: the CPU time its stage had taken (NaN in
+    files written before ``eval.csv`` kept it)."""
     rows = []
     for r in runs:
         if not r.usable or r.evals is None or not len(r.evals):
@@ -212,11 +213,13 @@ def evaluation_points(runs: Sequence[RunRecord]) -> pd.DataFrame:
                 n = int(part["episodes"].sum()) if "episodes" in part else len(scores)
             else:
                 scores, n = tuple(part["steps"].astype(float)), len(part)
+            cpu = pd.to_numeric(part["cpu_seconds"], errors="coerce").max() if "cpu_seconds" in part else np.nan
             rows.append(
                 {
                     "run": r.dir,
                     "stage": int(stage),
                     "steps": x,
+                    "cpu_minutes": float(cpu) / 60.0,
                     "survival": float(np.mean(scores)),
                     "scores": scores,
                     "episodes": n,
@@ -228,7 +231,19 @@ def evaluation_points(runs: Sequence[RunRecord]) -> pd.DataFrame:
             )
     return pd.DataFrame(
         rows,
-        columns=["run", "stage", "steps", "survival", "scores", "episodes", "means_only", "acting", "worlds", "source"],
+        columns=[
+            "run",
+            "stage",
+            "steps",
+            "cpu_minutes",
+            "survival",
+            "scores",
+            "episodes",
+            "means_only",
+            "acting",
+            "worlds",
+            "source",
+        ],
     )
 
 

@@ -302,12 +302,13 @@ def plot_lines(
     top: float | None = None,
     colour_by: str = "algo",
     compared: str = "",
+    xlabels: dict[str, str] | None = None,
 ) -> Path:
     """Lines of ``value`` per ``label`` (one panel per ``panel`` value, two panels a row), with its interval as a
     band or whiskers; ``order``: categorical x values in this order (labels drawn side by side, slightly apart, so
     that equal values stay visible); ``hlines``: (label, value) rows drawn as dashed lines; the y axis starts at 0,
     ends at ``top``; ``compared``: the acting the report's claims compare (:func:`how_measured`); colours:
-    :func:`styles`."""
+    :func:`styles`; ``xlabels``: a panel's own x label, where panels differ in what x is."""
     plt = _plt()
     panels = list(dict.fromkeys(stats[panel])) if panel else [None]
     cols = min(len(panels), 2)
@@ -353,7 +354,7 @@ def plot_lines(
             from matplotlib.ticker import EngFormatter
 
             ax.xaxis.set_major_formatter(EngFormatter(sep=""))
-        ax.set_xlabel(xlabel, fontsize=8)
+        ax.set_xlabel((xlabels or {}).get(name, xlabel), fontsize=8)
         ax.set_ylabel(ylabel, fontsize=8)
         ax.set_ylim(0, top)
         if name is not None:

@@ -27,6 +27,7 @@ from omegaconf import OmegaConf
 import evaaa
 from evaaa.records import TRAINING_OLD_NAMES
 
+from ..config import COMPUTE_BOUND_STEPS
 from ..config import stages as config_stages
 
 REFERENCES = ("oracle", "random", "still", "human")
@@ -114,6 +115,24 @@ class RunRecord:
     def training(self) -> str:
         return "curriculum" if self.curriculum else (self.stages[0][1] if self.stages else "?")
 
+    @property
+    def cpu_budget(self) -> float | None:
+        """The CPU minutes a compute-bound run was given (``max_cpu_minutes`` with a step budget of
+        :data:`~..config.COMPUTE_BOUND_STEPS` or more: the time ends it, as in a protocol's compute-matched runs),
+        else None."""
+        minutes = self.config.get("max_cpu_minutes")
+        if minutes is None or not self.stages or min(b for _, _, b in self.stages) < COMPUTE_BOUND_STEPS:
+            return None
+        return float(minutes)
+
+    @property
+    def budget(self) -> str:
+        """What a run was given, as labels show it: ``110 CPU-min`` (compute-bound) or ``150,000 env steps`` (per
+        stage)."""
+        if self.cpu_budget is not None:
+            return f"{self.cpu_budget:g} CPU-min"
+        return f"{self.stages[0][2]:,} env steps" if self.stages else "?"
+
     def offset(self, stage: int) -> int:
         """Env steps of the stages before ``stage``."""
         return sum(b for i, _, b in self.stages if i < stage)
@@ -189,7 +208,7 @@ def load_run(run_dir: str | Path) -> RunRecord:
         later = any(df is not None and (df["stage"] > index).any() for df in (run.episodes, run.evals))
         evaluated_at_end = (
             run.evals is not None and ((run.evals["stage"] == index) & (run.evals["env_steps"] >= budget)).any()
-        )
+        ) or _cpu_spent(run, index)
         if (run.dir / f"model-{index}-{level}.pt").is_file() or later or evaluated_at_end:
             run.complete.add(index)
     # env steps reached: the furthest logged step (a stage ended by `max_minutes` is complete short of its budget);
@@ -212,6 +231,17 @@ def load_run(run_dir: str | Path) -> RunRecord:
     if run.episodes is not None and not len(run.episodes) and run.problem is None:
         run.problem = "no finished training episode (the budget is shorter than an episode)"
     return run
+
+
+def _cpu_spent(run: RunRecord, stage: int) -> bool:
+    """A compute-bound stage evaluated after its CPU minutes were spent: it ended (its last evaluation's
+    ``cpu_seconds`` reached ``max_cpu_minutes``; a record keeps no model file to say so)."""
+    minutes = run.cpu_budget
+    ev = run.evals
+    if minutes is None or ev is None or "cpu_seconds" not in ev.columns:
+        return False
+    spent = pd.to_numeric(ev.loc[ev["stage"] == stage, "cpu_seconds"], errors="coerce")
+    return bool((spent >= 60.0 * minutes).any())
 
 
 def csv_text(path: Path, notes: list[str]) -> io.StringIO:
@@ -251,7 +281,7 @@ def _read_run_csv(
 def describe_extras(runs: Sequence[RunRecord]) -> None:
     """Set each run's ``extras``: the settings (beyond algorithm, modality, reward and training levels) in which
     runs of the same algorithm differ, as ``key=value`` pairs, so that they land in separate groups."""
-    flat = {id(r): _flatten(r.config) | {"steps_per_stage": r.stages[0][2] if r.stages else None} for r in runs}
+    flat = {id(r): _flatten(r.config) | {"budget": r.budget} for r in runs}
     by_algo: dict[str, list[RunRecord]] = {}
     for r in runs:
         by_algo.setdefault(r.algo, []).append(r)
@@ -297,8 +327,8 @@ def labels(
             return "curriculum" if r.curriculum else "direct"
         if name == "training":
             return "curriculum" if r.curriculum else f"trained on {r.training}"
-        if name == "extras":
-            return ", ".join(r.extras)
+        if name == "extras":  # the budget by its value alone: "110 CPU-min", "150,000 env steps"
+            return ", ".join(e.removeprefix("budget=") for e in r.extras)
         return str(getattr(r, name))
 
     shown = [p for p in parts if p == "algo" or len({part(r, p) for r in runs}) > 1]

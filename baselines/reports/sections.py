@@ -39,8 +39,9 @@ from .load import (
     select_acting,
     stand_in,
 )
+from .matched import curve_points, learned_gate, reaching, threshold
 from .stats import MIN_SEEDS
-from .tables import caption, pivot_table
+from .tables import caption, cell, pivot_table
 
 
 @dataclass
@@ -85,6 +86,9 @@ class Inputs:
     # the acting mode the claims compare (report option ``compare``); None: the mode every run has, else each run's
     # most frequent (:func:`_one_mode`)
     compare: str | None = None
+    # report option ``learned``: an agent enters the claims' comparisons only if its all-senses network survives the
+    # first level at least this many times the better of random and stand-still (:mod:`.matched`); None: every agent
+    learned_factor: float | None = None
 
     @cached_property
     def run_list(self) -> list[RunRecord]:
@@ -110,8 +114,8 @@ class Inputs:
 
     @cached_property
     def curriculum_algos(self) -> set[tuple]:
-        """(algorithm, modality, reward, other settings) of the curriculum runs."""
-        return {(r.algo, r.modality, r.reward, r.extras) for r in self.usable if r.curriculum}
+        """The settings (:func:`setting`) of the curriculum runs."""
+        return {setting(r) for r in self.usable if r.curriculum}
 
     @cached_property
     def source_note(self) -> str:
@@ -192,6 +196,28 @@ class Inputs:
         refs = self.evals.references
         return reference_stats(refs[refs["level"].isin(evaaa.LEVELS)], "steps")
 
+    @cached_property
+    def matched(self) -> list[RunRecord]:
+        """The compute-matched runs with every sense (bounded by CPU minutes: :attr:`.load.RunRecord.cpu_budget`)."""
+        return [r for r in self.usable if r.cpu_budget is not None and r.modality == "all" and not r.curriculum]
+
+    @cached_property
+    def gate(self) -> pd.DataFrame:
+        """Which algorithms learned the first level (:func:`.matched.learned_gate`), in the compared acting mode;
+        empty without the report option ``learned``."""
+        if self.learned_factor is None:
+            return pd.DataFrame(columns=["algo", "learned", "reading"])
+        final = _one_mode(self.final, self)
+        return learned_gate(self.usable, final, self.reference_training, evaaa.LEVELS[0], self.learned_factor)
+
+    def enters(self, algo: str) -> bool:
+        """Whether ``algo`` takes part in the claims' comparisons: always without ``learned``, else only if it
+        learned."""
+        if self.learned_factor is None:
+            return True
+        gate = self.gate
+        return bool(gate.loc[gate["algo"] == algo, "learned"].any())
+
     def rel(self, p: Path) -> str:
         """``p`` relative to the current directory where it lies under it (the report names runs that way)."""
         try:
@@ -209,12 +235,15 @@ def read_inputs(
     bins: int = 20,
     acting: str | None = None,
     compare: str | None = None,
+    learned: float | None = None,
 ) -> Inputs:
     """Check the arguments, read the runs and evaluations and tie the evaluated checkpoints to their runs."""
     if survival not in ("eval", "train"):
         raise ReportError(f"survival must be eval or train, not {survival!r}")
     if window < 1 or bins < 1:
         raise ReportError("window and bins must be positive")
+    if learned is not None and not learned > 0:
+        raise ReportError(f"learned must be a positive factor (e.g. 2), not {learned!r}")
     check_acting("compare", compare)
     if not run_paths and not eval_paths:
         raise ReportError(
@@ -227,7 +256,7 @@ def read_inputs(
     evals.checkpoints = select_acting(evals.checkpoints, acting, runs)
     if compare is not None and len(evals.checkpoints):
         _check_compared(evals.checkpoints, runs, compare)
-    inputs = Inputs(runs, evals, read_notes, survival, window, bins, compare)
+    inputs = Inputs(runs, evals, read_notes, survival, window, bins, compare, learned)
     describe_extras(inputs.usable)
     return inputs
 
@@ -364,13 +393,17 @@ def runs_and_problems(doc: Document, inp: Inputs) -> list[str]:
     return problems
 
 
+def setting(r: RunRecord) -> tuple:
+    """What a run trained, its budget aside: algorithm, modality, reward and other settings (``extras`` less
+    ``budget=``)."""
+    return (r.algo, r.modality, r.reward, tuple(e for e in r.extras if not e.startswith("budget=")))
+
+
 def survival_per_level(doc: Document, inp: Inputs) -> None:
     """Fig. 4a, left: the survival each training level ended with, per algorithm (curriculum runs where an
     algorithm has them, else its direct runs)."""
     final = inp.final
-    left_runs = [
-        r for r in inp.usable if r.curriculum or (r.algo, r.modality, r.reward, r.extras) not in inp.curriculum_algos
-    ]
+    left_runs = [r for r in inp.usable if r.curriculum or setting(r) not in inp.curriculum_algos]
     table = figure = None
     if len(final):
         lab = labels(left_runs)
@@ -415,10 +448,10 @@ def curriculum_vs_direct(doc: Document, inp: Inputs) -> None:
     total env steps where direct runs of that total exist."""
     usable, final = inp.usable, inp.final
 
-    def key(r: RunRecord) -> tuple:
-        # a direct run's budget is what this comparison varies (equal per stage, or the stage's total): not a group
-        return (r.algo, r.modality, r.reward, tuple(e for e in r.extras if not e.startswith("steps_per_stage=")))
-
+    # a direct run's budget in env steps is what this comparison varies (equal per stage, or the stage's total): not
+    # a group; compute-bound runs (CPU minutes, not env steps) take no part
+    key = setting
+    usable = [r for r in usable if r.cpu_budget is None]
     both = {key(r) for r in usable if r.curriculum} & {key(r) for r in usable if not r.curriculum}
     cmp_runs = [r for r in usable if key(r) in both]
     table = figure = None
@@ -909,6 +942,158 @@ def what_it_learned(doc: Document, inp: Inputs) -> None:
     ]
 
 
+def matched_level(inp: Inputs) -> tuple[str, str] | None:
+    """The level and budget of the compute-matched comparison (the first, where runs were matched on several)."""
+    if not inp.matched:
+        return None
+    r = inp.matched[0]
+    return r.training, r.budget
+
+
+def matched_survival(inp: Inputs) -> pd.DataFrame:
+    """The compute-matched runs' final networks on their level, per algorithm, in the compared acting mode
+    (columns algo, level and :data:`STAT_COLUMNS`)."""
+    where = matched_level(inp)
+    final = _one_mode(inp.final, inp)
+    if where is None or not len(final):
+        return pd.DataFrame(columns=["algo", "level", *STAT_COLUMNS])
+    dirs = {r.dir: r.algo for r in inp.matched if r.training == where[0] and r.budget == where[1]}
+    rows = final[final["run"].isin(list(dirs)) & (final["level"] == where[0])]
+    return across_seeds(rows.assign(algo=rows["run"].map(dirs)), ["algo", "level"], "survival")
+
+
+def matched_reaching(inp: Inputs) -> pd.DataFrame:
+    """When each compute-matched run's in-training evaluations first reached the learning threshold
+    (:func:`.matched.reaching`); empty without a threshold (the report option ``learned`` and references)."""
+    where = matched_level(inp)
+    bar = threshold(inp.reference_training, where[0], inp.learned_factor) if where and inp.learned_factor else None
+    runs = [r for r in inp.matched if where and r.training == where[0] and r.budget == where[1]]
+    points = evaluation_points(runs)
+    if bar is None or not len(points):
+        return pd.DataFrame(columns=["run", "algo", "seed", "reached", "steps", "cpu_minutes"])
+    return reaching(points, inp.by_dir, bar[0])
+
+
+def equal_compute(doc: Document, inp: Inputs) -> None:
+    """Fig. 20 at equal compute: every algorithm trained on one level for the same CPU minutes; learning curves on
+    validation worlds against env steps and against CPU minutes, and each algorithm's final networks on test worlds
+    beside the references, whether it learned, and when its evaluations reached the learning threshold."""
+    where = matched_level(inp)
+    if where is None:
+        return
+    level, budget = where
+    runs = [r for r in inp.matched if r.training == level and r.budget == budget]
+    lab = {r.dir: f"{r.algo} · {r.reward}" for r in runs}
+    points = evaluation_points(runs)
+    doc.md += [f"## At equal compute on {level} (Fig. 20)", ""]
+    rewards = ", ".join(f"{a}: `{w}`" for a, w in dict.fromkeys((r.algo, r.reward) for r in runs))
+    doc.md += [
+        f"Every algorithm trained on {level} with every sense for {budget} of one core (`max_cpu_minutes`, "
+        "`threads=1`; an evaluation's CPU time counts in it), whatever env steps that bought; each on the reward "
+        f"it learns on ({rewards}). The measure compared is survival, not return.",
+        "",
+    ]
+    if len(points):
+        stats = across_seeds(curve_points(points, lab), ["view", "label", "x"], "survival")
+        doc.tables["equal_compute_curves"] = stats
+        refs = inp.reference_training
+        hl = refs[(refs["level"] == level) & refs["label"].isin(["random", "still"])] if len(refs) else None
+        if hl is not None and len(hl):
+            hl = hl.assign(label=hl["label"] + " (test worlds)")[["label", "value"]]
+            bar = threshold(refs, level, inp.learned_factor) if inp.learned_factor else None
+            if bar is not None:
+                hl = pd.concat(
+                    [hl, pd.DataFrame([{"label": f"learned: {inp.learned_factor:g}× {bar[1]}", "value": bar[0]}])]
+                )
+        figure = plot_lines(
+            stats.rename(columns={"view": "panel"}),
+            doc.out / "fig20_equal_compute.png",
+            x="x",
+            panel="panel",
+            band=True,
+            ylabel="survival (decisions)",
+            xlabel="env steps",
+            xlabels={"against env steps": "env steps", "against CPU minutes": "CPU minutes"},
+            title=f"Learning curves at equal compute on {level} ({budget}; in-training evaluations)",
+            hlines=hl if hl is not None and len(hl) else None,
+        )
+        doc.figures.append(figure)
+        doc.md += [
+            "Curves: the in-training evaluations (validation worlds), each seed's k-th evaluation pooled with the "
+            "other seeds' k-th at their mean env steps (left) or CPU minutes (right), IQM of their episodes with "
+            "its 95 % bootstrap interval (band); lines: the references on test worlds"
+            + (" and the learning threshold" if inp.learned_factor else "")
+            + ".",
+            "",
+            f"![At equal compute on {level} (Fig. 20)]({figure.name})",
+            "",
+        ]
+    surv = matched_survival(inp)
+    reach = matched_reaching(inp)
+    gate = inp.gate.set_index("algo") if len(inp.gate) else None
+    steps = {
+        a: [max((r.steps for r in runs if r.algo == a and r.seed == sd), default=0) for sd in sorted(g["seed"])]
+        for a, g in pd.DataFrame([{"algo": r.algo, "seed": r.seed} for r in runs]).groupby("algo", sort=False)
+    }
+    header = "| agent | seeds | env steps reached | survival on test worlds (IQM) |"
+    rule_ = "|---|---|---|---|"
+    if gate is not None:
+        header += " vs better of random, stand-still | learned? | env steps to the threshold | CPU min to it |"
+        rule_ += "---|---|---|---|"
+    doc.md += [
+        caption(
+            f"Final networks at equal compute on {level} ({budget})",
+            surv.assign(label=surv["algo"]),
+            col="label",
+            compared=inp.compared,
+        ),
+        "",
+        header,
+        rule_,
+    ]
+    for row in surv.itertuples():
+        line = (
+            f"| {row.algo} | {row.n} | {', '.join(f'{v:,}' for v in steps.get(row.algo, []))} | {cell(row._asdict())} |"
+        )
+        if gate is not None:
+            g = gate.loc[row.algo] if row.algo in gate.index else None
+            mine = reach[reach["algo"] == row.algo] if len(reach) else reach
+
+            def when(column: str, mine=mine) -> str:
+                return ", ".join(f"{v:,.0f}" if ok else "never" for v, ok in zip(mine[column], mine["reached"]))
+
+            line += (
+                f" {g['ratio']:.2f}× {'stand-still' if g['reference'] == 'still' else g['reference']} | "
+                f"{'yes' if g['learned'] else 'did not learn at this budget'} | {when('steps')} | "
+                f"{when('cpu_minutes')} |"
+                if g is not None
+                else " | | | |"
+            )
+        doc.md.append(line)
+    doc.tables["equal_compute_final"] = surv
+    if len(reach):
+        doc.tables["equal_compute_threshold"] = reach.assign(run=reach["run"].map(inp.rel))
+    doc.md += [
+        "",
+        "Survival: "
+        + _source_words(inp)
+        + "; env steps reached: per seed; "
+        + (
+            f"learned: IQM at least {inp.learned_factor:g}× the better of random and stand-still on {level}; "
+            "threshold: the first in-training evaluation (validation worlds, IQM of its episodes) at or above "
+            "that, per seed (never: not within the budget)."
+            if gate is not None
+            else "no learning threshold (the report option `learned` is unset)."
+        ),
+        "",
+    ]
+
+
+def _source_words(inp: Inputs) -> str:
+    """How the final survival of a stage was measured, in words (the source note without its label)."""
+    return inp.source_note[len("Survival: ") :].rstrip(".")
+
+
 def training_curves(doc: Document, inp: Inputs) -> None:
     """Training survival against env steps: one panel per training set-up, one line per algorithm and settings,
     reference agents' evaluations on the level as dashed lines."""
@@ -1189,7 +1374,17 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
     runs = inp.by_dir
     empty = pd.DataFrame(columns=["algo", "setup", "level", *STAT_COLUMNS])
     final = _one_mode(inp.final, inp)
-    full = final[final["run"].map(lambda d: runs[d].modality == "all")] if len(final) else final
+    # runs with every sense of the agents that take part (:meth:`Inputs.enters`), less the compute-matched ones
+    # (their budget is CPU minutes: they answer (c) alone)
+    full = (
+        final[
+            final["run"].map(
+                lambda d: runs[d].modality == "all" and runs[d].cpu_budget is None and inp.enters(runs[d].algo)
+            )
+        ]
+        if len(final)
+        else final
+    )
     if len(full):
         full = full.assign(
             algo=full["run"].map(lambda d: runs[d].algo),
@@ -1225,7 +1420,11 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
         return f"{r.algo} · {r.training}"
 
     best = _one_mode(inp.best, inp)
-    best = best[best["run"].map(lambda d: inp.runs[d].modality == "all")] if len(best) else best
+    best = (
+        best[best["run"].map(lambda d: inp.runs[d].modality == "all" and inp.enters(inp.runs[d].algo))]
+        if len(best)
+        else best
+    )
     if len(best):
         best = best[best["run"].map(lambda d: inp.runs[d].curriculum or inp.runs[d].algo not in with_cur)]
     success = (
@@ -1248,7 +1447,9 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
     tests = _one_mode(inp.testbed_episodes, inp)
     tests = (
         tests[
-            tests["run"].map(lambda d: inp.runs[d].curriculum and inp.runs[d].modality == "all")
+            tests["run"].map(
+                lambda d: inp.runs[d].curriculum and inp.runs[d].modality == "all" and inp.enters(inp.runs[d].algo)
+            )
             & tests["policy"].map(lambda p: bool(MODEL_FILE.match(Path(p).name)))
         ]
         if len(tests)
@@ -1279,16 +1480,28 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
         else None
     )
 
+    where = matched_level(inp)
+    if where is not None:  # (c) where the paper states it for one level, at equal compute
+        msurv = matched_survival(inp)
+        gate = (
+            inp.gate
+            if inp.learned_factor is not None
+            else pd.DataFrame({"algo": list(msurv["algo"]), "learned": True, "reading": ""})
+        )
+        ordering = rules.matched_ordering(msurv, random, gate, matched_reaching(inp), *where)
+    else:
+        ordering = rules.algorithm_ordering(survival, random, order)
     verdicts = [
         rules.survival_falls(survival, order),
         rules.curriculum_beats_direct(cmp, order),
-        rules.algorithm_ordering(survival, random, order),
+        ordering,
         rules.testbeds_below_ceiling(success, ref_tests, gen, order, per_seed),
     ]
     # ablations: runs of one algorithm and training set-up (a level, or the curriculum) with several modality sets
     groups: dict[tuple, list[RunRecord]] = {}
-    for r in inp.usable:
-        groups.setdefault((r.algo, r.training), []).append(r)
+    for r in inp.usable:  # one budget per group: a compute-matched run is no ablation's all-senses run
+        if inp.enters(r.algo):
+            groups.setdefault((r.algo, r.training, r.budget), []).append(r)
     groups = {k: v for k, v in groups.items() if len({r.modality for r in v}) > 1}
     if not groups:
         verdicts.append(
@@ -1297,7 +1510,7 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
                 "no runs of one algorithm and level with several modality sets",
             )
         )
-    for (algo, level), members in groups.items():
+    for (algo, level, _), members in groups.items():
         dirs = {r.dir: r.modality for r in members}
         last = final[final["run"].isin(list(dirs)) & final["last"]] if len(final) else final
         surv = (
@@ -1356,6 +1569,25 @@ def claims(doc: Document, inp: Inputs) -> None:
         "algorithm has them). Testbed success: each run's furthest-trained evaluated checkpoint" + how + ".",
         "",
     ]
+    if inp.learned_factor is not None:
+        gate = inp.gate
+        level = evaaa.LEVELS[0]
+        known = set(gate["algo"])
+        unknown = sorted({r.algo for r in inp.usable} - known)
+        doc.md += [
+            f"**Which agents learned.** An agent enters a comparison only if its network with every sense, "
+            f"trained on {level}, survives there at least {inp.learned_factor:g}× the better of random and "
+            "stand-still (IQM of its seeds' episodes; its compute-matched runs where it has some, else its direct "
+            f"runs on {level}, else its curriculum's first stage); one that did not is reported as \"did not learn "
+            'at this budget", with its curves, and compared with nothing.',
+            "",
+            *[f"- {r}" for r in gate["reading"]],
+            *[
+                f"- {a}: no evaluation of its network with every sense on {level}: compared with nothing"
+                for a in unknown
+            ],
+            "",
+        ]
     doc.md += rules.markdown(claim_verdicts(inp))
     doc.md.append("")
 
@@ -1368,6 +1600,7 @@ SECTIONS = (
     generalisation,
     evaluation_survival,
     what_it_learned,
+    equal_compute,
     training_curves,
     evaluation_curves,
     ablation_curves,
@@ -1388,13 +1621,22 @@ def build_report(
     title: str = "evaaa report",
     acting: str | None = None,
     compare: str | None = None,
+    learned: float | None = None,
 ) -> Report:
     """Read runs and evaluations, write ``out/report.md``, its PNG figures and ``out/data/*.csv`` (the tables'
     numbers); returns what was written.  ``acting``: which of the checkpoints' evaluation modes to report
     (:func:`.load.select_acting`); ``compare``: the one the claims compare, every mode staying in the tables
-    (:func:`_one_mode`)."""
+    (:func:`_one_mode`); ``learned``: the factor over the better of random and stand-still an agent's network
+    with every sense must reach on the first level to enter the claims' comparisons (:mod:`.matched`)."""
     inp = read_inputs(
-        run_paths, eval_paths, survival=survival, window=window, bins=bins, acting=acting, compare=compare
+        run_paths,
+        eval_paths,
+        survival=survival,
+        window=window,
+        bins=bins,
+        acting=acting,
+        compare=compare,
+        learned=learned,
     )
     doc = Document(Path(out))
     (doc.out / "data").mkdir(parents=True, exist_ok=True)
