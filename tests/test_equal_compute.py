@@ -145,6 +145,14 @@ def test_equal_compute_section_tells_who_learned_and_when(tmp_path):
     cpu = curves[(curves["view"] == "against CPU minutes") & (curves["label"].str.startswith("dreamer_xs"))]
     assert sorted(cpu["x"].round(3)) == pytest.approx([10 / 3, 20 / 3, 10 + 5 / 60], abs=1e-3)
     assert set(cpu["n"]) == {3}
+    # the runs table and the first paragraph give a compute-bound run's budget in CPU minutes, not its step bound
+    assert "| 41,234 in 10 CPU-min | finished |" in text and f"{COMPUTE_BOUND_STEPS:,}" not in text
+    assert "10 CPU-min a compute-matched run" in text.split("\n\n")[1]
+    # training curves over the env steps the seeds reached (6 episodes in 3,000 of ~41,000 steps: 2 of 20 bins),
+    # one grid for the seeds
+    train = pd.read_csv(tmp_path / "out" / "data" / "training_curves.csv")
+    dqn = train[train["label"] == "dqn"]
+    assert len(dqn) == 2 and set(dqn["n"]) == {3}
     which = text[text.index("**Which agents learned.**") :].split("\n\n- **(a)")[0]
     lstm = hand_iqm([300 + seed + 3 * i for seed in (0, 1, 2) for i in range(6)])
     assert (

@@ -170,14 +170,22 @@ def final_survival(
 def curves(runs: Sequence[RunRecord], bins: int = 20) -> pd.DataFrame:
     """Training curves: survival of the training episodes against env steps (summed over stages), per run in
     ``bins`` equal bins of its group's longest budget (bin i holds episodes ending in (i·w, (i+1)·w]; the first
-    also holds step 0); columns run, bin, steps (bin centre), survival (mean of the run's episodes in the bin),
+    also holds step 0; compute-bound runs: of the furthest env steps their group's runs reached); columns run, bin, steps (bin centre), survival (mean of the run's episodes in the bin),
     scores (those episodes' survival) and episodes (how many)."""
     rows = []
+    # compute-bound runs: the grid spans the env steps the group's runs reached (their step budget is none), one grid
+    # for the seeds of a group so that their bins pool
+    reached: dict[tuple, int] = {}
+    for r in runs:
+        if r.usable and r.cpu_budget is not None:
+            key = (r.algo, r.modality, r.reward, r.extras, r.training)
+            reached[key] = max(reached.get(key, 0), r.steps)
     for r in runs:
         if not r.usable or r.episodes is None or not len(r.episodes) or not r.total:
             continue
         x = np.array([r.offset(int(s)) + int(e) for s, e in zip(r.episodes["stage"], r.episodes["env_steps"])])
-        width = r.total / bins
+        span = r.total if r.cpu_budget is None else reached[(r.algo, r.modality, r.reward, r.extras, r.training)]
+        width = max(span, 1) / bins
         b = np.clip(np.ceil(x / width).astype(int) - 1, 0, bins - 1)
         survival = r.episodes["steps"].to_numpy(dtype=float)
         for i in np.unique(b):

@@ -362,9 +362,11 @@ def runs_and_problems(doc: Document, inp: Inputs) -> list[str]:
     ]
     for r in inp.run_list:
         status = "finished" if r.problem is None else r.problem.split(":")[0]
+        # a compute-bound run: the env steps its CPU minutes bought
+        steps = f"{r.steps:,} / {r.total:,}" if r.cpu_budget is None else f"{r.steps:,} in {r.budget}"
         doc.md.append(
             f"| {rel(r.dir)} | {r.algo} | {r.modality} | {r.reward} | {r.training} | "
-            f"{'' if r.seed is None else r.seed} | {r.steps:,} / {r.total:,} | {status} |"
+            f"{'' if r.seed is None else r.seed} | {steps} | {status} |"
         )
     if inp.evals.absent:
         evaluated = inp.evals.checkpoints["policy"].nunique()
@@ -835,7 +837,10 @@ def learned_paragraph(inp: Inputs) -> str:
     missing = [r for r in LEARNED_REFERENCES if r not in set(refs["label"])]
     acting = ", ".join(f"`{a}`" for a in dict.fromkeys(agents["acting"]))
     worlds = ", ".join(dict.fromkeys(agents["worlds"]))
-    budget = sorted({b for r in inp.usable for _, _, b in r.stages})
+    budgets = [
+        f"{b} a stage" if r.cpu_budget is None else f"{b} a compute-matched run"
+        for b, r in {r.budget: r for r in sorted(inp.usable, key=lambda r: r.cpu_budget or 0)}.items()
+    ]
 
     def said(w: str) -> str:  # "test" -> "test worlds"; the older labels say "worlds" already
         return w if "worlds" in w else f"{w} worlds"
@@ -847,7 +852,7 @@ def learned_paragraph(inp: Inputs) -> str:
     }
     differ = any(w != worlds for w in ref_worlds.values())
     out = [
-        f"**What the agents learned** ({', '.join(f'{b:,}' for b in budget)} env steps per stage; every stage's "
+        f"**What the agents learned** ({', '.join(budgets)}; every stage's "
         f"network on its own level, acting {acting}, on {worlds}"
         + ("; " + "; ".join(f"{r} on {w}" for r, w in ref_worlds.items()) if differ else "")
         + "):"
