@@ -3,8 +3,9 @@
 * :func:`learned_gate` — an agent enters a claim's comparison only if its network with every sense, trained on the
   first level, survives there at least ``factor`` × the better of random and stand-still (IQM over its seeds'
   episodes, on the worlds the final networks were evaluated on); one that does not is reported as "did not learn at
-  this budget", with its curve, and compared with nothing.  The run that speaks for an algorithm is its
-  compute-matched run where it has one, else its direct run on that level, else its curriculum's first stage.
+  this budget", with its curve, and compared with nothing.  An agent is judged at the budget it is compared at:
+  its compute-matched runs for the compute-matched comparison, and for the others its direct runs on that level
+  with a step budget, else its curriculum's first stage.
 * :func:`reaching` — when each compute-matched run's in-training evaluations (validation worlds) first reached that
   threshold, in env steps and in CPU minutes: how fast it learned.
 * :func:`curve_points` — the compute-matched runs' learning curves, against env steps and against CPU minutes.
@@ -40,18 +41,22 @@ def threshold(reference_training: pd.DataFrame, level: str, factor: float) -> tu
     return factor * float(best["value"]), str(best["label"])
 
 
-def gate_runs(runs: Sequence[RunRecord], level: str) -> dict[str, list[RunRecord]]:
+def gate_runs(runs: Sequence[RunRecord], level: str, compute_bound: bool) -> dict[str, list[RunRecord]]:
     """Per algorithm, the runs with every sense that speak for whether it learned ``level``: its compute-matched
-    runs on that level where it has some, else its direct runs there, else its curricula (whose first stage is
-    that level)."""
+    runs on that level (``compute_bound``), or else its direct runs there with a step budget, where it has none its
+    curricula (whose first stage is that level)."""
     out: dict[str, list[RunRecord]] = {}
-    for algo in dict.fromkeys(r.algo for r in runs):
-        mine = [r for r in runs if r.algo == algo and r.usable and r.modality == "all"]
-        for pick in (
-            lambda r: r.cpu_budget is not None and r.training == level,
+    picks = (
+        [lambda r: r.cpu_budget is not None and not r.curriculum and r.training == level]
+        if compute_bound
+        else [
             lambda r: r.cpu_budget is None and not r.curriculum and r.training == level,
             lambda r: r.curriculum and bool(r.stages) and r.stages[0][1] == level,
-        ):
+        ]
+    )
+    for algo in dict.fromkeys(r.algo for r in runs):
+        mine = [r for r in runs if r.algo == algo and r.usable and r.modality == "all"]
+        for pick in picks:
             chosen = [r for r in mine if pick(r)]
             if chosen:
                 out[algo] = chosen
@@ -60,16 +65,24 @@ def gate_runs(runs: Sequence[RunRecord], level: str) -> dict[str, list[RunRecord
 
 
 def learned_gate(
-    runs: Sequence[RunRecord], final: pd.DataFrame, reference_training: pd.DataFrame, level: str, factor: float
+    runs: Sequence[RunRecord],
+    final: pd.DataFrame,
+    reference_training: pd.DataFrame,
+    level: str,
+    factor: float,
+    compute_bound: bool = False,
 ) -> pd.DataFrame:
     """Per algorithm: its all-senses network's survival on ``level`` (``final``: rows of
-    :func:`.aggregate.final_survival` in the acting mode compared), the threshold, and whether it learned.
+    :func:`.aggregate.final_survival` in the acting mode compared), the threshold, and whether it learned — of its
+    runs with a step budget, or (``compute_bound``) of its compute-matched runs: an agent is judged at the budget it
+    is compared at.
 
-    Columns: algo, runs (how many), budget (what they were given), value, low, high, n, acting, worlds, threshold,
-    reference (which reference set it), ratio (survival / the better reference), learned (bool), reading (a line
-    for the report)."""
+    Columns: algo, compute_bound, runs (how many), budget (what they were given), value, low, high, n, acting, worlds,
+    threshold, reference (which reference set it), ratio (survival / the better reference), learned (bool), reading
+    (a line for the report)."""
     columns = [
         "algo",
+        "compute_bound",
         "runs",
         "budget",
         "value",
@@ -86,7 +99,7 @@ def learned_gate(
     ]
     bar = threshold(reference_training, level, factor)
     rows = []
-    for algo, chosen in gate_runs(runs, level).items():
+    for algo, chosen in gate_runs(runs, level, compute_bound).items():
         dirs = {r.dir for r in chosen}
         mine = final[final["run"].isin(dirs) & (final["level"] == level)] if len(final) else final
         budget = " / ".join(dict.fromkeys(r.budget for r in chosen))
@@ -100,6 +113,7 @@ def learned_gate(
         rows.append(
             {
                 "algo": algo,
+                "compute_bound": compute_bound,
                 "runs": len(chosen),
                 "budget": budget,
                 "value": value,

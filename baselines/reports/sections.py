@@ -203,20 +203,26 @@ class Inputs:
 
     @cached_property
     def gate(self) -> pd.DataFrame:
-        """Which algorithms learned the first level (:func:`.matched.learned_gate`), in the compared acting mode;
-        empty without the report option ``learned``."""
+        """Which algorithms learned the first level (:func:`.matched.learned_gate`), in the compared acting mode:
+        a row per algorithm for its runs with a step budget and one for its compute-matched runs (column
+        ``compute_bound``); empty without the report option ``learned``."""
         if self.learned_factor is None:
-            return pd.DataFrame(columns=["algo", "learned", "reading"])
+            return pd.DataFrame(columns=["algo", "compute_bound", "learned", "reading"])
         final = _one_mode(self.final, self)
-        return learned_gate(self.usable, final, self.reference_training, evaaa.LEVELS[0], self.learned_factor)
+        args = (self.usable, final, self.reference_training, evaaa.LEVELS[0], self.learned_factor)
+        return pd.concat([learned_gate(*args), learned_gate(*args, compute_bound=True)], ignore_index=True)
 
-    def enters(self, algo: str) -> bool:
-        """Whether ``algo`` takes part in the claims' comparisons: always without ``learned``, else only if it
-        learned."""
+    def gate_of(self, compute_bound: bool) -> pd.DataFrame:
+        gate = self.gate
+        return gate[gate["compute_bound"] == compute_bound] if len(gate) else gate
+
+    def enters(self, run: RunRecord) -> bool:
+        """Whether ``run``'s agent takes part in the claims' comparisons: always without ``learned``, else only if
+        its algorithm learned at the budget of its kind (compute-matched or a step budget)."""
         if self.learned_factor is None:
             return True
-        gate = self.gate
-        return bool(gate.loc[gate["algo"] == algo, "learned"].any())
+        gate = self.gate_of(run.cpu_budget is not None)
+        return bool(gate.loc[gate["algo"] == run.algo, "learned"].any())
 
     def rel(self, p: Path) -> str:
         """``p`` relative to the current directory where it lies under it (the report names runs that way)."""
@@ -1011,10 +1017,10 @@ def equal_compute(doc: Document, inp: Inputs) -> None:
                     [hl, pd.DataFrame([{"label": f"learned: {inp.learned_factor:g}× {bar[1]}", "value": bar[0]}])]
                 )
         figure = plot_lines(
-            stats.rename(columns={"view": "panel"}),
+            stats,
             doc.out / "fig20_equal_compute.png",
             x="x",
-            panel="panel",
+            panel="view",
             band=True,
             ylabel="survival (decisions)",
             xlabel="env steps",
@@ -1035,7 +1041,7 @@ def equal_compute(doc: Document, inp: Inputs) -> None:
         ]
     surv = matched_survival(inp)
     reach = matched_reaching(inp)
-    gate = inp.gate.set_index("algo") if len(inp.gate) else None
+    gate = inp.gate_of(True).set_index("algo") if inp.learned_factor is not None else None
     steps = {
         a: [max((r.steps for r in runs if r.algo == a and r.seed == sd), default=0) for sd in sorted(g["seed"])]
         for a, g in pd.DataFrame([{"algo": r.algo, "seed": r.seed} for r in runs]).groupby("algo", sort=False)
@@ -1383,9 +1389,7 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
     # (their budget is CPU minutes: they answer (c) alone)
     full = (
         final[
-            final["run"].map(
-                lambda d: runs[d].modality == "all" and runs[d].cpu_budget is None and inp.enters(runs[d].algo)
-            )
+            final["run"].map(lambda d: runs[d].modality == "all" and runs[d].cpu_budget is None and inp.enters(runs[d]))
         ]
         if len(final)
         else final
@@ -1426,7 +1430,7 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
 
     best = _one_mode(inp.best, inp)
     best = (
-        best[best["run"].map(lambda d: inp.runs[d].modality == "all" and inp.enters(inp.runs[d].algo))]
+        best[best["run"].map(lambda d: inp.runs[d].modality == "all" and inp.enters(inp.runs[d]))]
         if len(best)
         else best
     )
@@ -1453,7 +1457,7 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
     tests = (
         tests[
             tests["run"].map(
-                lambda d: inp.runs[d].curriculum and inp.runs[d].modality == "all" and inp.enters(inp.runs[d].algo)
+                lambda d: inp.runs[d].curriculum and inp.runs[d].modality == "all" and inp.enters(inp.runs[d])
             )
             & tests["policy"].map(lambda p: bool(MODEL_FILE.match(Path(p).name)))
         ]
@@ -1489,7 +1493,7 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
     if where is not None:  # (c) where the paper states it for one level, at equal compute
         msurv = matched_survival(inp)
         gate = (
-            inp.gate
+            inp.gate_of(True)
             if inp.learned_factor is not None
             else pd.DataFrame({"algo": list(msurv["algo"]), "learned": True, "reading": ""})
         )
@@ -1505,7 +1509,7 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
     # ablations: runs of one algorithm and training set-up (a level, or the curriculum) with several modality sets
     groups: dict[tuple, list[RunRecord]] = {}
     for r in inp.usable:  # one budget per group: a compute-matched run is no ablation's all-senses run
-        if inp.enters(r.algo):
+        if inp.enters(r):
             groups.setdefault((r.algo, r.training, r.budget), []).append(r)
     groups = {k: v for k, v in groups.items() if len({r.modality for r in v}) > 1}
     if not groups:
@@ -1582,9 +1586,10 @@ def claims(doc: Document, inp: Inputs) -> None:
         doc.md += [
             f"**Which agents learned.** An agent enters a comparison only if its network with every sense, "
             f"trained on {level}, survives there at least {inp.learned_factor:g}× the better of random and "
-            "stand-still (IQM of its seeds' episodes; its compute-matched runs where it has some, else its direct "
-            f"runs on {level}, else its curriculum's first stage); one that did not is reported as \"did not learn "
-            'at this budget", with its curves, and compared with nothing.',
+            "stand-still (IQM of its seeds' episodes), judged at the budget it is compared at: its compute-matched "
+            f"runs for the comparison at equal compute; for the others its direct runs on {level} with a step "
+            "budget, else its curriculum's first stage. One that did not is reported as \"did not learn at this "
+            'budget", with its curves, and compared with nothing.',
             "",
             *[f"- {r}" for r in gate["reading"]],
             *[
