@@ -765,6 +765,26 @@ def test_how_a_run_was_started_does_not_split_its_group(tmp_path):
     assert runs[0].extras == runs[1].extras == ()
 
 
+def test_a_run_made_before_a_setting_existed_pools_with_runs_at_its_earlier_value(tmp_path):
+    from evaaa_baselines.reports import describe_extras, load_run
+
+    sim = Sim(tmp_path / "runs")
+    dirs = [sim.run("ppo", seed, level="1-1", finish=1) for seed in (0, 1)]
+    dirs.append(sim.run("ppo", 2, level="1-1", finish=1, overrides=("env.backend=warp",)))
+    older = OmegaConf.load(dirs[0] / ".hydra" / "config.yaml")  # made before env.backend and mlp_default
+    del older.env["backend"]
+    del older.algo.encoder["mlp_default"]
+    OmegaConf.save(older, dirs[0] / ".hydra" / "config.yaml")
+    runs = [load_run(d) for d in dirs]
+    assert "backend" not in runs[0].config["env"] and runs[1].config["env"]["backend"] == "cpu"
+    describe_extras(runs)
+    # read as the CPU backend (what came before) and the default MLP size: pooled with the run made since
+    assert runs[0].extras == runs[1].extras == ("env.backend=cpu",)
+    assert runs[2].extras == ("env.backend=warp",)  # another backend still splits
+    describe_extras(runs[:2])
+    assert runs[0].extras == runs[1].extras == ()
+
+
 def test_a_number_spelled_two_ways_or_another_time_budget_does_not_split_a_group(tmp_path):
     from evaaa_baselines.reports import describe_extras, load_run
     from evaaa_baselines.reports.load import labels

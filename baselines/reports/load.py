@@ -278,25 +278,45 @@ def _read_run_csv(
     return df
 
 
+#: a setting added to the configs after runs were made, whose absence from a run stands for whatever the runs made
+#: since say (it changed nothing for the runs made before it)
+AS_SINCE = object()
+#: settings added to the configs after runs were made, with the value a run without the key is read as having (what
+#: the versions before the key did), so that runs made before and after it pool where nothing else differs
+ADDED_SETTINGS: dict[str, Any] = {
+    "env.backend": "cpu",  # before backends, MuJoCo stepped every world on the CPU
+    # before it, every vector sense had its own size in algo.encoder.mlp; the default sizes a sense it does not list
+    "algo.encoder.mlp_default": AS_SINCE,
+}
+
+
 def describe_extras(runs: Sequence[RunRecord]) -> None:
     """Set each run's ``extras``: the settings (beyond algorithm, modality, reward and training levels) in which
-    runs of the same algorithm differ, as ``key=value`` pairs, so that they land in separate groups."""
+    runs of the same algorithm differ, as ``key=value`` pairs, so that they land in separate groups.  A setting a
+    run's config lacks because it was added later (:data:`ADDED_SETTINGS`) is read as its value from before."""
     flat = {id(r): _flatten(r.config) | {"budget": r.budget} for r in runs}
     by_algo: dict[str, list[RunRecord]] = {}
     for r in runs:
         by_algo.setdefault(r.algo, []).append(r)
     for same in by_algo.values():
         keys = sorted({k for r in same for k in flat[id(r)]})
+        values: dict[str, dict[int, str]] = {}
+        for k in keys:
+            given = {id(r): _setting(flat[id(r)][k]) for r in same if k in flat[id(r)]}
+            before = ADDED_SETTINGS.get(k, None)
+            if before is AS_SINCE and len(set(given.values())) == 1:
+                before = next(iter(given.values()))
+            values[k] = {id(r): given.get(id(r), _setting(before)) for r in same}
         varying = [
             k
             for k in keys
             if not k.startswith(BOOKKEEPING)
             and k not in ("algo.name", "modality.name", "reward.name")
             and not k.startswith("modality.enabled")
-            and len({_setting(flat[id(r)].get(k)) for r in same}) > 1
+            and len(set(values[k].values())) > 1
         ]
         for r in same:
-            r.extras = tuple(f"{k}={_setting(flat[id(r)].get(k))}" for k in varying)
+            r.extras = tuple(f"{k}={values[k][id(r)]}" for k in varying)
 
 
 def _setting(value: Any) -> str:
