@@ -157,7 +157,7 @@ def _finish(fig, axes, path: Path, title: str, legend_rows: int = 0) -> Path:
     fig.suptitle(title, fontsize=10)
     height = fig.get_size_inches()[1]
     bottom = min(0.45, (0.22 * rows + 0.1) / height) if rows else 0.0
-    top = 1 - min(0.3, (0.17 * (title.count("\n") + 1) + 0.1) / height)
+    top = 1.0  # tight_layout leaves room for the suptitle itself
     fig.tight_layout(rect=(0, bottom, 1, top))
     fig.savefig(path, dpi=DPI, bbox_inches="tight")
     _plt().close(fig)
