@@ -1228,6 +1228,33 @@ def test_what_it_learned_sets_every_agent_beside_random_and_stand_still(tmp_path
     assert "Stand-still survives 1112 decisions on 1-1" in top
 
 
+def test_what_they_learned_counts_levels_per_acting_mode(tmp_path):
+    # one network evaluated sampling (it eats) and taking its most likely action (it stands still): two readings of
+    # one level each, not one agent on "2 levels"
+    sim = Sim(tmp_path / "runs")
+    rows = []
+    for seed in (0, 1, 2):
+        run = sim.run("ppo", seed, level="1-1", finish=1)
+        for acting, steps, food in (("sample", 3000, 4), ("mode", 1100, 0)):
+            rows += [
+                r | {"acting": acting, "worlds": "test", "steps": steps + seed, "food_eaten": food}
+                for r in sim.evaluate(str(run / "model-0-1-1.pt"), "1-1", 4)
+            ]
+    rows += [r | {"worlds": "test", "steps": 1112} for r in sim.evaluate("still", "1-1", 5)]
+    rows += [r | {"worlds": "test", "steps": 300, "food_eaten": 1} for r in sim.evaluate("random", "1-1", 5)]
+    append_rows(tmp_path / "eval" / "episodes.csv", rows)
+    text = build_report([tmp_path / "runs"], [tmp_path / "eval"], tmp_path / "out", compare="sample").markdown
+    top = text.read_text().split("\n\n")[1]
+    assert (
+        "ppo [sample] ate more food and water per episode than random and stand-still on 1 of 1 levels (1-1: 4.0) "
+        "and survived longer than the better of random and stand-still on 1 of 1"
+    ) in top
+    assert (
+        "ppo [mode] ate more food and water per episode than random and stand-still on 0 of 1 levels and survived "
+        "longer than the better of random and stand-still on 0 of 1"
+    ) in top
+
+
 def test_curriculum_and_direct_are_shown_with_the_env_steps_each_has_seen(world, tmp_path):
     section = world["text"][world["text"].index("## With and without curriculum") :]
     section = section[: section.index("\n## ")]

@@ -865,8 +865,8 @@ def learned_paragraph(inp: Inputs) -> str:
     ]
     groups: dict[str, pd.DataFrame] = {}
     for label, part in agents.groupby("label", sort=False):
-        key = label.split(" [")[0]
-        key = key.split(" · trained on ")[0] + (" · direct" if " · trained on " in key else "")
+        base = label.split(" [")[0]  # one sentence per acting mode: "[sample]" and "[mode]" are two agents here
+        key = base.split(" · trained on ")[0] + (" · direct" if " · trained on " in base else "") + label[len(base) :]
         groups[key] = pd.concat([groups.get(key, part.iloc[:0]), part])
     sentences = []
     for key, part in groups.items():
