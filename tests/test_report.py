@@ -29,6 +29,7 @@ from evaaa_baselines.config import observation_keys, register_levels
 from evaaa_baselines.paths import CONF_DIR
 from evaaa_baselines.reports import ReportError, build_report
 from evaaa_baselines.reports.stats import clustered_rate, interval
+from evaaa_baselines.run import EVAL_COLUMNS_BEFORE_CPU
 
 register_levels()
 
@@ -1296,23 +1297,8 @@ def test_a_dqn_checkpoint_evaluated_with_sample_is_shown_acting_greedily(tmp_pat
         assert "Acting: `mode+epsilon=0.05`" in text and "Acting: `sample" not in text
 
 
-#: eval.csv as training runs write it now: one row per episode of each periodic evaluation
-EVAL_EPISODE_COLUMNS = (
-    "env_steps",
-    "stage",
-    "level",
-    "worlds",
-    "acting",
-    "episode",
-    "steps",
-    "return",
-    "end_type",
-    "food_eaten",
-    "water_eaten",
-    "collisions",
-    "damage_taken",
-    "wall_time",
-)
+#: eval.csv with one row per episode of each periodic evaluation (as runs wrote it before cpu_seconds)
+EVAL_EPISODE_COLUMNS = EVAL_COLUMNS_BEFORE_CPU
 
 
 def test_per_episode_in_training_evaluations_give_cells_and_curves_over_episodes(tmp_path):
