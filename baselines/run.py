@@ -51,7 +51,7 @@ from evaaa import END_TYPES, EV_NAMES
 from evaaa.records import TRAINING_EPISODE_FIELDS, DiskError
 
 from .checkpoint import CHECKPOINT, CHECKPOINT_FORMAT, rng_state, save_checkpoint, set_rng_state
-from .config import Stage, env_overrides, observation_keys
+from .config import COMPUTE_BOUND_STEPS, Stage, env_overrides, observation_keys
 from .devices import OnDevice, autocast, resolve_device
 from .rollout import EVALUATION_INFO, acting_mode, evaluate, wrap_env
 
@@ -465,7 +465,11 @@ class Run:
         return -(-self.stage.budget // size) * size
 
     def budget_text(self) -> str:
-        """The stage's budget as asked and, where whole iterations overshoot it, as trained and why."""
+        """The stage's budget as asked and, where whole iterations overshoot it, as trained and why; a
+        compute-bound stage (``max_cpu_minutes`` with a step budget it never reaches) by its CPU minutes."""
+        minutes = self.cfg.get("max_cpu_minutes")
+        if minutes is not None and self.stage.budget >= COMPUTE_BOUND_STEPS:
+            return f"{minutes:g} CPU-minutes (max_cpu_minutes; the budget of {self.stage.budget:,} env steps is out of reach)"
         text = f"{self.stage.budget:,} env steps"
         if self.trained_steps != self.stage.budget:
             size, how = self.iteration
@@ -489,6 +493,19 @@ class Run:
         left = self.meter.eta(self.trained_steps - self.steps, planned)
         limit = self.cfg.get("max_minutes")
         capped = f"; max_minutes={limit:g} ends it sooner" if limit is not None and left > 60 * limit - elapsed else ""
+        cpu_limit = self.cfg.get("max_cpu_minutes")
+        start = getattr(self, "_clock_start", None)
+        session_cpu = time.process_time() - start[1] if start else 0.0
+        if cpu_limit is not None and session_cpu > 0:
+            # at this session's speed per CPU second and its share of a core
+            cpu_left = max(60.0 * cpu_limit - self.seconds_spent()[1], 0.0)
+            wall_left = cpu_left * elapsed / session_cpu
+            if wall_left < left:
+                reach = self.steps + (self.steps - self._session[1]) / session_cpu * cpu_left
+                capped += (
+                    f"; max_cpu_minutes={cpu_limit:g} ends it sooner: in {_about(wall_left)}, near "
+                    f"{reach:,.0f} env steps"
+                )
         speed = f"{_rate(self.meter.env_rate)} env steps/s"
         if self.meter.sums["updates"] > 0:
             speed += f", {self.meter.seconds_per_update:.3g} s per gradient step"

@@ -30,7 +30,14 @@ import evaaa
 from evaaa.records import TRAINING_EPISODE_FIELDS
 from evaaa_baselines import algos, checkpoint, devices, evaluate, load_policy, training
 from evaaa_baselines import run as run_loop
-from evaaa_baselines.config import Stage, env_overrides, observation_keys, register_levels, stages
+from evaaa_baselines.config import (
+    COMPUTE_BOUND_STEPS,
+    Stage,
+    env_overrides,
+    observation_keys,
+    register_levels,
+    stages,
+)
 from evaaa_baselines.devices import DeviceError, resolve_device
 from evaaa_baselines.evaluation import EvaluatedPolicy, EvaluationError
 from evaaa_baselines.paths import CONF_DIR
@@ -823,6 +830,31 @@ def test_the_time_estimate_comes_from_the_run_s_own_speed(caplog, monkeypatch):
         "time estimate for ppo on 1-1: about 80 seconds more for the 1,000 env steps (200 done), from "
         "this run's speed over its first 20 s here (10 env steps/s)"
     ]
+
+
+def test_a_compute_bound_run_states_its_cpu_budget_and_when_it_ends(caplog, monkeypatch):
+    # half a core: 10 env steps per wall second, 20 per CPU second; 60 CPU seconds in all, 10 spent at t=20 s
+    now = [0.0]
+    monkeypatch.setattr(run_loop.time, "perf_counter", lambda: now[0])
+    monkeypatch.setattr(run_loop.time, "process_time", lambda: now[0] / 2)
+    run = run_loop.Run.__new__(run_loop.Run)
+    run.cfg = debug_cfg("ppo", "max_cpu_minutes=1", total_steps=COMPUTE_BOUND_STEPS)
+    run.stage = Stage(0, "1-1", COMPUTE_BOUND_STEPS)
+    run.iteration, run.updates, run.planned_updates = (100, "test"), 0, None
+    run.counters, run._estimated, run._session = {"steps": 0}, False, (0.0, 0)
+    run._clock_start = (0.0, 0.0)
+    run.meter = Progress(60, 0, now=0.0)
+    assert run.budget_text() == (
+        f"1 CPU-minutes (max_cpu_minutes; the budget of {COMPUTE_BOUND_STEPS:,} env steps is out of reach)"
+    )
+    with caplog.at_level(logging.INFO, logger="evaaa_baselines.run"):
+        for t, steps in ((10, 100), (20, 200)):
+            now[0], run.counters["steps"] = float(t), steps
+            run.meter.add(steps)
+            run._estimate()
+    (line,) = [r.getMessage() for r in caplog.records if "time estimate" in r.getMessage()]
+    # 50 CPU seconds left: 100 s of wall time at half a core, 1,000 more env steps at 20 per CPU second
+    assert line.endswith(f"; max_cpu_minutes=1 ends it sooner: in {run_loop._about(100.0)}, near 1,200 env steps")
 
 
 def test_two_ctrl_c_inside_one_long_call_still_stop_the_run_at_once(tmp_path, monkeypatch, capsys):
