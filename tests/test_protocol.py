@@ -232,6 +232,22 @@ def test_cells_run_when_what_they_need_exists_and_a_second_run_has_nothing_to_do
     assert all(lay.log(c.name).read_text().count("\n== ") == 1 for c in cells)
 
 
+def test_an_evaluation_runs_as_soon_as_its_model_exists_before_later_trainings(tmp_path):
+    # two trainings and their evaluations, one at a time: a, eval a, b, eval b (not a, b, eval a, eval b: the early
+    # cells answer something on their own)
+    lay, (train_a, eval_a, _) = _fake(tmp_path / "a")
+    lay_b, (train_b, eval_b, _) = _fake(tmp_path / "b")
+    order = tmp_path / "order.txt"
+    for cell, name in ((train_a, "train/a"), (eval_a, "eval/a"), (train_b, "train/b"), (eval_b, "eval/b")):
+        cell.name = name
+        note = f"open({str(order)!r}, 'a').write({name!r} + chr(10)); "
+        cell.commands = [Command([*c.argv[:-1], note + c.argv[-1]], c.out) for c in cell.commands]
+    eval_b.needs_cells = ["train/b"]
+    cells = [train_a, eval_a, train_b, eval_b]
+    assert _scheduler(lay, cells, jobs=1).run(cells) == 0
+    assert order.read_text().split() == ["train/a", "eval/a", "train/b", "eval/b"]
+
+
 def test_every_finished_cell_records_the_wall_time_it_took_and_the_plan_sums_them(tmp_path):
     import json
 

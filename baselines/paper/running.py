@@ -273,7 +273,12 @@ def _finish(task: CellTask, result: CellResult) -> None:
 
 # ------------------------------------------------------------------------------------------------ engines
 class _Engine:
-    """One engine's submit, wait and stop; the engine queues, places, runs and (Ray) retries the cells."""
+    """One engine's submit, wait and stop; the engine queues, places, runs and (Ray) retries the cells.
+    ``capacity``: how many cells it runs at once where that is known (the runner then hands it no more, so that a
+    cell that becomes ready later, an evaluation, runs before the cells after it in the protocol's order rather
+    than after every cell already queued); None: a cluster's scheduler takes all that are ready."""
+
+    capacity: int | None = None
 
     def submit(self, tasks: list[CellTask]) -> list[Any]:
         raise NotImplementedError
@@ -295,6 +300,7 @@ class LocalEngine(_Engine):
         from concurrent.futures import ThreadPoolExecutor
 
         STOP.clear()
+        self.capacity = jobs
         self.pool = ThreadPoolExecutor(max_workers=jobs, thread_name_prefix="cell")
 
     def submit(self, tasks):
@@ -332,6 +338,7 @@ class RayEngine(_Engine):
         if self.started:
             # address=None: a Ray instance on this machine with `jobs` CPUs (so `jobs` cells of one core at once)
             kw: dict[str, Any] = {"address": address} if address else {"num_cpus": jobs * p.threads}
+            self.capacity = None if address else jobs
             ray.init(**kw, include_dashboard=False, log_to_driver=False, configure_logging=False)
         self.remote = ray.remote(max_retries=retries_on_loss, retry_exceptions=False)(run_cell)
 
@@ -503,6 +510,7 @@ class Runner:
         try:
             while waiting or running:
                 release = []
+                free = None if engine.capacity is None else engine.capacity - len(running)
                 for cell in list(waiting):
                     ready = self._ready(cell, finished, failed, selected)
                     if ready is None:
@@ -511,7 +519,7 @@ class Runner:
                         failed.add(cell.name)
                         if bar is not None:
                             bar.update(1)
-                    elif ready:
+                    elif ready and (free is None or len(release) < free):
                         waiting.remove(cell)
                         # a retry continues what the first try began
                         release.append(
