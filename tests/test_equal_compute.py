@@ -221,3 +221,16 @@ def test_the_gate_factor_is_checked(tmp_path):
 
     with pytest.raises(ReportError, match="learned must be a positive factor"):
         read_inputs(*record(tmp_path, {"ppo": (2500, 1, 3)}), learned=0)
+
+
+def test_unfinished_compute_matched_runs_give_their_curves_and_no_table(tmp_path):
+    runs, evals = record(tmp_path)
+    for run in (tmp_path / "runs" / "matched").rglob("eval.csv"):  # the CPU minutes not yet spent
+        rows = run.read_text().splitlines()
+        run.write_text("\n".join(rows[:-4]) + "\n")
+    report = build_report(runs, evals, tmp_path / "out", compare="sample", learned=2)
+    text = report.markdown.read_text()
+    section = text[text.index("## At equal compute") :].split("\n## ")[0]
+    assert "No compute-matched run has finished and been evaluated yet: its curves only." in section
+    assert "Final networks at equal compute" not in section
+    assert (tmp_path / "out" / "fig20_equal_compute.png") in report.figures

@@ -1040,6 +1040,9 @@ def equal_compute(doc: Document, inp: Inputs) -> None:
             "",
         ]
     surv = matched_survival(inp)
+    if not len(surv):
+        doc.md += ["No compute-matched run has finished and been evaluated yet: its curves only.", ""]
+        return
     reach = matched_reaching(inp)
     gate = inp.gate_of(True).set_index("algo") if inp.learned_factor is not None else None
     steps = {
