@@ -1045,10 +1045,9 @@ def equal_compute(doc: Document, inp: Inputs) -> None:
         return
     reach = matched_reaching(inp)
     gate = inp.gate_of(True).set_index("algo") if inp.learned_factor is not None else None
-    steps = {
-        a: [max((r.steps for r in runs if r.algo == a and r.seed == sd), default=0) for sd in sorted(g["seed"])]
-        for a, g in pd.DataFrame([{"algo": r.algo, "seed": r.seed} for r in runs]).groupby("algo", sort=False)
-    }
+    steps: dict[str, list[int]] = {}
+    for r in sorted(runs, key=lambda r: r.seed or 0):  # per algorithm, each seed's env steps in seed order
+        steps.setdefault(r.algo, []).append(r.steps)
     header = "| agent | seeds | env steps reached | survival on test worlds (IQM) |"
     rule_ = "|---|---|---|---|"
     if gate is not None:
@@ -1249,9 +1248,7 @@ def ablation_curves(doc: Document, inp: Inputs) -> None:
         )
         table += (
             f"\n\nCurves: survival of training episodes in {inp.bins} bins of env steps, IQM with its 95 % "
-            "bootstrap interval (band). Table: survival at the end of each run ("
-            + inp.source_note[len("Survival: ") :].rstrip(".")
-            + ")."
+            "bootstrap interval (band). Table: survival at the end of each run (" + _source_words(inp) + ")."
         )
     doc.section(
         "Modality ablations: training curves (Fig. 25)",
@@ -1576,7 +1573,7 @@ def claims(doc: Document, inp: Inputs) -> None:
         "more). (d)'s drops: one-sided paired t-tests over seeds between every pair of training levels, "
         "Holm-corrected. A claim of several parts is reproduced when every part is, contradicted "
         "when some part is and none is reproduced. Survival per level: "
-        + inp.source_note[len("Survival: ") :].rstrip(".")
+        + _source_words(inp)
         + " (runs with every sense; curriculum runs where an "
         "algorithm has them). Testbed success: each run's furthest-trained evaluated checkpoint" + how + ".",
         "",
