@@ -1272,10 +1272,9 @@ def test_curriculum_and_direct_are_shown_with_the_env_steps_each_has_seen(world,
     want = [[sim.runs[d]["final"]["1-2"]] for d in direct]
     assert matched["1-2"]["ppo · direct"] == expect(want, per_seed=2)
     assert matched["1-2"]["ppo · curriculum"] == expect([[sim.runs[d]["final"]["1-2"]] for d in cur], per_seed=2)
+    # each view holds the direct runs of its own budget only
     equal = table(text, "Curriculum vs direct at equal env steps per stage")
-    assert equal["1-2"]["ppo · direct"] == expect(
-        [[sim.runs[d]["final"]["1-2"]] for d in direct] + [[other.runs[d]["final"]["1-2"]] for d in short], per_seed=2
-    )
+    assert equal["1-2"]["ppo · direct"] == expect([[other.runs[d]["final"]["1-2"]] for d in short], per_seed=2)
     from evaaa_baselines.paper import claims as rules
     from evaaa_baselines.reports.sections import claim_verdicts, read_inputs
 
@@ -1283,6 +1282,27 @@ def test_curriculum_and_direct_are_shown_with_the_env_steps_each_has_seen(world,
     matched_stats = pd.read_csv(tmp_path / "out" / "data" / "curriculum_vs_direct_matched.csv")
     row = matched_stats[(matched_stats["label"] == "ppo · direct") & (matched_stats["level"] == "1-2")].iloc[0]
     assert f"vs direct {rules._fmt(row)}" in b.parts[0].evidence[0]
+
+
+def test_direct_runs_at_matched_steps_alone_are_not_shown_as_equal_per_stage(tmp_path):
+    # paper_learned's direct runs: level k of the curriculum gets (k + 1) stages' env steps, none has a stage's own
+    sim = Sim(tmp_path / "runs")
+    cur = [sim.run("ppo", seed) for seed in (0, 1, 2)]
+    first = [sim.run("ppo", seed, level="1-1", finish=1) for seed in (0, 1, 2)]
+    second = [sim.run("ppo", seed, level="1-2", finish=1, budget=2 * BUDGET) for seed in (0, 1, 2)]
+    odd = Sim(tmp_path / "runs" / "odd", seed=2)
+    for seed in (0, 1, 2):
+        odd.run("ppo", seed, level="1-2", finish=1, budget=3 * BUDGET)
+    report = build_report([tmp_path / "runs"], [], tmp_path / "out")
+    text = report.markdown.read_text()
+    assert "Curriculum vs direct at equal env steps per stage" not in text
+    assert "curriculum_vs_direct" not in report.tables and "fig4a_curriculum_vs_direct.png" in text
+    matched = table(text, "Curriculum vs direct at matched total env steps")
+    assert matched["1-1"]["ppo · direct"] == expect([[sim.runs[d]["final"]["1-1"]] for d in first], per_seed=2)
+    assert matched["1-2"]["ppo · direct"] == expect([[sim.runs[d]["final"]["1-2"]] for d in second], per_seed=2)
+    assert matched["1-2"]["ppo · curriculum"] == expect([[sim.runs[d]["final"]["1-2"]] for d in cur], per_seed=2)
+    assert f"Direct runs of neither budget, in no view: 1-2 ({3 * BUDGET:,} env steps)." in text
+    assert "no direct run here has as many env steps" not in text
 
 
 def test_a_dqn_checkpoint_evaluated_with_sample_is_shown_acting_greedily(tmp_path):

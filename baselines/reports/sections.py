@@ -450,10 +450,35 @@ def _seen(inp: Inputs, final: pd.DataFrame) -> pd.Series:
     )
 
 
+def _direct_views(inp: Inputs, rows: pd.DataFrame, key: str) -> pd.DataFrame:
+    """``rows`` (final survival of curriculum and direct runs, ``key`` naming what they share) with ``seen`` and
+    ``view``: ``curriculum`` for a curriculum stage; for a direct run, what its env steps match in the curriculum of
+    the same ``key`` on its level — ``equal`` (the stage's own env steps), ``matched`` (all the curriculum had seen
+    by the end of that stage), ``both`` (the first stage, where they are one) or ``other`` (neither)."""
+    rows = rows.assign(
+        seen=_seen(inp, rows) if len(rows) else pd.Series(dtype=int),
+        own=rows.apply(lambda r: inp.by_dir[r["run"]].stages[int(r["stage"])][2], axis=1)
+        if len(rows)
+        else pd.Series(dtype=int),
+        curriculum=rows["run"].map(lambda d: inp.by_dir[d].curriculum),
+    )
+    cur = rows[rows["curriculum"]].groupby([key, "level"]).agg(stage_own=("own", "max"), stage_total=("seen", "max"))
+    rows = rows.join(cur, on=[key, "level"])
+
+    def view(r: pd.Series) -> str:
+        if r["curriculum"]:
+            return "curriculum"
+        equal, matched = r["seen"] == r["stage_own"], r["seen"] == r["stage_total"]
+        return "both" if equal and matched else "equal" if equal else "matched" if matched else "other"
+
+    return rows.assign(view=rows.apply(view, axis=1) if len(rows) else pd.Series(dtype=str))
+
+
 def curriculum_vs_direct(doc: Document, inp: Inputs) -> None:
     """Fig. 4a, right: per level, curriculum runs' stage of that level beside runs trained on that level alone —
     at equal env steps per stage (the paper's view: the curriculum stage has seen more in total), and at matched
-    total env steps where direct runs of that total exist."""
+    total env steps (a direct run with as many env steps as the curriculum had seen by the end of that stage). The
+    figure draws the view that covers more levels."""
     usable, final = inp.usable, inp.final
 
     # a direct run's budget in env steps is what this comparison varies (equal per stage, or the stage's total): not
@@ -462,37 +487,51 @@ def curriculum_vs_direct(doc: Document, inp: Inputs) -> None:
     usable = [r for r in usable if r.cpu_budget is None]
     both = {key(r) for r in usable if r.curriculum} & {key(r) for r in usable if not r.curriculum}
     cmp_runs = [r for r in usable if key(r) in both]
-    table = figure = None
-    matched_md: list[str] = []
+    tables: list[str] = []
+    figure = None
     if cmp_runs and len(final):
         keys = {r.dir: key(r) for r in cmp_runs}
         varies = [i for i in range(1, 4) if len({k[i] for k in keys.values()}) > 1]
         base = {d: " · ".join([k[0], *(", ".join(k[i]) if i == 3 else k[i] for i in varies)]) for d, k in keys.items()}
         lab = {d: f"{v} · {'curriculum' if inp.by_dir[d].curriculum else 'direct'}" for d, v in base.items()}
         f = inp.labelled(final[final["run"].isin(list(lab))], lab)
-        f = f.assign(
-            seen=_seen(inp, f) if len(f) else pd.Series(dtype=int),
-            curriculum=f["run"].map(lambda d: inp.by_dir[d].curriculum),
-        )
-        direct_levels = set(f.loc[~f["curriculum"], "level"])
-        f = f[f["level"].isin(direct_levels)]
-        stats = across_seeds(f, ["label", "level"], "survival").sort_values(
-            "label", key=lambda s: s.str.contains("direct"), kind="stable"
-        )
-        seen = f.groupby(["label", "level"])["seen"].agg(lambda s: "/".join(f"{v:,}" for v in sorted(set(s))))
-        stats["env_steps"] = [seen.get((lb, lv), "") for lb, lv in zip(stats["label"], stats["level"])]
-        doc.tables["curriculum_vs_direct"] = stats
-        levels = level_sorted(stats["level"])
-        if len(stats):
-            figure = plot_bars(
-                stats,
-                doc.out / "fig4a_curriculum_vs_direct.png",
-                levels=levels,
-                ylabel="survival (decisions)",
-                title="With and without curriculum, equal env steps "
-                "per stage (curriculum stage k has seen k+1 stages' env steps)",
-                compared=inp.compared,
+        f = _direct_views(inp, f.assign(setting=f["run"].map(base)), "setting")
+        direct = f[~f["curriculum"]]
+        views = {}
+        for name, kinds in (("equal", {"equal", "both"}), ("matched", {"matched", "both"})):
+            d = direct[direct["view"].isin(kinds)]
+            rows = pd.concat([f[f["curriculum"] & f["level"].isin(set(d["level"]))], d])
+            # a view of its own only where some curriculum stage has seen more than its own env steps
+            views[name] = (rows, bool((d["stage_own"] != d["stage_total"]).any())) if len(d) else (rows, False)
+        shown = [v for v in ("equal", "matched") if views[v][1]] or (["equal"] if len(views["equal"][0]) else [])
+        titles = {
+            "equal": "Curriculum vs direct at equal env steps per stage (survival, decisions)",
+            "matched": "Curriculum vs direct at matched total env steps (survival, decisions)",
+        }
+        drawn = max(shown, key=lambda v: (views[v][0]["level"].nunique(), v == "matched"), default=None)
+        for name in shown:
+            rows = views[name][0]
+            stats = across_seeds(rows, ["label", "level"], "survival").sort_values(
+                "label", key=lambda s: s.str.contains("direct"), kind="stable"
             )
+            seen = rows.groupby(["label", "level"])["seen"].agg(lambda s: "/".join(f"{v:,}" for v in sorted(set(s))))
+            stats["env_steps"] = [seen.get((lb, lv), "") for lb, lv in zip(stats["label"], stats["level"])]
+            doc.tables["curriculum_vs_direct" + ("_matched" if name == "matched" else "")] = stats
+            levels = level_sorted(stats["level"])
+            if name == drawn:
+                figure = plot_bars(
+                    stats,
+                    doc.out / "fig4a_curriculum_vs_direct.png",
+                    levels=levels,
+                    ylabel="survival (decisions)",
+                    title="With and without curriculum, "
+                    + (
+                        "equal env steps per stage (curriculum stage k has seen k+1 stages' env steps)"
+                        if name == "equal"
+                        else "matched total env steps (a direct run on level k has k+1 stages' env steps)"
+                    ),
+                    compared=inp.compared,
+                )
             steps_by_level = {
                 lv: "; ".join(
                     f"{lb.rsplit(' · ', 1)[-1]} {st}"
@@ -502,49 +541,35 @@ def curriculum_vs_direct(doc: Document, inp: Inputs) -> None:
                 )
                 for lv in levels
             }
-            table = pivot_table(
-                stats,
-                "level",
-                "label",
-                rows=levels,
-                title="Curriculum vs direct at equal env steps per stage (survival, decisions)",
-                compared=inp.compared,
+            tables.append(
+                pivot_table(stats, "level", "label", rows=levels, title=titles[name], compared=inp.compared)
+                + "\n\nEnv steps seen per cell: "
+                + "; ".join(f"{lv}: {steps_by_level[lv]}" for lv in levels)
+                + "."
             )
-            table += "\n\nEnv steps seen per cell: " + "; ".join(f"{lv}: {steps_by_level[lv]}" for lv in levels) + "."
-        # matched view: a curriculum stage beside direct runs of the same level with as many env steps in total
-        cur, dire = f[f["curriculum"]], f[~f["curriculum"]]
-        pairs = cur.merge(dire[["level", "seen"]].drop_duplicates(), on=["level", "seen"])
-        if len(pairs):
-            keep = f.merge(pairs[["level", "seen"]].drop_duplicates(), on=["level", "seen"])
-            mstats = across_seeds(keep, ["label", "level"], "survival")
-            doc.tables["curriculum_vs_direct_matched"] = mstats
-            matched_md = [
-                "",
-                pivot_table(
-                    mstats,
-                    "level",
-                    "label",
-                    rows=level_sorted(mstats["level"]),
-                    title="Curriculum vs direct at matched total env steps (survival, decisions)",
-                    compared=inp.compared,
-                ),
-            ]
-        unmatched = cur[~cur.set_index(["level", "seen"]).index.isin(pairs.set_index(["level", "seen"]).index)]
+        cur = f[f["curriculum"] & f["level"].isin(set(direct["level"]))]
+        unmatched = cur[~cur["level"].isin(set(direct.loc[direct["view"].isin({"matched", "both"}), "level"]))]
         if len(unmatched):
             needs = unmatched.groupby("level")["seen"].max()
-            matched_md += [
-                "",
-                "**At matched total env steps:** no direct run here has as many env steps as the "
-                "curriculum stage on "
+            tables.append(
+                "**At matched total env steps:** no direct run here has as many env steps as the curriculum stage on "
                 + ", ".join(f"{lv} ({needs[lv]:,})" for lv in level_sorted(needs.index))
-                + "; there only the view at equal env steps per stage can be shown.",
-            ]
+                + "."
+            )
+        other = direct[direct["view"] == "other"]
+        if len(other):
+            budgets = other.groupby("level")["seen"].agg(lambda s: "/".join(f"{v:,}" for v in sorted(set(s))))
+            tables.append(
+                "Direct runs of neither budget, in no view: "
+                + ", ".join(f"{lv} ({budgets[lv]} env steps)" for lv in level_sorted(budgets.index))
+                + "."
+            )
     doc.section(
         "With and without curriculum (Fig. 4a, right)",
         inp.source_note + " Curriculum: the stage of that level after the levels before it (it has seen "
         "their env steps too); direct: a run trained on that level alone.",
         figure,
-        (table or "") + "\n".join(matched_md) if table else None,
+        "\n\n".join(tables) if figure else None,
         "No algorithm has both curriculum runs (`level=curriculum`) and direct runs (`level=<level>`) here.",
     )
 
@@ -1395,25 +1420,24 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
         else final
     )
     if len(full):
-        full = full.assign(
-            algo=full["run"].map(lambda d: runs[d].algo),
-            setup=full["run"].map(lambda d: "curriculum" if runs[d].curriculum else "direct"),
-            seen=_seen(inp, full),
+        full = _direct_views(
+            inp,
+            full.assign(
+                algo=full["run"].map(lambda d: runs[d].algo),
+                setup=full["run"].map(lambda d: "curriculum" if runs[d].curriculum else "direct"),
+            ),
+            "algo",
         )
         # (b) at matched total env steps where direct runs of a curriculum stage's total exist, else at equal env
-        # steps per stage
-        cur_seen = full[full["setup"] == "curriculum"].groupby(["algo", "level"])["seen"].max()
-        matched = full.apply(
-            lambda r: r["setup"] == "direct" and cur_seen.get((r["algo"], r["level"])) == r["seen"], axis=1
-        )
+        # steps per stage (Fig. 4a right's two views)
+        matched = full["view"].isin({"matched", "both"})
         has_match = set(zip(full.loc[matched, "algo"], full.loc[matched, "level"]))
-        keep = full.apply(
-            lambda r: (
-                r["setup"] == "curriculum"
-                or (r["algo"], r["level"]) not in has_match
-                or cur_seen.get((r["algo"], r["level"])) == r["seen"]
-            ),
-            axis=1,
+        pair = pd.Series(list(zip(full["algo"], full["level"])), index=full.index)
+        keep = (
+            (full["view"] == "curriculum")
+            | matched
+            | ((full["view"] == "equal") & ~pair.isin(has_match))
+            | full["stage_own"].isna()  # no curriculum of that algorithm on that level: nothing to pair it with
         )
         by_setup = across_seeds(full, ["algo", "setup", "level"], "survival")
         cmp = across_seeds(full[keep], ["algo", "setup", "level"], "survival")
