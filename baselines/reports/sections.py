@@ -534,9 +534,11 @@ def curriculum_vs_direct(doc: Document, inp: Inputs) -> None:
                 )
             steps_by_level = {
                 lv: "; ".join(
-                    f"{lb.rsplit(' · ', 1)[-1]} {st}"
-                    for lb, st in dict.fromkeys(
-                        zip(stats.loc[stats["level"] == lv, "label"], stats.loc[stats["level"] == lv, "env_steps"])
+                    dict.fromkeys(
+                        f"{lb.rsplit(' · ', 1)[-1]} {st}"
+                        for lb, st in zip(
+                            stats.loc[stats["level"] == lv, "label"], stats.loc[stats["level"] == lv, "env_steps"]
+                        )
                     )
                 )
                 for lv in levels
