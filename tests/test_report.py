@@ -1215,9 +1215,9 @@ def test_what_it_learned_sets_every_agent_beside_random_and_stand_still(tmp_path
     top = text.split("\n\n")[1]
     assert top.startswith("**What the agents learned**")
     assert (
-        "ppo ate more food and water per episode than random and stand-still on 0 of 1 levels and survived "
-        "longer than the better of random and stand-still on 1 of 1"
-    ) in top
+        "\n- ppo ate more food and water per episode than random and stand-still on 0 of 1 levels and survived "
+        "longer than the better of random and stand-still on 1 of 1\n"
+    ) in top  # a line per agent
     assert (
         "dqn ate more food and water per episode than random and stand-still on 1 of 1 levels (1-1: 2.0) and "
         "survived longer than the better of random and stand-still on 0 of 1"

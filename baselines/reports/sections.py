@@ -301,8 +301,8 @@ STATISTICS_NOTE = (
 
 
 def introduction(doc: Document, inp: Inputs, title: str) -> None:
-    """Title, what the agents learned (one paragraph), what was read, how to read the cells, how the checkpoints
-    acted and on which worlds."""
+    """Title, what the agents learned (a paragraph and a line per agent), what was read, how to read the cells,
+    how the checkpoints acted and on which worlds."""
     evals = inp.evals
     n_policies = evals.checkpoints["policy"].nunique() + evals.references["policy"].nunique()
     doc.md += [f"# {title}", ""]
@@ -858,8 +858,8 @@ def learned_table(inp: Inputs) -> pd.DataFrame:
 
 
 def learned_paragraph(inp: Inputs) -> str:
-    """The report's first paragraph: what the agents learned, from :func:`learned_table` (agents trained with
-    every sense, grouped by algorithm and curriculum or direct)."""
+    """The report's first block: what the agents learned, from :func:`learned_table` (agents trained with every
+    sense, grouped by algorithm and curriculum or direct) — a paragraph, then one line per agent."""
     table = inp.learned
     if not len(table):
         return ""
@@ -888,7 +888,7 @@ def learned_paragraph(inp: Inputs) -> str:
         f"**What the agents learned** ({', '.join(budgets)}; every stage's "
         f"network on its own level, acting {acting}, on {worlds}"
         + ("; " + "; ".join(f"{r} on {w}" for r, w in ref_worlds.items()) if differ else "")
-        + "):"
+        + ")."
     ]
     groups: dict[str, pd.DataFrame] = {}
     for label, part in agents.groupby("label", sort=False):
@@ -908,7 +908,6 @@ def learned_paragraph(inp: Inputs) -> str:
             + f" and survived longer than {'the better of ' if ' and ' in than else ''}{than} on "
             f"{len(lives)} of {len(part)}"
         )
-    out.append("; ".join(sentences) + ".")
     if len(refs):
         still = refs[refs["label"] == "still"]
         if len(still):
@@ -923,7 +922,8 @@ def learned_paragraph(inp: Inputs) -> str:
             f"{' and '.join(r for r in LEARNED_REFERENCES if r not in missing) or 'nothing'}."
         )
     out.append('Counts are of points, not verdicts; see "What each agent learned" for the numbers.')
-    return " ".join(out)
+    # one line per agent: a list that follows its paragraph without a blank line (one block of the report)
+    return " ".join(out) + "".join(f"\n- {s}" for s in sentences)
 
 
 def what_it_learned(doc: Document, inp: Inputs) -> None:
