@@ -1006,6 +1006,12 @@ def test_the_claims_are_judged_on_the_numbers_of_the_report(world):
         )
     }
     tables = world["report"].tables
+    # the summary at the top: a row per claim, the verdicts of the claims section
+    top = table(text[: text.index("## Runs")], "The paper's claims at a glance")
+    assert list(top) == [v.claim for v in verdicts.values()]
+    for v in verdicts.values():
+        assert top[v.claim]["verdict"] == f"**{v.verdict}**" and f"- **{v.claim}: {v.verdict}.**" in claims
+        assert top[v.claim]["its parts"] == ("; ".join(f"{p.claim}: *{p.verdict}*" for p in v.parts) or "–")
 
     def fmt(frame, **match):
         row = frame[np.logical_and.reduce([frame[k] == v for k, v in match.items()])].iloc[0]

@@ -618,6 +618,19 @@ def ablations(survival: pd.DataFrame, success: pd.DataFrame) -> Verdict:
     return combine(claim, parts, "each part by its rule")
 
 
+def glance(verdicts: Sequence[Verdict]) -> list[str]:
+    """The claims as one Markdown table: a row per claim with its verdict and each part's (no rules, no numbers)."""
+
+    def cell(text: str) -> str:
+        return text.replace("|", "\\|")
+
+    lines = ["| claim | verdict | its parts |", "|---|---|---|"]
+    for v in verdicts:
+        parts = "; ".join(f"{p.claim}: *{p.verdict}*" for p in v.parts) or "–"
+        lines.append(f"| {cell(v.claim)} | **{v.verdict}** | {cell(parts)} |")
+    return lines
+
+
 def markdown(verdicts: Sequence[Verdict]) -> list[str]:
     """The claims as Markdown: a line per claim with its verdict, then its parts with rules and numbers."""
     lines = []

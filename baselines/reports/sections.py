@@ -91,6 +91,12 @@ class Inputs:
     learned_factor: float | None = None
 
     @cached_property
+    def verdicts(self) -> list[rules.Verdict]:
+        """Claims (a)–(e) judged on these inputs (:func:`claim_verdicts`): the summary at the top and the claims
+        section at the end share them."""
+        return claim_verdicts(self)
+
+    @cached_property
     def run_list(self) -> list[RunRecord]:
         return sorted(self.runs.values(), key=lambda r: str(r.dir))
 
@@ -309,6 +315,18 @@ def introduction(doc: Document, inp: Inputs, title: str) -> None:
     learned = learned_paragraph(inp)
     if learned:
         doc.md += [learned, ""]
+    ck = evals.checkpoints
+    ways = (
+        ", ".join(f"`{w}`" if w else "not recorded" for w in dict.fromkeys(ck["acting"].astype(str))) if len(ck) else ""
+    )
+    worlds = ", ".join(dict.fromkeys(ck["worlds"].astype(str))) if len(ck) else ""
+    doc.md += [
+        f"**The paper's claims at a glance.** Acting: {inp.compared or ways or 'none evaluated'}. Worlds: "
+        f"{worlds or 'none evaluated'}. Each claim's rule and numbers: [The paper's claims](#the-papers-claims).",
+        "",
+        *rules.glance(inp.verdicts),
+        "",
+    ]
     doc.md += [
         f"{len(inp.run_list)} run directories; {n_policies} evaluated policies "
         f"({len(evals.checkpoints) + len(evals.references)} evaluation episodes).",
@@ -316,10 +334,7 @@ def introduction(doc: Document, inp: Inputs, title: str) -> None:
         STATISTICS_NOTE,
         "",
     ]
-    ck = evals.checkpoints
     if len(ck):
-        ways = ", ".join(f"`{w}`" if w else "not recorded" for w in dict.fromkeys(ck["acting"].astype(str)))
-        worlds = ", ".join(dict.fromkeys(ck["worlds"].astype(str)))
         doc.md += [f"Checkpoints acted: {ways}; worlds: {worlds}.", ""]
         if inp.compared:
             doc.md += [
@@ -1624,7 +1639,7 @@ def claims(doc: Document, inp: Inputs) -> None:
             ],
             "",
         ]
-    doc.md += rules.markdown(claim_verdicts(inp))
+    doc.md += rules.markdown(inp.verdicts)
     doc.md.append("")
 
 
