@@ -83,6 +83,12 @@ def _item(tp: Any) -> Any:
     return (typing.get_args(_optional(tp)[0]) or (Any,))[0]
 
 
+def _bracketed(text: str) -> bool:
+    """Whether ``text`` is written as a list, ``[...]``."""
+    text = text.strip()
+    return len(text) >= 2 and text[0] == "[" and text[-1] == "]"
+
+
 def _as_typed(text: str, value: Any) -> Any:
     """``value`` (what YAML read from ``text``) with every scalar as the text typed: ``[3_2,07]`` -> ``["3_2", "07"]``;
     null stays null."""
@@ -182,6 +188,12 @@ def read(schema: type[T], argv: Sequence[str], checks: bool = True) -> T:
         try:
             value = OmegaConf.to_container(OmegaConf.from_dotlist([f"v={text}"]))["v"]
         except yaml.YAMLError:
+            if key == top and _is_list(tp) and _is_text(_item(tp)) and _bracketed(text):
+                # a list of names YAML cannot read, such as shell patterns that begin with * (a YAML alias):
+                # its items are the comma-separated texts, as typed
+                value = [item.strip() for item in text.strip()[1:-1].split(",") if item.strip()]
+                OmegaConf.update(given, key, value, force_add=True)
+                continue
             if not (key == top and _is_text(tp)):
                 raise UsageError(
                     f"{key}={text}: not a valid value (lists are written [a,b]); expected {_expected(tp)}"
