@@ -108,6 +108,7 @@ def main(argv: list[str] | None = None) -> int:
             "protocol=paper_cpu plan=true",
             "protocol=paper_cpu jobs=2",
             "protocol=paper_cpu cells=[eval/ppo/curriculum/seed0/*]",
+            "protocol=paper_learned 'cells=[*/dqn/matched-1-1/seed1]'",
         ],
     )
     if cfg.redo and not cfg.cells:
