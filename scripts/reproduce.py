@@ -57,6 +57,13 @@ class ReproduceConfig:
         "start no new cell after this many minutes (running cells finish)",
         check=(lambda v: v > 0, "a positive number"),
     )
+    end_minutes: float | None = option(
+        None,
+        "every cell must end within this many minutes: a cell starts only while its estimated "
+        "CPU-minutes fit in the minutes left (for a machine that keeps no files after a session, "
+        "where a cell cut short starts over); the cells left are named, the same command continues",
+        check=(lambda v: v > 0, "a positive number"),
+    )
     retries: int = option(
         1,
         "times a failed cell is tried again in the same session (a training continues from "
@@ -164,6 +171,7 @@ def main(argv: list[str] | None = None) -> int:
         executor=cfg.executor,
         jobs=cfg.jobs,
         max_minutes=cfg.max_minutes,
+        end_minutes=cfg.end_minutes,
         redo=cfg.redo,
         retries=cfg.retries,
         progress=cfg.progress,

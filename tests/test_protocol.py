@@ -334,6 +334,30 @@ def test_max_minutes_starts_nothing_new(tmp_path):
     assert [status(c, lay, cells) for c in cells] == ["todo"] * 3
 
 
+def test_end_minutes_starts_only_cells_whose_estimate_fits_and_leaves_what_needs_them(tmp_path):
+    lay, cells = _fake(tmp_path)
+    messages = []
+    train, ev, rep = cells
+    train.minutes = 30.0  # more than the 20 minutes left: neither it nor the cells that need its model start
+    sched = Runner(load_protocol("smoke"), cells, lay, progress=False, echo=messages.append, end_minutes=20)
+    assert sched.run(cells) == 1
+    assert [status(c, lay, cells) for c in cells] == ["todo"] * 3
+    assert not lay.log("train/a").exists()
+    assert any(m.startswith("train/a: not started: its estimate (plan=true), 30 minutes") for m in messages), messages
+    assert "3 cell(s) not started (max_minutes, end_minutes); the same command continues" in messages
+    # the model is there (another session made it): the evaluation fits and runs; the report waits for train/a
+    train.final_model.parent.mkdir(parents=True)
+    train.final_model.write_text("m")
+    messages.clear()
+    assert sched.run(cells) == 1
+    assert [status(c, lay, cells) for c in cells] == ["partial", "done", "todo"]  # a model, no marker yet
+    assert "2 cell(s) not started (max_minutes, end_minutes); the same command continues" in messages
+    # time enough: every cell runs
+    train.minutes = 19.0
+    assert _scheduler(lay, cells, end_minutes=20).run([c for c in cells if status(c, lay, cells) != "done"]) == 0
+    assert [status(c, lay, cells) for c in cells] == ["done"] * 3
+
+
 def test_only_the_selected_cells_run(tmp_path, capsys):
     lay, cells = _fake(tmp_path)
     _scheduler(lay, cells).run(cells[:1])

@@ -447,6 +447,7 @@ class Runner:
         executor: str = "local",
         jobs: int = 1,
         max_minutes: float | None = None,
+        end_minutes: float | None = None,
         redo: bool = False,
         retries: int = 0,
         python: str = sys.executable,
@@ -463,6 +464,7 @@ class Runner:
         self.p, self.cells, self.lay, self.jobs, self.retries = p, list(cells), lay, jobs, retries
         self.selects = selects  # reproduce.py's protocol=, root=, out= as given: the report's commands repeat them
         self.max_minutes, self.redo, self.python, self.progress, self.echo = max_minutes, redo, python, progress, echo
+        self.end_minutes = end_minutes
         self.executor, self.ray_address, self.ray_retries = executor, ray_address, ray_retries
         self.submitit_cluster, self.slurm = submitit_cluster, dict(slurm or {})
 
@@ -487,6 +489,19 @@ class Runner:
             return None
         return False
 
+    def _left_for_later(self, cell: Cell, ready: bool | None, late: set[str], end: float | None) -> bool:
+        """Whether ``cell`` is left for the next session: a cell it needs was, or it could start but its estimate
+        does not fit in the minutes ``end_minutes`` leaves."""
+        if ready is False:
+            return any(n in late for n in cell.needs_cells)
+        if ready and end is not None and 60 * cell.minutes > end - time.time():
+            self.echo(
+                f"{cell.name}: not started: its estimate (plan=true), {cell.minutes:.0f} minutes, does not fit in the "
+                f"{max(end - time.time(), 0) / 60:.0f} minutes end_minutes={self.end_minutes:g} leaves"
+            )
+            return True
+        return False
+
     def run(self, todo: Sequence[Cell]) -> int:
         """Run ``todo`` (in its order, as their needs allow); returns 0 when every one finished, else 1."""
         selected = {c.name for c in todo}
@@ -499,6 +514,9 @@ class Runner:
         blocked: list[str] = []
         tries: dict[str, int] = {}
         deadline = None if self.max_minutes is None else time.time() + 60 * self.max_minutes
+        # end_minutes: every cell must end by then (a machine that keeps no files past a session: a cell cut short
+        # there would start over next time), so a cell starts only while its estimate fits in the minutes left
+        end = None if self.end_minutes is None else time.time() + 60 * self.end_minutes
         bar = None
         if self.progress:
             from tqdm import tqdm
@@ -513,7 +531,12 @@ class Runner:
                 free = None if engine.capacity is None else engine.capacity - len(running)
                 for cell in list(waiting):
                     ready = self._ready(cell, finished, failed, selected)
-                    if ready is None:
+                    if self._left_for_later(cell, ready, late, end):
+                        waiting.remove(cell)
+                        late.add(cell.name)
+                        if bar is not None:
+                            bar.update(1)
+                    elif ready is None:
                         waiting.remove(cell)
                         blocked.append(cell.name)
                         failed.add(cell.name)
@@ -599,5 +622,5 @@ class Runner:
                 + ", ".join(blocked)
             )
         if late:
-            self.echo(f"{len(late)} cell(s) not started (max_minutes); the same command continues")
+            self.echo(f"{len(late)} cell(s) not started (max_minutes, end_minutes); the same command continues")
         return 0 if len(finished) == len(selected) else 1
