@@ -127,6 +127,7 @@ def test_a_string_key_keeps_its_text_and_a_single_value_is_a_list():
     # shell patterns that begin with * are YAML aliases: a list of names still reads them as typed
     cells = cli.read(schema("reproduce"), ["cells=[*/ppo/matched-1-1/seed0, eval/dqn/*]"]).cells
     assert cells == ["*/ppo/matched-1-1/seed0", "eval/dqn/*"]
+    assert cli.read(schema("reproduce"), ["cells=*/dqn/*"]).cells == ["*/dqn/*"]  # one, as a single value is
     with pytest.raises(cli.UsageError, match=r"counts=\[\*1\]: not a valid value"):
         cli.read(schema("bench_env"), ["counts=[*1]"])  # a list of numbers is not read as text
 

@@ -188,11 +188,11 @@ def read(schema: type[T], argv: Sequence[str], checks: bool = True) -> T:
         try:
             value = OmegaConf.to_container(OmegaConf.from_dotlist([f"v={text}"]))["v"]
         except yaml.YAMLError:
-            if key == top and _is_list(tp) and _is_text(_item(tp)) and _bracketed(text):
+            if key == top and _is_list(tp) and _is_text(_item(tp)):
                 # a list of names YAML cannot read, such as shell patterns that begin with * (a YAML alias):
-                # its items are the comma-separated texts, as typed
-                value = [item.strip() for item in text.strip()[1:-1].split(",") if item.strip()]
-                OmegaConf.update(given, key, value, force_add=True)
+                # its items are the comma-separated texts, as typed ([a,b]), or the one text given
+                items = text.strip()[1:-1].split(",") if _bracketed(text) else [text]
+                OmegaConf.update(given, key, [i.strip() for i in items if i.strip()], force_add=True)
                 continue
             if not (key == top and _is_text(tp)):
                 raise UsageError(
