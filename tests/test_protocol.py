@@ -625,6 +625,10 @@ def test_a_root_inside_the_repository_keeps_models_and_logs_out_of_git(tmp_path)
         "record/.reproduce.lock",
         "record/done/train/ppo/curriculum/seed1.seconds",
         "record/runs/ppo/curriculum/.seed0.replaced-20261125-101010/eval.csv",
+        # DreamerV3's replay buffer on disk (gigabytes of pixels) and its open-loop prediction images
+        "record/runs/dreamer_xs/matched-1-1/seed0/replay/0-1-1/next/pixels.memmap",
+        "record/runs/dreamer_xs/matched-1-1/seed0/replay/0-1-1/meta.json",
+        "record/runs/dreamer_xs/matched-1-1/seed0/openloop/openloop-0-1-1-000032368.png",
     ]
     kept = [
         f"{run}/.hydra/config.yaml",
@@ -634,6 +638,7 @@ def test_a_root_inside_the_repository_keeps_models_and_logs_out_of_git(tmp_path)
         "record/evals/ppo/a/testbeds/episodes.csv",
         "record/evals/ppo/a/testbeds/summary.md",
         "record/done/train/ppo/curriculum/seed0.done",
+        "record/runs/dreamer_xs/matched-1-1/seed0/logs/scalars/train/replay_steps.csv",
     ]
     for path in ignored + kept:
         (repo / path).parent.mkdir(parents=True, exist_ok=True)

@@ -122,12 +122,14 @@ def arg(path: Path) -> str:
 #: done-markers, never its models, checkpoints, logs of text or per-evaluation figures (each report draws its own);
 #: ``runs/``, which the repository's own .gitignore leaves out everywhere, is taken back in
 GITIGNORE = """\
-# written by scripts/reproduce.py: commit the results, not the models, checkpoints, text logs or figures
+# written by scripts/reproduce.py: commit the results, not the models, checkpoints, replay buffers, text logs or figures
 !/runs/
 *.pt
 *.log
 /logs/
 /evals/**/*.png
+/runs/**/replay/
+/runs/**/openloop/
 .reproduce.lock
 *.seconds
 *.partial-*/
