@@ -75,3 +75,22 @@ def test_published_files_are_found():
 def test_no_page_names_a_path_of_the_machine_it_was_written_on(page):
     found = re.findall(r"(?<![\w.])/(?:work|root|tmp|home)/\S*", page.read_text())
     assert not found, found
+
+
+def claims_table(text: str) -> list[tuple[str, str]]:
+    """(claim, verdict) of each row of the first Markdown table that follows the header ``| claim | verdict |``."""
+    rows = text.split("| claim | verdict |", 1)[1].split("\n\n", 1)[0].splitlines()[2:]
+    return [tuple(cell.strip() for cell in row.strip("|").split(" | ")[:2]) for row in rows]
+
+
+def test_the_readme_gives_the_paper_learned_report_s_verdicts_cells_and_cpu_time():
+    """README's "Reproduce the paper" quotes paper_learned's report: the claims at a glance (claim and verdict, row
+    by row), the cells done of all, and the CPU-hours its done cells took; remaking the report without the README
+    fails here."""
+    readme = (ROOT / "README.md").read_text().split("## Reproduce the paper\n", 1)[1].split("\n## ", 1)[0]
+    report = (ROOT / "docs" / "results" / "paper-learned" / "report.md").read_text()
+    assert claims_table(readme) == claims_table(report)
+    assert [c for c, _ in claims_table(report)][0].startswith("(a)") and len(claims_table(report)) == 5
+    total, done = re.search(r"(\d+) cells, (\d+) of them done", report).groups()
+    hours = float(re.search(r"\| \*\*all\*\* \| \d+ \| \*\*([\d.]+)\*\*", report).group(1))
+    assert re.search(rf"\b{done} of {total} cells done, {hours:.1f} CPU-hours", readme), (done, total, hours)
