@@ -66,6 +66,7 @@ from evaaa.sim import Simulator, default_threads
 from evaaa.spec import load_level
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
+from evaaa_baselines.machine import processor
 
 torch.set_num_threads(1)
 
@@ -312,7 +313,7 @@ def measure_backends(args) -> dict:
         "frame": "64x64 RGB, every sense on",
         "warp_device": warp_device,
         "gpu": gpu,
-        "processor": _processor(),
+        "processor": processor(),
         "machine": f"{platform.machine()}, {os.cpu_count()} cores",
         "versions": {"mujoco_warp": _version("mujoco-warp"), "warp": _version("warp-lang"), "torch": torch.__version__},
         "kernel_cache": str(mjwarp.kernel_cache_dir()).replace(str(Path.home()), "~", 1),  # no machine path in the JSON
@@ -349,16 +350,6 @@ def measure_backends(args) -> dict:
                 print(f"{level:<8}{n:>8}{backend:>9}{rate:>14.0f}{made:>9.1f}{shares}", flush=True)
     return results
 
-
-def _processor() -> str:
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def _version(package: str) -> str | None:

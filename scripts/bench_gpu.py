@@ -41,6 +41,7 @@ import torch
 import evaaa
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
+from evaaa_baselines.machine import processor
 
 ROOT = Path(__file__).resolve().parents[1]
 VARIANTS = {
@@ -112,7 +113,7 @@ class Bench:
 def machine(device: torch.device) -> dict:
     info = {
         "device": str(device),
-        "cpu": cpu_name(),
+        "cpu": processor(),
         "cores": os.cpu_count(),
         "usable_cores": len(os.sched_getaffinity(0)),
         "python": platform.python_version(),
@@ -123,15 +124,6 @@ def machine(device: torch.device) -> dict:
         info["gpu_memory_gb"] = round(torch.cuda.get_device_properties(device).total_memory / 1e9, 1)
     return info
 
-
-def cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def sync(device: torch.device) -> None:

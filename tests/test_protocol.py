@@ -13,6 +13,7 @@ import yaml
 from helpers import load_script
 
 import evaaa
+from evaaa_baselines.machine import processor
 from evaaa_baselines.paper.cells import Cell, Command, Layout, build_cells, provenance, status
 from evaaa_baselines.paper.protocol import ProtocolError, load_protocol
 from evaaa_baselines.paper.running import Runner
@@ -268,6 +269,8 @@ def test_every_finished_cell_records_the_wall_time_it_took_and_the_plan_sums_the
     assert 0.5 <= markers["train/a"]["cpu_seconds"] < markers["train/a"]["seconds"] - 0.3  # CPU time: the work
     assert all(0 <= m["cpu_seconds"] <= m["seconds"] + 0.1 for m in markers.values())
     assert not list(lay.done.rglob("*.seconds"))  # the running account is folded into the marker
+    # and names the processor its CPU time was spent on (one here, so all of it)
+    assert markers["train/a"]["processors"] == {processor(): markers["train/a"]["cpu_seconds"]}
     plan = plan_text(load_protocol("smoke"), cells, lay, 1)
     assert re.search(rf"^train/a\s+done\s+1\.0\s+{markers['train/a']['cpu_seconds'] / 60:.1f}$", plan, re.M)
     total = sum(m["cpu_seconds"] for m in markers.values()) / 3600
@@ -408,6 +411,13 @@ def test_the_report_ends_with_the_commands_that_remake_it_and_the_time_its_cells
     assert row and float(row[1]) == round(marker["train/a"]["cpu_seconds"] / 3600, 2) and float(row[2]) == 0.02
     total = sum(m["cpu_seconds"] for m in marker.values()) / 3600
     assert f"| **all** | 2 | **{total:.2f}** | 0.03 |" in text
+    assert "The processors that ran them (CPU-hours; " in text and f"): {processor()} {total:.2f}." in text
+    # a marker from before processors were recorded counts as "not recorded"
+    old = json.loads(lay.marker("train/a").read_text())
+    lay.marker("train/a").write_text(json.dumps({k: v for k, v in old.items() if k != "processors"}))
+    joined = "\n".join(provenance(load_protocol("smoke"), cells, lay))
+    spent = marker["eval/a"]["cpu_seconds"] / 3600
+    assert f"): {processor()} {spent:.2f}; not recorded {old['cpu_seconds'] / 3600:.2f} (not recorded: " in joined
     # a done cell without a time (run before cells were timed) is named, with its estimate
     lay.marker("eval/a").write_text(json.dumps({"finished": "x", "seconds": None, "cpu_seconds": None}))
     lines = provenance(load_protocol("smoke"), cells, lay)

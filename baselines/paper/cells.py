@@ -99,14 +99,37 @@ class Layout:
         """Wall seconds a done cell's commands ran (its marker), or None where it was not timed."""
         return self.took(cell, "seconds")
 
+    def processors(self, cell: str) -> dict[str, float]:
+        """CPU seconds a done cell's commands took per processor that ran them (its marker); empty where that was
+        not recorded (cells finished before it was)."""
+        try:
+            spent = json.loads(self.marker(cell).read_text()).get("processors")
+        except (OSError, ValueError, AttributeError):
+            return {}
+        if not isinstance(spent, dict):
+            return {}
+        return {str(k): float(v) for k, v in spent.items() if isinstance(v, (int, float))}
 
-def read_clock(path: Path) -> dict[str, float]:
-    """A cell's running account (:meth:`Layout.clock`); zeros where there is none or it cannot be read."""
+
+def read_clock(path: Path) -> dict:
+    """A cell's running account (:meth:`Layout.clock`): wall and CPU seconds, and the CPU seconds per processor
+    (:func:`~evaaa_baselines.machine.processor`) that ran its commands; zeros where there is none or it cannot be
+    read."""
     try:
         account = json.loads(path.read_text())
-        return {k: float(account[k]) for k in ("seconds", "cpu_seconds")}
-    except (OSError, ValueError, KeyError, TypeError):
-        return {"seconds": 0.0, "cpu_seconds": 0.0}
+        out: dict = {k: float(account[k]) for k in ("seconds", "cpu_seconds")}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return {"seconds": 0.0, "cpu_seconds": 0.0, "processors": {}}
+    spent = account.get("processors")
+    out["processors"] = (
+        {str(k): float(v) for k, v in spent.items() if isinstance(v, (int, float))} if isinstance(spent, dict) else {}
+    )
+    return out
+
+
+def rounded(account: dict) -> dict:
+    """``account`` (:func:`read_clock`) with its seconds to hundredths, as the clock and the markers keep them."""
+    return {k: rounded(v) if isinstance(v, dict) else round(v, 2) for k, v in account.items()}
 
 
 def arg(path: Path) -> str:
@@ -677,6 +700,17 @@ def provenance(p: Protocol, cells: Sequence[Cell], lay: Layout, selects: str | N
         f"| **all** | {len(timed)} | **{spent:.2f}** | {sum(c.minutes for c in timed) / 60:.2f} | "
         f"{sum(wall[c.name] or 0.0 for c in timed) / 3600:.2f} |"
     )
+    spent_on: dict[str, float] = {}
+    for c in timed:
+        for name, seconds in (lay.processors(c.name) or {"not recorded": took[c.name] or 0.0}).items():
+            spent_on[name] = spent_on.get(name, 0.0) + seconds
+    lines += [
+        "",
+        "The processors that ran them (CPU-hours; a CPU-minute buys more env steps on a faster one, so a run's env "
+        "steps reached depend on where it ran): "
+        + "; ".join(f"{name} {seconds / 3600:.2f}" for name, seconds in sorted(spent_on.items(), key=lambda kv: (kv[0] == "not recorded", kv[0])))
+        + (" (not recorded: cells done before the runner recorded it)." if "not recorded" in spent_on else "."),
+    ]
     untimed = [c for c in done if took[c.name] is None]
     if untimed:
         lines += [

@@ -17,7 +17,18 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-from .cells import Cell, Command, Layout, cell_resources, command_now, provenance, read_clock, status
+from ..machine import processor
+from .cells import (
+    Cell,
+    Command,
+    Layout,
+    cell_resources,
+    command_now,
+    provenance,
+    read_clock,
+    rounded,
+    status,
+)
 from .protocol import CHECKPOINTS, REPO, Protocol, ProtocolError
 
 
@@ -195,8 +206,11 @@ def _run_command(cmd: Command, cell: Cell, lay: Layout, env: dict[str, str], tas
             path.parent.mkdir(parents=True, exist_ok=True)
             account = read_clock(path)
             account["seconds"] += time.monotonic() - began
-            account["cpu_seconds"] += usage.ru_utime + usage.ru_stime
-            path.write_text(json.dumps({k: round(v, 2) for k, v in account.items()}) + "\n")
+            cpu = usage.ru_utime + usage.ru_stime
+            account["cpu_seconds"] += cpu
+            here = processor()
+            account["processors"][here] = account["processors"].get(here, 0.0) + cpu
+            path.write_text(json.dumps(rounded(account)) + "\n")
             return proc.returncode
 
         try:
@@ -256,7 +270,7 @@ def _finish(task: CellTask, result: CellResult) -> None:
     if cell.kind == "train" and not cell.final_model.exists():  # type: ignore[union-attr]
         raise CellFailed(f"{cell.name}: train.py exited 0 but {cell.final_model} is missing; not marked done")
     clock = lay.clock(cell.name)
-    account = read_clock(clock) if clock.exists() else {"seconds": None, "cpu_seconds": None}
+    account = rounded(read_clock(clock)) if clock.exists() else {"seconds": None, "cpu_seconds": None}
     marker = lay.marker(cell.name)
     marker.parent.mkdir(parents=True, exist_ok=True)
     tmp = marker.with_name(f".{marker.name}.tmp")  # written whole or not at all: a lost worker leaves no half marker
