@@ -103,12 +103,9 @@ class Layout:
         """CPU seconds a done cell's commands took per processor that ran them (its marker); empty where that was
         not recorded (cells finished before it was)."""
         try:
-            spent = json.loads(self.marker(cell).read_text()).get("processors")
+            return _by_processor(json.loads(self.marker(cell).read_text()).get("processors"))
         except (OSError, ValueError, AttributeError):
             return {}
-        if not isinstance(spent, dict):
-            return {}
-        return {str(k): float(v) for k, v in spent.items() if isinstance(v, (int, float))}
 
 
 def read_clock(path: Path) -> dict:
@@ -120,11 +117,15 @@ def read_clock(path: Path) -> dict:
         out: dict = {k: float(account[k]) for k in ("seconds", "cpu_seconds")}
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return {"seconds": 0.0, "cpu_seconds": 0.0, "processors": {}}
-    spent = account.get("processors")
-    out["processors"] = (
-        {str(k): float(v) for k, v in spent.items() if isinstance(v, (int, float))} if isinstance(spent, dict) else {}
-    )
+    out["processors"] = _by_processor(account.get("processors"))
     return out
+
+
+def _by_processor(spent: object) -> dict[str, float]:
+    """A marker's or clock's ``processors`` (name: CPU seconds) as read from JSON; empty where it is not one."""
+    if not isinstance(spent, dict):
+        return {}
+    return {str(k): float(v) for k, v in spent.items() if isinstance(v, (int, float))}
 
 
 def rounded(account: dict) -> dict:
@@ -702,14 +703,18 @@ def provenance(p: Protocol, cells: Sequence[Cell], lay: Layout, selects: str | N
     )
     spent_on: dict[str, float] = {}
     for c in timed:
-        for name, seconds in (lay.processors(c.name) or {"not recorded": took[c.name] or 0.0}).items():
+        for name, seconds in lay.processors(c.name).items():
             spent_on[name] = spent_on.get(name, 0.0) + seconds
+    unknown = sum(took[c.name] or 0.0 for c in timed if not lay.processors(c.name))
+    parts = [f"{name} {seconds / 3600:.2f}" for name, seconds in sorted(spent_on.items())]
+    if unknown:
+        parts.append(f"not recorded {unknown / 3600:.2f}")
     lines += [
         "",
         "The processors that ran them (CPU-hours; a CPU-minute buys more env steps on a faster one, so a run's env "
         "steps reached depend on where it ran): "
-        + "; ".join(f"{name} {seconds / 3600:.2f}" for name, seconds in sorted(spent_on.items(), key=lambda kv: (kv[0] == "not recorded", kv[0])))
-        + (" (not recorded: cells done before the runner recorded it)." if "not recorded" in spent_on else "."),
+        + "; ".join(parts)
+        + (" (not recorded: cells done before the runner recorded it)." if unknown else "."),
     ]
     untimed = [c for c in done if took[c.name] is None]
     if untimed:
