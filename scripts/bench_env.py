@@ -351,7 +351,6 @@ def measure_backends(args) -> dict:
     return results
 
 
-
 def _version(package: str) -> str | None:
     from importlib.metadata import PackageNotFoundError, version
 

@@ -125,7 +125,6 @@ def machine(device: torch.device) -> dict:
     return info
 
 
-
 def sync(device: torch.device) -> None:
     if device.type == "cuda":
         torch.cuda.synchronize(device)
