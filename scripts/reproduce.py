@@ -61,7 +61,8 @@ class ReproduceConfig:
         None,
         "every cell must end within this many minutes: a cell starts only while its estimated "
         "CPU-minutes fit in the minutes left (for a machine that keeps no files after a session, "
-        "where a cell cut short starts over); the cells left are named, the same command continues",
+        "where a cell cut short starts over; a training with a checkpoint counts its estimate less the "
+        "CPU-minutes it has run); the cells left are named, the same command continues",
         check=(lambda v: v > 0, "a positive number"),
     )
     retries: int = option(

@@ -5,6 +5,7 @@ not done; a tiny real protocol runs end to end into a report and a second run do
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 
@@ -359,6 +360,33 @@ def test_end_minutes_starts_only_cells_whose_estimate_fits_and_leaves_what_needs
     train.minutes = 19.0
     assert _scheduler(lay, cells, end_minutes=20).run([c for c in cells if status(c, lay, cells) != "done"]) == 0
     assert [status(c, lay, cells) for c in cells] == ["done"] * 3
+
+
+def test_end_minutes_counts_the_cpu_minutes_a_training_with_a_checkpoint_has_run(tmp_path):
+    lay, cells = _fake(tmp_path)
+    train = cells[0]
+    train.minutes = 30.0
+    messages = []
+    sched = Runner(load_protocol("smoke"), cells, lay, progress=False, echo=messages.append, end_minutes=20)
+    clock = lay.clock("train/a")
+    clock.parent.mkdir(parents=True, exist_ok=True)
+    clock.write_text(json.dumps({"seconds": 600.0, "cpu_seconds": 300.0}))
+    # an account but no checkpoint (cut short before its first): it would start over, so the whole estimate counts
+    assert sched.run([train]) == 1
+    assert any(
+        m.startswith("train/a: not started: its estimate (plan=true), 30 minutes, does not fit") for m in messages
+    )
+    # with its checkpoint, 5 CPU-minutes run: 25 left, still more than 20
+    train.run_dir.mkdir(parents=True)
+    (train.run_dir / "checkpoint.pt").write_text("c")
+    messages.clear()
+    assert sched.run([train]) == 1
+    assert any("30 minutes, less the 5 CPU-minutes it has run, 25 left, does not fit" in m for m in messages), messages
+    # 15 CPU-minutes run: 15 left, it fits and runs, and its marker counts every session's CPU time
+    clock.write_text(json.dumps({"seconds": 1800.0, "cpu_seconds": 900.0}))
+    assert sched.run([train]) == 0
+    assert status(train, lay, cells) == "done"
+    assert lay.took("train/a") > 900.0
 
 
 def test_only_the_selected_cells_run(tmp_path, capsys):
