@@ -15,7 +15,7 @@ from helpers import load_script
 
 import evaaa
 from evaaa_baselines.machine import processor
-from evaaa_baselines.paper.cells import Cell, Command, Layout, build_cells, provenance, status
+from evaaa_baselines.paper.cells import Cell, Command, Layout, build_cells, plan_text, provenance, status
 from evaaa_baselines.paper.protocol import ProtocolError, load_protocol
 from evaaa_baselines.paper.running import Runner
 
@@ -253,8 +253,6 @@ def test_an_evaluation_runs_as_soon_as_its_model_exists_before_later_trainings(t
 def test_every_finished_cell_records_the_wall_time_it_took_and_the_plan_sums_them(tmp_path):
     import json
 
-    from evaaa_baselines.paper.cells import plan_text
-
     lay, cells = _fake(tmp_path)
     train = cells[0]
     # half a second of work, then half a second asleep, then the model
@@ -382,6 +380,7 @@ def test_end_minutes_counts_the_cpu_minutes_a_training_with_a_checkpoint_has_run
     messages.clear()
     assert sched.run([train]) == 1
     assert any("30 minutes, less the 5 CPU-minutes it has run, 25 left, does not fit" in m for m in messages), messages
+    assert "0.45 h left, less what started trainings have run" in plan_text(load_protocol("smoke"), cells, lay, 1)
     # 15 CPU-minutes run: 15 left, it fits and runs, and its marker counts every session's CPU time
     clock.write_text(json.dumps({"seconds": 1800.0, "cpu_seconds": 900.0}))
     assert sched.run([train]) == 0

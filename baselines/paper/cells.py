@@ -544,6 +544,16 @@ def budget(cells: Sequence[Cell]) -> dict[str, float]:
     return lines
 
 
+def minutes_left(cell: Cell, lay: Layout) -> tuple[float, float]:
+    """``cell``'s estimate less the CPU-minutes its account holds, and those minutes: a training that has a checkpoint
+    continues from it (a run cut short in an earlier session, where this machine kept its files); any other cell
+    counts in full."""
+    if cell.kind != "train" or cell.run_dir is None or not (cell.run_dir / CHECKPOINTS[0]).exists():
+        return cell.minutes, 0.0
+    spent = read_clock(lay.clock(cell.name))["cpu_seconds"] / 60
+    return max(cell.minutes - spent, 0.0), spent
+
+
 def plan_text(p: Protocol, cells: Sequence[Cell], lay: Layout, threads: int) -> str:
     """The plan: every cell with its status and estimate, the budget split, the totals, each cell's command."""
     states = {c.name: status(c, lay, cells) for c in cells}
@@ -562,7 +572,7 @@ def plan_text(p: Protocol, cells: Sequence[Cell], lay: Layout, threads: int) -> 
             f"{'' if t is None else f'{t / 60:8.1f}'}".rstrip()
         )
     total = sum(c.minutes for c in cells)
-    left = sum(c.minutes for c in cells if states[c.name] != "done")
+    left = sum(minutes_left(c, lay)[0] for c in cells if states[c.name] != "done")
     counts = {s: sum(1 for v in states.values() if v == s) for s in ("done", "partial", "todo")}
     lines += [
         "",
@@ -586,7 +596,8 @@ def plan_text(p: Protocol, cells: Sequence[Cell], lay: Layout, threads: int) -> 
         lines.append(f"  {g:<12}" + " " * 12 * len(parts) + f"{split[g] / 60:12.2f}")
     lines.append(
         f"  {'total':<12}" + " " * 12 * len(parts) + f"{total / 60:12.2f}  ({len(cells)} cells: "
-        f"{counts['done']} done, {counts['partial']} partial, {counts['todo']} todo; {left / 60:.2f} h left)"
+        f"{counts['done']} done, {counts['partial']} partial, {counts['todo']} todo; {left / 60:.2f} h left, "
+        "less what started trainings have run)"
     )
     timed = [c for c in cells if took[c.name] is not None]
     if timed:

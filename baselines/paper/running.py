@@ -24,6 +24,7 @@ from .cells import (
     Layout,
     cell_resources,
     command_now,
+    minutes_left,
     provenance,
     read_clock,
     rounded,
@@ -503,23 +504,14 @@ class Runner:
             return None
         return False
 
-    def _minutes_left(self, cell: Cell) -> tuple[float, float]:
-        """``cell``'s estimate less the CPU-minutes its account holds, and those minutes: a training that has a
-        checkpoint continues from it (a run cut short in an earlier session, where this machine kept its files);
-        any other cell counts in full."""
-        if cell.kind != "train" or cell.run_dir is None or not (cell.run_dir / CHECKPOINTS[0]).exists():
-            return cell.minutes, 0.0
-        spent = read_clock(self.lay.clock(cell.name))["cpu_seconds"] / 60
-        return max(cell.minutes - spent, 0.0), spent
-
     def _left_for_later(self, cell: Cell, ready: bool | None, late: set[str], end: float | None) -> bool:
         """Whether ``cell`` is left for the next session: a cell it needs was, or it could start but its estimate
-        (less what it has run already, :meth:`_minutes_left`) does not fit in the minutes ``end_minutes`` leaves."""
+        (less what it has run already, :func:`minutes_left`) does not fit in the minutes ``end_minutes`` leaves."""
         if ready is False:
             return any(n in late for n in cell.needs_cells)
         if not ready or end is None:
             return False
-        left, spent = self._minutes_left(cell)
+        left, spent = minutes_left(cell, self.lay)
         if 60 * left > end - time.time():
             ran = f" less the {spent:.0f} CPU-minutes it has run, {left:.0f} left," if spent else ""
             self.echo(
