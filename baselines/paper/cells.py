@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 import shlex
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cache
@@ -712,11 +713,9 @@ def provenance(p: Protocol, cells: Sequence[Cell], lay: Layout, selects: str | N
         f"| **all** | {len(timed)} | **{spent:.2f}** | {sum(c.minutes for c in timed) / 60:.2f} | "
         f"{sum(wall[c.name] or 0.0 for c in timed) / 3600:.2f} |"
     )
-    spent_on: dict[str, float] = {}
-    for c in timed:
-        for name, seconds in lay.processors(c.name).items():
-            spent_on[name] = spent_on.get(name, 0.0) + seconds
-    unknown = sum(took[c.name] or 0.0 for c in timed if not lay.processors(c.name))
+    by_cell = {c.name: lay.processors(c.name) for c in timed}
+    spent_on: Counter[str] = sum((Counter(v) for v in by_cell.values()), Counter())
+    unknown = sum(took[n] or 0.0 for n, v in by_cell.items() if not v)
     parts = [f"{name} {seconds / 3600:.2f}" for name, seconds in sorted(spent_on.items())]
     if unknown:
         parts.append(f"not recorded {unknown / 3600:.2f}")
