@@ -347,6 +347,12 @@ def test_end_minutes_starts_only_cells_whose_estimate_fits_and_leaves_what_needs
     assert not lay.log("train/a").exists()
     assert any(m.startswith("train/a: not started: its estimate (plan=true), 30 minutes") for m in messages), messages
     assert "3 cell(s) not started (max_minutes, end_minutes); the same command continues" in messages
+    # an estimate just over the minutes left reads in tenths, not "20 minutes does not fit in the 20 minutes"
+    train.minutes = 20.3
+    messages.clear()
+    assert sched.run(cells) == 1
+    assert any("20.3 minutes, does not fit in the 20.0 minutes end_minutes=20 leaves" in m for m in messages), messages
+    train.minutes = 30.0
     # the model is there (another session made it): the evaluation fits and runs; the report waits for train/a
     train.final_model.parent.mkdir(parents=True)
     train.final_model.write_text("m")

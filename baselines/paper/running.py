@@ -513,10 +513,14 @@ class Runner:
             return False
         left, spent = minutes_left(cell, self.lay)
         if 60 * left > end - time.time():
-            ran = f" less the {spent:.0f} CPU-minutes it has run, {left:.0f} left," if spent else ""
+            now = max(end - time.time(), 0) / 60
+            # whole minutes, or tenths where whole ones would read equal ("58 does not fit in the 58")
+            d = 1 if round(left) == round(now) else 0
+            need = f"{cell.minutes:.{d if not spent else 0}f} minutes,"
+            ran = f" less the {spent:.0f} CPU-minutes it has run, {left:.{d}f} left," if spent else ""
             self.echo(
-                f"{cell.name}: not started: its estimate (plan=true), {cell.minutes:.0f} minutes,{ran} does not fit "
-                f"in the {max(end - time.time(), 0) / 60:.0f} minutes end_minutes={self.end_minutes:g} leaves"
+                f"{cell.name}: not started: its estimate (plan=true), {need}{ran} does not fit "
+                f"in the {now:.{d}f} minutes end_minutes={self.end_minutes:g} leaves"
             )
             return True
         return False
