@@ -89,9 +89,9 @@ def test_fuzzed_levels_are_refused_by_name_or_run_finite():
 
 @pytest.mark.slow
 def test_fuzzed_levels_with_every_modality():
-    failures, refused, ran = _fuzz(range(300, 2300), all_modalities=True)
-    assert not failures, f"{len(failures)} of 2000 cases failed:\n" + "\n".join(failures)
-    assert refused >= 500 and ran >= 300, (refused, ran)
+    failures, refused, ran = _fuzz(range(300, 1300), all_modalities=True)
+    assert not failures, f"{len(failures)} of 1000 cases failed:\n" + "\n".join(failures)
+    assert refused >= 250 and ran >= 150, (refused, ran)
 
 
 # ------------------------------------------------------------------------------------------------ hostile files
