@@ -352,6 +352,13 @@ def test_end_minutes_starts_only_cells_whose_estimate_fits_and_leaves_what_needs
     messages.clear()
     assert sched.run(cells) == 1
     assert any("20.3 minutes, does not fit in the 20.0 minutes end_minutes=20 leaves" in m for m in messages), messages
+    # and in hundredths where tenths would ("23.7 left, does not fit in the 23.7 minutes")
+    train.minutes = 20.03
+    messages.clear()
+    assert sched.run(cells) == 1
+    assert any(re.search(r"20\.03 minutes, does not fit in the (20\.00|19\.9\d) minutes", m) for m in messages), (
+        messages
+    )
     train.minutes = 30.0
     # the model is there (another session made it): the evaluation fits and runs; the report waits for train/a
     train.final_model.parent.mkdir(parents=True)

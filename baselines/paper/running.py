@@ -514,8 +514,8 @@ class Runner:
         left, spent = minutes_left(cell, self.lay)
         if 60 * left > end - time.time():
             now = max(end - time.time(), 0) / 60
-            # whole minutes, or tenths where whole ones would read equal ("58 does not fit in the 58")
-            d = 1 if round(left) == round(now) else 0
+            # whole minutes, or as many decimals as it takes for the two not to read equal ("58 does not fit in the 58")
+            d = next((d for d in range(3) if f"{left:.{d}f}" != f"{now:.{d}f}"), 3)
             need = f"{cell.minutes:.{d if not spent else 0}f} minutes,"
             ran = f" less the {spent:.0f} CPU-minutes it has run, {left:.{d}f} left," if spent else ""
             self.echo(
