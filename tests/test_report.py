@@ -1262,6 +1262,24 @@ def test_what_they_learned_counts_levels_per_acting_mode(tmp_path):
     ) in top
 
 
+def test_what_they_learned_shows_a_few_cubes_in_many_episodes_as_more_than_none(tmp_path):
+    # one cube in twelve episodes is more than the references' none: the line must not print it as "0.0"
+    sim = Sim(tmp_path / "runs")
+    rows = []
+    for seed in (0, 1, 2):
+        run = sim.run("ppo", seed, level="1-1", finish=1)
+        rows += [
+            r | {"acting": "sample", "worlds": "test", "steps": 1500, "food_eaten": int(seed == 1 and i == 0)}
+            for i, r in enumerate(sim.evaluate(str(run / "model-0-1-1.pt"), "1-1", 4))
+        ]
+    rows += [r | {"worlds": "test", "steps": 1112} for r in sim.evaluate("still", "1-1", 5)]
+    rows += [r | {"worlds": "test", "steps": 300} for r in sim.evaluate("random", "1-1", 5)]
+    append_rows(tmp_path / "eval" / "episodes.csv", rows)
+    text = build_report([tmp_path / "runs"], [tmp_path / "eval"], tmp_path / "out", compare="sample").markdown
+    top = text.read_text().split("\n\n")[1]
+    assert "ate more food and water per episode than random and stand-still on 1 of 1 levels (1-1: 0.083)" in top
+
+
 def test_curriculum_and_direct_are_shown_with_the_env_steps_each_has_seen(world, tmp_path):
     section = world["text"][world["text"].index("## With and without curriculum") :]
     section = section[: section.index("\n## ")]

@@ -872,6 +872,11 @@ def learned_table(inp: Inputs) -> pd.DataFrame:
     return table.assign(vs_reference=vs, learned=learned, eats_more=eats_more, lives_longer=lives_longer)
 
 
+def _cubes(per_episode: float) -> str:
+    """Cubes eaten per episode: one decimal, or two significant digits under one (1 cube in 30 episodes: 0.033)."""
+    return f"{per_episode:.1f}" if per_episode >= 1 else f"{per_episode:.2g}"
+
+
 def learned_paragraph(inp: Inputs) -> str:
     """The report's first block: what the agents learned, from :func:`learned_table` (agents trained with every
     sense, grouped by algorithm and curriculum or direct) — a paragraph, then one line per agent."""
@@ -919,7 +924,11 @@ def learned_paragraph(inp: Inputs) -> str:
         lives = part[part["lives_longer"]]
         sentences.append(
             f"{key} ate more food and water per episode than {than} on {len(eats)} of {len(part)} levels"
-            + (f" ({', '.join(f'{r.level}: {r.food + r.water:.1f}' for r in eats.itertuples())})" if len(eats) else "")
+            + (
+                f" ({', '.join(f'{r.level}: {_cubes(r.food + r.water)}' for r in eats.itertuples())})"
+                if len(eats)
+                else ""
+            )
             + f" and survived longer than {'the better of ' if ' and ' in than else ''}{than} on "
             f"{len(lives)} of {len(part)}"
         )
