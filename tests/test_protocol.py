@@ -373,6 +373,28 @@ def test_end_minutes_starts_only_cells_whose_estimate_fits_and_leaves_what_needs
     assert [status(c, lay, cells) for c in cells] == ["done"] * 3
 
 
+def test_end_minutes_says_when_a_cell_stopped_fitting_while_it_waited_for_a_slot(tmp_path):
+    # one slot: b is ready at once and fits (2.4 s of the 3 s left) but a holds the slot for 1.5 s; b is left when its
+    # estimate stops fitting, and the line says it waited (not "2.4 minutes does not fit in the 2.4 minutes")
+    lay, (train_a, _, _) = _fake(tmp_path / "a")
+    _, (train_b, _, _) = _fake(tmp_path / "b")
+    train_b.name = "train/b"
+    train_a.minutes, train_b.minutes = 0.01, 0.04
+    train_a.commands = [
+        Command([*c.argv[:-1], "import time; time.sleep(1.5); " + c.argv[-1]]) for c in train_a.commands
+    ]
+    messages = []
+    sched = Runner(
+        load_protocol("smoke"), [train_a, train_b], lay, progress=False, echo=messages.append, jobs=1, end_minutes=0.05
+    )
+    assert sched.run([train_a, train_b]) == 1
+    assert status(train_a, lay) == "done" and status(train_b, lay) == "todo"
+    assert (
+        "train/b: not started: it waited for a free slot (jobs=1) until its estimate (plan=true), 0.04 minutes, "
+        "no longer fit in the minutes end_minutes=0.05 leaves"
+    ) in messages, messages
+
+
 def test_end_minutes_counts_the_cpu_minutes_a_training_with_a_checkpoint_has_run(tmp_path):
     lay, cells = _fake(tmp_path)
     train = cells[0]

@@ -504,9 +504,13 @@ class Runner:
             return None
         return False
 
-    def _left_for_later(self, cell: Cell, ready: bool | None, late: set[str], end: float | None) -> bool:
+    def _left_for_later(
+        self, cell: Cell, ready: bool | None, late: set[str], end: float | None, waited: int | None = None
+    ) -> bool:
         """Whether ``cell`` is left for the next session: a cell it needs was, or it could start but its estimate
-        (less what it has run already, :func:`minutes_left`) does not fit in the minutes ``end_minutes`` leaves."""
+        (less what it has run already, :func:`minutes_left`) does not fit in the minutes ``end_minutes`` leaves.
+        ``waited``: the number of slots, when the cell was ready while every one was taken: it stopped fitting while
+        it waited, so the two numbers would read equal, and the message says that instead."""
         if ready is False:
             return any(n in late for n in cell.needs_cells)
         if not ready or end is None:
@@ -514,6 +518,14 @@ class Runner:
         left, spent = minutes_left(cell, self.lay)
         if 60 * left > end - time.time():
             now = max(end - time.time(), 0) / 60
+            if waited:
+                ran = f", less the {spent:.0f} CPU-minutes it has run ({left:.3g} left)," if spent else ","
+                self.echo(
+                    f"{cell.name}: not started: it waited for a free slot (jobs={waited}) until its estimate "
+                    f"(plan=true), {cell.minutes:.3g} minutes{ran} no longer fit in the minutes "
+                    f"end_minutes={self.end_minutes:g} leaves"
+                )
+                return True
             # whole minutes, or as many decimals as it takes for the two not to read equal ("58 does not fit in the 58")
             d = next((d for d in range(3) if f"{left:.{d}f}" != f"{now:.{d}f}"), 3)
             need = f"{cell.minutes:.{d if not spent else 0}f} minutes,"
@@ -534,6 +546,7 @@ class Runner:
         finished: set[str] = set()
         failed: set[str] = set()
         late: set[str] = set()
+        queued: set[str] = set()
         blocked: list[str] = []
         tries: dict[str, int] = {}
         deadline = None if self.max_minutes is None else time.time() + 60 * self.max_minutes
@@ -554,7 +567,7 @@ class Runner:
                 free = None if engine.capacity is None else engine.capacity - len(running)
                 for cell in list(waiting):
                     ready = self._ready(cell, finished, failed, selected)
-                    if self._left_for_later(cell, ready, late, end):
+                    if self._left_for_later(cell, ready, late, end, engine.capacity if cell.name in queued else None):
                         waiting.remove(cell)
                         late.add(cell.name)
                         if bar is not None:
@@ -565,7 +578,9 @@ class Runner:
                         failed.add(cell.name)
                         if bar is not None:
                             bar.update(1)
-                    elif ready and (free is None or len(release) < free):
+                    elif ready and free is not None and len(release) >= free:
+                        queued.add(cell.name)  # ready, every slot taken
+                    elif ready:
                         waiting.remove(cell)
                         # a retry continues what the first try began
                         release.append(
