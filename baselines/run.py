@@ -501,7 +501,10 @@ class Run:
             cpu_left = max(60.0 * cpu_limit - self.seconds_spent()[1], 0.0)
             wall_left = cpu_left * elapsed / session_cpu
             if wall_left < left:
-                reach = self.steps + (self.steps - self._session[1]) / session_cpu * cpu_left
+                # at the estimate's own cost per env step for the rest of the budget (acting and the gradient steps
+                # it owes), not this session's env steps per CPU second so far: DreamerV3's first 16 k env steps
+                # are a prefill without gradient steps, ten times faster than what follows
+                reach = self.steps + (self.trained_steps - self.steps) * wall_left / left
                 capped += (
                     f"; max_cpu_minutes={cpu_limit:g} ends it sooner: in {_about(wall_left)}, near "
                     f"{reach:,.0f} env steps"

@@ -858,6 +858,31 @@ def test_a_compute_bound_run_states_its_cpu_budget_and_when_it_ends(caplog, monk
     assert line.endswith(f"; max_cpu_minutes=1 ends it sooner: in {run_loop._about(100.0)}, near 1,200 env steps")
 
 
+def test_a_compute_bound_run_with_a_prefill_says_how_far_its_gradient_steps_let_it_reach(caplog, monkeypatch):
+    # DreamerV3's shape: 1,000 env steps of prefill without gradient steps (0.01 s each), then one gradient step of
+    # 1 s owed per 10 env steps: 0.11 s an env step from there on. Half a core; 60 CPU seconds in all
+    now = [0.0]
+    monkeypatch.setattr(run_loop.time, "perf_counter", lambda: now[0])
+    monkeypatch.setattr(run_loop.time, "process_time", lambda: now[0] / 2)
+    run = run_loop.Run.__new__(run_loop.Run)
+    run.cfg = debug_cfg("ppo", "max_cpu_minutes=1", total_steps=COMPUTE_BOUND_STEPS)
+    run.stage = Stage(0, "1-1", COMPUTE_BOUND_STEPS)
+    run.iteration, run.updates = (1, "test"), 0
+    run.planned_updates = lambda steps: max(steps // 10 - 100, 0)
+    run.counters, run._estimated, run._session = {"steps": 0}, False, (0.0, 0)
+    run._clock_start = (0.0, 0.0)
+    run.meter = Progress(1e12, 0, now=0.0)  # a window this long keeps the sums undecayed: exact rates
+    with caplog.at_level(logging.INFO, logger="evaaa_baselines.run"):
+        for t, steps, updates in ((10, 1000, 0), (21, 1100, 10)):
+            now[0], run.counters["steps"], run.updates = float(t), steps, updates
+            run.meter.add(steps, updates - run.meter.sums["updates"], float(updates), now=float(t))
+            run._estimate()
+    (line,) = [r.getMessage() for r in caplog.records if "time estimate" in r.getMessage()]
+    # 49.5 CPU seconds left at t=21 s: 99 s of wall time, 900 env steps at 0.11 s each (the session's 105 env
+    # steps per CPU second, prefill included, would say 6,286)
+    assert line.endswith(f"ends it sooner: in {run_loop._about(99.0)}, near 2,000 env steps"), line
+
+
 def test_two_ctrl_c_inside_one_long_call_still_stop_the_run_at_once(tmp_path, monkeypatch, capsys):
     # Python runs a signal handler only between bytecodes, and two SIGINTs inside one long C call (a gradient step's
     # backward pass) reach it as one call: the watcher thread counts them as they arrive. The long call here is
