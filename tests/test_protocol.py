@@ -465,7 +465,7 @@ def test_the_report_ends_with_the_commands_that_remake_it_and_the_time_its_cells
     assert _scheduler(lay, cells, selects="protocol=smoke root=/some/where").run(cells) == 0
     text = (tmp_path / "report" / "report.md").read_text()
     assert text.startswith("r\n## How this report was made")  # appended to what report.py wrote
-    assert "3 cells, 2 of them done (the report not counted)" in text
+    assert "2 cells besides the report, 2 of them done when this report was made" in text
     assert "python scripts/reproduce.py protocol=smoke root=/some/where plan=true" in text
     assert 'python scripts/reproduce.py protocol=smoke root=/some/where "cells=[train/a]" redo=true' in text
     marker = {c.name: json.loads(lay.marker(c.name).read_text()) for c in cells[:2]}

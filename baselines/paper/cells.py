@@ -682,7 +682,8 @@ def provenance(p: Protocol, cells: Sequence[Cell], lay: Layout, selects: str | N
         "",
         f"The protocol `{p.name}`: S = {p.stage_steps:,} env steps per stage (curriculum "
         f"stage and direct run), seeds {', '.join(map(str, p.seeds))}, checkpoints act {acting_text(p.evaluation)}; "
-        f"{len(cells)} cells, {len(done)} of them done (the report not counted) when this report was made. From "
+        f"{sum(c.kind != 'report' for c in cells)} cells besides the report, {len(done)} of them done when this "
+        "report was made. From "
         "the repository root:",
         "",
         "```bash",
