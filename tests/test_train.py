@@ -833,18 +833,24 @@ def test_the_time_estimate_comes_from_the_run_s_own_speed(caplog, monkeypatch):
     ]
 
 
-def test_a_compute_bound_run_states_its_cpu_budget_and_when_it_ends(caplog, monkeypatch):
-    # half a core: 10 env steps per wall second, 20 per CPU second; 60 CPU seconds in all, 10 spent at t=20 s
-    now = [0.0]
+def _estimating_run(monkeypatch, now: list[float], *overrides: str, budget: int, iteration: int = 100):
+    """A Run with only what its time estimate reads (no worlds, no networks), on a clock the test sets through
+    ``now``: its CPU clock runs at half the wall clock's rate (half a core)."""
     monkeypatch.setattr(run_loop.time, "perf_counter", lambda: now[0])
     monkeypatch.setattr(run_loop.time, "process_time", lambda: now[0] / 2)
     run = run_loop.Run.__new__(run_loop.Run)
-    run.cfg = debug_cfg("ppo", "max_cpu_minutes=1", total_steps=COMPUTE_BOUND_STEPS)
-    run.stage = Stage(0, "1-1", COMPUTE_BOUND_STEPS)
-    run.iteration, run.updates, run.planned_updates = (100, "test"), 0, None
+    run.cfg, run.stage = debug_cfg("ppo", *overrides, total_steps=budget), Stage(0, "1-1", budget)
+    run.iteration, run.updates, run.planned_updates = (iteration, "test"), 0, None
     run.counters, run._estimated, run._session = {"steps": 0}, False, (0.0, 0)
     run._clock_start = (0.0, 0.0)
     run.meter = Progress(60, 0, now=0.0)
+    return run
+
+
+def test_a_compute_bound_run_states_its_cpu_budget_and_when_it_ends(caplog, monkeypatch):
+    # half a core: 10 env steps per wall second, 20 per CPU second; 60 CPU seconds in all, 10 spent at t=20 s
+    now = [0.0]
+    run = _estimating_run(monkeypatch, now, "max_cpu_minutes=1", budget=COMPUTE_BOUND_STEPS)
     assert run.budget_text() == (
         f"1 CPU-minutes (max_cpu_minutes; the budget of {COMPUTE_BOUND_STEPS:,} env steps is out of reach)"
     )
@@ -862,15 +868,8 @@ def test_a_compute_bound_run_with_a_prefill_says_how_far_its_gradient_steps_let_
     # DreamerV3's shape: 1,000 env steps of prefill without gradient steps (0.01 s each), then one gradient step of
     # 1 s owed per 10 env steps: 0.11 s an env step from there on. Half a core; 60 CPU seconds in all
     now = [0.0]
-    monkeypatch.setattr(run_loop.time, "perf_counter", lambda: now[0])
-    monkeypatch.setattr(run_loop.time, "process_time", lambda: now[0] / 2)
-    run = run_loop.Run.__new__(run_loop.Run)
-    run.cfg = debug_cfg("ppo", "max_cpu_minutes=1", total_steps=COMPUTE_BOUND_STEPS)
-    run.stage = Stage(0, "1-1", COMPUTE_BOUND_STEPS)
-    run.iteration, run.updates = (1, "test"), 0
+    run = _estimating_run(monkeypatch, now, "max_cpu_minutes=1", budget=COMPUTE_BOUND_STEPS, iteration=1)
     run.planned_updates = lambda steps: max(steps // 10 - 100, 0)
-    run.counters, run._estimated, run._session = {"steps": 0}, False, (0.0, 0)
-    run._clock_start = (0.0, 0.0)
     run.meter = Progress(1e12, 0, now=0.0)  # a window this long keeps the sums undecayed: exact rates
     with caplog.at_level(logging.INFO, logger="evaaa_baselines.run"):
         for t, steps, updates in ((10, 1000, 0), (21, 1100, 10)):
