@@ -102,7 +102,8 @@ def train(run: Run) -> None:
         storage._storage = storage._storage.to(run.device)
     while not run.done:
         transition, td = run.step(policy, td)
-        buffer.extend(transition.select(*stored))
+        with run.timed("replay"):
+            buffer.extend(transition.select(*stored))
         if len(buffer) < cfg.learning_starts:
             run.set_phase("prefill")
             run.end_iteration(td)
@@ -110,16 +111,20 @@ def train(run: Run) -> None:
         run.set_phase(None)
         began = time.perf_counter()
         for _ in range(cfg.updates_per_step):
-            with run.autocast():
-                losses = loss_fn(buffer.sample())
-            optimizer.zero_grad(set_to_none=True)
-            losses["loss"].backward()
-            nn.utils.clip_grad_value_(loss_fn.parameters(), cfg.grad_clip_value)
-            optimizer.step()
-            explore.step()
-            counters["updates"] += 1
-            if counters["updates"] % cfg.target_update_every == 0:
-                target_update.step()
+            with run.timed("replay"):
+                sample = buffer.sample()
+            with run.timed("forward"), run.autocast():
+                losses = loss_fn(sample)
+            with run.timed("backward"):
+                optimizer.zero_grad(set_to_none=True)
+                losses["loss"].backward()
+            with run.timed("optimizer"):
+                nn.utils.clip_grad_value_(loss_fn.parameters(), cfg.grad_clip_value)
+                optimizer.step()
+                explore.step()
+                counters["updates"] += 1
+                if counters["updates"] % cfg.target_update_every == 0:
+                    target_update.step()
         run.updated(cfg.updates_per_step, time.perf_counter() - began, counters["updates"])
         # tensors: run.log reads them (a host sync on a GPU) only when a log is due
         run.log({"loss": losses["loss"].detach(), "epsilon": explore.eps, "updates": counters["updates"]})

@@ -17,7 +17,7 @@ starts from the LSTM state stored when it was collected, and the state is reset 
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -111,6 +111,42 @@ def _minibatches(batch: TensorDictBase, cfg: DictConfig) -> Iterator[TensorDictB
         yield units[index]
 
 
+def make_advantage(cfg: DictConfig, model: ActorValueOperator) -> Callable[[TensorDictBase], None]:
+    """GAE over a ``[worlds, steps]`` batch, in place: ``"advantage"`` and ``"value_target"`` (and the critic's
+    ``"state_value"``).
+
+    GAE runs the whole critic: trunk and head, for the LSTM over each world's rollout from the stored state, and
+    without vmap, which has no batching rule for the LSTM.  Without the LSTM the critic runs once over each world's
+    steps and its last next observation (torchrl's ``shifted``), not twice over the steps and their next
+    observations: the next observation of step t is the observation of step t + 1 except where an episode ended; a
+    termination needs no next value and the true next observation is inserted after a truncation (budget 2: one
+    truncation and the rollout's end; a rollout with more truncations in one world is computed the long way).
+    """
+    recurrent = bool(cfg.lstm)
+    estimators = [
+        GAE(
+            gamma=cfg.gamma,
+            lmbda=cfg.gae_lambda,
+            value_network=model.get_value_operator(),
+            average_gae=False,
+            deactivate_vmap=True,
+            shifted=shifted,
+            shifted_budget=2,
+        )
+        for shifted in ([True, False] if not recurrent else [False])
+    ]
+
+    def advantage(batch: TensorDictBase) -> None:
+        batch = batch.refine_names(..., "time")
+        estimators[0](batch)
+        valid = batch.pop("shifted_valid", None)
+        if valid is not None and not valid.all():
+            estimators[-1](batch)
+        batch.names = None
+
+    return advantage
+
+
 class ReturnScale:
     """Rewards divided by the running standard deviation of the discounted return, as gymnasium's
     ``NormalizeReward`` wrapper and CleanRL's PPO do (``algo.normalize_reward``).
@@ -199,17 +235,9 @@ def train(run: Run) -> None:
     policy = make_policy(model)
     acting = run.acting(policy)
 
-    # GAE runs the whole critic: trunk and head, for the LSTM over each world's rollout from the stored state, and
-    # without vmap, which has no batching rule for the LSTM.  The loss's critic is the value head alone: it reads the
-    # trunk features the actor's pass has just written into the same minibatch, so the shared trunk runs once per
-    # minibatch and receives the gradients of both losses.
-    advantage = GAE(
-        gamma=cfg.gamma,
-        lmbda=cfg.gae_lambda,
-        value_network=model.get_value_operator(),
-        average_gae=False,
-        deactivate_vmap=True,
-    )
+    advantage = make_advantage(cfg, model)
+    # the loss's critic is the value head alone: it reads the trunk features the actor's pass has just written into
+    # the same minibatch, so the shared trunk runs once per minibatch and receives the gradients of both losses
     loss_fn = ClipPPOLoss(
         policy,
         model.get_value_head(),
@@ -246,24 +274,31 @@ def train(run: Run) -> None:
                 loss_fn.clip_value.fill_(clip)
         batch, td = run.collect(acting, td, rollout)
         began = time.perf_counter()
-        if return_scale is not None:
-            return_scale(batch)  # the episodes' logged returns stay the env's own
-        batch = to_device(batch, run.device)  # on a GPU through pinned memory, without blocking the host
-        with torch.no_grad(), set_recurrent_mode(recurrent), run.autocast():
-            advantage(batch)
+        with run.timed("advantage"):
+            if return_scale is not None:
+                return_scale(batch)  # the episodes' logged returns stay the env's own
+            batch = to_device(batch, run.device)  # on a GPU through pinned memory, without blocking the host
+            with torch.no_grad(), set_recurrent_mode(recurrent), run.autocast():
+                advantage(batch)
+            # the loss reads the advantage, not the next step: the minibatches copy half the frames without it
+            batch = batch.exclude("next")
 
         # summed on the device: read (one host sync) when logged
         totals: dict[str, torch.Tensor] = {}
         updates = 0
         for _ in range(cfg.epochs):
-            for minibatch in _minibatches(batch, cfg):
-                with set_recurrent_mode(recurrent), run.autocast():
+            with run.timed("replay"):
+                minibatches = list(_minibatches(batch, cfg))
+            for minibatch in minibatches:
+                with run.timed("forward"), set_recurrent_mode(recurrent), run.autocast():
                     losses = loss_fn(minibatch)
-                loss = sum(losses[k] for k in LOSS_TERMS)
-                optimizer.zero_grad(set_to_none=True)
-                loss.backward()
-                grad_norm = nn.utils.clip_grad_norm_(model.parameters(), cfg.max_grad_norm)
-                optimizer.step()
+                    loss = sum(losses[k] for k in LOSS_TERMS)
+                with run.timed("backward"):
+                    optimizer.zero_grad(set_to_none=True)
+                    loss.backward()
+                with run.timed("optimizer"):
+                    grad_norm = nn.utils.clip_grad_norm_(model.parameters(), cfg.max_grad_norm)
+                    optimizer.step()
                 updates += 1
                 stats = {k: losses[k] for k in (*LOSS_TERMS, *LOGGED)} | {"grad_norm": grad_norm}
                 for key, value in stats.items():

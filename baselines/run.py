@@ -53,7 +53,8 @@ from evaaa.records import TRAINING_EPISODE_FIELDS, DiskError
 from .checkpoint import CHECKPOINT, CHECKPOINT_FORMAT, rng_state, save_checkpoint, set_rng_state
 from .config import COMPUTE_BOUND_STEPS, Stage, env_overrides, observation_keys
 from .devices import OnDevice, autocast, resolve_device
-from .rollout import EVALUATION_INFO, acting_mode, evaluate, wrap_env
+from .rollout import EVALUATION_INFO, EvalResult, acting_mode, evaluate, samples_actions, wrap_env
+from .timing import TimeSplit
 
 log = logging.getLogger(__name__)
 
@@ -378,6 +379,8 @@ class Run:
         self.stops_between_updates = False
         self._ratio: float | None = None
         self._shown = 0.0
+        #: wall-clock and CPU seconds per phase of this session (:mod:`.timing`), logged under ``time/cpu/*``
+        self.split = TimeSplit()
 
     # -------------------------------------------------------------------------------------------- set-up
     @property
@@ -453,6 +456,7 @@ class Run:
             bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]",
         )
         self._estimated = False
+        self.split = TimeSplit()
         self._session = (time.perf_counter(), self.steps)
         self._clock_start = (self._session[0], time.process_time())
         self.meter = Progress(self.cfg.get("progress_seconds", 60), self.steps, now=self._session[0])
@@ -533,6 +537,10 @@ class Run:
         """bf16 autocast for an update's forward passes when ``bf16=true``."""
         return autocast(self.device, self.cfg.get("bf16", False))
 
+    def timed(self, phase: str):
+        """Counts the time of the ``with`` block to ``phase`` of the session's time split (:mod:`.timing`)."""
+        return self.split(phase)
+
     def updated(self, count: int, seconds: float, total: int, ratio: float | None = None) -> None:
         """``count`` gradient steps were made in ``seconds``; ``total`` so far this stage; ``ratio``: the replay
         ratio kept (gradient steps per env step since learning began), if the algorithm keeps one."""
@@ -559,7 +567,10 @@ class Run:
         ended already reset).
         """
         with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
-            out, td = self.env.step_and_maybe_reset(policy(td))
+            with self.split("act"):
+                td = policy(td)
+            with self.split("env"):
+                out, td = self.env.step_and_maybe_reset(td)
         n = out.batch_size.numel()
         self.counters["steps"] += n
         done = out["next", "done"].reshape(-1)
@@ -621,7 +632,7 @@ class Run:
         if not self.log_due:
             return
         self.counters["logged"] = self.steps
-        timing = {"time/env_steps_per_s": self.steps_per_second()}
+        timing = {"time/env_steps_per_s": self.steps_per_second(), **self.split.scalars()}
         if self.device.type == "cuda":
             timing["time/gpu_memory_peak_gb"] = torch.cuda.max_memory_allocated(self.device) / 1e9
         self.logger.log_metrics({**{f"train/{k}": float(v) for k, v in metrics.items()}, **timing}, step=self.steps)
@@ -643,15 +654,18 @@ class Run:
             return every > 0 and now // every > prev // every
 
         if crossed(self.cfg.eval.every) or (self.done and self.cfg.eval.every > 0):
-            self.evaluate()
+            with self.split("eval"):
+                self.evaluate()
         if self.done:
-            save_checkpoint(
-                self._identity() | {"model": self.model.state_dict(), "env_steps": now, "time": self._time()},
-                self.model_path,
-            )
+            with self.split("checkpoint"):
+                save_checkpoint(
+                    self._identity() | {"model": self.model.state_dict(), "env_steps": now, "time": self._time()},
+                    self.model_path,
+                )
         stop = self.stop_requested()
         if crossed(self.cfg.checkpoint.every) or self.done or stop:
-            self._checkpoint(td)
+            with self.split("checkpoint"):
+                self._checkpoint(td)
         if stop:
             self._interrupted()
 
@@ -690,7 +704,13 @@ class Run:
     def evaluate(self) -> None:
         """A few episodes (deterministic, or sampled with ``eval.sample``) on the run's validation worlds, the same
         worlds every time (:mod:`evaaa.worlds`: never a training world, never a test world); one row per episode in
-        ``eval.csv``, and ``model-best-*.pt`` when their mean survival is the best so far."""
+        ``eval.csv``, and ``model-best-*.pt`` when their mean survival is the best so far.  With
+        ``eval.both_modes`` the same episodes are played in the other acting mode too (an algorithm that can
+        sample), their rows in ``eval.csv`` with their own ``acting``, so that a protocol can choose the mode it
+        compares from validation rows; ``eval.sample``'s mode alone keeps the best model and the bar's figure.  The
+        evaluation's own CPU seconds go to the log (``eval/cpu_seconds``), so that a learning curve can be drawn
+        against the CPU time of training alone."""
+        began = time.process_time()
         if self._eval_env is None:
             base = evaaa.make_env(
                 self.stage.level,
@@ -702,13 +722,12 @@ class Run:
                 **self.overrides,
             )
             self._eval_env = wrap_env(base, self.algo.make_transforms(self.cfg.algo, self.obs_keys, self.model))
-        seed = self.cfg.seed
-        self._eval_env.set_seed(seed, static_seed=True)
         sample = bool(self.cfg.eval.get("sample", False))
-        # a sampling policy draws from torch's RNG: a forked, freshly seeded one leaves the training stream as it was
-        with torch.random.fork_rng(devices=[self.device] if self.device.type == "cuda" else []):
-            torch.manual_seed(seed)
-            result = evaluate(self._eval_env, self.policy, sample=sample)
+        modes = [sample]
+        if self.cfg.eval.get("both_modes", False) and samples_actions(self.cfg.algo.name):
+            modes.append(not sample)
+        results = {mode: self._evaluate_once(mode) for mode in modes}
+        result = results[sample]
         self.last_eval = result.survival_mean
         if self.best_eval is None or result.survival_mean > self.best_eval:
             self.best_eval = result.survival_mean
@@ -726,16 +745,29 @@ class Run:
             "stage": self.stage.index,
             "level": self.stage.level,
             "worlds": "validation",
-            "acting": acting_mode(self.cfg.algo.name, sample),
             "wall_time": _now(),
             "cpu_seconds": round(self.seconds_spent()[1], 2),
         }
-        for row in result.rows:
-            self.eval_csv.write({k: row[k] for k in self.eval_csv.columns if k in row} | common)
-        self.logger.log_metrics(
-            {"eval/survival_mean": result.survival_mean, "eval/return_mean": result.return_mean}, step=self.steps
-        )
+        metrics = {"eval/survival_mean": result.survival_mean, "eval/return_mean": result.return_mean}
+        for mode, played in results.items():
+            acting = acting_mode(self.cfg.algo.name, mode)
+            for row in played.rows:
+                self.eval_csv.write(
+                    {k: row[k] for k in self.eval_csv.columns if k in row} | common | {"acting": acting}
+                )
+            if len(results) > 1:
+                metrics[f"eval/{acting}/survival_mean"] = played.survival_mean
+        self.logger.log_metrics(metrics | {"eval/cpu_seconds": time.process_time() - began}, step=self.steps)
         self._show(force=True)
+
+    def _evaluate_once(self, sample: bool) -> EvalResult:
+        """One episode in each validation world, acting by sampling or by the most likely action."""
+        seed = self.cfg.seed
+        self._eval_env.set_seed(seed, static_seed=True)
+        # a sampling policy draws from torch's RNG: a forked, freshly seeded one leaves the training stream as it was
+        with torch.random.fork_rng(devices=[self.device] if self.device.type == "cuda" else []):
+            torch.manual_seed(seed)
+            return evaluate(self._eval_env, self.policy, sample=sample)
 
     def status(self) -> str:
         """The bar's text after the step counter: smoothed and session env steps/s, gradient steps (count, rate,

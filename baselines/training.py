@@ -42,6 +42,7 @@ from .algos import algorithm
 from .checkpoint import CHECKPOINT, PREVIOUS, CheckpointError, load_latest, remove_stale_temporaries, seed_everything
 from .config import observation_keys, stages
 from .devices import deterministic_kernels, resolve_device
+from .machine import keep_freed_memory
 from .run import Interrupted, Run
 
 log = logging.getLogger(__name__)
@@ -390,6 +391,7 @@ def _train(cfg: DictConfig, run_dir: Path, records: Mapping[str, Any] | None, st
     _write_records(run_dir, records, resumed=state is not None)
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
+    keep_freed_memory()  # the loop's large tensors reused, not page-faulted in afresh each iteration
     if state is None:
         seed_everything(cfg.seed)
 

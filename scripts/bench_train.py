@@ -32,11 +32,17 @@ of its first gradient step (DreamerV3, from its ``train.log``).
 
 from __future__ import annotations
 
+import concurrent.futures
 import glob
+import itertools
 import json
+import math
 import os
 import platform
+import queue
 import re
+import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -52,7 +58,9 @@ import evaaa  # noqa: E402
 from evaaa_baselines import cli  # noqa: E402
 from evaaa_baselines.algos import names as algo_names  # noqa: E402
 from evaaa_baselines.cli import option  # noqa: E402
-from evaaa_baselines.scalar_log import has_scalar, scalar_csv  # noqa: E402
+from evaaa_baselines.machine import processor  # noqa: E402
+from evaaa_baselines.scalar_log import has_scalar, read_scalar, scalar_csv  # noqa: E402
+from evaaa_baselines.timing import PHASES  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_ALGOS = ("ppo", "ppo_lstm", "dqn", "dreamer_xs")
@@ -71,6 +79,19 @@ class Throughput:
     peak_rss_gb: float | None = None
     gpu_memory_gb: float | None = None
     first_gradient_step_s: float | None = None
+    #: CPU seconds per phase of the loop (evaaa_baselines.timing), ``other`` and ``total``, at the last log row
+    cpu_split: dict[str, float] | None = None
+
+
+def read_split(run_dir: Path) -> dict[str, float] | None:
+    """CPU seconds per phase of the loop at the run's last log row (``time/cpu/*``, :mod:`evaaa_baselines.timing`;
+    a resumed run's last session), with ``other`` (what no phase covers) and ``total``; None for a run that logged
+    no split."""
+    if not has_scalar(run_dir, "time/cpu/total"):
+        return None
+    last = {tag: float(read_scalar(run_dir, f"time/cpu/{tag}")[-1][1]) for tag in (*PHASES, "total")}
+    total = last.pop("total")
+    return {p: last[p] for p in PHASES} | {"other": max(0.0, total - sum(last.values())), "total": total}
 
 
 def read_throughput(run_dir: Path, algo: str, skip: float = 0.25) -> Throughput:
@@ -132,6 +153,7 @@ def read_throughput(run_dir: Path, algo: str, skip: float = 0.25) -> Throughput:
         None if grad_rate is None else float(grad_rate),
         device=run_device(run_dir),
         gpu_memory_gb=gpu_gb,
+        cpu_split=read_split(run_dir),
     )
 
 
@@ -328,6 +350,239 @@ def table(rows: list[Throughput]) -> str:
     return "\n".join(lines)
 
 
+def split_table(rows: list[Throughput]) -> str:
+    """Where each run's CPU time went: every phase's share of the process's CPU seconds (all threads)."""
+    rows = [r for r in rows if r.cpu_split]
+    if not rows:
+        return ""
+    columns = [p for p in (*PHASES, "other") if any(r.cpu_split[p] > 0 for r in rows)]
+    lines = [f"{'CPU time split':<14}" + "".join(f"{c:>11}" for c in columns) + f"{'CPU s':>9}"]
+    for r in rows:
+        total = r.cpu_split["total"]
+        lines.append(f"{r.algo:<14}" + "".join(f"{r.cpu_split[c] / total:>11.1%}" for c in columns) + f"{total:>9.0f}")
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------------------------ learning speed
+#: the in-training validation evaluation that decides "learned": sampled actions, this many episodes
+LEARN_EPISODES = 8
+
+
+@dataclass
+class Learning:
+    """How fast one run learned: the training CPU time (evaluations left out) at which its validation evaluation
+    first reached ``bar`` decisions of mean survival, and whether every later one stayed there."""
+
+    algo: str
+    preset: str
+    seed: int
+    bar: float
+    evaluations: list[dict]
+    cpu_minutes_to_learn: float | None
+    env_steps_to_learn: int | None
+    stays: bool | None
+    final_survival: float | None
+    final_learned: bool | None
+    train_cpu_minutes: float
+    env_steps: int
+
+
+def standstill_survival(level: str, seed: int, episodes: int = LEARN_EPISODES) -> float:
+    """Mean survival of standing still on the validation worlds a run of ``seed`` evaluates on (``Run.evaluate``'s
+    worlds, seeded the same way)."""
+    import torch
+
+    from evaaa_baselines.rollout import EVALUATION_INFO, evaluate
+
+    env = evaaa.make_env(
+        level, num_envs=episodes, modalities=["interoception"], info=EVALUATION_INFO, worlds="validation"
+    )
+    try:
+        env.set_seed(seed, static_seed=True)
+
+        def still(td):
+            return td.set("action", torch.zeros(td.batch_size, dtype=torch.long))
+
+        return evaluate(env, still).survival_mean
+    finally:
+        env.close(raise_if_closed=False)
+
+
+def learning(run_dir: Path, algo: str, preset: str, seed: int, bar: float) -> Learning:
+    """The learning speed of a run from its ``eval.csv`` (mean survival and the stage's CPU seconds per evaluation)
+    and the CPU seconds each evaluation took (``eval/cpu_seconds`` in its log), which are left out."""
+    evals = pd.read_csv(run_dir / "eval.csv")
+    evals = evals[evals["acting"] == "sample"]
+    if evals.empty:
+        raise SystemExit(f"bench_train.py: {run_dir}/eval.csv holds no evaluation with sampled actions")
+    per = evals.groupby("env_steps").agg(survival=("steps", "mean"), cpu_seconds=("cpu_seconds", "max")).reset_index()
+    spent = {int(step): float(v) for step, v in read_scalar(run_dir, "eval/cpu_seconds")}
+    per["eval_cpu"] = per["env_steps"].map(lambda step: spent.get(int(step), 0.0)).cumsum()
+    per["train_cpu_minutes"] = (per["cpu_seconds"] - per["eval_cpu"]) / 60
+    above = per["survival"] >= bar
+    first = int(above.to_numpy().argmax()) if above.any() else None
+    rows = [
+        {
+            "env_steps": int(r.env_steps),
+            "train_cpu_minutes": round(float(r.train_cpu_minutes), 3),
+            "survival": float(r.survival),
+        }
+        for r in per.itertuples()
+    ]
+    last = per.iloc[-1]
+    return Learning(
+        algo=algo,
+        preset=preset,
+        seed=seed,
+        bar=bar,
+        evaluations=rows,
+        cpu_minutes_to_learn=None if first is None else float(per["train_cpu_minutes"].iloc[first]),
+        env_steps_to_learn=None if first is None else int(per["env_steps"].iloc[first]),
+        stays=None if first is None else bool(above.iloc[first:].all()),
+        final_survival=float(last["survival"]),
+        final_learned=bool(last["survival"] >= bar),
+        train_cpu_minutes=float(last["train_cpu_minutes"]),
+        env_steps=int(last["env_steps"]),
+    )
+
+
+def learn_overrides(algo: str, preset: str, seed: int, args: BenchConfig, root: Path) -> list[str]:
+    """The ``scripts/train.py`` arguments of one learning-speed run: the algorithm's settings under ``preset``, a
+    CPU-time budget, and validation evaluations every ``eval_every`` env steps, sampled, 8 episodes."""
+    return [
+        f"algo={algo}",
+        f"preset={preset}",
+        f"level={args.level}",
+        f"seed={seed}",
+        "total_steps=1000000000",
+        f"max_cpu_minutes={args.cpu_minutes}",
+        f"eval.every={args.eval_every}",
+        f"eval.episodes={LEARN_EPISODES}",
+        "eval.sample=true",
+        f"checkpoint.every={args.eval_every}",
+        "logger=csv",
+        "progress=false",
+        "threads=1",
+        "device=cpu",
+        f"run.root={root}",
+        f"run.name={preset}/{algo}/seed{seed}",
+        *args.overrides,
+    ]
+
+
+def run_learning(job: tuple[str, str, int], args: BenchConfig, root: Path, core: int | None) -> Path:
+    """Train one learning-speed run to its CPU budget (resuming it where a checkpoint is left; nothing to do
+    where its final model is written), on one thread pinned to ``core``; returns its run directory."""
+    algo, preset, seed = job
+    run_dir = root / preset / algo / f"seed{seed}"
+    if (run_dir / f"model-0-{args.level}.pt").is_file():
+        return run_dir
+    resume = ["resume=true"] if (run_dir / "checkpoint.pt").is_file() else []
+    cmd = [
+        sys.executable,
+        str(ROOT / "scripts" / "train.py"),
+        *learn_overrides(algo, preset, seed, args, root),
+        *resume,
+    ]
+    if core is not None and shutil.which("taskset"):
+        cmd = ["taskset", "-c", str(core), *cmd]
+    run_dir.parent.mkdir(parents=True, exist_ok=True)
+    log = run_dir.parent / f"seed{seed}.out"
+    env = os.environ | {"EVAAA_THREADS": "1", "OMP_NUM_THREADS": "1"}
+    with open(log, "a") as out:
+        code = subprocess.run(cmd, cwd=ROOT, env=env, stdout=out, stderr=subprocess.STDOUT).returncode
+    if code:
+        tail = "\n".join(log.read_text().splitlines()[-30:])
+        raise SystemExit(f"bench_train.py: {preset}/{algo}/seed{seed} failed (exit {code}); the end of {log}:\n{tail}")
+    return run_dir
+
+
+def learning_summary(runs: list[Learning]) -> list[dict]:
+    """Per preset and algorithm: the median CPU-minutes to learn over seeds (a seed that never learned counts as
+    more than any that did; the median is None when half or more never learned) and how many learned."""
+    out = []
+    for (preset, algo), group in itertools.groupby(
+        sorted(runs, key=lambda r: (r.preset, r.algo)), key=lambda r: (r.preset, r.algo)
+    ):
+        group = list(group)
+        minutes = [r.cpu_minutes_to_learn if r.cpu_minutes_to_learn is not None else math.inf for r in group]
+        median = float(statistics.median(minutes))
+        out.append(
+            {
+                "preset": preset,
+                "algo": algo,
+                "seeds": len(group),
+                "learned": sum(r.cpu_minutes_to_learn is not None for r in group),
+                "stayed": sum(bool(r.stays) for r in group),
+                "final_learned": sum(bool(r.final_learned) for r in group),
+                "median_cpu_minutes_to_learn": median if math.isfinite(median) else None,
+                "cpu_minutes_to_learn": [r.cpu_minutes_to_learn for r in group],
+                "final_survival": [r.final_survival for r in group],
+            }
+        )
+    return out
+
+
+def learning_table(summary: list[dict], budget: float) -> str:
+    lines = [f"{'preset':<16}{'algo':<12}{'learned':>9}{'stayed':>8}{'final':>7}{'median CPU-min':>16}  per seed"]
+    for row in summary:
+        median = row["median_cpu_minutes_to_learn"]
+        seeds = ", ".join("–" if m is None else f"{m:.1f}" for m in row["cpu_minutes_to_learn"])
+        lines.append(
+            f"{row['preset']:<16}{row['algo']:<12}{row['learned']:>5}/{row['seeds']:<3}{row['stayed']:>8}"
+            f"{row['final_learned']:>7}{(f'{median:.1f}' if median is not None else f'> {budget:g}'):>16}  {seeds}"
+        )
+    return "\n".join(lines)
+
+
+def main_learn(args: BenchConfig) -> int:
+    """``learn=true``: CPU-minutes to learn, per preset, algorithm and seed (module docstring)."""
+    jobs = [(algo, preset, seed) for preset in args.presets for algo in args.algos for seed in args.seeds]
+    root = Path(args.keep or "runs/bench-learn").resolve()
+    print(
+        f"evaaa bench_train learn: level {args.level}, {len(jobs)} runs (presets {', '.join(args.presets)}; "
+        f"{', '.join(args.algos)}; seeds {args.seeds}), one core each, {args.jobs} at a time, in {root}; "
+        f"{processor()}",
+        flush=True,
+    )
+    bars = {seed: args.bar * standstill_survival(args.level, seed) for seed in args.seeds}
+    print(f"  the bar: {args.bar:g} x stand-still on each seed's validation worlds = {sorted(set(bars.values()))}")
+    cores = list(range(os.cpu_count() or 1))
+    with concurrent.futures.ThreadPoolExecutor(args.jobs) as pool:
+        slots = queue.Queue()
+        for i in range(args.jobs):
+            slots.put(cores[i % len(cores)] if args.jobs <= len(cores) else None)
+
+        def one(job):
+            core = slots.get()
+            try:
+                print(f"  {job[1]}/{job[0]}/seed{job[2]} on core {core} ...", flush=True)
+                return run_learning(job, args, root, core)
+            finally:
+                slots.put(core)
+
+        dirs = list(pool.map(one, jobs))
+    runs = [learning(d, algo, preset, seed, bars[seed]) for d, (algo, preset, seed) in zip(dirs, jobs)]
+    summary = learning_summary(runs)
+    print(learning_table(summary, args.cpu_minutes))
+    if args.json:
+        write_json(
+            args.json,
+            {
+                "processor": processor(),
+                "cores": os.cpu_count(),
+                "level": args.level,
+                "bar": {"times_standstill": args.bar, "by_seed": bars},
+                "evaluation": f"validation worlds, sampled actions, {LEARN_EPISODES} episodes every {args.eval_every} env steps",
+                "cpu_minutes_budget": args.cpu_minutes,
+                "overrides": args.overrides,
+                "summary": summary,
+                "runs": [asdict(r) for r in runs],
+            },
+        )
+    return 0
+
+
 @dataclass
 class BenchConfig:
     algos: list[str] = option(list(DEFAULT_ALGOS), "algorithms to train, one after another", choices=algo_names)
@@ -355,6 +610,21 @@ class BenchConfig:
     )
     progress: bool = option(False, "keep each run's progress bar (in <keep>/<algo>.out)")
     overrides: list[str] = option([], "more train.py overrides for every run, e.g. [env.num_envs=16,preset=debug]")
+    learn: bool = option(
+        False, "measure CPU-minutes to learn instead: every preset x algorithm x seed to its CPU budget (docstring)"
+    )
+    presets: list[str] = option(["none"], "learn=true: the settings compared (train.py's preset=; none: the defaults)")
+    seeds: list[int] = option([0], "learn=true: seeds of every preset and algorithm")
+    cpu_minutes: float = option(
+        40.0, "learn=true: CPU-minutes of training per run (max_cpu_minutes)", check=(lambda v: v > 0, "positive")
+    )
+    eval_every: int = option(
+        10_000, "learn=true: env steps between validation evaluations", check=(lambda v: v > 0, "a positive integer")
+    )
+    bar: float = option(2.0, "learn=true: learned = mean survival at least this many times stand-still's")
+    jobs: int = option(
+        1, "learn=true: runs at a time, each on a core of its own", check=(lambda v: v >= 1, "at least 1")
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -366,6 +636,8 @@ def main(argv: list[str] | None = None) -> int:
         examples=["algos=[ppo,dqn] minutes=2 threads=1", '"runs=[runs/acceptance/*/seed0]"'],
     )
     algos = args.algos
+    if args.learn:
+        return main_learn(args)
     if not algos and args.runs is None:
         cli.fail("bench_train.py", f"algos=[]: name at least one of {', '.join(algo_names())}")
     if args.runs is not None:  # patterns are expanded here, so that they may be quoted on the command line
@@ -379,6 +651,7 @@ def main(argv: list[str] | None = None) -> int:
         for d, r in zip(args.runs, rows):
             print(f"  {r.algo}: {d}")
         print(table(rows))
+        print(split_table(rows))
         if args.json:
             write_json(args.json, {"runs": args.runs, "rows": [asdict(r) for r in rows]})
         return 0
@@ -415,10 +688,12 @@ def main(argv: list[str] | None = None) -> int:
                 )
             )
     print(table(rows))
+    print(split_table(rows))
     if args.json:
         write_json(
             args.json,
             {
+                "processor": processor(),
                 "level": args.level,
                 "minutes": args.minutes,
                 "threads": args.threads,

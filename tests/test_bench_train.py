@@ -76,6 +76,11 @@ def test_a_short_real_run_reports_env_and_gradient_steps(tmp_path):
     assert row["algo"] == "ppo" and row["env_steps"] > 0 and row["steady_env_steps_per_s"] > 0
     # debug PPO: every iteration of frames_per_batch env steps makes epochs x minibatches updates
     assert row["gradient_steps"] > 0 and row["steady_gradient_steps_per_s"] > 0
+    # where its CPU time went: each phase PPO passes through, and the rest, adding up to the whole
+    split = row["cpu_split"]
+    assert all(split[p] > 0 for p in ("env", "act", "advantage", "forward", "backward", "optimizer", "replay"))
+    assert split["eval"] == 0.0  # evaluations are pushed past the budget
+    assert sum(v for k, v in split.items() if k != "total") == pytest.approx(split["total"])
 
 
 def test_existing_runs_are_reported_with_their_algorithm(tmp_path, capsys):
@@ -158,3 +163,45 @@ def test_a_run_too_slow_to_log_twice_reports_its_session_totals(tmp_path):
     assert (got.env_steps, got.gradient_steps, got.device) == (1064, 41, "cpu")
     assert got.env_steps_per_s == pytest.approx(1.62) and got.seconds == pytest.approx(1064 / 1.62)
     assert got.steady_gradient_steps_per_s is None
+
+
+def write_evaluations(run_dir: Path, evals: list[tuple[int, float, list[int], float]]) -> None:
+    """``eval.csv`` rows (env steps, the stage's CPU seconds, each episode's survival) and each evaluation's own
+    CPU seconds in the log, as a run writes them."""
+    rows = ["env_steps,stage,level,worlds,acting,episode,steps,cpu_seconds"]
+    for steps, cpu, survival, _ in evals:
+        rows += [f"{steps},0,1-1,validation,sample,{i},{s},{cpu}" for i, s in enumerate(survival)]
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "eval.csv").write_text("\n".join(rows) + "\n")
+    (run_dir / "logs" / "scalars" / "eval").mkdir(parents=True)
+    (run_dir / "logs" / "scalars" / "eval" / "cpu_seconds.csv").write_text(
+        "".join(f"{steps},{own}\n" for steps, _, _, own in evals)
+    )
+
+
+def test_cpu_minutes_to_learn_leave_the_evaluations_out(tmp_path):
+    # evaluations every 10 k env steps, each taking 30 CPU s; the bar is 2,224 (2 x stand-still's 1,112)
+    evals = [
+        (10_000, 150.0, [1000, 1200], 30.0),
+        (20_000, 330.0, [2000, 2600], 30.0),  # mean 2,300: first above; 330 - 60 s of evaluations = 4.5 minutes
+        (30_000, 500.0, [2100, 2200], 30.0),  # mean 2,150: fell back below
+        (40_000, 660.0, [3000, 3000], 30.0),
+    ]
+    write_evaluations(tmp_path, evals)
+    got = load_bench().learning(tmp_path, "ppo", "none", 0, bar=2224.0)
+    assert got.cpu_minutes_to_learn == pytest.approx(4.5) and got.env_steps_to_learn == 20_000
+    assert got.stays is False and got.final_learned is True and got.final_survival == 3000
+    assert got.train_cpu_minutes == pytest.approx((660 - 120) / 60)
+
+
+def test_the_median_counts_a_seed_that_never_learned_as_slower_than_any(tmp_path):
+    bench = load_bench()
+    runs = []
+    for seed, survival in enumerate([[3000, 3000], [1000, 1000], [2500, 2300]]):
+        write_evaluations(tmp_path / str(seed), [(10_000, 120.0, survival, 0.0)])
+        runs.append(bench.learning(tmp_path / str(seed), "ppo", "none", seed, bar=2224.0))
+    (row,) = bench.learning_summary(runs)
+    assert row["learned"] == 2 and row["median_cpu_minutes_to_learn"] == pytest.approx(2.0)
+    assert row["cpu_minutes_to_learn"] == [2.0, None, 2.0]
+    (worse,) = bench.learning_summary(runs[1:2] * 2 + runs[:1])
+    assert worse["median_cpu_minutes_to_learn"] is None  # two of three never learned

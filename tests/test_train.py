@@ -225,6 +225,28 @@ def test_sampling_evaluation_leaves_training_unchanged(runs, tmp_path):
     assert len(evaluations) == 4 and {r["acting"] for r in evaluations} == {"sample"}
 
 
+def test_evaluations_in_both_modes_leave_training_and_the_best_model_to_the_chosen_mode(runs, tmp_path):
+    # eval.both_modes: the same validation episodes in the other mode too, rows of their own; training unchanged
+    train(debug_cfg("ppo", "eval.sample=true", "eval.both_modes=true"), tmp_path / "run")
+    whole = checkpoint.load_checkpoint(runs("ppo")["whole"] / checkpoint.CHECKPOINT)
+    both = checkpoint.load_checkpoint(tmp_path / "run" / checkpoint.CHECKPOINT)
+    for name, value in whole["model"].items():
+        assert torch.equal(value, both["model"][name]), name
+    evaluations = read_csv(tmp_path / "run" / "eval.csv")
+    by_mode = {m: [r for r in evaluations if r["acting"] == m] for m in ("sample", "mode")}
+    assert len(by_mode["sample"]) == len(by_mode["mode"]) == 4
+    # the sampled rows are those of a run evaluating by sampling alone (the other mode draws nothing from them)
+    sampled = [(r["env_steps"], r["steps"]) for r in by_mode["sample"]]
+    train(debug_cfg("ppo", "eval.sample=true"), tmp_path / "alone")
+    alone = [(r["env_steps"], r["steps"]) for r in read_csv(tmp_path / "alone" / "eval.csv")]
+    assert sampled == alone
+    best = checkpoint.load_checkpoint(tmp_path / "run" / "model-best-0-1-1.pt")
+    means = {}
+    for r in by_mode["sample"]:
+        means.setdefault(int(r["env_steps"]), []).append(int(r["steps"]))
+    assert best["eval_survival_mean"] == max(sum(v) / len(v) for v in means.values())
+
+
 @pytest.mark.parametrize("algo", ALGOS)
 def test_killed_and_resumed_run_equals_uninterrupted_run(runs, algo):
     r = runs(algo)

@@ -51,7 +51,7 @@ def train(run: Run) -> None:
         compile_networks(model, (DreamerEncoder, DreamerDecoder, RSSMPriorV3, RSSMPosteriorV3, DreamerV3MLP))
 
     options = update_options(cfg, device)
-    learner = Learner(cfg, model, device, bf16=run.cfg.get("bf16", False), options=options)
+    learner = Learner(cfg, model, device, bf16=run.cfg.get("bf16", False), options=options, timed=run.timed)
     if run.cfg.get("compile") and not options["compile"]:
         # the replayed RSSM loop calls the prior's and posterior's methods, not the compiled modules: its step
         learner.compile_replay_step()
@@ -112,7 +112,8 @@ def train(run: Run) -> None:
             stored_td = transition.select(*stored)
             if reward_scale != 1.0:  # the world model learns the scaled reward; the episodes' returns stay the env's
                 stored_td["next", "reward"] = stored_td["next", "reward"] * reward_scale
-            replay.extend(stored_td)
+            with run.timed("replay"):
+                replay.extend(stored_td)
         owed = False
         metrics = None
         due = _updates_due(cfg, run.steps, replay.rows, num_envs)
@@ -121,9 +122,12 @@ def train(run: Run) -> None:
             if run.stop_requested():
                 run.stop_now(td)
             began = time.perf_counter()
-            metrics = learner.update(replay.sample())
+            with run.timed("replay"):
+                sample = replay.sample()
+            metrics = learner.update(sample)
             if options["prefetch"] and counters["updates"] + 1 < due:
-                replay.prefetch()  # the next batch, drawn and sent while the device works on this gradient step
+                with run.timed("replay"):
+                    replay.prefetch()  # the next batch, drawn and sent while the device works on this gradient step
             if run.log_due:  # read on the host, so only when a log is due, after the gradient step
                 metrics |= learner.diagnostics()
             counters["updates"] += 1

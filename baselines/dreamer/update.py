@@ -121,9 +121,17 @@ class Learner:
         *,
         bf16: bool = False,
         options: Mapping[str, bool] | None = None,
+        timed: Callable[[str], contextlib.AbstractContextManager] | None = None,
     ):
         self.cfg, self.model, self.device = cfg, model, torch.device(device)
         self.options = dict(options or {})
+        # the time split (Run.timed): forward, backward and optimizer inside eager phases; a compiled or captured
+        # phase is one block, counted as its forward pass
+        untimed = lambda phase: contextlib.nullcontext()  # noqa: E731
+        self._timed_outside = timed or untimed
+        eager = not (self.options.get("graphs") or self.options.get("compile"))
+        self._timed = self._timed_outside if eager else untimed  # inside a phase
+        self._timed_phase = untimed if eager else self._timed_outside  # around a whole phase
         self.bf16 = bool(bf16)
         self.model_loss = WorldModelLoss(cfg, model)
         self.critic = value_model(model)
@@ -212,10 +220,11 @@ class Learner:
         batch = batch.copy()
         batch["state"] = torch.zeros(*batch.shape, self.model.state_dim, device=batch.device)
         batch["belief"] = torch.zeros(*batch.shape, self.model.belief_dim, device=batch.device)
-        with self.autocast():
+        with self._timed("forward"), self.autocast():
             loss, terms, posterior, vector_reco = self.model_loss(batch)
-        self._zero_grad("world_model")
-        loss.backward()
+        with self._timed("backward"):
+            self._zero_grad("world_model")
+            loss.backward()
         out = TensorDict(
             {"loss": loss.detach(), "terms": terms.detach(), "posterior": posterior}, [], device=batch.device
         )
@@ -231,17 +240,18 @@ class Learner:
             [latents.numel()],
             device=latents.device,
         )
-        with self.autocast():
+        with self._timed("forward"), self.autocast():
             actor_out, imagined = self.actor_loss(flat)
-        self._zero_grad("actor")
-        actor_out["loss_actor"].backward()
+        with self._timed("backward"):
+            self._zero_grad("actor")
+            actor_out["loss_actor"].backward()
         return TensorDict({"out": actor_out.detach(), "imagined": imagined}, [], device=latents.device)
 
     def _critic_phase(self, td: TensorDictBase) -> TensorDictBase:
         """The critic's loss on the imagined returns (and, with ``algo.critic.replay_scale``, on the replayed
         sequences), and its gradients."""
         imagined, posterior = td["imagined"], td.get("posterior", None)
-        with self.autocast():
+        with self._timed("forward"), self.autocast():
             critic_out, _ = self.value_loss(imagined.detach())
             loss = critic_out["loss_value"]
             out = TensorDict({}, [], device=imagined.device)
@@ -249,34 +259,40 @@ class Learner:
                 replay_loss = replay_value_loss(self.value_loss, posterior, imagined, self.cfg)
                 loss = loss + self.replay_scale * replay_loss
                 out["replay_loss"] = replay_loss.detach()
-        self._zero_grad("critic")
-        loss.backward()
+        with self._timed("backward"):
+            self._zero_grad("critic")
+            loss.backward()
         out["loss"] = loss.detach()
         return out
 
     # ------------------------------------------------------------------------------------------ the step
     def _step(self, name: str) -> torch.Tensor:
         """Clip the phase's gradients and step its optimiser (outside the phase); returns the gradient norm."""
-        norm = nn.utils.clip_grad_norm_(self.params[name], self.clip[name])
-        self.optimizers[name].step()
+        with self._timed_outside("optimizer"):
+            norm = nn.utils.clip_grad_norm_(self.params[name], self.clip[name])
+            self.optimizers[name].step()
         return norm
 
     def update(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         """One gradient step on a replayed batch (``[batch, time]``, on the device): the world model, then the actor
         in imagination from the batch's posterior latents, then the critic, each with its own optimiser and
         clipping; then the slow critic.  Returns the metrics as tensors (nothing waits for the device)."""
-        wm = self.phases["world_model"](batch)
+        with self._timed_phase("forward"):
+            wm = self.phases["world_model"](batch)
         wm_norm = self._step("world_model")
         posterior = wm["posterior"]
-        actor = self.phases["actor"](posterior["next"].select(*LATENT))
+        with self._timed_phase("forward"):
+            actor = self.phases["actor"](posterior["next"].select(*LATENT))
         actor_norm = self._step("actor")
         imagined, actor_out = actor["imagined"], actor["out"]
         critic_in = TensorDict({"imagined": imagined}, [], device=imagined.device)
         if self.replay_scale:
             critic_in["posterior"] = posterior
-        critic = self.phases["critic"](critic_in)
+        with self._timed_phase("forward"):
+            critic = self.phases["critic"](critic_in)
         critic_norm = self._step("critic")
-        self.slow_critic.step()
+        with self._timed_outside("optimizer"):
+            self.slow_critic.step()
         self._last = {"posterior": posterior, "imagined": imagined, "return_scale": actor_out["return_scale"]}
         metrics = {f"model_{k.removeprefix('loss_model_')}": v for k, v in wm["terms"].items()}
         metrics |= {
