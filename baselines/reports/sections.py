@@ -128,7 +128,12 @@ class Inputs:
     @cached_property
     def source_note(self) -> str:
         """Where the final-survival values come from, for the sections that show them."""
-        counts = self.final["source"].value_counts() if len(self.final) else pd.Series(dtype=int)
+        # stages, not rows: a stage evaluated in two acting modes is one stage
+        counts = (
+            self.final.drop_duplicates(["run", "stage"])["source"].value_counts()
+            if len(self.final)
+            else pd.Series(dtype=int)
+        )
         said = {
             "evaluate.py": "the stage's network evaluated by evaluate.py on its level (one row per episode)",
             "eval.csv": "the stage's last in-training evaluation (`eval.csv`, one row per episode)",
@@ -431,32 +436,72 @@ def setting(r: RunRecord) -> tuple:
     return (r.algo, r.modality, r.reward, tuple(e for e in r.extras if not e.startswith("budget=")))
 
 
+def series_label(r: RunRecord) -> str:
+    """A short label of a run with every sense for the figures of survival per level: its algorithm, curriculum or
+    direct, and the CPU budget of a compute-matched run (``ppo · curriculum``, ``dqn · direct · 110 CPU-min``); the
+    other settings go to the table of series."""
+    label = f"{r.algo} · {'curriculum' if r.curriculum else 'direct'}"
+    return label + (f" · {r.budget}" if r.cpu_budget is not None else "")
+
+
 def survival_per_level(doc: Document, inp: Inputs) -> None:
-    """Fig. 4a, left: the survival each training level ended with, per algorithm (curriculum runs where an
-    algorithm has them, else its direct runs)."""
+    """Fig. 4a as the paper draws it: the survival each training level ended with, levels on the x axis, one series
+    per agent × curriculum or direct (and acting mode, hatched for `mode`), the references (random, stand-still,
+    the oracle) as markers across each level; runs with every sense only (the modality ablations are Figs. 25 and
+    26). Compute-matched runs are in the table and in Fig. 20, not in the figure."""
     final = inp.final
-    left_runs = [r for r in inp.usable if r.curriculum or setting(r) not in inp.curriculum_algos]
+    runs = [r for r in inp.usable if r.modality == "all"]
     table = figure = None
-    if len(final):
-        lab = labels(left_runs)
+    if len(final) and runs:
+        lab = {r.dir: series_label(r) for r in runs}
         f = inp.labelled(final[final["run"].isin(list(lab))], lab)
         stats = across_seeds(f, ["label", "level"], "survival")
         doc.tables["survival_per_level"] = stats
         levels = level_sorted(stats["level"])
+        matched = {series_label(r) for r in runs if r.cpu_budget is not None}
+        drawn = stats[~stats["label"].map(lambda x: x.split(" [")[0] in matched)]
+        refs = inp.reference_training
+        refs = refs[refs["level"].isin(levels)] if len(refs) else refs
         figure = plot_bars(
-            stats,
+            drawn if len(drawn) else stats,
             doc.out / "fig4a_survival_per_level.png",
             levels=levels,
             ylabel="survival (decisions)",
             title="Survival per training level",
             compared=inp.compared,
+            references=refs[["label", "level", "value"]] if len(refs) else None,
         )
+        cols = sorted(dict.fromkeys(stats["label"]), key=lambda x: (x.split(" [")[0] in matched, x))
         table = pivot_table(
-            stats, "level", "label", rows=levels, title="Survival per training level (decisions)", compared=inp.compared
+            stats,
+            "level",
+            "label",
+            rows=levels,
+            cols=cols,
+            title="Survival per training level (decisions)",
+            compared=inp.compared,
+        )
+        settings = {}
+        for r in runs:
+            key = series_label(r)
+            entry = settings.setdefault(key, {"reward": set(), "budget": {}, "seeds": set()})
+            entry["reward"].add(r.reward)
+            entry["seeds"].add(r.seed)
+            entry["budget"].setdefault(r.training, set()).add(r.budget)
+        table += "\n\n**Series.** Every setting the labels leave out (all runs with every sense):\n\n"
+        table += "| series | reward | budget per training | seeds | in the figure |\n|---|---|---|---|---|\n"
+        table += "\n".join(
+            f"| {k} | {', '.join(sorted(v['reward']))} | "
+            + "; ".join(f"{t}: {', '.join(sorted(b))}" for t, b in v["budget"].items())
+            + f" | {len(v['seeds'])} | {'no (Fig. 20)' if k in matched else 'yes'} |"
+            for k, v in settings.items()
         )
     doc.section(
         "Survival per training level (Fig. 4a, left)",
-        inp.source_note + " Curriculum runs where an algorithm has them, else its direct runs.",
+        inp.source_note
+        + " Every series with every sense (the modality ablations: Figs. 25 and 26); references as markers across "
+        "each level (dashed: random, dotted: stand-still); bars of networks acting `mode` hatched, `sample` solid, "
+        "in every figure. Compute-matched runs are in the table and in Fig. 20.",
         figure,
         table,
         "No finished stage in the runs given.",
@@ -1108,8 +1153,8 @@ def equal_compute(doc: Document, inp: Inputs) -> None:
     steps: dict[str, list[int]] = {}
     for r in sorted(runs, key=lambda r: r.seed or 0):  # per algorithm, each seed's env steps in seed order
         steps.setdefault(r.algo, []).append(r.steps)
-    header = "| agent | seeds | env steps reached | survival on test worlds (IQM) |"
-    rule_ = "|---|---|---|---|"
+    header = "| agent | seeds | env steps reached | survival on test worlds (IQM) | intake / 1,000 decisions |"
+    rule_ = "|---|---|---|---|---|"
     if gate is not None:
         header += " vs better of random, stand-still | learned? | env steps to the threshold | CPU min to it |"
         rule_ += "---|---|---|---|"
@@ -1126,7 +1171,8 @@ def equal_compute(doc: Document, inp: Inputs) -> None:
     ]
     for row in surv.itertuples():
         line = (
-            f"| {row.algo} | {row.n} | {', '.join(f'{v:,}' for v in steps.get(row.algo, []))} | {cell(row._asdict())} |"
+            f"| {row.algo} | {row.n} | {', '.join(f'{v:,}' for v in steps.get(row.algo, []))} | {cell(row._asdict())} | "
+            f"{'' if np.isnan(row.intake) else f'{row.intake:.1f}'} |"
         )
         if gate is not None:
             g = gate.loc[row.algo] if row.algo in gate.index else None
@@ -1146,10 +1192,20 @@ def equal_compute(doc: Document, inp: Inputs) -> None:
     doc.tables["equal_compute_final"] = surv
     if len(reach):
         doc.tables["equal_compute_threshold"] = reach.assign(run=reach["run"].map(inp.rel))
+    refs = inp.reference_training
+    refs = refs[(refs["level"] == level) & refs["label"].isin(["random", "still"])] if len(refs) else refs
+    ref_intake = "; ".join(
+        f"{'stand-still' if r.label == 'still' else r.label} {r.intake:.1f}"
+        for r in refs.itertuples()
+        if not np.isnan(r.intake)
+    )
     doc.md += [
         "",
         "Survival: "
         + _source_words(inp)
+        + "; a cell with more than a quarter of its episodes at the step cap is a lower bound (`≥`, share at the "
+        "cap); intake: food and water eaten per 1,000 decisions, every episode of the seeds pooled"
+        + (f" (references on {level}: {ref_intake})" if ref_intake else "")
         + "; env steps reached: per seed; "
         + (
             f"learned: the 95 % interval above {inp.learned_factor:g}× the better of random and stand-still on "
@@ -1186,8 +1242,10 @@ def training_curves(doc: Document, inp: Inputs) -> None:
         if len(trained_on) == 1 and len(ref_train):
             hl = ref_train[ref_train["level"] == next(iter(trained_on))]
             hl = hl.assign(label=hl["label"] + " (evaluation)") if len(hl) else None
+        every_sense = {lab[r.dir] for r in inp.usable if r.modality == "all"}
+        drawn = stats[stats["label"].isin(every_sense)]  # the modality ablations: Fig. 25
         figure = plot_lines(
-            stats,
+            drawn if len(drawn) else stats,
             doc.out / "fig_training_curves.png",
             x="steps",
             panel="group",
@@ -1197,22 +1255,27 @@ def training_curves(doc: Document, inp: Inputs) -> None:
             title="Training curves",
             hlines=hl,
         )
-        ends = stats.sort_values("bin").groupby(["group", "label"], sort=False).tail(1)
+        # each run's own last bin, the seeds pooled (compute-matched runs end at different env steps: the pooled
+        # curve's last bin holds one seed)
+        last = by.sort_values("bin").groupby("run", sort=False).tail(1)
+        ends = across_seeds(last, ["group", "label"], "survival")
         table = pivot_table(
             ends.rename(columns={"group": "level"}),
             "level",
             "label",
             row_title="training",
-            title="Training survival in the last bin of env steps (decisions)",
+            title="Training survival in each run's last bin of env steps (decisions)",
         )
         table += (
             f"\n\nCurves: survival of the training episodes (exploring policy) in {inp.bins} bins of env "
-            "steps, IQM of the bin's episodes with its 95 % bootstrap interval (band); table: the last bin. "
+            "steps, IQM of the bin's episodes with its 95 % bootstrap interval (band); table: each run's last bin, the "
+            "seeds pooled. "
             "Dashed/dotted: reference agents' IQM survival in evaluate.py's episodes on that level, when given."
         )
     doc.section(
         "Training curves",
-        "One panel per training set-up, one line per algorithm and settings.",
+        "One panel per training set-up, one line per algorithm and settings, runs with every sense (the modality "
+        "ablations: Fig. 25); the table has every run.",
         figure,
         table,
         "No finished training episode in the runs given.",
@@ -1232,8 +1295,10 @@ def evaluation_curves(doc: Document, inp: Inputs) -> None:
         )
         stats = across_seeds(by, ["group", "label", "steps"], "survival")
         doc.tables["evaluation_curves"] = stats
+        every_sense = {lab[r.dir] for r in inp.usable if r.modality == "all"}
+        drawn = stats[stats["label"].str.split(" [", regex=False).str[0].isin(every_sense)]  # ablations: Fig. 25
         figure = plot_lines(
-            stats,
+            drawn if len(drawn) else stats,
             doc.out / "fig_evaluation_curves.png",
             x="steps",
             panel="group",
@@ -1242,13 +1307,15 @@ def evaluation_curves(doc: Document, inp: Inputs) -> None:
             xlabel="env steps",
             title="In-training evaluations" + (" (means only)" if stats["means_only"].any() else ""),
         )
-        ends = stats.sort_values("steps").groupby(["group", "label"], sort=False).tail(1)
+        # each run's own last evaluation, the seeds pooled (compute-matched runs end at different env steps)
+        last = by.sort_values("steps").groupby(["run", "acting"], sort=False).tail(1)
+        ends = across_seeds(last, ["group", "label"], "survival")
         table = pivot_table(
             ends.rename(columns={"group": "level"}),
             "level",
             "label",
             row_title="training",
-            title="Last in-training evaluation (survival, decisions)",
+            title="Each run's last in-training evaluation (survival, decisions)",
         )
     doc.section(
         "In-training evaluations",
@@ -1382,7 +1449,9 @@ def _ablations(stats: pd.DataFrame) -> pd.DataFrame:
     """The groups (algorithm and training set-up) trained with several modality sets, where there are any: an
     ablation figure's panels (the table keeps every group; a panel per run trained with every sense only would bury
     them)."""
-    several = stats.groupby("group", sort=False)["label"].transform("nunique") > 1
+    # several modality sets, not several acting modes of one ("all [mode]", "all [sample]")
+    modality = stats["label"].astype(str).str.split(" [", regex=False).str[0]
+    several = modality.groupby(stats["group"], sort=False).transform("nunique") > 1
     return stats[several] if several.any() else stats
 
 
