@@ -90,7 +90,7 @@ class Inputs:
     # first level at least this many times the better of random and stand-still (:mod:`.matched`); None: every agent
     learned_factor: float | None = None
     # the verdict rules' settings (margins; a protocol's ``report.verdicts``); "fails" uses ``learned_factor`` where set
-    verdict_rules: rules.Rules = rules.DEFAULT_RULES
+    verdict_rules: rules.Rules = field(default_factory=lambda: rules.Rules())
 
     @cached_property
     def verdicts(self) -> list[rules.Verdict]:
@@ -255,7 +255,7 @@ def read_inputs(
     acting: str | None = None,
     compare: str | None = None,
     learned: float | None = None,
-    margin: float = rules.DEFAULT_RULES.margin,
+    margin: float = 0.1,
 ) -> Inputs:
     """Check the arguments, read the runs and evaluations and tie the evaluated checkpoints to their runs."""
     if survival not in ("eval", "train"):
@@ -280,7 +280,7 @@ def read_inputs(
         _check_compared(evals.checkpoints, runs, compare)
     verdict_rules = rules.Rules(
         margin=margin,
-        fails_factor=learned if learned is not None else rules.DEFAULT_RULES.fails_factor,
+        fails_factor=learned if learned is not None else rules.Rules().fails_factor,
     )
     inputs = Inputs(runs, evals, read_notes, survival, window, bins, compare, learned, verdict_rules)
     describe_extras(inputs.usable)
@@ -1756,7 +1756,7 @@ def build_report(
     acting: str | None = None,
     compare: str | None = None,
     learned: float | None = None,
-    margin: float = rules.DEFAULT_RULES.margin,
+    margin: float = 0.1,
 ) -> Report:
     """Read runs and evaluations, write ``out/report.md``, its PNG figures and ``out/data/*.csv`` (the tables'
     numbers); returns what was written.  ``acting``: which of the checkpoints' evaluation modes to report
