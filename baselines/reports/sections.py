@@ -488,7 +488,10 @@ def survival_per_level(doc: Document, inp: Inputs) -> None:
             entry["reward"].add(r.reward)
             entry["seeds"].add(r.seed)
             entry["budget"].setdefault(r.training, set()).add(r.budget)
-        table += "\n\n**Series.** Every setting the labels leave out (all runs with every sense):\n\n"
+        table += (
+            "\n\n**Series.** Acting: as labelled in the table above. Worlds: as above. Every setting the labels "
+            "leave out (all runs with every sense):\n\n"
+        )
         table += "| series | reward | budget per training | seeds | in the figure |\n|---|---|---|---|---|\n"
         table += "\n".join(
             f"| {k} | {', '.join(sorted(v['reward']))} | "
@@ -1654,7 +1657,9 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
             if len(ab_best)
             else pd.DataFrame(columns=["modality", *STAT_COLUMNS])
         )
-        v = rules.ablations(surv, succ, bars.get(level, float("nan")), vr)
+        # the bar of the level the final networks were evaluated on (a curriculum's last stage)
+        on = str(last["level"].iloc[0]) if len(last) and last["level"].nunique() == 1 else level
+        v = rules.ablations(surv, succ, bars.get(on, float("nan")), vr)
         v.claim += f" ({algo}, trained on {level})"
         verdicts.append(v)
     return verdicts
