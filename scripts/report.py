@@ -69,6 +69,13 @@ class ReportConfig:
         "reported as 'did not learn at this budget'; unset: every agent is compared",
         check=(lambda v: v is None or v > 0, "a positive factor"),
     )
+    margin: float = option(
+        0.1,
+        "the verdict rules' margin: 'A beats B' (survival IQMs, testbed success rates) is reproduced when the 95 % "
+        "interval of the ratio A / B lies above 1 + margin and contradicted when it lies at or under it "
+        "(docs/reports.md)",
+        check=(lambda v: 0 <= v < 1, "a number in [0, 1)"),
+    )
 
 
 def parse(argv: list[str] | None = None) -> ReportConfig:
@@ -99,6 +106,7 @@ def main(argv: list[str] | None = None) -> int:
             acting=cfg.acting,
             compare=cfg.compare,
             learned=cfg.learned,
+            margin=cfg.margin,
         )
     except ReportError as err:  # an input that does not hold what the key asks for: named in the message
         cli.fail("report.py", str(err))

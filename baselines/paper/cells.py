@@ -423,6 +423,8 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
         argv += [f"acting={acting(ev)}"] * (len(modes) == 1) + [f"compare={acting(ev)}"]
     if p.report.learned is not None:
         argv.append(f"learned={p.report.learned:g}")
+    # the verdict rules' margins, stated in the protocol file before its runs (docs/reports.md, "The verdict rules")
+    argv.append(f"margin={p.report.verdicts.margin:g}")
     cells.append(
         Cell(
             "report",

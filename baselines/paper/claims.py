@@ -1,24 +1,39 @@
 """The paper's claims (a)–(e) of issue 20 judged against a report's numbers: each claim's rule, applied to tables of
-estimates with 95 % intervals (``value``, ``low``, ``high``), gives a :class:`Verdict` — reproduced, contradicted, or
-not resolvable at this scale — with the numbers behind it.
+estimates with 95 % intervals (``value``, ``low``, ``high``; ``samples``, each seed's episodes, where the report has
+them), gives a :class:`Verdict` — reproduced, contradicted, or not resolvable at this scale — with the numbers
+behind it.  The rules decide both ways (issue 62); their margins are settings (:class:`Rules`, a protocol's
+``report.verdicts``):
 
-The rules are deliberately conservative: two cells differ only where their intervals (two-stage bootstrap over
-seeds and episodes, seed-clustered Wilson for success; :mod:`.stats`) do not overlap; overlapping intervals never
-decide a claim.  A part whose agent cells have fewer than three seeds has no intervals and is not decided: its
-verdict is "not resolvable: 2 seeds", with the numbers (each seed's value).  Two agents that acted differently
-(greedy against sampled actions) are not compared — except where a report compares sampled actions and an agent
-without an action distribution (DQN) takes part with its greedy action, labelled so
-(:data:`..reports.load.GREEDY_STAND_IN`).  The (d) "drop" rule looks at every pair of training levels of an agent,
-so its one-sided paired tests over seeds are corrected for the number of pairs (Holm).  A claim made of parts is
-reproduced when every part with data is, contradicted when some part is and none is reproduced, and otherwise not
-resolvable (the parts' verdicts are listed).  A part without data (DreamerV3, human records) is said to be missing
-and counts as not resolvable.
+* **A beats B** (survival; testbed success the same on rates): the ratio of their IQMs with its 95 % interval (independent two-stage bootstraps of
+  each, :func:`..reports.stats.ratio_interval`; hand-made tables without episodes: the bounds
+  ``[low_A / high_B, high_A / low_B]``).  Reproduced when the interval lies above ``1 + margin``; contradicted
+  when it lies at or under ``1 + margin`` — A is no more than the margin better: equal within the margin, or
+  worse (the ratio inside [0.9, 1.1] contradicts "curriculum beats direct"); otherwise not resolvable.
+* **Censoring**: a cell with more than a quarter of its episodes at the step cap has an IQM that is a lower bound.
+  A ratio whose numerator is capped is a lower bound (it can reproduce "A beats B", never contradict it); one whose
+  denominator is capped an upper bound (it can contradict, never reproduce).
+* **Fails** — one definition for every claim: an agent fails a level when it did not learn it by the gate: its
+  survival interval not above ``fails_factor`` (the report's ``learned``, else 2) × the better of random and
+  stand-still on that level (IQM).  Contradicted ("it learned") when the interval lies above that bar.
+* **The gate does not hide what the data decide**: an agent that did not learn is still compared; a part left
+  undecided says which of its agents did not learn.
+* **(d) no monotonic gain**: a drop of mean testbed success between consecutive training levels, each a one-sided
+  two-proportion test on the effective episodes (the seeds' design effect), Holm-corrected over the steps;
+  the report states the smallest drop the test finds with 80 % power at the protocol's seeds and episodes.
+* **A claim of parts** is reproduced when every part is, contradicted when any part is (a claim that states
+  several things is false when one of them is), otherwise not resolvable.
+
+A part whose agent cells have fewer than three seeds has no intervals and is not decided: its verdict is "not
+resolvable: 2 seeds", with the numbers (each seed's value).  Two agents that acted differently (greedy against
+sampled actions) are not compared — except where a report compares sampled actions and an agent without an action
+distribution (DQN) takes part with its greedy action, labelled so (:data:`..reports.load.GREEDY_STAND_IN`).  A part
+without data (DreamerV3, human records) is said to be missing and counts as not resolvable.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -26,9 +41,27 @@ import pandas as pd
 from scipy import stats as sps
 
 from ..reports.load import GREEDY_STAND_IN, same_acting
-from ..reports.stats import MIN_SEEDS, holm
+from ..reports.stats import MIN_SEEDS, TooFewSeeds, design_effect, detectable_drop, drop_pvalue, holm, ratio_interval
+from ..reports.tables import capped
 
 REPRODUCED, CONTRADICTED, UNRESOLVED = "reproduced", "contradicted", "not resolvable at this scale"
+
+
+@dataclass(frozen=True)
+class Rules:
+    """The settings of the verdict rules (a protocol's ``report.verdicts``, scripts/report.py's arguments of the same
+    names), fixed before a protocol's runs."""
+
+    #: survival: "A beats B" needs the ratio's interval above 1 + margin; at or under 1 + margin contradicts it
+    margin: float = 0.1
+    #: fails: survival interval not above this × the better of random and stand-still (the report's learned gate)
+    fails_factor: float = 2.0
+    #: the family-wise error of (d)'s drop tests and the power the report states for them
+    alpha: float = 0.05
+    power: float = 0.8
+
+
+DEFAULT_RULES = Rules()
 
 
 def few_seeds(n: int) -> str:
@@ -70,24 +103,92 @@ class Verdict:
 
 
 def _num(x: float) -> str:
-    return f"{x:.0f}" if abs(x) >= 100 else f"{x:.3g}"  # survival in whole decisions, rates to 3 digits
+    return f"{x:,.0f}" if abs(x) >= 100 else f"{x:.3g}"  # survival in whole decisions, rates to 3 digits
 
 
 def _fmt(row) -> str:
     v, lo, hi = float(row["value"]), float(row["low"]), float(row["high"])
     if math.isnan(v):
         return "n/a"
+    bound = "≥ " if capped(row) else ""
     if math.isnan(lo):
         points = row.get("points", ()) if hasattr(row, "get") else ()
         if isinstance(points, tuple) and len(points) > 1:
-            return f"{_num(v)} (seeds {', '.join(_num(p) for p in points)})"
-        return _num(v)
-    return f"{_num(v)} [{_num(lo)}, {_num(hi)}]"
+            return f"{bound}{_num(v)} (seeds {', '.join(_num(p) for p in points)})"
+        return bound + _num(v)
+    text = f"{bound}{_num(v)} [{_num(lo)}, {_num(hi)}]"
+    if bound:
+        text += f" ({100 * float(row['at_cap']):.0f} % at the step cap)"
+    return text
 
 
 def above(a, b) -> bool:
     """``a``'s interval lies entirely above ``b``'s (no overlap)."""
     return not (math.isnan(a["low"]) or math.isnan(b["high"])) and a["low"] > b["high"]
+
+
+def _samples(row) -> list | None:
+    s = row.get("samples") if hasattr(row, "get") else None
+    return list(s) if isinstance(s, tuple) and len(s) >= MIN_SEEDS else None
+
+
+def ratio(a, b) -> tuple[float, float, float, str]:
+    """``a``'s value over ``b``'s (survival: IQM; success: rate) with its 95 % interval, and how the interval was
+    made: from each cell's episodes (``samples``) by independent bootstraps, else the bounds of the cells'
+    intervals ``[low_a / high_b, high_a / low_b]`` (infinite where ``low_b`` is 0)."""
+    sa, sb = _samples(a), _samples(b)
+    statistic = "mean" if (a.get("statistic") if hasattr(a, "get") else None) == "rate" else "iqm"
+    if sa is not None and sb is not None:
+        try:
+            est = ratio_interval(sa, sb, statistic)
+            return est.value, est.low, est.high, "bootstrap"
+        except TooFewSeeds:
+            pass
+    v = float(a["value"]) / float(b["value"]) if float(b["value"]) else math.inf
+    if any(math.isnan(float(x)) for x in (a["low"], a["high"], b["low"], b["high"])) or float(b["high"]) <= 0:
+        return v, math.nan, math.nan, "none"
+    hi = float(a["high"]) / float(b["low"]) if float(b["low"]) > 0 else math.inf
+    return v, float(a["low"]) / float(b["high"]), hi, "bounds"
+
+
+#: outcomes of a comparison of two cells
+ABOVE, NOT_ABOVE = "above", "not above"
+
+
+def beats(a, b, margin: float, names: tuple[str, str]) -> tuple[str | None, str]:
+    """Whether ``a`` survives longer (or succeeds more often) than ``b`` by more than ``margin`` (:data:`ABOVE`: the ratio's 95 % interval
+    above 1 + margin), not (:data:`NOT_ABOVE`: at or under 1 + margin: equal within the margin, or worse), or
+    undecided (None), with a line of evidence.  Censoring: a capped ``a`` cannot give NOT_ABOVE, a capped ``b``
+    cannot give ABOVE."""
+    r, lo, hi, how = ratio(a, b)
+    na, nb = names
+    line = f"{na} / {nb} = {r:.2f}" + ("" if math.isnan(lo) else f" [{lo:.2f}, {hi:.2f}]")
+    if math.isnan(lo):
+        return None, line + " (no interval)"
+    if how == "bounds":
+        line += " (bounds of the cells' intervals)"
+    if lo > 1 + margin:
+        if capped(b):
+            return None, line + f"; {nb} at the step cap: its IQM is a lower bound, so the ratio an upper one"
+        return ABOVE, line + f" > {1 + margin:g}"
+    if hi <= 1 + margin:
+        if capped(a):
+            return None, line + f"; {na} at the step cap: its IQM is a lower bound, so the ratio a lower one"
+        return NOT_ABOVE, line + f" ≤ {1 + margin:g}" + (" (equal within the margin)" if lo >= 1 - margin else "")
+    return None, line + f" straddles {1 + margin:g}"
+
+
+def fails(row, bar: float) -> tuple[str | None, str]:
+    """The one definition of "fails": the agent did not learn by the gate — its survival interval not above
+    ``bar`` (``fails_factor`` × the better of random and stand-still).  Returns ("fails" | "learned" | None,
+    evidence); None without an interval, or where a capped cell's interval does not clear the bar."""
+    if math.isnan(float(row["low"])) or math.isnan(bar):
+        return None, f"{_fmt(row)} vs the bar {_num(bar)}: no interval"
+    if float(row["low"]) > bar:
+        return "learned", f"{_fmt(row)}: interval above the bar {_num(bar)} (learned)"
+    if capped(row):
+        return None, f"{_fmt(row)}: capped, its interval a lower bound under the bar {_num(bar)}"
+    return "fails", f"{_fmt(row)}: interval not above the bar {_num(bar)} (did not learn)"
 
 
 def spearman(x, y) -> tuple[float, float]:
@@ -115,12 +216,12 @@ def spearman(x, y) -> tuple[float, float]:
 
 
 def combine(claim: str, parts: Sequence[Verdict], rule: str) -> Verdict:
-    """A claim made of ``parts``: reproduced when every part is, contradicted when some part is and none is
-    reproduced, otherwise not resolvable."""
+    """A claim made of ``parts``: reproduced when every part is, contradicted when any part is (the claim states
+    each of them), otherwise not resolvable."""
     verdicts = [p.verdict for p in parts]
     if verdicts and all(v == REPRODUCED for v in verdicts):
         verdict = REPRODUCED
-    elif CONTRADICTED in verdicts and REPRODUCED not in verdicts:
+    elif CONTRADICTED in verdicts:
         verdict = CONTRADICTED
     else:
         # every part with data short of seeds in the same way: the claim says so
@@ -151,66 +252,112 @@ def _sorted(frame: pd.DataFrame, order: Sequence[str]) -> pd.DataFrame:
     return frame[frame["level"].isin(rank)].sort_values("level", key=lambda s: s.map(rank))
 
 
+#: what a part left undecided says of an agent that did not learn
+NOT_LEARNED = "not resolvable: did not learn at this budget"
+
+
+def _explain(verdict: Verdict, who: Sequence[str], gate: pd.DataFrame | None) -> Verdict:
+    """An undecided ``verdict`` says which of ``who`` did not learn by the gate (a decided one stays as it is: the
+    gate hides nothing the data decide)."""
+    if gate is None or not len(gate) or not unresolved(verdict.verdict) or verdict.verdict != UNRESOLVED:
+        return verdict
+    rows = gate.set_index("algo")
+    short = [a for a in who if a in rows.index and not bool(rows.loc[a, "learned"])]
+    if short:
+        verdict.verdict = NOT_LEARNED
+        verdict.evidence += [str(rows.loc[a, "reading"]) for a in short]
+    return verdict
+
+
 # ------------------------------------------------------------------------------------------------ (a)
-def survival_falls(survival: pd.DataFrame, order: Sequence[str], hard_from: str = HARD_FROM) -> Verdict:
+def survival_falls(
+    survival: pd.DataFrame, order: Sequence[str], hard_from: str = HARD_FROM, rules: Rules = DEFAULT_RULES
+) -> Verdict:
     """(a) Survival falls with level difficulty, sharply from 3-2 on.  ``survival``: columns algo, level, value,
-    low, high (survival per training level).  Per algorithm: Spearman's rho of survival against level order (scipy,
-    two-sided p) and whether every level from ``hard_from`` on lies below every level before it (intervals apart).
-    Reproduced: rho < 0 with p < 0.05 and the hard levels apart below; contradicted: rho > 0 with p < 0.05, or the
-    hard levels apart above; otherwise not resolvable."""
+    low, high (survival per training level).  Two parts per algorithm: *falls* — Spearman's rho of survival against
+    level order (exact two-sided p): reproduced rho < 0 with p < alpha, contradicted rho > 0 with p < alpha; *drops
+    at ``hard_from``* — the ratio of ``hard_from``'s survival to the level before it: reproduced when its interval
+    lies under 1 − margin (a drop beyond the margin), contradicted when at or above 1 − margin (no drop beyond
+    it)."""
     claim = f"(a) survival falls with level difficulty, sharply from {hard_from} on"
-    rule = (
-        f"per algorithm: Spearman's rho of survival IQM against level order (p < 0.05), and every level from "
-        f"{hard_from} on below every earlier level (95 % intervals apart)"
-    )
+    rule_falls = f"Spearman's rho of survival IQM against level order, exact p < {rules.alpha:g} (rho < 0 reproduces, > 0 contradicts)"
     if not len(survival):
         return missing(claim, "no survival per training level")
     cut = list(order).index(hard_from)
+    before = order[cut - 1]
+    rule_drop = (
+        f"{hard_from} / {before} survival ratio, 95 % interval: under {1 - rules.margin:g} (a drop beyond the "
+        f"margin) reproduces, at or above {1 - rules.margin:g} contradicts"
+    )
     parts = []
     for algo, part in survival.groupby("algo", sort=False):
         part = _sorted(part.dropna(subset=["value"]), order)
         rank = part["level"].map({n: i for i, n in enumerate(order)})
-        evidence = ["; ".join(f"{r.level}: {_fmt(r._asdict())}" for r in part.itertuples())]
+        levels = "; ".join(f"{r.level}: {_fmt(r._asdict())}" for r in part.itertuples())
         if len(part) < 3 or part["value"].nunique() < 2:
             parts.append(
-                _gate(Verdict(f"{algo}", UNRESOLVED, rule, evidence + ["fewer than 3 levels, or all equal"]), part)
+                _gate(
+                    Verdict(f"{algo}: falls", UNRESOLVED, rule_falls, [levels, "fewer than 3 levels, or all equal"]),
+                    part,
+                )
             )
-            continue
-        rho, p = spearman(rank, part["value"])
-        early, late = part[rank < cut], part[rank >= cut]
-        apart_below = len(early) and len(late) and late["high"].max() < early["low"].min()
-        apart_above = len(early) and len(late) and late["low"].min() > early["high"].max()
-        evidence.append(
-            f"Spearman's rho {rho:.2f} (p = {p:.3g}, {len(part)} levels); levels from {hard_from} on "
-            + (
-                "apart below the earlier ones"
-                if apart_below
-                else "apart above the earlier ones"
-                if apart_above
-                else "not apart from the earlier ones (intervals overlap)"
-            )
-        )
-        if rho < 0 and p < 0.05 and apart_below:
-            verdict = REPRODUCED
-        elif (rho > 0 and p < 0.05) or apart_above:
-            verdict = CONTRADICTED
         else:
-            verdict = UNRESOLVED
-        parts.append(_gate(Verdict(f"{algo}", verdict, rule, evidence), part))
-    return combine(claim, parts, rule)
+            rho, p = spearman(rank, part["value"])
+            verdict = (
+                REPRODUCED
+                if rho < 0 and p < rules.alpha
+                else CONTRADICTED
+                if rho > 0 and p < rules.alpha
+                else UNRESOLVED
+            )
+            evidence = [levels, f"Spearman's rho {rho:.2f} (p = {p:.3g}, {len(part)} levels)"]
+            parts.append(_gate(Verdict(f"{algo}: falls with level", verdict, rule_falls, evidence), part))
+        cells = part.set_index("level")
+        if hard_from in cells.index and before in cells.index:
+            a, b = cells.loc[hard_from], cells.loc[before]
+            r, lo, hi, how = ratio(a, b)
+            line = f"{hard_from} / {before} = {r:.2f}" + ("" if math.isnan(lo) else f" [{lo:.2f}, {hi:.2f}]")
+            line += " (bounds of the cells' intervals)" if how == "bounds" else ""
+            if math.isnan(lo):
+                verdict = UNRESOLVED
+            elif hi < 1 - rules.margin and not capped(a):
+                verdict = REPRODUCED
+            elif lo >= 1 - rules.margin and not capped(b):
+                verdict = CONTRADICTED
+            else:
+                verdict = UNRESOLVED
+            parts.append(
+                _gate(
+                    Verdict(
+                        f"{algo}: drops at {hard_from}",
+                        verdict,
+                        rule_drop,
+                        [f"{hard_from}: {_fmt(a)}; {before}: {_fmt(b)}", line],
+                    ),
+                    a,
+                    b,
+                )
+            )
+        else:
+            parts.append(missing(f"{algo}: drops at {hard_from}", f"no survival on {before} and {hard_from}"))
+    return combine(claim, parts, f"{rule_falls}; {rule_drop}")
 
 
 # ------------------------------------------------------------------------------------------------ (b)
-def curriculum_beats_direct(cmp: pd.DataFrame, order: Sequence[str], skip: Sequence[str] = ("1-1",)) -> Verdict:
+def curriculum_beats_direct(
+    cmp: pd.DataFrame, order: Sequence[str], skip: Sequence[str] = ("1-1",), rules: Rules = DEFAULT_RULES
+) -> Verdict:
     """(b) Curriculum beats direct training.  ``cmp``: columns algo, setup (curriculum or direct), level, value,
-    low, high.  Per algorithm, over the levels both have (``skip``: the first level, where both are the same
-    training): reproduced when curriculum's interval lies above direct's on at least half of them and below on none;
-    contradicted when direct's lies above on at least half and curriculum's above on none; otherwise not
+    low, high (and ``samples``).  Per algorithm, over the levels both have (``skip``: the first level, where both
+    are the same training), each level's ratio curriculum / direct (:func:`beats`): reproduced when the curriculum
+    beats direct by more than the margin on at least half of them and is not above on none; contradicted when it
+    is not above (equal within the margin, or below) on at least half and above on none; otherwise not
     resolvable."""
     claim = "(b) curriculum beats direct training"
     rule = (
-        "per algorithm, levels after the first: curriculum's 95 % interval above direct's (no overlap) on at least "
-        "half of the levels and below on none"
+        f"per algorithm, levels after the first: curriculum / direct survival ratio, 95 % interval above "
+        f"{1 + rules.margin:g} (beats) or at or under it (equal within the margin, or worse); reproduced when it "
+        "beats on at least half of the levels and fails to on none, contradicted the other way round"
     )
     if not len(cmp) or set(cmp["setup"]) != {"curriculum", "direct"}:
         return missing(claim, "no algorithm with both curriculum and direct runs")
@@ -222,12 +369,15 @@ def curriculum_beats_direct(cmp: pd.DataFrame, order: Sequence[str], skip: Seque
         if not levels:
             parts.append(missing(algo, "no level with both curriculum and direct runs"))
             continue
-        up = [lv for lv in levels if above(cur.loc[lv], dire.loc[lv])]
-        down = [lv for lv in levels if above(dire.loc[lv], cur.loc[lv])]
+        up, down, lines = [], [], []
+        for lv in levels:
+            outcome, line = beats(cur.loc[lv], dire.loc[lv], rules.margin, ("curriculum", "direct"))
+            lines.append(f"{lv}: curriculum {_fmt(cur.loc[lv])} vs direct {_fmt(dire.loc[lv])}; {line}")
+            (up if outcome == ABOVE else down if outcome == NOT_ABOVE else []).append(lv)
         evidence = [
-            "; ".join(f"{lv}: curriculum {_fmt(cur.loc[lv])} vs direct {_fmt(dire.loc[lv])}" for lv in levels),
-            f"curriculum above on {len(up)} of {len(levels)} levels ({', '.join(up) or 'none'}), below on "
-            f"{len(down)} ({', '.join(down) or 'none'})",
+            *lines,
+            f"curriculum beats direct on {len(up)} of {len(levels)} levels ({', '.join(up) or 'none'}), does not "
+            f"on {len(down)} ({', '.join(down) or 'none'})",
         ]
         if 2 * len(up) >= len(levels) and not down:
             verdict = REPRODUCED
@@ -240,19 +390,29 @@ def curriculum_beats_direct(cmp: pd.DataFrame, order: Sequence[str], skip: Seque
 
 
 # ------------------------------------------------------------------------------------------------ (c)
-def _ordered(a: str, b: str, survival: pd.DataFrame, order: Sequence[str]) -> Verdict:
-    """``a`` survives longer than ``b``: per level, intervals apart; reproduced when a is above on at least half of
-    the levels both have and below on none (and the reverse for contradicted)."""
-    rule = "per level, 95 % intervals apart: above on at least half of the levels both have and below on none"
+def _ordered(
+    a: str, b: str, survival: pd.DataFrame, order: Sequence[str], rules: Rules = DEFAULT_RULES, gate=None
+) -> Verdict:
+    """``a`` survives longer than ``b``: per level the ratio a / b (:func:`beats`); reproduced when a beats b on at
+    least half of the levels both have and fails to on none (and the reverse for contradicted)."""
+    rule = (
+        f"per level, survival ratio {a} / {b}: 95 % interval above {1 + rules.margin:g} (longer) or at or under it "
+        "(not longer); reproduced when longer on at least half of the levels and not longer on none, contradicted "
+        "the other way round"
+    )
     sa, sb = (survival[survival["algo"] == x].set_index("level") for x in (a, b))
     if not len(sa) or not len(sb):
         return missing(f"{a} > {b}", f"no survival of {a if not len(sa) else b}")
     levels = [lv for lv in order if lv in sa.index and lv in sb.index]
-    up = [lv for lv in levels if above(sa.loc[lv], sb.loc[lv])]
-    down = [lv for lv in levels if above(sb.loc[lv], sa.loc[lv])]
+    up, down, lines = [], [], []
+    for lv in levels:
+        outcome, line = beats(sa.loc[lv], sb.loc[lv], rules.margin, (a, b))
+        lines.append(f"{lv}: {a} {_fmt(sa.loc[lv])} vs {b} {_fmt(sb.loc[lv])}; {line}")
+        (up if outcome == ABOVE else down if outcome == NOT_ABOVE else []).append(lv)
     evidence = [
-        f"{a} above {b} on {len(up)} of {len(levels)} levels ({', '.join(up) or 'none'}), below on "
-        f"{len(down)} ({', '.join(down) or 'none'})"
+        *lines,
+        f"{a} longer on {len(up)} of {len(levels)} levels ({', '.join(up) or 'none'}), not longer on "
+        f"{len(down)} ({', '.join(down) or 'none'})",
     ]
     verdict = (
         REPRODUCED
@@ -270,127 +430,116 @@ def _ordered(a: str, b: str, survival: pd.DataFrame, order: Sequence[str]) -> Ve
             f"acting: {a} `{modes[0]}`, {b} `{modes[1]}` (an agent without an action distribution takes its greedy "
             "action where the others sample)"
         )
-    return _gate(Verdict(f"{a} > {b} in survival", verdict, rule, evidence), sa.loc[levels], sb.loc[levels])
+    out = _gate(Verdict(f"{a} > {b} in survival", verdict, rule, evidence), sa.loc[levels], sb.loc[levels])
+    return _explain(out, [a, b], gate)
 
 
-def _fails(
-    algo: str, levels: Sequence[str], survival: pd.DataFrame, random: pd.DataFrame, learns_on: Sequence[str] = ()
-) -> Verdict:
-    """``algo`` fails on ``levels`` (its survival interval not above random's there) — and, where ``learns_on`` is
-    given, does not fail on at least one of those."""
-    name = f"{algo} fails" + (f" beyond {learns_on[-1]}" if learns_on else "")
+def _fails(algo: str, levels: Sequence[str], survival: pd.DataFrame, bars: Mapping[str, float]) -> Verdict:
+    """``algo`` fails on ``levels``: :func:`fails` on each; reproduced when it fails on every level, contradicted
+    when it learned on most of them."""
+    name = f"{algo} fails"
     rule = (
-        "fails on a level: its 95 % interval not above the random agent's; reproduced when it fails on every "
-        "level"
-        + (f" beyond {learns_on[-1]} and is above random on {' or '.join(learns_on)}" if learns_on else "")
-        + "; contradicted when it is above random on most of those levels"
+        "fails on a level: did not learn it by the gate — its survival's 95 % interval not above the bar (the "
+        "learned factor × the better of random and stand-still there); reproduced when it fails on every level, "
+        "contradicted when its interval is above the bar on most of them"
     )
     s = survival[survival["algo"] == algo].set_index("level")
-    r = random.set_index("level")
     if not len(s):
         return missing(name, f"no survival of {algo}")
-    checked = [lv for lv in levels if lv in s.index and lv in r.index]
+    checked = [lv for lv in levels if lv in s.index and lv in bars]
     if not checked:
-        return missing(name, "no random-agent survival on those levels (references on the training levels)")
-    beats = [lv for lv in checked if above(s.loc[lv], r.loc[lv])]
-    # a level without an interval (one seed's single number) shows neither failing nor learning there
-    unknown = [lv for lv in checked if math.isnan(s.loc[lv]["low"]) or math.isnan(r.loc[lv]["high"])]
-    evidence = [
-        "; ".join(f"{lv}: {_fmt(s.loc[lv])} vs random {_fmt(r.loc[lv])}" for lv in checked),
-        f"above random on {len(beats)} of {len(checked)} ({', '.join(beats) or 'none'})",
-    ]
-    if unknown:
-        evidence.append(f"no interval on {', '.join(unknown)}: failing there is not shown")
-    early_ok = True
-    if learns_on:
-        early = [lv for lv in learns_on if lv in s.index and lv in r.index]
-        early_ok = any(above(s.loc[lv], r.loc[lv]) for lv in early)
-        evidence.append(f"above random on {' or '.join(learns_on)}: {'yes' if early_ok else 'no'}")
+        return missing(name, "no reference survival (random, stand-still) on those levels")
+    outcomes = {lv: fails(s.loc[lv], bars[lv]) for lv in checked}
+    failed = [lv for lv, (o, _) in outcomes.items() if o == "fails"]
+    learned = [lv for lv, (o, _) in outcomes.items() if o == "learned"]
+    evidence = [f"{lv}: {line}" for lv, (_, line) in outcomes.items()]
+    evidence.append(f"fails on {len(failed)} of {len(checked)} ({', '.join(failed) or 'none'})")
     verdict = (
-        REPRODUCED
-        if not beats and not unknown and early_ok
-        else CONTRADICTED
-        if 2 * len(beats) > len(checked)
-        else UNRESOLVED
+        REPRODUCED if len(failed) == len(checked) else CONTRADICTED if 2 * len(learned) > len(checked) else UNRESOLVED
     )
     return _gate(Verdict(name, verdict, rule, evidence), s.loc[checked])
 
 
-def algorithm_ordering(survival: pd.DataFrame, random: pd.DataFrame, order: Sequence[str]) -> Verdict:
+def algorithm_ordering(
+    survival: pd.DataFrame, bars: Mapping[str, float], order: Sequence[str], rules: Rules = DEFAULT_RULES
+) -> Verdict:
     """(c) DreamerV3 > DQN > PPO in survival; DQN fails beyond 1-2; PPO+LSTM fails.  ``survival``: columns algo,
-    level, value, low, high; ``random``: the random agent's survival per level (level, value, low, high).  DQN's
-    speed on 1-1 (learning curves) is not judged by a rule here."""
+    level, value, low, high; ``bars``: per level the bar of "fails" (:func:`fails`).  DQN's speed on 1-1 (learning
+    curves) is not judged by a rule here."""
     claim = "(c) DreamerV3 > DQN > PPO in survival; DQN fails beyond 1-2; PPO+LSTM fails"
     algos = set(survival["algo"]) if len(survival) else set()
     dreamer = next((a for a in ("dreamer", "dreamer_xs") if a in algos), None)
+    late = [lv for lv in order if list(order).index(lv) > 1]
+    dqn_late = _fails("dqn", late, survival, bars)
+    dqn_early = _fails("dqn", list(order[:2]), survival, bars)
+    if dqn_late.verdict == REPRODUCED and dqn_early.verdict != CONTRADICTED:  # fails beyond 1-2 but not before
+        dqn_late.verdict = UNRESOLVED if dqn_early.verdict == UNRESOLVED else CONTRADICTED
+        dqn_late.evidence.append(f"on {' and '.join(order[:2])}: {dqn_early.evidence[-1]}")
+    dqn_late.claim = f"dqn fails beyond {order[1]}"
     parts = [
-        _ordered(dreamer, "dqn", survival, order) if dreamer else missing("DreamerV3 > DQN", "no DreamerV3 runs"),
-        _ordered("dqn", "ppo", survival, order),
-        _fails("dqn", [lv for lv in order if list(order).index(lv) > 1], survival, random, learns_on=order[:2]),
-        _fails("ppo_lstm", list(order), survival, random),
+        _ordered(dreamer, "dqn", survival, order, rules)
+        if dreamer
+        else missing("DreamerV3 > DQN", "no DreamerV3 runs"),
+        _ordered("dqn", "ppo", survival, order, rules),
+        dqn_late,
+        _fails("ppo_lstm", list(order), survival, bars),
     ]
     return combine(claim, parts, "each part by its rule")
-
-
-#: what a part says of an agent that did not learn: it is compared with nothing
-NOT_LEARNED = "not resolvable: did not learn at this budget"
-
-
-def _not_learned(claim: str, who: Sequence[str], gate: pd.DataFrame) -> Verdict:
-    readings = gate.set_index("algo")["reading"] if len(gate) else pd.Series(dtype=str)
-    return Verdict(
-        claim,
-        NOT_LEARNED,
-        "an agent enters a comparison only if its network with every sense learned the level",
-        [str(readings.get(a, f"{a}: no evaluation of its network on the level")) for a in who],
-    )
 
 
 def _learned(gate: pd.DataFrame) -> list[str]:
     return list(gate.loc[gate["learned"], "algo"]) if len(gate) else []
 
 
-def survives_longest(algo: str, survival: pd.DataFrame, gate: pd.DataFrame, level: str) -> Verdict:
-    """``algo`` survives longest on ``level`` at equal compute: its interval above every other agent that learned
-    (reproduced), some other's above its own (contradicted)."""
+def survives_longest(
+    algo: str, survival: pd.DataFrame, gate: pd.DataFrame, level: str, rules: Rules = DEFAULT_RULES
+) -> Verdict:
+    """``algo`` survives longest on ``level`` at equal compute: longer (:func:`beats`) than every other agent
+    (reproduced); not longer than some other (contradicted).  Every agent is compared, learned or not."""
     claim = f"{algo} survives longest on {level}"
-    rule = "its 95 % interval above every other agent's that learned; contradicted where one's lies above its own"
+    rule = (
+        f"survival ratio {algo} / each other agent, 95 % interval: above {1 + rules.margin:g} for every other "
+        f"agent reproduces, at or under {1 + rules.margin:g} for some other contradicts"
+    )
     s = survival[survival["level"] == level].set_index("algo") if len(survival) else survival
     if algo not in s.index:
         return missing(claim, f"no compute-matched run of {algo}")
-    if algo not in _learned(gate):
-        return _not_learned(claim, [algo], gate)
-    others = [a for a in _learned(gate) if a != algo and a in s.index]
+    others = [a for a in s.index if a != algo]
     if not others:
-        return missing(claim, "no other agent learned the level")
-    up = [a for a in others if above(s.loc[algo], s.loc[a])]
-    down = [a for a in others if above(s.loc[a], s.loc[algo])]
+        return missing(claim, "no other agent on the level")
+    up, down, lines = [], [], [f"{a}: {_fmt(s.loc[a])}" for a in [algo, *others]]
+    for a in others:
+        outcome, line = beats(s.loc[algo], s.loc[a], rules.margin, (algo, a))
+        lines.append(line)
+        (up if outcome == ABOVE else down if outcome == NOT_ABOVE else []).append(a)
     evidence = [
-        "; ".join(f"{a}: {_fmt(s.loc[a])}" for a in [algo, *others]),
-        f"above {len(up)} of {len(others)} ({', '.join(up) or 'none'}), below {len(down)} ({', '.join(down) or 'none'})",
+        "; ".join(lines[: len(others) + 1]),
+        *lines[len(others) + 1 :],
+        f"longer than {len(up)} of {len(others)} ({', '.join(up) or 'none'}), not longer than {len(down)} "
+        f"({', '.join(down) or 'none'})",
     ]
     verdict = CONTRADICTED if down else REPRODUCED if len(up) == len(others) else UNRESOLVED
-    return _gate(Verdict(claim, verdict, rule, evidence), s.loc[[algo, *others]].reset_index())
+    out = _gate(Verdict(claim, verdict, rule, evidence), s.loc[[algo, *others]].reset_index())
+    return _explain(out, [algo, *others], gate)
 
 
 def learns_fastest(algo: str, reach: pd.DataFrame, gate: pd.DataFrame, level: str) -> Verdict:
     """``algo`` learns ``level`` fastest: the env steps at which each seed's in-training evaluations (validation
     worlds) first reached the learning threshold; reproduced when every seed of ``algo`` got there before any seed
-    of every other agent that learned, contradicted when every seed of another got there before any of its own
-    (a seed that never got there counts as later than any that did)."""
+    of every other agent, contradicted when every seed of another got there before any of its own (a seed that
+    never got there counts as later than any that did; two agents none of whose seeds got there are not ordered).
+    Every agent is compared, learned or not."""
     claim = f"{algo} learns {level} fastest"
     rule = (
-        "env steps at which a seed's in-training evaluation (validation worlds, IQM) first reached the threshold: "
-        "every seed of it before every seed of each other agent that learned (reproduced), or every seed of "
-        "another before every seed of it (contradicted)"
+        "env steps at which a seed's in-training evaluation (validation worlds, IQM) first reached the bar: "
+        "every seed of it before every seed of each other agent (reproduced), or every seed of another before "
+        "every seed of it (contradicted); a seed that never did is later than any that did"
     )
     if not len(reach) or algo not in set(reach["algo"]):
         return missing(claim, f"no compute-matched run of {algo}")
-    if algo not in _learned(gate):
-        return _not_learned(claim, [algo], gate)
-    others = [a for a in _learned(gate) if a != algo and a in set(reach["algo"])]
+    others = [a for a in dict.fromkeys(reach["algo"]) if a != algo]
     if not others:
-        return missing(claim, "no other agent learned the level")
+        return missing(claim, "no other agent on the level")
     steps = {
         a: sorted(float(r.steps) if r.reached else math.inf for r in reach[reach["algo"] == a].itertuples(index=False))
         for a in [algo, *others]
@@ -411,57 +560,73 @@ def learns_fastest(algo: str, reach: pd.DataFrame, gate: pd.DataFrame, level: st
     if fewest < MIN_SEEDS:
         verdict = few_seeds(fewest)
         evidence.append(f"fewer than {MIN_SEEDS} seeds ({fewest}): no verdict")
-    return Verdict(claim, verdict, rule, evidence)
+    return _explain(Verdict(claim, verdict, rule, evidence), [algo, *others], gate)
 
 
 def matched_ordering(
-    survival: pd.DataFrame, random: pd.DataFrame, gate: pd.DataFrame, reach: pd.DataFrame, level: str, budget: str
+    survival: pd.DataFrame,
+    bar: float,
+    gate: pd.DataFrame,
+    reach: pd.DataFrame,
+    level: str,
+    budget: str,
+    rules: Rules = DEFAULT_RULES,
 ) -> Verdict:
     """(c) where the paper states it for ``level``, at equal compute (``budget``, e.g. 110 CPU-min): DreamerV3
     survives longest, DQN above PPO, DQN learns the level fastest, PPO+LSTM fails.  ``survival``: the compute-
-    matched runs' final networks per algo (columns algo, level, value, low, high, n, unit, acting); ``random``: the
-    random agent's survival per level; ``gate``: :func:`..reports.matched.learned_gate`; ``reach``:
-    :func:`..reports.matched.reaching`.  Only agents that learned the level are compared; "fails" needs no gate."""
+    matched runs' final networks per algo (columns algo, level, value, low, high, n, unit, acting, samples,
+    at_cap); ``bar``: the bar of "fails" on ``level`` (:func:`fails`); ``gate``:
+    :func:`..reports.matched.learned_gate` (it explains undecided parts, it decides none); ``reach``:
+    :func:`..reports.matched.reaching`."""
     claim = f"(c) at equal compute on {level} ({budget}): DreamerV3 survives longest, DQN > PPO, DQN learns fastest, PPO+LSTM fails"
     algos = set(survival["algo"]) if len(survival) else set()
     dreamer = next((a for a in ("dreamer", "dreamer_xs") if a in algos), "dreamer_xs")
-    learned = _learned(gate)
-    short = [a for a in ("dqn", "ppo") if a in algos and a not in learned]
+    on_level = survival[survival["level"] == level] if len(survival) else survival
     parts = [
-        survives_longest(dreamer, survival, gate, level),
-        _not_learned("dqn > ppo in survival", short, gate)
-        if short
-        else _ordered("dqn", "ppo", survival[survival["level"] == level] if len(survival) else survival, [level]),
+        survives_longest(dreamer, survival, gate, level, rules),
+        _ordered("dqn", "ppo", on_level, [level], rules, gate),
         learns_fastest("dqn", reach, gate, level),
-        _fails("ppo_lstm", [level], survival, random),
+        _fails("ppo_lstm", [level], survival, {level: bar}),
     ]
-    return combine(claim, parts, "each part by its rule; agents that did not learn are compared with nothing")
+    return combine(claim, parts, "each part by its rule; the gate decides nothing, it explains undecided parts")
 
 
 # ------------------------------------------------------------------------------------------------ (d)
-def drops(per_seed: pd.DataFrame, order: Sequence[str], alpha: float = 0.05) -> tuple[list, list[str]]:
-    """The resolved drops of one agent's testbed success between training levels: for every pair of levels i before
-    j, a one-sided paired t-test over seeds (``scipy.stats.ttest_1samp`` of each seed's success at i minus at j,
-    alternative "greater"), Holm-corrected over all pairs (family-wise error ``alpha``).  ``per_seed``: columns
-    level, seed, value (each seed's mean testbed success).  Returns the rejected pairs and a line per pair tested."""
-    levels = [lv for lv in order if lv in set(per_seed["level"])]
-    wide = per_seed.pivot_table(index="seed", columns="level", values="value", aggfunc="mean")
-    pairs, pvalues, lines = [], [], []
-    for i, a in enumerate(levels):
-        for b in levels[i + 1 :]:
-            d = (wide[a] - wide[b]).dropna().to_numpy()
-            if len(d) < MIN_SEEDS:
-                continue
-            if np.allclose(d, d[0]):  # every seed the same difference: no spread to test against
-                p = 0.0 if d[0] > 0 else 1.0
-            else:
-                p = float(sps.ttest_1samp(d, 0.0, alternative="greater").pvalue)
-            pairs.append((a, b))
-            pvalues.append(p)
-    rejected = holm(pvalues, alpha)
-    for (a, b), p, r in zip(pairs, pvalues, rejected):
+def _effective(row) -> float:
+    """The effective number of episodes of a success cell: its episodes over the seeds' design effect (from its
+    ``samples`` where it has them)."""
+    samples = row.get("samples") if hasattr(row, "get") else None
+    n = float(row["episodes"]) if "episodes" in row and not pd.isna(row["episodes"]) else math.nan
+    if isinstance(samples, tuple) and len(samples) > 1:
+        return n / design_effect(samples)
+    return n
+
+
+def drops(gen: pd.DataFrame, order: Sequence[str], rules: Rules = DEFAULT_RULES) -> tuple[list, list[str], float]:
+    """The resolved drops of one agent's mean testbed success between consecutive training levels: for each step
+    a one-sided two-proportion test (:func:`..reports.stats.drop_pvalue`) on the effective episodes
+    (:func:`_effective`), Holm-corrected over the steps (family-wise error ``alpha``).  ``gen``: columns level,
+    value, episodes (and ``samples``).  Returns the rejected steps, a line per step, and the smallest drop the
+    first Holm step finds with ``power`` at the agent's mean rate and effective episodes."""
+    part = _sorted(gen, order).reset_index(drop=True)
+    steps, pvalues, lines = [], [], []
+    for i in range(len(part) - 1):
+        a, b = part.iloc[i], part.iloc[i + 1]
+        n1, n2 = _effective(a), _effective(b)
+        if math.isnan(n1) or math.isnan(n2) or seeds_short(a, b) is not None:
+            continue
+        steps.append((a["level"], b["level"]))
+        pvalues.append(drop_pvalue(float(a["value"]), n1, float(b["value"]), n2))
+    rejected = holm(pvalues, rules.alpha) if pvalues else np.zeros(0, dtype=bool)
+    for (a, b), p, r in zip(steps, pvalues, rejected):
         lines.append(f"{a}→{b}: p = {p:.3g}{' (rejected)' if r else ''}")
-    return [pair for pair, r in zip(pairs, rejected) if r], lines
+    n_eff = float(np.nanmean([_effective(r) for _, r in part.iterrows()])) if len(part) else math.nan
+    mdd = (
+        detectable_drop(float(part["value"].mean()), n_eff, rules.alpha / max(len(steps), 1), rules.power)
+        if steps and not math.isnan(n_eff)
+        else math.nan
+    )
+    return [s for s, r in zip(steps, rejected) if r], lines, mdd
 
 
 def testbeds_below_ceiling(
@@ -469,13 +634,15 @@ def testbeds_below_ceiling(
     references: pd.DataFrame,
     generalisation: pd.DataFrame,
     order: Sequence[str],
-    per_seed: pd.DataFrame | None = None,
+    rules: Rules = DEFAULT_RULES,
 ) -> Verdict:
     """(d) On the testbeds humans are near the ceiling, agents far below, and more training difficulty does not give
     monotonic gains.  ``success``: agents' testbed success (agent, level, value, low, high, n, unit);
     ``references``: the same for oracle, random and human (column agent); ``generalisation``: per agent the mean
-    testbed success by the level trained up to (agent, level, value, low, high, n, unit); ``per_seed``: the same
-    per seed (agent, level, seed, value), for the paired tests of :func:`drops`."""
+    testbed success by the level trained up to (agent, level, value, low, high, n, unit, episodes; ``samples``).
+    "No monotonic gain": reproduced by a resolved drop between consecutive levels (:func:`drops`); contradicted
+    by a rising order (Spearman's rho > 0, exact p < alpha) whose last level's interval lies above the first's and
+    no resolved drop."""
     claim = "(d) testbeds: humans ≈ ceiling, agents far below; no monotonic gain with training difficulty"
     refs = {a: p.set_index("level") for a, p in references.groupby("agent")} if len(references) else {}
     parts = []
@@ -530,15 +697,20 @@ def testbeds_below_ceiling(
             if len(part) < 3:
                 parts.append(missing(f"{agent}: no monotonic gain", "fewer than 3 training levels"))
                 continue
-            mine = per_seed[per_seed["agent"] == agent] if per_seed is not None and len(per_seed) else None
-            found, tested = drops(mine, order) if mine is not None and len(mine) else ([], [])
-            rises = all(part.loc[i + 1, "value"] >= part.loc[i, "value"] for i in range(len(part) - 1)) and above(
-                part.iloc[-1], part.iloc[0]
-            )
+            found, tested, mdd = drops(part, order, rules)
+            rank = part["level"].map({n: i for i, n in enumerate(order)})
+            rho, p = spearman(rank, part["value"]) if part["value"].nunique() > 1 else (0.0, 1.0)
+            rises = rho > 0 and p < rules.alpha and above(part.iloc[-1], part.iloc[0])
             evidence = [
                 "; ".join(f"{r.level}: {_fmt(r._asdict())}" for r in part.itertuples()),
-                f"resolved drops (one-sided paired t-tests over seeds, Holm-corrected over the {len(tested)} "
-                f"pairs of levels): {', '.join(f'{a}→{b}' for a, b in found) or 'none'}",
+                f"drops between consecutive levels (one-sided two-proportion tests on the effective episodes, "
+                f"Holm over the {len(tested)} steps): {'; '.join(tested) or 'none tested'}; resolved: "
+                f"{', '.join(f'{a}→{b}' for a, b in found) or 'none'}",
+                f"power: at the mean rate {part['value'].mean():.3g} and the cells' effective episodes, the test "
+                f"finds a drop of {mdd:.3f} ({100 * mdd:.1f} points) or more with {100 * rules.power:.0f} % "
+                f"probability (one-sided, alpha {rules.alpha:g} / {max(len(tested), 1)})",
+                f"Spearman's rho {rho:.2f} (p = {p:.3g}); last level's interval above the first's: "
+                f"{'yes' if above(part.iloc[-1], part.iloc[0]) else 'no'}",
             ]
             verdict = REPRODUCED if found else CONTRADICTED if rises else UNRESOLVED
             parts.append(
@@ -546,9 +718,10 @@ def testbeds_below_ceiling(
                     Verdict(
                         f"{agent}: no monotonic gain with training level",
                         verdict,
-                        "reproduced by a resolved drop (a later level below an earlier one, Holm-"
-                        "corrected over every pair of levels); contradicted by a rise at every step "
-                        "whose last level's interval lies above the first's",
+                        "reproduced by a resolved drop between consecutive training levels (one-sided "
+                        "two-proportion tests on the effective episodes, Holm-corrected over the steps); "
+                        f"contradicted by a rising order (Spearman's rho > 0, exact p < {rules.alpha:g}) whose "
+                        "last level's interval lies above the first's",
                         evidence,
                     ),
                     part,
@@ -558,12 +731,18 @@ def testbeds_below_ceiling(
 
 
 # ------------------------------------------------------------------------------------------------ (e)
-def ablations(survival: pd.DataFrame, success: pd.DataFrame) -> Verdict:
+def ablations(
+    survival: pd.DataFrame, success: pd.DataFrame, bar: float = math.nan, rules: Rules = DEFAULT_RULES
+) -> Verdict:
     """(e) No-EV (no_interoception) and no-vision ablations fail; olfaction matters least, thermoception and
     collision more.  ``survival`` / ``success``: per modality (column modality) the final survival and the success
-    pooled over the testbeds (value, low, high), of one algorithm and training set-up."""
+    pooled over the testbeds (value, low, high; ``samples``), of one algorithm and training set-up; ``bar``: the
+    bar of "fails" on its level (:func:`fails`).  Survival: "fails" by the one definition; "olfaction matters
+    least" by ratios (:func:`beats`).  Testbed success: every comparison by the ratio of rates (:func:`beats`): a
+    rate near 0 gives a ratio interval too wide to decide, so a floor of failures decides nothing."""
     claim = "(e) no-EV and no-vision fail; olfaction matters least, thermoception and collision more"
     parts = []
+    need = ("no_olfaction", "no_thermoception", "no_collision")
     for name, table in (("survival", survival), ("testbed success", success)):
         t = table.set_index("modality") if len(table) else table
         if not len(t) or "all" not in t.index:
@@ -574,20 +753,40 @@ def ablations(survival: pd.DataFrame, success: pd.DataFrame) -> Verdict:
             if mod not in t.index:
                 parts.append(missing(f"{mod} fails ({name})", f"no {mod} run"))
                 continue
-            v = REPRODUCED if above(base, t.loc[mod]) else CONTRADICTED if above(t.loc[mod], base) else UNRESOLVED
+            if name == "survival":
+                outcome, line = fails(t.loc[mod], bar)
+                base_outcome, base_line = fails(base, bar)
+                if base_outcome == "fails":
+                    base_line += ": with every sense it did not learn either, so the failing is not shown to come from the missing sense"
+                v = REPRODUCED if outcome == "fails" else CONTRADICTED if outcome == "learned" else UNRESOLVED
+                parts.append(
+                    _gate(
+                        Verdict(
+                            f"{mod} fails (survival)",
+                            v,
+                            "fails: did not learn by the gate — its survival's 95 % interval not above the bar "
+                            "(the learned factor × the better of random and stand-still); contradicted when above",
+                            [f"{mod} {line}", f"all {base_line}"],
+                        ),
+                        t.loc[mod],
+                    )
+                )
+                continue
+            outcome, line = beats(base, t.loc[mod], rules.margin, ("all", mod))
+            v = REPRODUCED if outcome == ABOVE else CONTRADICTED if outcome == NOT_ABOVE else UNRESOLVED
             parts.append(
                 _gate(
                     Verdict(
-                        f"{mod} fails ({name})",
+                        f"{mod} below all (testbed success)",
                         v,
-                        "its 95 % interval below all's (contradicted: above)",
-                        [f"{mod} {_fmt(t.loc[mod])} vs all {_fmt(base)}"],
+                        f"success ratio all / {mod}, 95 % interval: above {1 + rules.margin:g} reproduces, at or "
+                        f"under {1 + rules.margin:g} contradicts",
+                        [f"{mod} {_fmt(t.loc[mod])} vs all {_fmt(base)}; {line}"],
                     ),
                     t.loc[mod],
                     base,
                 )
             )
-        need = ("no_olfaction", "no_thermoception", "no_collision")
         if not all(m in t.index for m in need):
             parts.append(
                 missing(f"olfaction matters least ({name})", "no_olfaction, no_thermoception and no_collision runs")
@@ -595,21 +794,30 @@ def ablations(survival: pd.DataFrame, success: pd.DataFrame) -> Verdict:
             continue
         olf = t.loc["no_olfaction"]
         others = {m: t.loc[m] for m in need[1:]}
+        outcomes, lines = [], []
+        for m, o in others.items():
+            outcome, line = beats(olf, o, rules.margin, ("no_olfaction", m))
+            outcomes.append(outcome)
+            lines.append(line)
         v = (
             REPRODUCED
-            if all(above(olf, o) for o in others.values())
+            if all(o == ABOVE for o in outcomes)
             else CONTRADICTED
-            if any(above(o, olf) for o in others.values())
+            if any(o == NOT_ABOVE for o in outcomes)
             else UNRESOLVED
+        )
+        rule = (
+            f"no_olfaction above no_thermoception and no_collision: {'survival' if name == 'survival' else 'success'} "
+            f"ratio's 95 % interval above {1 + rules.margin:g} for both (reproduced), at or under it for either "
+            "(contradicted)"
         )
         parts.append(
             _gate(
                 Verdict(
                     f"olfaction matters least ({name})",
                     v,
-                    "no_olfaction's 95 % interval above no_thermoception's and no_collision's "
-                    "(contradicted: below either)",
-                    [f"no_olfaction {_fmt(olf)}; " + "; ".join(f"{m} {_fmt(o)}" for m, o in others.items())],
+                    rule,
+                    [f"no_olfaction {_fmt(olf)}; " + "; ".join(f"{m} {_fmt(o)}" for m, o in others.items()), *lines],
                 ),
                 olf,
                 *others.values(),

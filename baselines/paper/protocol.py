@@ -203,6 +203,15 @@ class ReferenceSpec(_Strict):
         return {k: _any_levels(lv) for k, lv in v.items()}
 
 
+class VerdictSpec(_Strict):
+    """The margins of the verdict rules (baselines/paper/claims.py ``Rules``; docs/reports.md, "The verdict rules"),
+    stated in the protocol file before its runs so that a verdict of equivalence cannot be tuned after them."""
+
+    # 'A beats B' (survival IQMs, testbed success rates) is reproduced when the 95 % interval of A / B lies above
+    # 1 + margin, contradicted when it lies at or under 1 + margin (equal within the margin, or worse)
+    margin: float = Field(default=0.1, ge=0, lt=1)
+
+
 class ReportSpec(_Strict):
     out: str | None = None  # relative paths: to the repository root; null: <root>/report
     survival: Literal["eval", "train"] = "eval"
@@ -210,6 +219,7 @@ class ReportSpec(_Strict):
     # report.py's learned=: the factor over the better of random and stand-still an agent's all-senses network must
     # reach on the first level to enter the claims' comparisons (null: every agent is compared)
     learned: float | None = Field(default=None, gt=0)
+    verdicts: VerdictSpec = VerdictSpec()
 
 
 class Protocol(_Strict):

@@ -13,6 +13,7 @@ before evaluations kept one row per episode), the cell is over those means and s
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
+from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -48,7 +49,22 @@ FINAL_COLUMNS = [
     "acting",
     "worlds",
     "means_only",
+    "eaten",
 ]
+
+#: a survival cell whose episodes reach the step cap more often than this: its IQM is censored, a lower bound
+CAPPED_SHARE = 0.25
+
+
+@cache
+def level_cap(level: str) -> float:
+    """The step cap (``episode.max_steps``) of ``level``; NaN for a name that is no level."""
+    from evaaa.spec import load_level
+
+    try:
+        return float(load_level(level).episode.max_steps)
+    except Exception:  # noqa: BLE001 - a group that is not a level (a testbed mean, a label)
+        return float("nan")
 
 
 def _checkpoint_rank(policy: str) -> int:
@@ -85,6 +101,11 @@ def final_survival(
                     best = min(hits["policy"].unique(), key=_checkpoint_rank)
                     for acting, part in hits[hits["policy"] == best].groupby("acting", sort=False):
                         scores = tuple(part["steps"].astype(float))
+                        eaten = (
+                            tuple(part["food_eaten"].astype(float) + part["water_eaten"].astype(float))
+                            if {"food_eaten", "water_eaten"} <= set(part)
+                            else ()
+                        )
                         found.append(
                             base
                             | {
@@ -95,6 +116,7 @@ def final_survival(
                                 "acting": acting,
                                 "worlds": " / ".join(dict.fromkeys(part["worlds"])),
                                 "means_only": False,
+                                "eaten": eaten,
                             }
                         )
             ev = r.evals[r.evals["stage"] == index] if r.evals is not None else None
@@ -262,6 +284,11 @@ def evaluation_points(runs: Sequence[RunRecord]) -> pd.DataFrame:
 #: (none under three seeds); ``n``: units, ``episodes``: episodes behind the numbers; ``points``: each seed's value
 #: (where there are fewer than three seeds, the cell's only spread); ``means_only``: the seeds gave evaluation means,
 #: not episodes; ``acting``, ``worlds``, ``source``: how the networks acted, on which worlds, from which files.
+#: columns :func:`across_seeds` adds after :data:`STAT_COLUMNS`: ``at_cap``, the share of a survival cell's episodes
+#: at its level's step cap (NaN for success and where no cap is known); ``intake``, food and water eaten per 1,000
+#: decisions (all the cell's episodes pooled; NaN where the episodes did not record it); ``samples``, each seed's
+#: episode scores (for the claims' ratio intervals; not written to the CSV files)
+EXTRA_COLUMNS = ("at_cap", "intake", "samples")
 STAT_COLUMNS = (
     "value",
     "low",
@@ -340,12 +367,34 @@ def _joined(values: pd.Series) -> str:
     return " / ".join(str(v) for v in dict.fromkeys(values.fillna("").astype(str)) if v)
 
 
+def censoring(part: pd.DataFrame, samples: Sequence[Sequence[float]], cap: float | None) -> tuple[float, float]:
+    """(share of the episodes at the step cap, food and water eaten per 1,000 decisions) of a survival cell: the
+    cap is ``cap``, else that of the rows' one ``level``; NaN where neither is known or nothing was eaten counted."""
+    pooled = np.concatenate([np.asarray(s, dtype=float).ravel() for s in samples]) if samples else np.array([])
+    if cap is None and "level" in part and part["level"].nunique() == 1:
+        cap = level_cap(str(part["level"].iloc[0]))
+    share = float((pooled >= cap).mean()) if cap is not None and not np.isnan(cap) and pooled.size else float("nan")
+    intake = float("nan")
+    if "eaten" in part:
+        eaten = [e for e in part["eaten"] if isinstance(e, tuple) and len(e)]
+        if eaten and len(eaten) == len(part) and pooled.sum() > 0:
+            intake = 1000.0 * float(sum(sum(e) for e in eaten)) / float(pooled.sum())
+    return share, intake
+
+
 def across_seeds(
-    values: pd.DataFrame, by: Sequence[str], value: str, *, success: bool = False, unit: str = "seeds"
+    values: pd.DataFrame,
+    by: Sequence[str],
+    value: str,
+    *,
+    success: bool = False,
+    unit: str = "seeds",
+    cap: float | None = None,
 ) -> pd.DataFrame:
     """Per group of ``by``: the statistics of :data:`STAT_COLUMNS` over the group's rows (one row per seed, its
     episodes' scores in a ``scores`` column, or ``value`` alone where there is none); ``acting``, ``worlds`` and
-    ``source`` name what the rows say (joined where they differ)."""
+    ``source`` name what the rows say (joined where they differ); then :data:`EXTRA_COLUMNS` (survival: the share
+    at the step cap, ``cap`` or the level's, and the intake)."""
     out = []
     for key, part in values.groupby(list(by), sort=False, dropna=False):
         if "scores" in part:
@@ -361,8 +410,12 @@ def across_seeds(
             means_only=means_only,
         )
         named = {c: _joined(part[c]) if c in part else "" for c in ("acting", "worlds", "source")}
-        out.append({**dict(zip(by, key if isinstance(key, tuple) else (key,))), **est, "unit": unit, **named})
-    return pd.DataFrame(out, columns=[*by, *STAT_COLUMNS])
+        share, intake = (
+            censoring(part, samples, cap) if not success and not means_only else (float("nan"), float("nan"))
+        )
+        extra = {"at_cap": share, "intake": intake, "samples": tuple(tuple(map(float, s)) for s in samples)}
+        out.append({**dict(zip(by, key if isinstance(key, tuple) else (key,))), **est, "unit": unit, **named, **extra})
+    return pd.DataFrame(out, columns=[*by, *STAT_COLUMNS, *EXTRA_COLUMNS])
 
 
 def per_run(ckpts: pd.DataFrame, value: str, by: Sequence[str] = ("run", "level")) -> pd.DataFrame:
@@ -372,6 +425,9 @@ def per_run(ckpts: pd.DataFrame, value: str, by: Sequence[str] = ("run", "level"
     grouped = ckpts.assign(_v=ckpts[value].astype(float)).groupby(keys, sort=False)
     out = grouped["_v"].agg(**{value: "mean", "scores": lambda v: tuple(v.dropna())})
     out["worlds"] = grouped["worlds"].agg(_joined)
+    if value == "steps" and {"food_eaten", "water_eaten"} <= set(ckpts):
+        eaten = ckpts["food_eaten"].astype(float) + ckpts["water_eaten"].astype(float)
+        out["eaten"] = ckpts.assign(_e=eaten).groupby(keys, sort=False)["_e"].agg(tuple)
     out["source"] = "evaluate.py"
     return out.reset_index().assign(episodes=lambda d: d["scores"].map(len))
 
@@ -392,6 +448,13 @@ def reference_stats(refs: pd.DataFrame, value: str) -> pd.DataFrame:
         else:
             unit, samples = "episodes", [tuple(vals.dropna())]
         est = estimate(samples, success=value == "success", unit=unit)
+        share = intake = float("nan")
+        if value == "steps":
+            cap = level_cap(str(level))
+            share = float((vals >= cap).mean()) if not np.isnan(cap) and len(vals) else float("nan")
+            if {"food_eaten", "water_eaten"} <= set(part) and vals.sum() > 0:
+                eaten = part["food_eaten"].astype(float) + part["water_eaten"].astype(float)
+                intake = 1000.0 * float(eaten.sum()) / float(vals.sum())
         out.append(
             {
                 "label": policy,
@@ -401,6 +464,9 @@ def reference_stats(refs: pd.DataFrame, value: str) -> pd.DataFrame:
                 "acting": "",
                 "worlds": _joined(part["worlds"]) if "worlds" in part else "",
                 "source": "evaluate.py",
+                "at_cap": share,
+                "intake": intake,
+                "samples": tuple((float(v),) for v in vals.dropna()) if unit == "episodes" else tuple(samples),
             }
         )
-    return pd.DataFrame(out, columns=["label", "level", *STAT_COLUMNS])
+    return pd.DataFrame(out, columns=["label", "level", *STAT_COLUMNS, *EXTRA_COLUMNS])

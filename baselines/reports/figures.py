@@ -115,6 +115,13 @@ MODALITY_COLOURS = {
     "no_collision": "#e6ab02",
 }
 HATCHES = ("", "//", "..", "xx", "\\\\", "oo", "++", "--")
+#: the one convention for acting modes in every figure: bars of networks acting `sample` solid, `mode` hatched ``//``
+#: (lines: solid and dashed); other variants of one colour take the remaining hatches
+ACTING_HATCHES = {"sample": "", "mode": "//"}
+#: a legend entry's longest (characters): longer labels lose the settings every entry shares, then are cut
+MAX_LEGEND = 60
+#: the legend names of the figures drawn, by file (for the tests and the report's checks)
+LEGENDS: dict[str, list[str]] = {}
 OTHER_COLOURS = ("#17becf", "#d62728", "#aec7e8", "#98df8a", "#c5b0d5", "#c49c94")
 
 
@@ -124,21 +131,51 @@ def styles(labels: Sequence[str], colour_by: str = "algo") -> dict[str, tuple[st
     Labels sharing a colour get different hatches, in the order given."""
     table = MODALITY_COLOURS if colour_by == "modality" else ALGO_COLOURS
     out, used, spare = {}, {}, iter(OTHER_COLOURS * 10)
+    others = [h for h in HATCHES if h not in ACTING_HATCHES.values()]
     for label in labels:
-        base = str(label).split(" [")[0]
+        base, _, bracket = str(label).partition(" [")
+        acting = bracket.rstrip("]").split("+")[0]
         key = base.split(" · ")[0].strip()
         colour = REFERENCE_COLOURS.get(base) or table.get(key) or table.get(base)
         if colour is None:
             colour = used.setdefault(("other", key), next(spare))
-        n = used.get(colour, 0)
-        used[colour] = n + 1
-        out[label] = (colour, HATCHES[n % len(HATCHES)])
+        variant = (colour, base)  # the acting mode sets the hatch; other variants of one colour take the rest
+        if variant not in used:
+            used[variant] = used.get(colour, 0)
+            used[colour] = used.get(colour, 0) + 1
+        k = used[variant]
+        hatch = ACTING_HATCHES.get(acting, "")
+        if k:  # a second series of one colour (direct beside curriculum): dotted, over the acting mode's hatch
+            hatch += others[(k - 1) % len(others)]
+        out[label] = (colour, hatch)
+    return out
+
+
+def legend_names(names: Sequence[str], limit: int = MAX_LEGEND) -> dict[str, str]:
+    """Legend entries of at most ``limit`` characters: where some name is longer, the `` · ``-parts every
+    multi-part name shares (but its first, the algorithm) are dropped, and a name still too long is cut with "…"
+    (the tables name every setting)."""
+    if all(len(n) <= limit for n in names):
+        return {n: n for n in names}
+    split = {n: n.partition(" [") for n in names}
+    parts = {n: b.split(" · ") for n, (b, _, _) in split.items() if " · " in b}
+    common = set.intersection(*(set(p[1:]) for p in parts.values())) if parts else set()
+    out = {}
+    for n, (base, bracket, rest) in split.items():
+        if n in parts:
+            kept = [parts[n][0], *[p for p in parts[n][1:] if p not in common]]
+            base = " · ".join(kept)
+        name = base + (bracket + rest if bracket else "")
+        out[n] = name if len(name) <= limit else name[: limit - 1] + "…"
+    if len(set(out.values())) < len(out):  # dropping made two entries one: cut the full names instead
+        out = {n: n if len(n) <= limit else n[: limit - 1] + "…" for n in names}
     return out
 
 
 def _finish(fig, axes, path: Path, title: str, legend_rows: int = 0) -> Path:
-    """One legend under the panels (labels name algorithm, modality and more, so they are long: beside the panels
-    they made figures thousands of pixels wide), the title, and the file, cropped to what was drawn."""
+    """One legend under the panels (entries of at most :data:`MAX_LEGEND` characters, :func:`legend_names`), the
+    title above the first panel's own title (room kept for each of its lines), and the file, cropped to what was
+    drawn."""
     handles, names = {}, []
     for ax in axes:
         for h, n in zip(*ax.get_legend_handles_labels()):
@@ -147,17 +184,27 @@ def _finish(fig, axes, path: Path, title: str, legend_rows: int = 0) -> Path:
                 names.append(n)
         ax.spines[["top", "right"]].set_visible(False)
     width = fig.get_size_inches()[0]
+    shown = legend_names(names)
+    LEGENDS[Path(path).name] = [shown[n] for n in names]
     if names:
-        longest = max(len(n) for n in names)
+        longest = max(len(shown[n]) for n in names)
         ncols = max(1, min(len(names), int(width / (0.065 * longest + 0.6))))
-        fig.legend([handles[n] for n in names], names, loc="lower center", ncols=ncols, frameon=False, fontsize=8)
+        fig.legend(
+            [handles[n] for n in names],
+            [shown[n] for n in names],
+            loc="lower center",
+            ncols=ncols,
+            frameon=False,
+            fontsize=8,
+        )
         rows = -(-len(names) // ncols)
     else:
         rows = 0
     fig.suptitle(title, fontsize=10)
     height = fig.get_size_inches()[1]
     bottom = min(0.45, (0.22 * rows + 0.1) / height) if rows else 0.0
-    top = 1.0  # tight_layout leaves room for the suptitle itself
+    lines = title.count("\n") + 1
+    top = max(0.5, 1.0 - (0.05 * lines) / height)  # tight_layout places the suptitle; a little more for panel titles
     fig.tight_layout(rect=(0, bottom, 1, top))
     fig.savefig(path, dpi=DPI, bbox_inches="tight")
     _plt().close(fig)
@@ -225,13 +272,15 @@ def plot_bars(
     panel_height: float = 3.0,
     colour_by: str = "algo",
     compared: str = "",
+    references: pd.DataFrame | None = None,
 ) -> Path:
     """Grouped bars — one group per ``level``, one bar per ``label`` (``value``, its interval as whiskers, the
     seeds' ``points`` as dots where there is no interval) — in one panel per ``panel`` value (or a single panel),
     levels wrapped into further rows so that the figure stays within :data:`MAX_WIDTH_PX`; the y axis starts at 0
     and ends at ``top`` if given.  ``stats`` has the columns of :data:`.aggregate.STAT_COLUMNS`; ``note``: a last
     line of the title (e.g. what shortened labels stand for); ``compared``: the acting the report's claims compare
-    (:func:`how_measured`); colours: :func:`styles`."""
+    (:func:`how_measured`); colours: :func:`styles`; ``references``: rows (label, level, value) of reference agents,
+    drawn as a marker across each level's group of bars."""
     plt = _plt()
     panels = list(dict.fromkeys(stats[panel])) if panel else [None]
     style = styles(list(dict.fromkeys(stats["label"])), colour_by)
@@ -270,6 +319,24 @@ def plot_bars(
                 for x, pts in zip(xs, one["points"]):
                     if isinstance(pts, tuple) and pts:
                         ax.plot([x] * len(pts), [scale * p for p in pts], "o", ms=2.5, color="0.15", zorder=3)
+        if references is not None and len(references):
+            marks = {"random": "--", "still": ":", "oracle": "-", "human": "-."}
+            for ref, rows_ in references.groupby("label", sort=False):
+                at = rows_.set_index("level")["value"].reindex(order)
+                for i, v in enumerate(at):
+                    if not np.isnan(v):
+                        ax.hlines(
+                            scale * v,
+                            i - 0.45,
+                            i + 0.45,
+                            colors=REFERENCE_COLOURS.get(str(ref), "0.35") if ref != "still" else "0.45",
+                            linestyles=marks.get(str(ref), "--"),
+                            linewidth=1.6,
+                            label=f"{'stand-still' if ref == 'still' else ref} (reference)"
+                            if i == 0 or np.isnan(at.iloc[:i]).all()
+                            else None,
+                            zorder=4,
+                        )
         ax.set_xticks(
             range(len(order)),
             order,
@@ -330,7 +397,7 @@ def plot_lines(
                 xs = line[x].to_numpy(dtype=float)
             m, yerr = whiskers(line, scale)
             colour, hatch = style[label]
-            dash = dashes[HATCHES.index(hatch) % len(dashes)]
+            dash = "--" if hatch.startswith("//") else dashes[[h[:1] for h in HATCHES].index(hatch[:1]) % len(dashes)]
             if band:
                 ax.plot(xs, m, marker="." if len(xs) < 30 else None, label=label, color=colour, linestyle=dash)
                 ax.fill_between(xs, m - yerr[0], m + yerr[1], alpha=0.25, color=colour, linewidth=0)

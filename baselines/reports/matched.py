@@ -1,9 +1,10 @@
 """Which agents learned, and the compute-matched comparison (the paper's Fig. 20 at equal compute).
 
-* :func:`learned_gate` — an agent enters a claim's comparison only if its network with every sense, trained on the
-  first level, survives there at least ``factor`` × the better of random and stand-still (IQM over its seeds'
-  episodes, on the worlds the final networks were evaluated on); one that does not is reported as "did not learn at
-  this budget", with its curve, and compared with nothing.  An agent is judged at the budget it is compared at:
+* :func:`learned_gate` — an agent learned the first level when the 95 % interval of its network with every sense
+  (IQM over its seeds' episodes, on the worlds the final networks were evaluated on) lies above ``factor`` × the
+  better of random and stand-still there; one whose interval does not "did not learn at this budget" — the one
+  definition of "fails" of the claims (:func:`..paper.claims.fails`).  The gate decides no claim's part: it says
+  which agents learned, and explains parts the data leave undecided.  An agent is judged at the budget it is compared at:
   its compute-matched runs for the compute-matched comparison, and for the others its direct runs on that level
   with a step budget, else its curriculum's first stage.
 * :func:`reaching` — when each compute-matched run's in-training evaluations (validation worlds) first reached that
@@ -22,7 +23,7 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
-from .aggregate import across_seeds
+from .aggregate import across_seeds, level_cap
 from .load import RunRecord
 from .stats import iqm
 
@@ -105,10 +106,10 @@ def learned_gate(
         budget = " / ".join(dict.fromkeys(r.budget for r in chosen))
         if not len(mine) or bar is None:
             continue
-        est = across_seeds(mine.assign(g=0), ["g"], "survival").iloc[0]
-        value = float(est["value"])
+        est = across_seeds(mine.assign(g=0), ["g"], "survival", cap=level_cap(level)).iloc[0]
+        value, low = float(est["value"]), float(est["low"])
         limit, ref = bar
-        learned = not math.isnan(value) and value >= limit
+        learned = not math.isnan(low) and low > limit  # its interval above the bar (claims.fails: the same rule)
         ratio = value * factor / limit if limit else float("nan")
         rows.append(
             {
@@ -127,9 +128,14 @@ def learned_gate(
                 "ratio": ratio,
                 "learned": learned,
                 "reading": (
-                    f"{algo} ({budget}): {value:,.0f} decisions on {level}, {ratio:.2f}× "
+                    f"{algo} ({budget}): {'≥ ' if est['at_cap'] > 0.25 else ''}{value:,.0f} "
+                    f"[{low:,.0f}, {float(est['high']):,.0f}] decisions on {level}, {ratio:.2f}× "
                     f"{'stand-still' if ref == 'still' else ref} — "
-                    + ("learned" if learned else f"did not learn at this budget (under {factor:g}×)")
+                    + (
+                        f"learned (interval above {factor:g}× = {limit:,.0f})"
+                        if learned
+                        else f"did not learn at this budget (interval not above {factor:g}× = {limit:,.0f})"
+                    )
                 ),
             }
         )

@@ -89,6 +89,8 @@ class Inputs:
     # report option ``learned``: an agent enters the claims' comparisons only if its all-senses network survives the
     # first level at least this many times the better of random and stand-still (:mod:`.matched`); None: every agent
     learned_factor: float | None = None
+    # the verdict rules' settings (margins; a protocol's ``report.verdicts``); "fails" uses ``learned_factor`` where set
+    verdict_rules: rules.Rules = field(default_factory=lambda: rules.Rules())
 
     @cached_property
     def verdicts(self) -> list[rules.Verdict]:
@@ -126,7 +128,12 @@ class Inputs:
     @cached_property
     def source_note(self) -> str:
         """Where the final-survival values come from, for the sections that show them."""
-        counts = self.final["source"].value_counts() if len(self.final) else pd.Series(dtype=int)
+        # stages, not rows: a stage evaluated in two acting modes is one stage
+        counts = (
+            self.final.drop_duplicates(["run", "stage"])["source"].value_counts()
+            if len(self.final)
+            else pd.Series(dtype=int)
+        )
         said = {
             "evaluate.py": "the stage's network evaluated by evaluate.py on its level (one row per episode)",
             "eval.csv": "the stage's last in-training evaluation (`eval.csv`, one row per episode)",
@@ -248,6 +255,7 @@ def read_inputs(
     acting: str | None = None,
     compare: str | None = None,
     learned: float | None = None,
+    margin: float = 0.1,
 ) -> Inputs:
     """Check the arguments, read the runs and evaluations and tie the evaluated checkpoints to their runs."""
     if survival not in ("eval", "train"):
@@ -256,6 +264,8 @@ def read_inputs(
         raise ReportError("window and bins must be positive")
     if learned is not None and not learned > 0:
         raise ReportError(f"learned must be a positive factor (e.g. 2), not {learned!r}")
+    if not 0 <= margin < 1:
+        raise ReportError(f"margin must lie in [0, 1), not {margin!r}")
     check_acting("compare", compare)
     if not run_paths and not eval_paths:
         raise ReportError(
@@ -268,7 +278,11 @@ def read_inputs(
     evals.checkpoints = select_acting(evals.checkpoints, acting, runs)
     if compare is not None and len(evals.checkpoints):
         _check_compared(evals.checkpoints, runs, compare)
-    inputs = Inputs(runs, evals, read_notes, survival, window, bins, compare, learned)
+    verdict_rules = rules.Rules(
+        margin=margin,
+        fails_factor=learned if learned is not None else rules.Rules().fails_factor,
+    )
+    inputs = Inputs(runs, evals, read_notes, survival, window, bins, compare, learned, verdict_rules)
     describe_extras(inputs.usable)
     return inputs
 
@@ -422,32 +436,75 @@ def setting(r: RunRecord) -> tuple:
     return (r.algo, r.modality, r.reward, tuple(e for e in r.extras if not e.startswith("budget=")))
 
 
+def series_label(r: RunRecord) -> str:
+    """A short label of a run with every sense for the figures of survival per level: its algorithm, curriculum or
+    direct, and the CPU budget of a compute-matched run (``ppo · curriculum``, ``dqn · direct · 110 CPU-min``); the
+    other settings go to the table of series."""
+    label = f"{r.algo} · {'curriculum' if r.curriculum else 'direct'}"
+    return label + (f" · {r.budget}" if r.cpu_budget is not None else "")
+
+
 def survival_per_level(doc: Document, inp: Inputs) -> None:
-    """Fig. 4a, left: the survival each training level ended with, per algorithm (curriculum runs where an
-    algorithm has them, else its direct runs)."""
+    """Fig. 4a as the paper draws it: the survival each training level ended with, levels on the x axis, one series
+    per agent × curriculum or direct (and acting mode, hatched for `mode`), the references (random, stand-still,
+    the oracle) as markers across each level; runs with every sense only (the modality ablations are Figs. 25 and
+    26). Compute-matched runs are in the table and in Fig. 20, not in the figure."""
     final = inp.final
-    left_runs = [r for r in inp.usable if r.curriculum or setting(r) not in inp.curriculum_algos]
+    runs = [r for r in inp.usable if r.modality == "all"]
     table = figure = None
-    if len(final):
-        lab = labels(left_runs)
+    if len(final) and runs:
+        lab = {r.dir: series_label(r) for r in runs}
         f = inp.labelled(final[final["run"].isin(list(lab))], lab)
         stats = across_seeds(f, ["label", "level"], "survival")
         doc.tables["survival_per_level"] = stats
         levels = level_sorted(stats["level"])
+        matched = {series_label(r) for r in runs if r.cpu_budget is not None}
+        drawn = stats[~stats["label"].map(lambda x: x.split(" [")[0] in matched)]
+        refs = inp.reference_training
+        refs = refs[refs["level"].isin(levels)] if len(refs) else refs
         figure = plot_bars(
-            stats,
+            drawn if len(drawn) else stats,
             doc.out / "fig4a_survival_per_level.png",
             levels=levels,
             ylabel="survival (decisions)",
             title="Survival per training level",
             compared=inp.compared,
+            references=refs[["label", "level", "value"]] if len(refs) else None,
         )
+        cols = sorted(dict.fromkeys(stats["label"]), key=lambda x: (x.split(" [")[0] in matched, x))
         table = pivot_table(
-            stats, "level", "label", rows=levels, title="Survival per training level (decisions)", compared=inp.compared
+            stats,
+            "level",
+            "label",
+            rows=levels,
+            cols=cols,
+            title="Survival per training level (decisions)",
+            compared=inp.compared,
+        )
+        settings = {}
+        for r in runs:
+            key = series_label(r)
+            entry = settings.setdefault(key, {"reward": set(), "budget": {}, "seeds": set()})
+            entry["reward"].add(r.reward)
+            entry["seeds"].add(r.seed)
+            entry["budget"].setdefault(r.training, set()).add(r.budget)
+        table += (
+            "\n\n**Series.** Acting: as labelled in the table above. Worlds: as above. Every setting the labels "
+            "leave out (all runs with every sense):\n\n"
+        )
+        table += "| series | reward | budget per training | seeds | in the figure |\n|---|---|---|---|---|\n"
+        table += "\n".join(
+            f"| {k} | {', '.join(sorted(v['reward']))} | "
+            + "; ".join(f"{t}: {', '.join(sorted(b))}" for t, b in v["budget"].items())
+            + f" | {len(v['seeds'])} | {'no (Fig. 20)' if k in matched else 'yes'} |"
+            for k, v in settings.items()
         )
     doc.section(
         "Survival per training level (Fig. 4a, left)",
-        inp.source_note + " Curriculum runs where an algorithm has them, else its direct runs.",
+        inp.source_note
+        + " Every series with every sense (the modality ablations: Figs. 25 and 26); references as markers across "
+        "each level (dashed: random, dotted: stand-still); bars of networks acting `mode` hatched, `sample` solid, "
+        "in every figure. Compute-matched runs are in the table and in Fig. 20.",
         figure,
         table,
         "No finished stage in the runs given.",
@@ -1099,8 +1156,8 @@ def equal_compute(doc: Document, inp: Inputs) -> None:
     steps: dict[str, list[int]] = {}
     for r in sorted(runs, key=lambda r: r.seed or 0):  # per algorithm, each seed's env steps in seed order
         steps.setdefault(r.algo, []).append(r.steps)
-    header = "| agent | seeds | env steps reached | survival on test worlds (IQM) |"
-    rule_ = "|---|---|---|---|"
+    header = "| agent | seeds | env steps reached | survival on test worlds (IQM) | intake / 1,000 decisions |"
+    rule_ = "|---|---|---|---|---|"
     if gate is not None:
         header += " vs better of random, stand-still | learned? | env steps to the threshold | CPU min to it |"
         rule_ += "---|---|---|---|"
@@ -1117,7 +1174,8 @@ def equal_compute(doc: Document, inp: Inputs) -> None:
     ]
     for row in surv.itertuples():
         line = (
-            f"| {row.algo} | {row.n} | {', '.join(f'{v:,}' for v in steps.get(row.algo, []))} | {cell(row._asdict())} |"
+            f"| {row.algo} | {row.n} | {', '.join(f'{v:,}' for v in steps.get(row.algo, []))} | {cell(row._asdict())} | "
+            f"{'' if np.isnan(row.intake) else f'{row.intake:.1f}'} |"
         )
         if gate is not None:
             g = gate.loc[row.algo] if row.algo in gate.index else None
@@ -1137,13 +1195,24 @@ def equal_compute(doc: Document, inp: Inputs) -> None:
     doc.tables["equal_compute_final"] = surv
     if len(reach):
         doc.tables["equal_compute_threshold"] = reach.assign(run=reach["run"].map(inp.rel))
+    refs = inp.reference_training
+    refs = refs[(refs["level"] == level) & refs["label"].isin(["random", "still"])] if len(refs) else refs
+    ref_intake = "; ".join(
+        f"{'stand-still' if r.label == 'still' else r.label} {r.intake:.1f}"
+        for r in refs.itertuples()
+        if not np.isnan(r.intake)
+    )
     doc.md += [
         "",
         "Survival: "
         + _source_words(inp)
+        + "; a cell with more than a quarter of its episodes at the step cap is a lower bound (`≥`, share at the "
+        "cap); intake: food and water eaten per 1,000 decisions, every episode of the seeds pooled"
+        + (f" (references on {level}: {ref_intake})" if ref_intake else "")
         + "; env steps reached: per seed; "
         + (
-            f"learned: IQM at least {inp.learned_factor:g}× the better of random and stand-still on {level}; "
+            f"learned: the 95 % interval above {inp.learned_factor:g}× the better of random and stand-still on "
+            f"{level}; "
             "threshold: the first in-training evaluation (validation worlds, IQM of its episodes) at or above "
             "that, per seed (never: not within the budget)."
             if gate is not None
@@ -1176,8 +1245,10 @@ def training_curves(doc: Document, inp: Inputs) -> None:
         if len(trained_on) == 1 and len(ref_train):
             hl = ref_train[ref_train["level"] == next(iter(trained_on))]
             hl = hl.assign(label=hl["label"] + " (evaluation)") if len(hl) else None
+        every_sense = {lab[r.dir] for r in inp.usable if r.modality == "all"}
+        drawn = stats[stats["label"].isin(every_sense)]  # the modality ablations: Fig. 25
         figure = plot_lines(
-            stats,
+            drawn if len(drawn) else stats,
             doc.out / "fig_training_curves.png",
             x="steps",
             panel="group",
@@ -1187,22 +1258,27 @@ def training_curves(doc: Document, inp: Inputs) -> None:
             title="Training curves",
             hlines=hl,
         )
-        ends = stats.sort_values("bin").groupby(["group", "label"], sort=False).tail(1)
+        # each run's own last bin, the seeds pooled (compute-matched runs end at different env steps: the pooled
+        # curve's last bin holds one seed)
+        last = by.sort_values("bin").groupby("run", sort=False).tail(1)
+        ends = across_seeds(last, ["group", "label"], "survival")
         table = pivot_table(
             ends.rename(columns={"group": "level"}),
             "level",
             "label",
             row_title="training",
-            title="Training survival in the last bin of env steps (decisions)",
+            title="Training survival in each run's last bin of env steps (decisions)",
         )
         table += (
             f"\n\nCurves: survival of the training episodes (exploring policy) in {inp.bins} bins of env "
-            "steps, IQM of the bin's episodes with its 95 % bootstrap interval (band); table: the last bin. "
+            "steps, IQM of the bin's episodes with its 95 % bootstrap interval (band); table: each run's last bin, the "
+            "seeds pooled. "
             "Dashed/dotted: reference agents' IQM survival in evaluate.py's episodes on that level, when given."
         )
     doc.section(
         "Training curves",
-        "One panel per training set-up, one line per algorithm and settings.",
+        "One panel per training set-up, one line per algorithm and settings, runs with every sense (the modality "
+        "ablations: Fig. 25); the table has every run.",
         figure,
         table,
         "No finished training episode in the runs given.",
@@ -1222,8 +1298,10 @@ def evaluation_curves(doc: Document, inp: Inputs) -> None:
         )
         stats = across_seeds(by, ["group", "label", "steps"], "survival")
         doc.tables["evaluation_curves"] = stats
+        every_sense = {lab[r.dir] for r in inp.usable if r.modality == "all"}
+        drawn = stats[stats["label"].str.split(" [", regex=False).str[0].isin(every_sense)]  # ablations: Fig. 25
         figure = plot_lines(
-            stats,
+            drawn if len(drawn) else stats,
             doc.out / "fig_evaluation_curves.png",
             x="steps",
             panel="group",
@@ -1232,13 +1310,15 @@ def evaluation_curves(doc: Document, inp: Inputs) -> None:
             xlabel="env steps",
             title="In-training evaluations" + (" (means only)" if stats["means_only"].any() else ""),
         )
-        ends = stats.sort_values("steps").groupby(["group", "label"], sort=False).tail(1)
+        # each run's own last evaluation, the seeds pooled (compute-matched runs end at different env steps)
+        last = by.sort_values("steps").groupby(["run", "acting"], sort=False).tail(1)
+        ends = across_seeds(last, ["group", "label"], "survival")
         table = pivot_table(
             ends.rename(columns={"group": "level"}),
             "level",
             "label",
             row_title="training",
-            title="Last in-training evaluation (survival, decisions)",
+            title="Each run's last in-training evaluation (survival, decisions)",
         )
     doc.section(
         "In-training evaluations",
@@ -1372,7 +1452,9 @@ def _ablations(stats: pd.DataFrame) -> pd.DataFrame:
     """The groups (algorithm and training set-up) trained with several modality sets, where there are any: an
     ablation figure's panels (the table keeps every group; a panel per run trained with every sense only would bury
     them)."""
-    several = stats.groupby("group", sort=False)["label"].transform("nunique") > 1
+    # several modality sets, not several acting modes of one ("all [mode]", "all [sample]")
+    modality = stats["label"].astype(str).str.split(" [", regex=False).str[0]
+    several = modality.groupby(stats["group"], sort=False).transform("nunique") > 1
     return stats[several] if several.any() else stats
 
 
@@ -1436,12 +1518,10 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
     runs = inp.by_dir
     empty = pd.DataFrame(columns=["algo", "setup", "level", *STAT_COLUMNS])
     final = _one_mode(inp.final, inp)
-    # runs with every sense of the agents that take part (:meth:`Inputs.enters`), less the compute-matched ones
-    # (their budget is CPU minutes: they answer (c) alone)
+    # runs with every sense of every agent (the gate decides nothing: it explains undecided parts), less the
+    # compute-matched ones (their budget is CPU minutes: they answer (c) alone)
     full = (
-        final[
-            final["run"].map(lambda d: runs[d].modality == "all" and runs[d].cpu_budget is None and inp.enters(runs[d]))
-        ]
+        final[final["run"].map(lambda d: runs[d].modality == "all" and runs[d].cpu_budget is None)]
         if len(final)
         else final
     )
@@ -1471,8 +1551,6 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
         by_setup = cmp = empty
     with_cur = set(by_setup.loc[by_setup["setup"] == "curriculum", "algo"])
     survival = by_setup[(by_setup["setup"] == "curriculum") | ~by_setup["algo"].isin(with_cur)]
-    random = inp.reference_training
-    random = random[random["label"] == "random"] if len(random) else random
 
     def agent(d: Path) -> str:
         r = inp.runs[d]
@@ -1480,7 +1558,7 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
 
     best = _one_mode(inp.best, inp)
     best = (
-        best[best["run"].map(lambda d: inp.runs[d].modality == "all" and inp.enters(inp.runs[d]))]
+        best[best["run"].map(lambda d: inp.runs[d].modality == "all" and inp.runs[d].cpu_budget is None)]
         if len(best)
         else best
     )
@@ -1506,9 +1584,7 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
     tests = _one_mode(inp.testbed_episodes, inp)
     tests = (
         tests[
-            tests["run"].map(
-                lambda d: inp.runs[d].curriculum and inp.runs[d].modality == "all" and inp.enters(inp.runs[d])
-            )
+            tests["run"].map(lambda d: inp.runs[d].curriculum and inp.runs[d].modality == "all")
             & tests["policy"].map(lambda p: bool(MODEL_FILE.match(Path(p).name)))
         ]
         if len(tests)
@@ -1526,41 +1602,33 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
         if per_stage is not None
         else pd.DataFrame(columns=["agent", "level", *STAT_COLUMNS])
     )
-    per_seed = (
-        pd.DataFrame(
-            {
-                "agent": per_stage["agent"],
-                "level": per_stage["ckpt_level"],
-                "seed": per_stage["run"].map(lambda x: inp.runs[x].seed),
-                "value": per_stage["success"],
-            }
-        )
-        if per_stage is not None
-        else None
-    )
-
+    vr = inp.verdict_rules
+    factor = inp.learned_factor if inp.learned_factor is not None else vr.fails_factor
+    refs_train = inp.reference_training
+    bars = {
+        lv: bar[0]
+        for lv in order
+        if (bar := threshold(refs_train, lv, factor) if len(refs_train) else None) is not None
+    }
     where = matched_level(inp)
     if where is not None:  # (c) where the paper states it for one level, at equal compute
         msurv = matched_survival(inp)
-        gate = (
-            inp.gate_of(True)
-            if inp.learned_factor is not None
-            else pd.DataFrame({"algo": list(msurv["algo"]), "learned": True, "reading": ""})
+        gate = inp.gate_of(True) if inp.learned_factor is not None else pd.DataFrame(columns=["algo", "learned"])
+        ordering = rules.matched_ordering(
+            msurv, bars.get(where[0], float("nan")), gate, matched_reaching(inp), *where, rules=vr
         )
-        ordering = rules.matched_ordering(msurv, random, gate, matched_reaching(inp), *where)
     else:
-        ordering = rules.algorithm_ordering(survival, random, order)
+        ordering = rules.algorithm_ordering(survival, bars, order, vr)
     verdicts = [
-        rules.survival_falls(survival, order),
-        rules.curriculum_beats_direct(cmp, order),
+        rules.survival_falls(survival, order, rules=vr),
+        rules.curriculum_beats_direct(cmp, order, rules=vr),
         ordering,
-        rules.testbeds_below_ceiling(success, ref_tests, gen, order, per_seed),
+        rules.testbeds_below_ceiling(success, ref_tests, gen, order, vr),
     ]
     # ablations: runs of one algorithm and training set-up (a level, or the curriculum) with several modality sets
     groups: dict[tuple, list[RunRecord]] = {}
     for r in inp.usable:  # one budget per group: a compute-matched run is no ablation's all-senses run
-        if inp.enters(r):
-            groups.setdefault((r.algo, r.training, r.budget), []).append(r)
+        groups.setdefault((r.algo, r.training, r.budget), []).append(r)
     groups = {k: v for k, v in groups.items() if len({r.modality for r in v}) > 1}
     if not groups:
         verdicts.append(
@@ -1589,7 +1657,9 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
             if len(ab_best)
             else pd.DataFrame(columns=["modality", *STAT_COLUMNS])
         )
-        v = rules.ablations(surv, succ)
+        # the bar of the level the final networks were evaluated on (a curriculum's last stage)
+        on = str(last["level"].iloc[0]) if len(last) and last["level"].nunique() == 1 else level
+        v = rules.ablations(surv, succ, bars.get(on, float("nan")), vr)
         v.claim += f" ({algo}, trained on {level})"
         verdicts.append(v)
     return verdicts
@@ -1607,11 +1677,23 @@ def claims(doc: Document, inp: Inputs) -> None:
     doc.md += [
         "## The paper's claims",
         "",
-        "Each claim of the EVAAA paper judged against the numbers above by a fixed rule: two cells differ only "
-        "where their 95 % intervals do not overlap, and overlapping intervals never decide a claim (not "
-        f"resolvable at this scale). A part whose agent cells have fewer than {MIN_SEEDS} seeds has no "
-        "interval and is not decided (`not resolvable: 2 seeds`, with each seed's value); agents that acted "
-        "differently are not compared"
+        "Each claim of the EVAAA paper judged against the numbers above by fixed rules that decide both ways "
+        '(docs/reports.md, "The verdict rules"; margins from the protocol: '
+        f"`margin={inp.verdict_rules.margin:g}`). "
+        f"**A beats B** (survival; testbed success the same on rates): the ratio of their IQMs with its 95 % bootstrap interval — above "
+        f"{1 + inp.verdict_rules.margin:g} reproduces, at or under {1 + inp.verdict_rules.margin:g} contradicts (equal "
+        "within the margin, or worse), straddling it is not resolvable. **Censoring**: a cell with more than a "
+        "quarter of its episodes at the step cap is a lower bound (`≥`); a ratio over a capped cell cannot "
+        "reproduce, one of a capped cell cannot contradict. **Fails**, one definition for every claim: did not "
+        "learn by the gate — the survival interval not above "
+        f"{inp.verdict_rules.fails_factor:g}× the better of random and stand-still on that level. **The gate "
+        "decides nothing**: every agent is compared; a part the data leave undecided says which of its agents "
+        'did not learn. (d)\'s "no monotonic gain": '
+        "a drop between consecutive training levels, one-sided two-proportion tests on the effective episodes "
+        "(the seeds' design effect), Holm-corrected over the steps, with the smallest drop it finds at "
+        f"{100 * inp.verdict_rules.power:.0f} % power stated. A part whose agent cells have fewer than {MIN_SEEDS} "
+        "seeds has no interval and is not decided (`not resolvable: 2 seeds`); agents that acted differently are "
+        "not compared"
         + (
             f" — the claims compare the checkpoints acting {inp.compared}, and the other acting modes' numbers "
             "in the tables decide nothing"
@@ -1620,9 +1702,8 @@ def claims(doc: Document, inp: Inputs) -> None:
         )
         + ". (b) compares at matched total env steps where direct runs of a "
         "curriculum stage's total exist, else at equal env steps per stage (the curriculum stage has seen "
-        "more). (d)'s drops: one-sided paired t-tests over seeds between every pair of training levels, "
-        "Holm-corrected. A claim of several parts is reproduced when every part is, contradicted "
-        "when some part is and none is reproduced. Survival per level: "
+        "more). A claim of several parts is reproduced when every part is, contradicted when any part is (it "
+        "states each of them), otherwise not resolvable. Survival per level: "
         + _source_words(inp)
         + " (runs with every sense; curriculum runs where an "
         "algorithm has them). Testbed success: each run's furthest-trained evaluated checkpoint" + how + ".",
@@ -1634,18 +1715,16 @@ def claims(doc: Document, inp: Inputs) -> None:
         known = set(gate["algo"])
         unknown = sorted({r.algo for r in inp.usable} - known)
         doc.md += [
-            f"**Which agents learned.** An agent enters a comparison only if its network with every sense, "
-            f"trained on {level}, survives there at least {inp.learned_factor:g}× the better of random and "
-            "stand-still (IQM of its seeds' episodes), judged at the budget it is compared at: its compute-matched "
-            f"runs for the comparison at equal compute; for the others its direct runs on {level} with a step "
-            "budget, else its curriculum's first stage. One that did not is reported as \"did not learn at this "
-            'budget", with its curves, and compared with nothing.',
+            f"**Which agents learned.** An agent learned {level} when the 95 % interval of its network with every "
+            f"sense (IQM of its seeds' episodes) lies above {inp.learned_factor:g}× the better of random and "
+            "stand-still there, judged at the budget it is compared at: its compute-matched runs for the comparison "
+            f"at equal compute; for the others its direct runs on {level} with a step budget, else its "
+            'curriculum\'s first stage. One whose interval does not "did not learn at this budget" — the one '
+            'meaning of "fails" in the claims. The gate decides no part: it explains parts the data leave '
+            "undecided.",
             "",
             *[f"- {r}" for r in gate["reading"]],
-            *[
-                f"- {a}: no evaluation of its network with every sense on {level}: compared with nothing"
-                for a in unknown
-            ],
+            *[f"- {a}: no evaluation of its network with every sense on {level}" for a in unknown],
             "",
         ]
     doc.md += rules.markdown(inp.verdicts)
@@ -1682,12 +1761,14 @@ def build_report(
     acting: str | None = None,
     compare: str | None = None,
     learned: float | None = None,
+    margin: float = 0.1,
 ) -> Report:
     """Read runs and evaluations, write ``out/report.md``, its PNG figures and ``out/data/*.csv`` (the tables'
     numbers); returns what was written.  ``acting``: which of the checkpoints' evaluation modes to report
     (:func:`.load.select_acting`); ``compare``: the one the claims compare, every mode staying in the tables
     (:func:`_one_mode`); ``learned``: the factor over the better of random and stand-still an agent's network
-    with every sense must reach on the first level to enter the claims' comparisons (:mod:`.matched`)."""
+    with every sense must clear on the first level to have learned it (:mod:`.matched`; the bar of "fails");
+    ``margin``: the verdict rules' equivalence margin (:class:`..paper.claims.Rules`)."""
     inp = read_inputs(
         run_paths,
         eval_paths,
@@ -1697,6 +1778,7 @@ def build_report(
         acting=acting,
         compare=compare,
         learned=learned,
+        margin=margin,
     )
     doc = Document(Path(out))
     (doc.out / "data").mkdir(parents=True, exist_ok=True)
@@ -1705,7 +1787,8 @@ def build_report(
     for section in SECTIONS:
         section(doc, inp)
     for name, frame in doc.tables.items():
-        frame.to_csv(doc.out / "data" / f"{name}.csv", index=False)
+        # each seed's episodes (``samples``) feed the claims' ratio intervals; the CSV keeps the cells' numbers
+        frame.drop(columns=["samples"], errors="ignore").to_csv(doc.out / "data" / f"{name}.csv", index=False)
     if len(inp.run_curves):
         rows = inp.run_curves.assign(run=inp.run_curves["run"].map(inp.rel))
         rows.to_csv(doc.out / "data" / "curves_per_run.csv", index=False)

@@ -51,6 +51,10 @@ __all__ = [
     "binomial_interval",
     "clustered_rate",
     "holm",
+    "design_effect",
+    "ratio_interval",
+    "drop_pvalue",
+    "detectable_drop",
     "STATISTICS",
 ]
 
@@ -191,16 +195,75 @@ def clustered_rate(samples: Sequence[Sequence[float]], *, confidence: float = 0.
         raise TooFewSeeds(
             f"an interval needs at least {MIN_SEEDS} seeds, got {len(strata)}: show the seeds' values instead"
         )
+    n = float(sum(x.size for x in strata))
+    p = float(sum(x.sum() for x in strata) / n)
+    low, high = _wilson(p, n / design_effect(strata), float(sps.norm.ppf(0.5 + confidence / 2)))
+    return Estimate(p, low, high, len(strata))
+
+
+def design_effect(samples: Sequence[Sequence[float]]) -> float:
+    """Kish's design effect (at least 1) of the pooled success rate of ``samples`` (one sequence of 0/1 outcomes per
+    seed): the seed-clustered (sandwich) variance of the pooled rate over the binomial ``p(1−p)/n``; 1 where every
+    outcome is the same, or for one seed.  ``n / design_effect`` is the effective number of episodes."""
+    strata = [np.asarray(x, dtype=float).ravel() for x in samples]
+    strata = [x for x in strata if x.size]
     s = np.array([x.sum() for x in strata])
     m = np.array([x.size for x in strata], dtype=float)
     n, k = m.sum(), len(strata)
+    if k < 2 or not n:
+        return 1.0
     p = float(s.sum() / n)
-    deff = 1.0
-    if 0 < p < 1:
-        clustered = k / (k - 1) * float(((s - p * m) ** 2).sum()) / n**2
-        deff = max(1.0, clustered / (p * (1 - p) / n))
-    low, high = _wilson(p, n / deff, float(sps.norm.ppf(0.5 + confidence / 2)))
-    return Estimate(p, low, high, k)
+    if not 0 < p < 1:
+        return 1.0
+    clustered = k / (k - 1) * float(((s - p * m) ** 2).sum()) / n**2
+    return max(1.0, clustered / (p * (1 - p) / n))
+
+
+def ratio_interval(
+    a: Sequence[Sequence[float]],
+    b: Sequence[Sequence[float]],
+    statistic: str = "iqm",
+    *,
+    confidence: float = 0.95,
+    resamples: int = 2000,
+    seed: int = 0,
+) -> Estimate:
+    """``statistic`` (IQM for survival, mean for success as 0/1) of ``a`` over that of ``b`` (each: one sequence of
+    episode scores per seed) with the percentile interval of the ratio of independent two-stage bootstrap replicates
+    of each (:func:`replicates`; ``b`` drawn from another stream; a replicate of ``b`` at 0 gives an infinite
+    ratio).  ``n``: the fewer seeds.  Raises :class:`TooFewSeeds` under :data:`MIN_SEEDS` seeds on either side."""
+    sa = [np.asarray(s, dtype=float).ravel() for s in a]
+    sb = [np.asarray(s, dtype=float).ravel() for s in b]
+    sa, sb = [s for s in sa if s.size], [s for s in sb if s.size]
+    if min(len(sa), len(sb)) < MIN_SEEDS:
+        raise TooFewSeeds(f"a ratio's interval needs at least {MIN_SEEDS} seeds a side, got {len(sa)} and {len(sb)}")
+    stat = STATISTICS[statistic]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        value = float(np.divide(stat(np.concatenate(sa)), stat(np.concatenate(sb))))
+        ra = replicates(sa, statistic, resamples=resamples, seed=seed)
+        rb = replicates(sb, statistic, resamples=resamples, seed=seed + 1)
+        ratios = np.where(rb > 0, ra / np.where(rb > 0, rb, 1.0), np.where(ra > 0, np.inf, 1.0))
+    alpha = 100 * (1 - confidence) / 2
+    low, high = np.percentile(ratios, [alpha, 100 - alpha])
+    return Estimate(value, float(low), float(high), min(len(sa), len(sb)))
+
+
+def drop_pvalue(p1: float, n1: float, p2: float, n2: float) -> float:
+    """One-sided p-value that a success rate fell from ``p1`` (of ``n1`` effective episodes) to ``p2`` (of ``n2``):
+    the two-proportion z-test with the pooled rate (``scipy.stats.norm.sf`` of z); 1 where both rates are 0 or 1."""
+    pooled = (p1 * n1 + p2 * n2) / (n1 + n2)
+    var = pooled * (1 - pooled) * (1 / n1 + 1 / n2)
+    if var <= 0:
+        return 1.0
+    return float(sps.norm.sf((p1 - p2) / math.sqrt(var)))
+
+
+def detectable_drop(rate: float, n: float, alpha: float, power: float = 0.8) -> float:
+    """The smallest fall of a success rate from ``rate`` that the one-sided test of :func:`drop_pvalue` at level
+    ``alpha`` finds with probability ``power``, both levels of ``n`` effective episodes (normal approximation:
+    ``(z_{1−alpha} + z_power) · sqrt(2 rate (1 − rate) / n)``)."""
+    rate = min(max(rate, 1e-3), 1 - 1e-3)
+    return float((sps.norm.isf(alpha) + sps.norm.ppf(power)) * math.sqrt(2 * rate * (1 - rate) / n))
 
 
 def holm(pvalues: Sequence[float], alpha: float = 0.05) -> np.ndarray:

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from .aggregate import estimate, mean_se
+from .aggregate import CAPPED_SHARE, estimate, mean_se
 from .load import LEVEL_ORDER, display_names
 
 
@@ -38,13 +38,40 @@ def _points(row: Mapping[str, Any], k: float, pct: str) -> str:
     return ", ".join(f"{k * p:.1f}{pct}" for p in points)
 
 
+def capped(row: Mapping[str, Any]) -> bool:
+    """Whether a survival cell's episodes reach the step cap more often than :data:`.aggregate.CAPPED_SHARE` (a
+    quarter): its IQM, and its interval's upper end, are then lower bounds."""
+    share = row.get("at_cap", float("nan")) if hasattr(row, "get") else float("nan")
+    try:
+        return bool(float(share) > CAPPED_SHARE)
+    except (TypeError, ValueError):
+        return False
+
+
+def censored_note(row: Mapping[str, Any]) -> str:
+    """What a capped survival cell adds: the share of episodes at the cap and the intake (food and water eaten per
+    1,000 decisions), e.g. ``93 % at the step cap; intake 7.5 / 1,000 decisions``; "" for a cell that is not."""
+    if not capped(row):
+        return ""
+    intake = row.get("intake", float("nan"))
+    said = f"{100 * float(row['at_cap']):.0f} % at the step cap"
+    try:
+        if not np.isnan(float(intake)):
+            said += f"; intake {float(intake):.1f} / 1,000 decisions"
+    except (TypeError, ValueError):
+        pass
+    return said
+
+
 def cell(row: Mapping[str, Any], percent: bool = False) -> str:
     """A table cell from a row of :data:`STAT_COLUMNS`: survival ``IQM [low, high]; mean ± se (n=…)``, success
-    ``rate% [low, high] (n=…)`` (one decimal); under three seeds no interval: ``IQM; seeds a, b (n=…)``."""
+    ``rate% [low, high] (n=…)`` (one decimal); under three seeds no interval: ``IQM; seeds a, b (n=…)``.  A survival
+    cell with more than a quarter of its episodes at the step cap is a lower bound: ``≥ 5000.0 [...] ...; 93 % at
+    the step cap; intake 7.5 / 1,000 decisions (n=…)``."""
     if not row["n"] or np.isnan(row["value"]):
         return "–"
     k, pct = (100.0, "%") if percent else (1.0, "")
-    text = f"{k * row['value']:.1f}{pct}"
+    text = ("≥ " if capped(row) else "") + f"{k * row['value']:.1f}{pct}"
     if not np.isnan(row["low"]):
         text += f" [{k * row['low']:.1f}, {k * row['high']:.1f}]"
     if row["statistic"] == "iqm" and not np.isnan(row["se"]):
@@ -52,6 +79,9 @@ def cell(row: Mapping[str, Any], percent: bool = False) -> str:
     points = _points(row, k, pct)
     if points:
         text += f"; {'seeds' if row.get('unit', 'seeds') == 'seeds' else row.get('unit')} {points}"
+    note = censored_note(row)
+    if note:
+        text += f"; {note}"
     size = sample_size(int(row["n"]), int(row["episodes"]), row.get("unit", "seeds"), bool(row.get("means_only")))
     return f"{text} (n={size})"
 
