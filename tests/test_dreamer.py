@@ -267,6 +267,29 @@ def test_the_bar_says_prefill_then_counts_gradient_steps(tmp_path, capsys, monke
     assert "64/64" in trained[-1]
 
 
+def test_a_budget_within_the_prefill_is_refused_before_anything_is_written(tmp_path):
+    # DreamerV3-XS fills 16,384 env steps before it learns: 2,000 would write an untrained "final model"
+    done = subprocess.run(
+        [sys.executable, "scripts/train.py", "algo=dreamer_xs", "total_steps=2000", f"run.root={tmp_path}"],
+        cwd=Path(__file__).resolve().parents[1],
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert "total_steps=2000: DreamerV3 takes its first gradient step after 16,384 env steps" in done.stderr
+    assert not any(tmp_path.iterdir())
+    # a curriculum's stages each fill their own replay: the per-stage budget is what is checked
+    cfg = make_cfg("algo=dreamer_xs", "level=curriculum", "level.stage_steps=16384")
+    assert dreamer.check_config(cfg).startswith("level.stage_steps=16384:")
+    assert dreamer.check_config(make_cfg("algo=dreamer_xs", "total_steps=16385")) is None
+
+
+def test_a_time_budget_spent_within_the_prefill_says_the_final_model_is_untrained(tmp_path, caplog):
+    train(debug_cfg("max_minutes=0.00001"), tmp_path / "run")
+    assert "before its first gradient step (at 32): its final model is the untrained network" in caplog.text
+    assert (tmp_path / "run" / "model-0-1-1.pt").is_file()
+
+
 # ------------------------------------------------------------------------------------------------ loading
 def test_loaded_policy_carries_its_recurrent_state(runs):
     loaded = load_policy(runs["whole"] / "model-0-1-1.pt", modalities=evaaa.MODALITIES)

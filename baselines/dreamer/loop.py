@@ -151,3 +151,12 @@ def train(run: Run) -> None:
         if metrics is not None:
             run.log(metrics | {"updates": counters["updates"], "replay_steps": len(replay.buffer)})
         run.end_iteration(td)
+    if counters["updates"] == 0:  # a time budget ended the stage within its prefill (a step budget is refused)
+        log.warning(
+            "%s on %s ended after %s env steps, before its first gradient step (at %s): its final model is the "
+            "untrained network; give the stage more time or lower algo.learning_starts",
+            cfg.name,
+            run.stage.level,
+            f"{run.steps:,}",
+            f"{start:,}",
+        )

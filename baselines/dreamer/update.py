@@ -54,14 +54,32 @@ def update_options(cfg: DictConfig, device: torch.device) -> dict[str, bool]:
 
 
 def check_config(cfg: DictConfig) -> str | None:
-    """The training command's check of ``algo.update`` (before anything is written): None, or the problem."""
+    """The training command's check (before anything is written): ``algo.update``'s options, and a stage long
+    enough for a gradient step; None, or the problem."""
     from ..devices import DeviceError, resolve_device
 
     try:
         update_options(cfg.algo, resolve_device(cfg.device))
     except (ValueError, DeviceError) as err:
         return str(err)
-    return None
+    return prefill_problem(cfg)
+
+
+def prefill_problem(cfg: DictConfig) -> str | None:
+    """Why a stage would end before its first gradient step, in one line: every stage fills its own replay with
+    ``algo.learning_starts`` env steps (at least one sequence per world) before DreamerV3 learns anything, and a
+    stage whose env-step budget is no longer would write an untrained network as its final model."""
+    start = max(int(cfg.algo.learning_starts), int(cfg.algo.sequence_length) * int(cfg.env.num_envs))
+    curriculum = "stages" in cfg.level
+    key = "level.stage_steps" if curriculum else "total_steps"
+    budget = int(cfg.level.stage_steps if curriculum else cfg.total_steps)
+    if budget > start:
+        return None
+    return (
+        f"{key}={budget}: DreamerV3 takes its first gradient step after {start:,} env steps of prefill "
+        f"(max of algo.learning_starts={cfg.algo.learning_starts} and algo.sequence_length x env.num_envs), so a "
+        f"stage of {budget:,} would end untrained; give {key} more than {start:,} or lower algo.learning_starts"
+    )
 
 
 class Phase:
