@@ -83,7 +83,7 @@ def _lstm(model: nn.Module) -> LSTMModule | None:
 def make_transforms(cfg: DictConfig, obs_keys: Sequence[str], model: nn.Module) -> list[Transform]:
     """Stacked pixel frames; for the LSTM, episode-start flags and zeroed LSTM state at every reset."""
     transforms: list[Transform] = []
-    if "pixels" in obs_keys:
+    if "pixels" in obs_keys and cfg.frame_stack > 1:  # one frame needs no stacking (and its copy each step)
         transforms.append(CatFrames(N=cfg.frame_stack, dim=-1, in_keys=["pixels"]))
     lstm = _lstm(model)
     if lstm is not None:
