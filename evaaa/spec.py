@@ -490,8 +490,21 @@ class Reward(_Spec):
 
 
 # --------------------------------------------------------------------------------------------------- level
+#: What a level's name may be: it names the MuJoCo model, the level's pictures (``<name>_eye.png``) and, for a level
+#: from the user's file, its run folder, so it holds no quote, markup, path separator, space or leading dot.
+LEVEL_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
+LEVEL_NAME_RULE = "1 to 64 letters, digits, '-', '_' or '.', starting with a letter or digit"
+
+
+def check_level_name(name: str) -> str:
+    """``name`` if it is a :data:`LEVEL_NAME`; else ValueError saying what is allowed."""
+    if not LEVEL_NAME.fullmatch(name):
+        raise ValueError(f"must be {LEVEL_NAME_RULE} (a level file's name is its file's stem unless it says name:)")
+    return name
+
+
 class Level(_Spec):
-    name: str
+    name: Annotated[str, AfterValidator(check_level_name)]
     kind: Literal["training", "testbed"]
     description: str
     arena: Arena
@@ -1041,6 +1054,8 @@ def register_level(path: str | os.PathLike) -> str:
     if not _is_path(path):
         raise LevelError(f"a level file must end in .yaml or .yml, got '{path}'")
     name = path.stem
+    if not LEVEL_NAME.fullmatch(name):  # it becomes a level name, and a run's folder (train.py level=file)
+        raise LevelError(f"level file '{path}': its name {excerpt(name)} (the file's stem) must be {LEVEL_NAME_RULE}")
     if name in LEVELS + TESTBEDS or _USER_FILES.get(name, path) != path:
         taken = "a packaged level" if name in LEVELS + TESTBEDS else f"the file '{_USER_FILES[name]}'"
         raise LevelError(f"level file '{path}': its name '{name}' is already {taken}'s; rename the file")
