@@ -217,7 +217,11 @@ class PlaySession:
             if options.step_log
             else None
         )
-        self._run(self._reset, options.level)
+        try:
+            self._run(self._reset, options.level)
+        except RequestError as exc:  # the level asked for on the command line cannot be played
+            self._worker.shutdown()
+            raise StartupError(" ".join(exc.message.split())) from None
 
     def _run(self, fn: Callable[..., Any], *args: Any) -> Any:
         return self._worker.submit(fn, *args).result()
@@ -242,24 +246,41 @@ class PlaySession:
         self._worker.shutdown()
 
     # -------------------------------------------------------------------------------- on the worker thread
-    def _open_level(self, name: str) -> None:
-        """Replace the simulator by one of level ``name`` (validated first, so a bad name keeps the old one)."""
+    def _open_level(self, name: str) -> np.ndarray:
+        """Replace the simulator by one of level ``name``, reset; returns its first frame.  The new simulator is built
+        and reset before the old one is closed: a level that validates but cannot be played (MuJoCo refuses a body,
+        items find no free spot) is answered 400 and the old level plays on."""
         if name not in playable_levels():  # a name, never a path: a request must not make the server read a file
             raise RequestError(400, f"unknown level {excerpt(name)}; available: {', '.join(playable_levels())}")
         try:
             level = load_level(name, self.options.overrides)
         except LevelError as exc:
             raise RequestError(400, str(exc)) from None
+        sim = None
+        try:
+            # the player sees pixels; the EVs are read from the simulator, so no other sensor is computed
+            sim = Simulator(level, 1, modalities=["pixels"], seed=self.options.seed)
+            frame = sim.reset()["pixels"][0]
+        except LevelError as exc:
+            if sim is not None:
+                sim.close()
+            still = f"; level {self.level.name} plays on" if self.sim is not None else ""
+            raise RequestError(400, f"level {name} cannot be played: {' '.join(str(exc).split())}{still}") from None
+        except BaseException:  # a bug: answered 500, and the old simulator still serves
+            if sim is not None:
+                sim.close()
+            raise
         if self.sim is not None:
             self.sim.close()
         self.level: Level = level
-        # the player sees pixels; the EVs are read from the simulator, so no other sensor is computed
-        self.sim = Simulator(level, 1, modalities=["pixels"], seed=self.options.seed)
+        self.sim = sim
+        return frame
 
     def _reset(self, level: str | None) -> dict[str, Any]:
         unfinished = 0 if self.sim is None or self.done else int(self.sim.steps[0])
+        frame = None
         if level is not None and (self.sim is None or level != self.level.name):
-            self._open_level(level)  # a bad name raises here and leaves the episode be
+            frame = self._open_level(level)  # a level that cannot be played raises here and leaves the episode be
         if unfinished:
             print(
                 f"episode {self.episode} abandoned after {unfinished} steps (not recorded)", file=sys.stderr, flush=True
@@ -271,7 +292,7 @@ class PlaySession:
             1, level=self.level.name, policy="human", participant=self.options.participant, seed=self.options.seed
         )
         self.tracker.episodes = self.episode
-        self.frame = self.sim.reset()["pixels"][0]
+        self.frame = self.sim.reset()["pixels"][0] if frame is None else frame
         if self.step_log is not None:
             self.step_log.start(self.level.name, self.sim.last_info, seed=self.options.seed)
         self.done, self.end_type, self.returned, self.record_error = False, None, 0.0, None

@@ -3,8 +3,12 @@ files through ``train.py level=file``, a play reset that cannot be built, and cr
 
 from __future__ import annotations
 
+import http.client
 import json
 import os
+import subprocess
+import sys
+import threading
 import time
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -13,11 +17,13 @@ import mujoco
 import pytest
 
 import evaaa
+from evaaa import play
 from evaaa.pictures import render_level
 from evaaa.scene import build_mjcf
 from evaaa.spec import LevelError, load_level, register_level, registered_levels
 from evaaa.worldgen import ResourcePool
 
+ROOT = Path(__file__).resolve().parents[1]
 #: a hang, not a slow machine
 HANG_SECONDS = 10
 
@@ -96,3 +102,104 @@ def test_pictures_of_a_level_stay_in_their_folder(tmp_path):
     with pytest.raises(LevelError, match="would write its picture outside"):
         render_level(_unchecked("../../x"), out, seed=0)
     assert [p for p in tmp_path.rglob("*") if p.is_file()] == []
+
+
+# ------------------------------------------------------------------------------------------------ 2. train.py level=file
+def _refused_file(folder: Path, case: str) -> str | None:
+    """The ``level.file=`` value of a refused level file of kind ``case`` made in ``folder`` (None: not given)."""
+    path = folder / "mine.yaml"
+    if case == "not given":
+        return None
+    if case == "missing":
+        pass
+    elif case == "too large":
+        path.write_text("description: '" + "x" * (65 * 1024) + "'\n")
+    elif case == "alias bomb":
+        lines = ["a0: &a0 [" + ", ".join(["lol"] * 9) + "]"]
+        lines += [f"a{i}: &a{i} [" + ", ".join([f"*a{i - 1}"] * 9) + "]" for i in range(1, 9)]
+        path.write_text("\n".join(lines) + "\ndescription: *a8\n")
+    elif case == "yaml tag":
+        path.write_text("description: !!python/object/apply:os.system ['touch pwned']\n")
+    elif case == "fifo":
+        os.mkfifo(path)  # never opened for reading: it would block until a writer came
+    elif case == "bad name":
+        path.write_text('extends: "1-1"\nname: \'a"><include file="/etc/hostname"/></mujoco><mujoco model="b\'\n')
+    elif case == "symlink loop":
+        (folder / "other.yaml").symlink_to(path)
+        path.symlink_to(folder / "other.yaml")
+    return str(path)
+
+
+@pytest.mark.parametrize(
+    "case, message",
+    [
+        ("not given", "level=file needs level.file=<path of your level's .yaml file>"),
+        ("missing", "cannot be read: no such file"),
+        ("too large", "is larger than 64 KiB"),
+        ("alias bomb", "more than 100000 values"),
+        ("yaml tag", "could not determine a constructor for the tag"),
+        ("fifo", "cannot be read: not a regular file"),
+        ("bad name", "name: must be 1 to 64 letters, digits"),
+        ("symlink loop", "cannot be read: Symlink loop"),
+    ],
+)
+def test_train_script_refuses_a_bad_level_file_in_one_line_and_writes_nothing(tmp_path, case, message):
+    folder = tmp_path / "levels"
+    folder.mkdir()
+    file = _refused_file(folder, case)
+    root = tmp_path / "runs"
+    cmd = [sys.executable, str(ROOT / "scripts" / "train.py"), "algo=ppo", "preset=debug", "logger=csv", "level=file"]
+    cmd += [*([f"level.file={file}"] if file else []), f"run.root={root}"]
+    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1, done.stderr[-3000:]
+    assert lines[0].startswith("train.py: error: level") and message in lines[0], lines[0]
+    assert file is None or f"level.file={file}: " in lines[0]
+    assert not root.exists() and not (tmp_path / "outputs").exists()  # no run folder, no Hydra output folder
+    assert not (tmp_path / "pwned").exists()
+
+
+# ------------------------------------------------------------------------------------------------ 3. play resets
+def _post(address: tuple[str, int], path: str, body: dict) -> tuple[int, dict]:
+    connection = http.client.HTTPConnection(*address, timeout=60)
+    connection.request("POST", path, json.dumps(body), {"Content-Type": "application/json"})
+    response = connection.getresponse()
+    answer = response.status, json.loads(response.read())
+    connection.close()
+    return answer
+
+
+def test_a_play_reset_to_a_level_that_cannot_be_built_keeps_the_previous_level(tmp_path):
+    folder = tmp_path / "levels"
+    folder.mkdir()
+    # both validate (the server registers them at start-up); MuJoCo refuses the first, the second's rocks find no room
+    level_file(folder, 'extends: "1-1"\nagent: {mass: 1.0e-300}\n', "r3-weightless.yaml")
+    level_file(
+        folder,
+        'extends: "1-1"\nobstacles:\n  rocks: {kind: rock, count: 300, x: [-3, 3], y: [-3, 3]}\n',
+        "r3-crowded.yaml",
+    )
+    play.register_level_dir(folder)
+    httpd = play.PlayServer("127.0.0.1", 0, b"<html></html>")
+    httpd.session = play.PlaySession(play.PlaySettings(level="1-1", out=tmp_path / "records"))
+    thread = threading.Thread(target=httpd.serve_forever, daemon=True)
+    thread.start()
+    address = httpd.server_address[:2]
+    try:
+        assert _post(address, "/api/step", {"action": 1})[0] == 200
+        for name, reason in (
+            ("r3-weightless", "agent.mass: MuJoCo cannot build it"),
+            ("r3-crowded", "obstacles.rocks: obstacle"),
+        ):
+            status, answer = _post(address, "/api/reset", {"level": name})
+            assert status == 400, (status, answer)
+            assert answer["error"].startswith(f"level {name} cannot be played: ") and reason in answer["error"]
+            assert answer["error"].endswith("level 1-1 plays on") and "\n" not in answer["error"]
+            status, answer = _post(address, "/api/step", {"action": 1})  # the episode under way goes on
+            assert status == 200 and answer["level"] == "1-1" and answer["step"] >= 2, answer
+        status, answer = _post(address, "/api/reset", {"level": "1-2"})  # and other levels still open
+        assert status == 200 and answer["level"] == "1-2" and answer["step"] == 0
+    finally:
+        httpd.shutdown()
+        httpd.server_close()
+        httpd.session.close()
