@@ -15,6 +15,10 @@ from pathlib import Path
 
 import mujoco
 import pytest
+import torch
+from helpers import load_script
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
 
 import evaaa
 from evaaa import play
@@ -22,6 +26,10 @@ from evaaa.pictures import render_level
 from evaaa.scene import build_mjcf
 from evaaa.spec import LevelError, load_level, register_level, registered_levels
 from evaaa.worldgen import ResourcePool
+from evaaa_baselines import checkpoint, load_policy, training
+from evaaa_baselines.algos import algorithm
+from evaaa_baselines.config import register_levels, stages
+from evaaa_baselines.paths import CONF_DIR
 
 ROOT = Path(__file__).resolve().parents[1]
 #: a hang, not a slow machine
@@ -203,3 +211,137 @@ def test_a_play_reset_to_a_level_that_cannot_be_built_keeps_the_previous_level(t
         httpd.shutdown()
         httpd.server_close()
         httpd.session.close()
+
+
+# ------------------------------------------------------------------------------------------------ 4. checkpoints
+def _crafted(path: Path, plain) -> Path:
+    """A checkpoint file holding ``plain`` as its state, with a valid checksum (as someone crafting it would)."""
+    limit = sys.getrecursionlimit()
+    sys.setrecursionlimit(50_000)  # the checksum of a deep state recurses; the crafter's machine allows it
+    try:
+        envelope = {"evaaa_checkpoint": checkpoint.FILE_FORMAT, "checksum": checkpoint.checksum(plain), "state": plain}
+        torch.save(envelope, path)
+    finally:
+        sys.setrecursionlimit(limit)
+    return path
+
+
+def _deep(depth: int) -> list:
+    deep: list = []
+    for _ in range(depth):
+        deep = [deep]
+    return deep
+
+
+def _array(dtype: str, shape: list, size: int) -> dict:
+    return {"__evaaa_type__": "ndarray", "dtype": dtype, "shape": shape, "bytes": torch.zeros(size, dtype=torch.uint8)}
+
+
+CRAFTED = {
+    "5,000-deep nesting": ({"steps": _deep(5000)}, "nests deeper than 100 levels"),
+    "object-dtype array": ({"a": _array("|O", [1], 8)}, "an array of Python objects"),
+    "huge array shape": ({"a": _array("<f4", [10**6, 10**6], 4)}, "an array's bytes do not fit its shape"),
+    "negative array shape": ({"a": _array("<f4", [-1], 4)}, "is not a list of non-negative integers"),
+    "negative batch size": (
+        {"td": {"__evaaa_type__": "tensordict", "batch_size": [-3], "device": None, "items": {}}},
+        "a tensordict's batch size [-3] is not a list of non-negative integers",
+    ),
+    "items beside the batch size": (
+        {"td": {"__evaaa_type__": "tensordict", "batch_size": [5], "device": None, "items": {"x": torch.zeros(3)}}},
+        "is malformed: RuntimeError",
+    ),
+    "NaN weights": ({"model": {"w": torch.tensor([1.0, float("nan")])}}, "its network's w holds NaN or infinite"),
+}
+
+
+@pytest.mark.parametrize("case", list(CRAFTED))
+def test_a_crafted_checkpoint_with_a_valid_checksum_is_refused_naming_the_file(tmp_path, case):
+    plain, message = CRAFTED[case]
+    path = _crafted(tmp_path / "checkpoint.pt", plain)
+    with pytest.raises(checkpoint.CheckpointError) as info:
+        checkpoint.load_checkpoint(path)
+    assert str(info.value).startswith(str(path)) and "\n" not in str(info.value)
+    assert message in str(info.value), str(info.value)
+
+
+def test_a_deep_latest_checkpoint_falls_back_to_the_previous_one(tmp_path):
+    checkpoint.save_checkpoint({"counters": {"steps": 64}}, tmp_path / checkpoint.PREVIOUS)
+    _crafted(tmp_path / checkpoint.CHECKPOINT, {"counters": {"steps": _deep(5000)}})
+    state, path, note = checkpoint.load_latest(tmp_path)
+    assert path == tmp_path / checkpoint.PREVIOUS and state["counters"]["steps"] == 64
+    assert "nests deeper than 100 levels" in note and "env step 64" in note
+
+
+def _policy_state(**algo_changes) -> dict:
+    """What a PPO run on interoception alone saves as a model file, its network built from its own config."""
+    register_levels()
+    with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
+        cfg = compose("config", overrides=["algo=ppo", "modality=no_vision"])
+    algo_cfg = OmegaConf.to_container(cfg.algo, resolve=True)
+    shapes = {"interoception": [4], "olfaction": [10], "thermoception": [8], "collision": [10]}
+    model = algorithm("ppo").make_model(cfg.algo, {k: tuple(v) for k, v in shapes.items()})
+    algo_cfg.update(algo_changes)
+    return {
+        "format": checkpoint.CHECKPOINT_FORMAT,
+        "algo": "ppo",
+        "config": {"algo": algo_cfg},
+        "obs_keys": list(shapes),
+        "obs_shapes": shapes,
+        "model": model.state_dict(),
+        "level": "1-1",
+        "modalities": list(shapes),
+        "env_overrides": {},
+    }
+
+
+def test_a_policy_whose_weights_do_not_fit_its_config_or_are_not_finite_is_refused(tmp_path):
+    path = tmp_path / "model-0-1-1.pt"
+    checkpoint.save_checkpoint(_policy_state(), path)
+    assert load_policy(path).algo == "ppo"  # the file as written loads
+    state = _policy_state()
+    key = next(iter(state["model"]))
+    state["model"][key] = torch.zeros(3, 3)
+    checkpoint.save_checkpoint(state, path)
+    with pytest.raises(checkpoint.CheckpointError, match=rf"^{path} is malformed: its config's network has {key} "):
+        load_policy(path)
+    # a network of 10^6 x 10^6 units per head layer (4 TB): refused by its shapes, before any allocation
+    checkpoint.save_checkpoint(_policy_state(head={"units": [10**6, 10**6], "layer_norm": False}), path)
+    start = time.monotonic()
+    with pytest.raises(checkpoint.CheckpointError, match="its config's network has .* its weights"):
+        load_policy(path)
+    assert time.monotonic() - start < HANG_SECONDS
+    state = _policy_state()
+    state["model"][key] = torch.full_like(state["model"][key], float("inf"))
+    checkpoint.save_checkpoint(state, path)
+    with pytest.raises(checkpoint.CheckpointError, match="holds NaN or infinite values"):
+        load_policy(path)
+
+
+def test_evaluate_refuses_a_nan_network_in_one_line(tmp_path, capsys):
+    state = _policy_state()
+    for tensor in state["model"].values():
+        if tensor.is_floating_point():
+            tensor.fill_(float("nan"))
+    path = tmp_path / "model-0-1-1.pt"
+    checkpoint.save_checkpoint(state, path)
+    out = tmp_path / "eval"
+    with pytest.raises(SystemExit) as info:
+        load_script("evaluate").main([f"policy=[{path}]", "levels=[two-resource-food]", "episodes=1", f"out={out}"])
+    assert info.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "holds NaN or infinite values" in err[0] and str(path) in err[0]
+    assert not (out / "episodes.csv").exists()
+
+
+def test_resuming_from_a_checkpoint_with_an_incomplete_record_is_refused_naming_it(tmp_path):
+    register_levels()
+    with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
+        cfg = compose("config", overrides=["algo=ppo", "preset=debug", "resume=true"])
+    checkpoint.save_checkpoint(
+        {"format": checkpoint.CHECKPOINT_FORMAT, "algo": "ppo"}, tmp_path / checkpoint.CHECKPOINT
+    )
+    with pytest.raises(checkpoint.CheckpointError) as info:
+        training._decide(cfg, tmp_path, stages(cfg))
+    message = str(info.value)
+    assert "\n" not in message and f"{tmp_path / checkpoint.CHECKPOINT} is malformed" in message
+    assert "nothing was changed" in message
