@@ -32,6 +32,7 @@ import socket
 import sys
 import tempfile
 import threading
+import time
 import traceback
 from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
@@ -66,6 +67,9 @@ PARTICIPANT = re.compile(r"[\w.@-]+")
 #: seconds a connection may stay silent (before its request, or between the parts of one) before it is closed:
 #: a browser sends a request at once, and a stalled client must not hold a thread for ever
 IDLE_TIMEOUT = 10.0
+#: seconds from a request's first line to the end of its body: a client trickling its body a byte at a time (never
+#: silent for IDLE_TIMEOUT) is answered 408 when they are up, and the body is read before a request slot is taken
+REQUEST_DEADLINE = 5.0
 #: requests answered at once (the others wait for the one simulator); beyond them the server answers 503 at once
 #: rather than letting requests pile up
 MAX_REQUESTS = 16
@@ -360,17 +364,49 @@ class PlaySession:
 
 
 # ------------------------------------------------------------------------------------------------- HTTP
-def read_json(handler: BaseHTTPRequestHandler) -> dict[str, Any]:
-    """The request's JSON object body ({} when there is none)."""
+def read_body(handler: BaseHTTPRequestHandler, deadline: float) -> bytes:
+    """The request's body, at most :data:`MAX_BODY_BYTES`, read whole by ``deadline`` (``time.monotonic()``) or
+    refused 408; a larger one is refused 413 (read and dropped first up to :data:`DRAIN_BYTES`: a socket closed on
+    unread data may reset before the answer)."""
     try:
         length = int(handler.headers.get("Content-Length") or 0)
     except ValueError:
         raise RequestError(400, "Content-Length is not a number") from None
     if length > MAX_BODY_BYTES:
-        if length <= DRAIN_BYTES:  # read it anyway: a socket closed on unread data may reset before the answer
-            handler.rfile.read(length)
+        if length <= DRAIN_BYTES:
+            _read_until(handler, length, deadline)
         raise RequestError(413, f"request body over {MAX_BODY_BYTES} bytes")
-    raw = handler.rfile.read(length) if length > 0 else b""
+    return _read_until(handler, length, deadline) if length > 0 else b""
+
+
+def _read_until(handler: BaseHTTPRequestHandler, length: int, deadline: float) -> bytes:
+    """``length`` bytes of the request, each read given only the time left before ``deadline``."""
+    parts, got = [], 0
+    try:
+        while got < length:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise TimeoutError
+            handler.connection.settimeout(left)
+            part = handler.rfile.read1(length - got)
+            if not part:  # the client closed its side before sending what it announced
+                raise RequestError(400, f"request body ended after {got} of {length} bytes")
+            parts.append(part)
+            got += len(part)
+    except TimeoutError:
+        handler.close_connection = True
+        raise RequestError(408, f"request not received within {REQUEST_DEADLINE:g} s") from None
+    finally:
+        handler.connection.settimeout(handler.timeout)  # back to the idle timeout between requests
+    return b"".join(parts)
+
+
+def read_json(handler: BaseHTTPRequestHandler) -> dict[str, Any]:
+    """The request's JSON object body ({} when there is none): the body :meth:`PlayHandler._dispatch` read before
+    the request took a slot, or (a handler of another server) read now."""
+    raw = getattr(handler, "body", None)
+    if raw is None:
+        raw = read_body(handler, time.monotonic() + REQUEST_DEADLINE)
     if not raw.strip():
         return {}
     try:
@@ -475,6 +511,11 @@ class PlayHandler(BaseHTTPRequestHandler):
         self.timeout = self.server.idle_timeout  # http.server closes a connection silent for this long
         super().setup()
 
+    def parse_request(self) -> bool:
+        # called once the request line is in: the request's deadline counts from here (headers and body)
+        self._started, self.body = time.monotonic(), None
+        return super().parse_request()
+
     def _dispatch(self) -> None:
         path = urlsplit(self.path).path
         self._allow = ""
@@ -496,9 +537,10 @@ class PlayHandler(BaseHTTPRequestHandler):
             answer = methods.get("GET" if self.command == "HEAD" else self.command)
             if answer is None:
                 raise RequestError(405, f"{path} answers {', '.join(methods)}, not {self.command}")
+            # the whole body before a slot: a slow client holds its own thread, never one of the slots
+            self.body = read_body(self, self._started + REQUEST_DEADLINE)
             busy = not self.server.slots.acquire(blocking=False)
             if busy:
-                self._drain()  # read what it sent: closing on unread data would reset the connection
                 raise RequestError(503, f"busy: {self.server.max_requests} requests are being answered; try again")
             try:
                 answer(self)
@@ -544,14 +586,6 @@ class PlayHandler(BaseHTTPRequestHandler):
         )
         if site is not None and site not in ("same-origin", "none") and not opens_page:
             raise RequestError(403, f"refused: a {site} request; only this server's own page may call the API")
-
-    def _drain(self) -> None:
-        try:
-            length = int(self.headers.get("Content-Length") or 0)
-        except ValueError:
-            return
-        if 0 < length <= DRAIN_BYTES:
-            self.rfile.read(length)
 
     def send_json(self, status: int, payload: Mapping[str, Any], retry: bool = False) -> None:
         self.send_body(status, "application/json", json.dumps(payload).encode(), retry)

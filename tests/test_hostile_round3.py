@@ -6,6 +6,7 @@ from __future__ import annotations
 import http.client
 import json
 import os
+import socket
 import subprocess
 import sys
 import threading
@@ -345,3 +346,56 @@ def test_resuming_from_a_checkpoint_with_an_incomplete_record_is_refused_naming_
     message = str(info.value)
     assert "\n" not in message and f"{tmp_path / checkpoint.CHECKPOINT} is malformed" in message
     assert "nothing was changed" in message
+
+
+# ------------------------------------------------------------------------------------------------ 5. slow clients
+class _QuickSession:
+    """Stands in for the play session: answers at once."""
+
+    def state(self):
+        return {"step": 0}
+
+    def step(self, action):
+        return {"step": 1}
+
+
+def test_clients_trickling_their_bodies_hold_no_request_slot(monkeypatch):
+    monkeypatch.setattr(play, "REQUEST_DEADLINE", 1.5, raising=False)  # fails, not errs, without it
+    monkeypatch.setattr(play, "MAX_REQUESTS", 2)
+    httpd = play.PlayServer("127.0.0.1", 0, b"<html></html>")
+    httpd.session = _QuickSession()
+    threading.Thread(target=httpd.serve_forever, daemon=True).start()
+    address = httpd.server_address[:2]
+    host = f"127.0.0.1:{address[1]}"
+    answers: list[bytes] = []
+
+    def trickle():  # one body byte every 0.3 s: never silent for the idle timeout (10 s)
+        with socket.create_connection(address) as sock:
+            sock.settimeout(30)
+            sock.sendall(f"POST /api/step HTTP/1.1\r\nHost: {host}\r\nContent-Length: 100\r\n\r\n".encode())
+            try:
+                for byte in b'{"action": 1}' + b" " * 87:
+                    sock.sendall(bytes([byte]))
+                    time.sleep(0.3)
+            except OSError:  # the server answered and closed
+                pass
+            answers.append(sock.recv(4096))
+
+    trickling = [threading.Thread(target=trickle) for _ in range(4)]
+    try:
+        for thread in trickling:
+            thread.start()
+        time.sleep(0.5)  # every slot would be held by now
+        for _ in range(3):  # others are answered while the trickling goes on
+            connection = http.client.HTTPConnection(*address, timeout=10)
+            connection.request("GET", "/api/state")
+            assert connection.getresponse().status == 200
+            connection.close()
+        start = time.monotonic()
+        for thread in trickling:
+            thread.join(timeout=30)
+        assert time.monotonic() - start < 10  # each was cut off at its deadline, not after its 30 s of trickling
+        assert len(answers) == 4 and all(b" 408 " in a[:20] for a in answers), answers
+    finally:
+        httpd.shutdown()
+        httpd.server_close()
