@@ -17,6 +17,7 @@ previous one (``checkpoint-previous.pt``), which :func:`load_latest` falls back 
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 import pickle
 import random
@@ -43,8 +44,13 @@ FILE_FORMAT = 1
 _TAG = "__evaaa_type__"  # marks a dict that stands for a converted object (numpy array, tensordict)
 
 
+#: deepest nesting of containers in a checkpoint's state (run.py's states nest about ten deep): a crafted file
+#: nested thousands deep would overflow the recursion of :func:`checksum` and :func:`from_plain`
+MAX_NESTING = 100
+
+
 class CheckpointError(ValueError):
-    """A checkpoint file that cannot be used: unreadable, damaged, from elsewhere, or holding code."""
+    """A checkpoint file that cannot be used: unreadable, damaged, malformed, from elsewhere, or holding code."""
 
 
 # ------------------------------------------------------------------------------------------------ plain data
@@ -234,9 +240,92 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device | None = 
         and {"checksum", "state"} <= envelope.keys()
     ):
         raise CheckpointError(f"{path} is not an evaaa checkpoint (file format {FILE_FORMAT})")
-    if checksum(envelope["state"]) != envelope["checksum"]:
+    problem = _malformed(envelope["state"])  # before the checksum, whose walk recurses
+    if problem is None and checksum(envelope["state"]) != envelope["checksum"]:
         raise CheckpointError(f"{path} is damaged: its contents do not match its checksum")
-    return from_plain(envelope["state"])
+    if problem is None:
+        try:
+            state = from_plain(envelope["state"])
+        except Exception as err:  # noqa: BLE001 - e.g. a tensordict whose items do not fit its batch size
+            problem = f"{type(err).__name__}: {' '.join(str(err).split())[:200]}"
+    if problem is not None:  # a valid checksum says only that the file is as written, not that save_checkpoint wrote it
+        raise CheckpointError(f"{path} is malformed: {problem}")
+    model = state.get("model") if isinstance(state, dict) else None
+    for name, tensor in model.items() if isinstance(model, Mapping) else ():
+        if isinstance(tensor, torch.Tensor) and tensor.is_floating_point() and not torch.isfinite(tensor).all():
+            raise CheckpointError(
+                f"{path} is unusable: its network's {name} holds NaN or infinite values (the training that wrote it "
+                "diverged)"
+            )
+    return state
+
+
+def _malformed(state: Any) -> str | None:
+    """What makes a plain state one :func:`to_plain` cannot have made (too deep, a converted object whose fields
+    contradict each other), or None.  Iterative, so no depth of nesting overflows it; nothing is allocated."""
+    stack = [(state, 1)]
+    while stack:
+        node, depth = stack.pop()
+        if depth > MAX_NESTING:
+            return f"its state nests deeper than {MAX_NESTING} levels"
+        if isinstance(node, Mapping):
+            problem = _converted_problem(node) if _TAG in node else None
+            if problem is not None:
+                return problem
+            children = [*node.keys(), *node.values(), *([node._metadata] if hasattr(node, "_metadata") else [])]
+        elif isinstance(node, (list, tuple)):
+            children = list(node)
+        else:
+            continue
+        stack.extend((child, depth + 1) for child in children)
+    return None
+
+
+def _sizes(value: Any) -> bool:
+    """Whether ``value`` is a list of non-negative integers (a shape or a batch size)."""
+    return isinstance(value, (list, tuple)) and all(type(n) is int and n >= 0 for n in value)
+
+
+def _converted_problem(node: Mapping) -> str | None:
+    """What is wrong with a mapping standing for a converted object (see :func:`to_plain`), or None."""
+    kind = node.get(_TAG)
+    if kind == "ndarray":
+        try:
+            dtype = np.dtype(node["dtype"])
+        except (KeyError, TypeError, ValueError):
+            return f"an array has no valid dtype ({str(node.get('dtype'))[:40]!r})"
+        if dtype.hasobject:
+            return "an array of Python objects (only numbers are stored)"
+        shape, data = node.get("shape"), node.get("bytes")
+        if not _sizes(shape):
+            return f"an array's shape {str(shape)[:60]} is not a list of non-negative integers"
+        if not (
+            isinstance(data, torch.Tensor)
+            and data.dtype == torch.uint8
+            and data.dim() == 1
+            and data.numel() == math.prod(shape) * dtype.itemsize
+        ):
+            return f"an array's bytes do not fit its shape {shape} and dtype {dtype}"
+    elif kind == "npscalar":
+        array = node.get("array")
+        if not (isinstance(array, Mapping) and array.get(_TAG) == "ndarray"):
+            return "a numpy scalar holds no array"
+    elif kind == "tensordict":
+        if not _sizes(node.get("batch_size")):
+            return (
+                f"a tensordict's batch size {str(node.get('batch_size'))[:60]} is not a list of non-negative integers"
+            )
+        if not isinstance(node.get("items"), Mapping):
+            return "a tensordict holds no items"
+        device = node.get("device")
+        try:
+            if device is not None:
+                torch.device(device)
+        except (TypeError, RuntimeError):
+            return f"a tensordict's device {str(device)[:40]!r} is no device"
+    elif kind != "nontensor" or "data" not in node:
+        return f"an unknown stored object {str(kind)[:40]!r}"
+    return None
 
 
 def load_latest(

@@ -437,6 +437,7 @@ def check_values(cfg: DictConfig, typed: dict[str, str] | None = None) -> None:
 
         if not mjwarp.available():
             raise ConfigError(f"env.backend=warp: {mjwarp.INSTALL_HINT}")
+    check_level_file(cfg)
     if "stages" in cfg.level and cfg.level.stages is not None:
         text = (typed or {}).get("level.stages")
         names = [str(n) for n in cfg.level.stages]
@@ -464,6 +465,26 @@ def check_values(cfg: DictConfig, typed: dict[str, str] | None = None) -> None:
         and str(cfg.device).strip().lower() == "auto"
     ):
         raise ConfigError(CPU_DREAMER)
+
+
+def check_level_file(cfg: DictConfig) -> None:
+    """``level=file``: ``level.file`` is given and names a level file evaaa loads (read within its limits, never
+    opened unless it is a regular file), whose stem can name the run's folder.  Checked before Hydra makes that folder,
+    so a refused file ends in one line and leaves nothing behind.  Raises :class:`ConfigError`."""
+    if "file" not in cfg.level.keys():  # ``in`` alone is false while level.file is ``???``
+        return
+    if OmegaConf.is_missing(cfg.level, "file"):
+        raise ConfigError(
+            "level=file needs level.file=<path of your level's .yaml file>, e.g. level.file=levels/my.yaml"
+        )
+    file = cfg.level.file
+    if not isinstance(file, str) or not file:
+        raise ConfigError(f"level.file={show(file)}: expected the path of a .yaml level file")
+    try:
+        evaaa.register_level(file)  # what stages() will do: it loads and checks the file
+    except evaaa.LevelError as err:
+        first, *rest = (line.strip() for line in str(err).splitlines())  # a level's value errors: one line each
+        raise ConfigError(f"level.file={file}: {first}" + (" " + "; ".join(rest) if rest else "")) from None
 
 
 #: why ``algo=dreamer`` stops on a machine without a GPU, and what to type instead (docs/training.md, "DreamerV3")

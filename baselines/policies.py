@@ -23,9 +23,40 @@ import evaaa
 from evaaa.sensors import resolve_modalities
 
 from .algos import algorithm
-from .checkpoint import CHECKPOINT_FORMAT, load_checkpoint
+from .checkpoint import CHECKPOINT_FORMAT, CheckpointError, load_checkpoint
 from .devices import OnDevice, resolve_device
 from .rollout import wrap_env
+
+
+def _one_line(err: BaseException) -> str:
+    return f"{type(err).__name__}: {' '.join(str(err).split())[:200]}"
+
+
+def _rebuilt(path: Path, algo: Any, cfg: DictConfig, obs_shapes: dict, weights: Any) -> nn.Module:
+    """The network the checkpoint's config describes, with its weights.  It is first built on the meta device (no
+    memory) and its tensors' shapes compared with the weights': a config whose network the file does not hold (a
+    crafted one asking for 160 GB) is refused before anything is allocated.  Raises :class:`CheckpointError`."""
+    if not isinstance(weights, Mapping):
+        raise CheckpointError(f"{path} is malformed: its network's weights are no state_dict")
+    try:
+        with torch.device("meta"):
+            shapes = {k: tuple(v.shape) for k, v in algo.make_model(cfg, obs_shapes).state_dict().items()}
+    except Exception as err:  # noqa: BLE001 - any config the algorithm cannot build from
+        raise CheckpointError(f"{path} is malformed: its config builds no network ({_one_line(err)})") from None
+    given = {k: tuple(v.shape) for k, v in weights.items() if isinstance(v, torch.Tensor)}
+    for key in sorted(shapes.keys() | given.keys()):
+        if shapes.get(key) != given.get(key):
+            raise CheckpointError(
+                f"{path} is malformed: its config's network has {key} "
+                f"{'of shape ' + str(list(shapes[key])) if key in shapes else 'not'}, its weights "
+                f"{'of shape ' + str(list(given[key])) if key in given else 'none'}"
+            )
+    try:
+        model = algo.make_model(cfg, obs_shapes)
+        model.load_state_dict(weights)
+    except Exception as err:  # noqa: BLE001 - what the shape comparison did not catch
+        raise CheckpointError(f"{path} is malformed: its weights do not fit its network ({_one_line(err)})") from None
+    return model
 
 
 @dataclass
@@ -116,7 +147,14 @@ def load_policy(
     state = load_checkpoint(path)
     if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT or "model" not in state:
         raise ValueError(f"{path} is not an evaaa baseline checkpoint (format {CHECKPOINT_FORMAT})")
-    obs_keys = tuple(state["obs_keys"])
+    try:
+        obs_keys = tuple(state["obs_keys"])
+        algo_cfg: DictConfig = OmegaConf.create(state["config"]["algo"])
+        obs_shapes = {k: tuple(int(n) for n in s) for k, s in state["obs_shapes"].items()}
+        trained_modalities, env_overrides = tuple(state["modalities"]), dict(state["env_overrides"])
+        algo_name, level = str(state["algo"]), str(state["level"])
+    except (KeyError, TypeError, ValueError, AttributeError) as err:
+        raise CheckpointError(f"{path} is malformed: its record of the run is incomplete ({_one_line(err)})") from None
     if modalities is not None:
         wanted = resolve_modalities(modalities)
         if set(wanted) != set(obs_keys):
@@ -126,21 +164,19 @@ def load_policy(
                 f"missing {missing}, unexpected {extra}"
             )
     try:
-        algo = algorithm(state["algo"])
+        algo = algorithm(algo_name)
     except ValueError as err:
         raise ValueError(f"{path}: {err}") from None
-    algo_cfg: DictConfig = OmegaConf.create(state["config"]["algo"])
-    model = algo.make_model(algo_cfg, {k: tuple(s) for k, s in state["obs_shapes"].items()})
-    model.load_state_dict(state["model"])
+    model = _rebuilt(path, algo, algo_cfg, obs_shapes, state["model"])
     model.to(device).eval()
     return LoadedPolicy(
         path=path,
-        algo=state["algo"],
+        algo=algo_name,
         config=state["config"],
-        level=state["level"],
-        modalities=tuple(state["modalities"]),
+        level=level,
+        modalities=trained_modalities,
         obs_keys=obs_keys,
-        env_overrides=state["env_overrides"],
+        env_overrides=env_overrides,
         model=model,
         policy=OnDevice(algo.make_policy(model), device),
     )

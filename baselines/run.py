@@ -50,7 +50,7 @@ import evaaa
 from evaaa import END_TYPES, EV_NAMES
 from evaaa.records import TRAINING_EPISODE_FIELDS, DiskError
 
-from .checkpoint import CHECKPOINT, CHECKPOINT_FORMAT, rng_state, save_checkpoint, set_rng_state
+from .checkpoint import CHECKPOINT, CHECKPOINT_FORMAT, CheckpointError, rng_state, save_checkpoint, set_rng_state
 from .config import COMPUTE_BOUND_STEPS, Stage, env_overrides, observation_keys
 from .devices import OnDevice, autocast, resolve_device
 from .rollout import EVALUATION_INFO, EvalResult, acting_mode, evaluate, samples_actions, wrap_env
@@ -840,7 +840,13 @@ class Run:
         save_checkpoint(state, self.dir / CHECKPOINT, keep_previous=True)
 
     def _restore(self, state: dict) -> TensorDictBase:
-        self.model.load_state_dict(state["model"])
+        try:
+            self.model.load_state_dict(state["model"])
+        except (KeyError, TypeError, RuntimeError) as err:  # a crafted file, its checksum valid
+            raise CheckpointError(
+                f"the checkpoint in {self.dir} is malformed: its weights do not fit this run's network "
+                f"({type(err).__name__}: {' '.join(str(err).split())[:200]})"
+            ) from None
         missing = sorted(set(self.components) - set(state["components"]))
         if missing:  # e.g. a PPO run made before algo.normalize_reward was on by default
             raise ValueError(

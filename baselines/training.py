@@ -189,16 +189,22 @@ def _decide(cfg: DictConfig, run_dir: Path, plan: list) -> tuple[dict | None, li
             raise CheckpointError(f"cannot resume {run_dir}: {err}; nothing was changed. {start_over}") from None
         assert found is not None
         state, path, note = found
-        changed = _check_same_run(state, cfg, plan)
-        notes = [(logging.WARNING, note)] if note else []  # a damaged latest checkpoint: said once the run goes on
-        # "resuming ... env step <digits>": scripts/bench_train.py finds a run's sessions by it in train.log
-        notes.append(
-            (
-                logging.INFO,
-                f"resuming {run_dir} from {path.name} at stage {state['stage']} "
-                f"({state['level']}), env step {state['counters']['steps']}",
+        try:
+            changed = _check_same_run(state, cfg, plan)
+            notes = [(logging.WARNING, note)] if note else []  # a damaged latest checkpoint: said once the run goes on
+            # "resuming ... env step <digits>": scripts/bench_train.py finds a run's sessions by it in train.log
+            notes.append(
+                (
+                    logging.INFO,
+                    f"resuming {run_dir} from {path.name} at stage {state['stage']} "
+                    f"({state['level']}), env step {state['counters']['steps']}",
+                )
             )
-        )
+        except (KeyError, TypeError, AttributeError, IndexError) as err:  # a crafted file, its checksum valid
+            raise CheckpointError(
+                f"cannot resume {run_dir}: {path} is malformed: its record of the run is incomplete "
+                f"({type(err).__name__}: {' '.join(str(err).split())[:200]}); nothing was changed. {start_over}"
+            ) from None
         if changed:
             notes.append((logging.WARNING, "resuming with changed settings in: " + ", ".join(changed)))
         return state, notes, None

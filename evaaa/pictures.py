@@ -18,7 +18,7 @@ from matplotlib.figure import Figure
 
 from .physiology import EV_NAMES, PhysiologyParams
 from .sim import Simulator
-from .spec import Level
+from .spec import LEVEL_NAME_RULE, Level, LevelError, excerpt
 from .worldgen import AGENT_HALF, FOOD, WATER
 
 EYE_SCALE = 4
@@ -129,8 +129,18 @@ def title_of(level: Level) -> str:
 
 
 # ------------------------------------------------------------------------------------------------- one level
+def _picture_path(out: Path, level: Level, what: str) -> Path:
+    """``out/<name>_<what>.png``, refused unless it lies in ``out`` itself: a loaded level's name cannot leave it
+    (spec.LEVEL_NAME), but a Level built without validation (``model_construct``) could say ``../../x``."""
+    path = out / f"{level.name}_{what}.png"
+    if path.resolve().parent != out.resolve():
+        raise LevelError(f"level name {excerpt(level.name)} would write its picture outside {out}; {LEVEL_NAME_RULE}")
+    return path
+
+
 def render_level(level: Level, out: Path, seed: int) -> list[Path]:
     """Reset one world of ``level`` with ``seed`` and write its four pictures; returns the paths."""
+    where = {what: _picture_path(out, level, what) for what in ("eye", "top", "thermal", "overview")}
     sim = Simulator(level, 1, modalities=["interoception"], seed=seed)
     try:
         sim.reset()
@@ -138,11 +148,11 @@ def render_level(level: Level, out: Path, seed: int) -> list[Path]:
         top = top_image(sim)
         paths = []
 
-        p = out / f"{level.name}_eye.png"
+        p = where["eye"]
         cv2.imwrite(str(p), cv2.cvtColor(eye, cv2.COLOR_RGB2BGR))
         paths.append(p)
 
-        p = out / f"{level.name}_top.png"
+        p = where["top"]
         cv2.imwrite(str(p), cv2.cvtColor(top, cv2.COLOR_RGB2BGR))
         paths.append(p)
 
@@ -151,7 +161,7 @@ def render_level(level: Level, out: Path, seed: int) -> list[Path]:
         plot_thermal(ax, sim)
         ax.set_title(title_of(level), fontsize=10, wrap=True)
         fig.tight_layout()
-        p = out / f"{level.name}_thermal.png"
+        p = where["thermal"]
         fig.savefig(p)
         paths.append(p)
 
@@ -168,7 +178,7 @@ def render_level(level: Level, out: Path, seed: int) -> list[Path]:
         axes[2].set_title("floor temperature, food, water, agent")
         fig.suptitle(title_of(level), fontsize=13)
         fig.tight_layout()
-        p = out / f"{level.name}_overview.png"
+        p = where["overview"]
         fig.savefig(p)
         paths.append(p)
         return paths

@@ -32,6 +32,7 @@ import socket
 import sys
 import tempfile
 import threading
+import time
 import traceback
 from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
@@ -66,6 +67,9 @@ PARTICIPANT = re.compile(r"[\w.@-]+")
 #: seconds a connection may stay silent (before its request, or between the parts of one) before it is closed:
 #: a browser sends a request at once, and a stalled client must not hold a thread for ever
 IDLE_TIMEOUT = 10.0
+#: seconds from a request's first line to the end of its body: a client trickling its body a byte at a time (never
+#: silent for IDLE_TIMEOUT) is answered 408 when they are up, and the body is read before a request slot is taken
+REQUEST_DEADLINE = 5.0
 #: requests answered at once (the others wait for the one simulator); beyond them the server answers 503 at once
 #: rather than letting requests pile up
 MAX_REQUESTS = 16
@@ -217,7 +221,11 @@ class PlaySession:
             if options.step_log
             else None
         )
-        self._run(self._reset, options.level)
+        try:
+            self._run(self._reset, options.level)
+        except RequestError as exc:  # the level asked for on the command line cannot be played
+            self._worker.shutdown()
+            raise StartupError(" ".join(exc.message.split())) from None
 
     def _run(self, fn: Callable[..., Any], *args: Any) -> Any:
         return self._worker.submit(fn, *args).result()
@@ -242,24 +250,41 @@ class PlaySession:
         self._worker.shutdown()
 
     # -------------------------------------------------------------------------------- on the worker thread
-    def _open_level(self, name: str) -> None:
-        """Replace the simulator by one of level ``name`` (validated first, so a bad name keeps the old one)."""
+    def _open_level(self, name: str) -> np.ndarray:
+        """Replace the simulator by one of level ``name``, reset; returns its first frame.  The new simulator is built
+        and reset before the old one is closed: a level that validates but cannot be played (MuJoCo refuses a body,
+        items find no free spot) is answered 400 and the old level plays on."""
         if name not in playable_levels():  # a name, never a path: a request must not make the server read a file
             raise RequestError(400, f"unknown level {excerpt(name)}; available: {', '.join(playable_levels())}")
         try:
             level = load_level(name, self.options.overrides)
         except LevelError as exc:
             raise RequestError(400, str(exc)) from None
+        sim = None
+        try:
+            # the player sees pixels; the EVs are read from the simulator, so no other sensor is computed
+            sim = Simulator(level, 1, modalities=["pixels"], seed=self.options.seed)
+            frame = sim.reset()["pixels"][0]
+        except LevelError as exc:
+            if sim is not None:
+                sim.close()
+            still = f"; level {self.level.name} plays on" if self.sim is not None else ""
+            raise RequestError(400, f"level {name} cannot be played: {' '.join(str(exc).split())}{still}") from None
+        except BaseException:  # a bug: answered 500, and the old simulator still serves
+            if sim is not None:
+                sim.close()
+            raise
         if self.sim is not None:
             self.sim.close()
         self.level: Level = level
-        # the player sees pixels; the EVs are read from the simulator, so no other sensor is computed
-        self.sim = Simulator(level, 1, modalities=["pixels"], seed=self.options.seed)
+        self.sim = sim
+        return frame
 
     def _reset(self, level: str | None) -> dict[str, Any]:
         unfinished = 0 if self.sim is None or self.done else int(self.sim.steps[0])
+        frame = None
         if level is not None and (self.sim is None or level != self.level.name):
-            self._open_level(level)  # a bad name raises here and leaves the episode be
+            frame = self._open_level(level)  # a level that cannot be played raises here and leaves the episode be
         if unfinished:
             print(
                 f"episode {self.episode} abandoned after {unfinished} steps (not recorded)", file=sys.stderr, flush=True
@@ -271,7 +296,7 @@ class PlaySession:
             1, level=self.level.name, policy="human", participant=self.options.participant, seed=self.options.seed
         )
         self.tracker.episodes = self.episode
-        self.frame = self.sim.reset()["pixels"][0]
+        self.frame = self.sim.reset()["pixels"][0] if frame is None else frame
         if self.step_log is not None:
             self.step_log.start(self.level.name, self.sim.last_info, seed=self.options.seed)
         self.done, self.end_type, self.returned, self.record_error = False, None, 0.0, None
@@ -339,17 +364,49 @@ class PlaySession:
 
 
 # ------------------------------------------------------------------------------------------------- HTTP
-def read_json(handler: BaseHTTPRequestHandler) -> dict[str, Any]:
-    """The request's JSON object body ({} when there is none)."""
+def read_body(handler: BaseHTTPRequestHandler, deadline: float) -> bytes:
+    """The request's body, at most :data:`MAX_BODY_BYTES`, read whole by ``deadline`` (``time.monotonic()``) or
+    refused 408; a larger one is refused 413 (read and dropped first up to :data:`DRAIN_BYTES`: a socket closed on
+    unread data may reset before the answer)."""
     try:
         length = int(handler.headers.get("Content-Length") or 0)
     except ValueError:
         raise RequestError(400, "Content-Length is not a number") from None
     if length > MAX_BODY_BYTES:
-        if length <= DRAIN_BYTES:  # read it anyway: a socket closed on unread data may reset before the answer
-            handler.rfile.read(length)
+        if length <= DRAIN_BYTES:
+            _read_until(handler, length, deadline)
         raise RequestError(413, f"request body over {MAX_BODY_BYTES} bytes")
-    raw = handler.rfile.read(length) if length > 0 else b""
+    return _read_until(handler, length, deadline) if length > 0 else b""
+
+
+def _read_until(handler: BaseHTTPRequestHandler, length: int, deadline: float) -> bytes:
+    """``length`` bytes of the request, each read given only the time left before ``deadline``."""
+    parts, got = [], 0
+    try:
+        while got < length:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise TimeoutError
+            handler.connection.settimeout(left)
+            part = handler.rfile.read1(length - got)
+            if not part:  # the client closed its side before sending what it announced
+                raise RequestError(400, f"request body ended after {got} of {length} bytes")
+            parts.append(part)
+            got += len(part)
+    except TimeoutError:
+        handler.close_connection = True
+        raise RequestError(408, f"request not received within {REQUEST_DEADLINE:g} s") from None
+    finally:
+        handler.connection.settimeout(handler.timeout)  # back to the idle timeout between requests
+    return b"".join(parts)
+
+
+def read_json(handler: BaseHTTPRequestHandler) -> dict[str, Any]:
+    """The request's JSON object body ({} when there is none): the body :meth:`PlayHandler._dispatch` read before
+    the request took a slot, or (a handler of another server) read now."""
+    raw = getattr(handler, "body", None)
+    if raw is None:
+        raw = read_body(handler, time.monotonic() + REQUEST_DEADLINE)
     if not raw.strip():
         return {}
     try:
@@ -454,6 +511,11 @@ class PlayHandler(BaseHTTPRequestHandler):
         self.timeout = self.server.idle_timeout  # http.server closes a connection silent for this long
         super().setup()
 
+    def parse_request(self) -> bool:
+        # called once the request line is in: the request's deadline counts from here (headers and body)
+        self._started, self.body = time.monotonic(), None
+        return super().parse_request()
+
     def _dispatch(self) -> None:
         path = urlsplit(self.path).path
         self._allow = ""
@@ -475,9 +537,10 @@ class PlayHandler(BaseHTTPRequestHandler):
             answer = methods.get("GET" if self.command == "HEAD" else self.command)
             if answer is None:
                 raise RequestError(405, f"{path} answers {', '.join(methods)}, not {self.command}")
+            # the whole body before a slot: a slow client holds its own thread, never one of the slots
+            self.body = read_body(self, self._started + REQUEST_DEADLINE)
             busy = not self.server.slots.acquire(blocking=False)
             if busy:
-                self._drain()  # read what it sent: closing on unread data would reset the connection
                 raise RequestError(503, f"busy: {self.server.max_requests} requests are being answered; try again")
             try:
                 answer(self)
@@ -523,14 +586,6 @@ class PlayHandler(BaseHTTPRequestHandler):
         )
         if site is not None and site not in ("same-origin", "none") and not opens_page:
             raise RequestError(403, f"refused: a {site} request; only this server's own page may call the API")
-
-    def _drain(self) -> None:
-        try:
-            length = int(self.headers.get("Content-Length") or 0)
-        except ValueError:
-            return
-        if 0 < length <= DRAIN_BYTES:
-            self.rfile.read(length)
 
     def send_json(self, status: int, payload: Mapping[str, Any], retry: bool = False) -> None:
         self.send_body(status, "application/json", json.dumps(payload).encode(), retry)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from xml.sax.saxutils import quoteattr
 
 import mujoco
 import numpy as np
@@ -172,7 +173,9 @@ def build_mjcf(
             '      <light name="head" directional="true" pos="0 0 0" dir="1 0 0" ambient="0.35 0.35 0.35" '
             'diffuse="0.3 0.3 0.3" specular="0 0 0" castshadow="false"/>\n'
         )
-    return f"""<mujoco model="evaaa-{level.name}">
+    # the name is checked at load (spec.LEVEL_NAME), but a level's text is data: quoted as XML, it can never end
+    # the attribute and add elements (an <include> would make MuJoCo open any file, a FIFO hang it)
+    return f"""<mujoco model={quoteattr(f"evaaa-{level.name}")}>
   <compiler angle="radian"/>
   <option timestep="0.02" gravity="0 0 -{GRAVITY}"/>
   <statistic extent="1" center="0 0 0"/>

@@ -14,6 +14,7 @@ import math
 import os
 import re
 import reprlib
+import stat
 from collections.abc import Mapping
 from importlib import resources
 from pathlib import Path
@@ -490,8 +491,21 @@ class Reward(_Spec):
 
 
 # --------------------------------------------------------------------------------------------------- level
+#: What a level's name may be: it names the MuJoCo model, the level's pictures (``<name>_eye.png``) and, for a level
+#: from the user's file, its run folder, so it holds no quote, markup, path separator, space or leading dot.
+LEVEL_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
+LEVEL_NAME_RULE = "1 to 64 letters, digits, '-', '_' or '.', starting with a letter or digit"
+
+
+def check_level_name(name: str) -> str:
+    """``name`` if it is a :data:`LEVEL_NAME`; else ValueError saying what is allowed."""
+    if not LEVEL_NAME.fullmatch(name):
+        raise ValueError(f"must be {LEVEL_NAME_RULE} (a level file's name is its file's stem unless it says name:)")
+    return name
+
+
 class Level(_Spec):
-    name: str
+    name: Annotated[str, AfterValidator(check_level_name)]
     kind: Literal["training", "testbed"]
     description: str
     arena: Arena
@@ -786,7 +800,10 @@ def _read_file(source: str | Path) -> dict[str, Any]:
                     f"level file '{source}' cannot be read: "
                     + ("not a regular file" if source.exists() else "no such file")
                 )
-            with source.open("rb") as f:
+            # without blocking: a file swapped for a FIFO since the check above must not hang the open
+            with open(os.open(source, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0)), "rb") as f:
+                if not stat.S_ISREG(os.fstat(f.fileno()).st_mode):
+                    raise LevelError(f"level file '{source}' cannot be read: not a regular file")
                 data = f.read(MAX_FILE_BYTES + 1)
         except OSError as err:
             raise LevelError(f"level file '{source}' cannot be read: {err.strerror or err}") from None
@@ -1015,7 +1032,7 @@ def load_level(name: str | os.PathLike, overrides: Mapping[str, Any] | None = No
     else:
         source = label = name
     if isinstance(source, Path):
-        root = source.resolve().parent
+        root = _resolved(source).parent
     raw = _raw_level(source, root=root)
     for path, value in _flatten_overrides(overrides or {}).items():
         if path in ("name", "kind"):
@@ -1034,13 +1051,23 @@ LEVELS, TESTBEDS = _listed_levels()
 _USER_FILES: dict[str, Path] = {}
 
 
+def _resolved(path: Path) -> Path:
+    """``path`` made absolute, links followed; a loop of links is a LevelError (Path.resolve raises RuntimeError)."""
+    try:
+        return path.resolve()
+    except (RuntimeError, OSError) as err:
+        raise LevelError(f"level file '{path}' cannot be read: {err}") from None
+
+
 def register_level(path: str | os.PathLike) -> str:
     """Make the level in the user's YAML file at ``path`` loadable by its name (the file's stem) in this process,
     e.g. for code that takes level names, and return the name.  The file is loaded (and so checked) at once."""
-    path = Path(path).resolve()
+    path = _resolved(Path(path))
     if not _is_path(path):
         raise LevelError(f"a level file must end in .yaml or .yml, got '{path}'")
     name = path.stem
+    if not LEVEL_NAME.fullmatch(name):  # it becomes a level name, and a run's folder (train.py level=file)
+        raise LevelError(f"level file '{path}': its name {excerpt(name)} (the file's stem) must be {LEVEL_NAME_RULE}")
     if name in LEVELS + TESTBEDS or _USER_FILES.get(name, path) != path:
         taken = "a packaged level" if name in LEVELS + TESTBEDS else f"the file '{_USER_FILES[name]}'"
         raise LevelError(f"level file '{path}': its name '{name}' is already {taken}'s; rename the file")

@@ -25,6 +25,7 @@ from ..config import (
     NOT_TRAINING,
     NULLABLE,
     ConfigError,
+    check_level_file,
     compose_checked,
     group_choice,
     last_composed,
@@ -91,6 +92,8 @@ def check_overrides(overrides: list[str], multirun: bool, values: bool = True) -
         with open_dict(trial):
             OmegaConf.update(trial, changed[0].key_or_group, changed[0].value(), force_add=True)
         validate(trial, defaults, typed=typed_values(changed))
+        if values:  # -m level.file=a.yaml,b.yaml: each file is read and checked
+            check_level_file(trial)
 
 
 def check_command_line(argv: list[str], doc: str = "") -> None:
