@@ -562,6 +562,7 @@ def main_learn(args: BenchConfig) -> int:
                 slots.put(core)
 
         dirs = list(pool.map(one, jobs))
+    load = os.getloadavg()  # other work on the machine slows a run's CPU seconds too (shared caches): said with them
     runs = [learning(d, algo, preset, seed, bars[seed]) for d, (algo, preset, seed) in zip(dirs, jobs)]
     summary = learning_summary(runs)
     print(learning_table(summary, args.cpu_minutes))
@@ -571,6 +572,7 @@ def main_learn(args: BenchConfig) -> int:
             {
                 "processor": processor(),
                 "cores": os.cpu_count(),
+                "load_average_at_end": [round(x, 2) for x in load],
                 "level": args.level,
                 "bar": {"times_standstill": args.bar, "by_seed": bars},
                 "evaluation": f"validation worlds, sampled actions, {LEARN_EPISODES} episodes every {args.eval_every} env steps",
