@@ -40,6 +40,7 @@ SCHEMAS = {
     "probe_dreamer": "ProbeConfig",
     "fit_world_model": "FitConfig",
     "pack_record": "PackConfig",
+    "choose_acting": "ChooseConfig",
 }
 
 
