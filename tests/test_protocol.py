@@ -17,6 +17,7 @@ import evaaa
 from evaaa.records import append_rows
 from evaaa_baselines.machine import processor
 from evaaa_baselines.paper.cells import Cell, Command, Layout, build_cells, plan_text, provenance, status
+from evaaa_baselines.paper.choice import choice_text
 from evaaa_baselines.paper.protocol import ProtocolError, load_protocol
 from evaaa_baselines.paper.running import Runner
 
@@ -371,6 +372,8 @@ def test_the_compared_mode_is_the_one_whose_last_validation_evaluations_survive_
     # a tie goes to the protocol's first mode
     tie = _eval_csv(tmp_path / "runs/tie", [(8, 0, "1-1", "validation", m, 50) for m in ("sample", "mode")])
     assert choose([tie], first="mode")["chosen"] == "mode" and choose([tie], first="sample")["chosen"] == "sample"
+    assert "`mode`, the protocol's first mode, both surviving as long — mean 50.0" in choice_text(choose([tie], "mode"))
+    assert "`sample`, whose in-training validation evaluations survived longer — mean 360.0" in choice_text(got)
     with pytest.raises(ChoiceError, match="runs: no network has a validation evaluation in both acting modes"):
         choose([dqn])
     # the script: written once, never over the first; refused where a checkpoint's evaluation exists already
@@ -805,8 +808,7 @@ def test_the_smoke_protocol_produces_every_kind_of_cell_and_the_report(tmp_path)
     first_test = min((root / "evals" / "ppo").rglob("episodes.csv"), key=lambda f: f.stat().st_mtime)
     assert (root / "compared_mode.json").stat().st_mtime <= first_test.stat().st_mtime
     assert choice["networks"] == 5 and choice["runs"] == 4  # the curriculum's two stages, three single-stage runs
-    assert "The compared mode was chosen from validation rows before any test evaluation" in report
-    assert f"`{choice['chosen']}`, whose in-training validation evaluations survived longer" in report
+    assert f"The compared mode was {choice_text(choice)}." in report
     assert f"The claims compare the checkpoints acting `{choice['compare']}`" in report
     # the direct runs trained on seed 2, worlds no curriculum stage (seeds 0, 1) trained on
     assert (root / "runs/ppo/direct-1-2/seed2/model-0-1-2.pt").is_file()

@@ -164,9 +164,16 @@ def choice_text(data: dict, name: str = "compared_mode.json") -> str:
         return f"mean {s[m]['mean']:,.1f} decisions (IQM {s[m]['iqm']:,.1f}, {s[m]['episodes']} episodes)"
 
     left = f"; {len(data.get('left_out', []))} left out (one acting mode only)" if data.get("left_out") else ""
+    # a tie is decided by the protocol's order of modes, not by survival: said so
+    tie = s[chosen]["mean"] == s[other]["mean"]
+    why = (
+        "the protocol's first mode, both surviving as long"
+        if tie
+        else "whose in-training validation evaluations survived longer"
+    )
     return (
         f"chosen from validation rows before any test evaluation ({name}, {data.get('chosen_at', 'time unknown')}): "
-        f"`{chosen}`, whose in-training validation evaluations survived longer — {said(chosen)} against "
+        f"`{chosen}`, {why} — {said(chosen)} against "
         f"{said(other)} acting `{other}`, the same episodes, at the last validation evaluation of "
         f"{data['networks']} networks of {data['runs']} runs{left}"
     )
