@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 from evaaa_baselines import cli  # noqa: E402
 from evaaa_baselines.cli import option  # noqa: E402
+from evaaa_baselines.paper.choice import ChoiceError, read_choice  # noqa: E402
 from evaaa_baselines.reports import ReportError, build_report  # noqa: E402
 
 
@@ -62,6 +63,12 @@ class ReportConfig:
         "mode, and where a run's algorithm has no action distribution (DQN) and sample is "
         "compared, its greedy rows, labelled so; unset: the mode every run has (mode first)",
     )
+    compare_from: str | None = option(
+        None,
+        "a protocol's compared_mode.json (written by choose_acting.py from validation rows before any test "
+        "evaluation): the claims compare the mode it chose, and the report states the choice with its numbers; "
+        "instead of compare",
+    )
     learned: float | None = option(
         None,
         "an agent enters the claims' comparisons only if its network with every sense survives the first "
@@ -94,6 +101,15 @@ def parse(argv: list[str] | None = None) -> ReportConfig:
 
 def main(argv: list[str] | None = None) -> int:
     cfg = parse(argv)
+    compare, choice = cfg.compare, None
+    if cfg.compare_from is not None:
+        if cfg.compare is not None:
+            cli.fail("report.py", "compare_from: give compare or compare_from, not both")
+        try:
+            choice = read_choice(cfg.compare_from)
+        except ChoiceError as err:
+            cli.fail("report.py", str(err))
+        compare = choice["compare"]
     try:
         report = build_report(
             cfg.runs,
@@ -104,9 +120,10 @@ def main(argv: list[str] | None = None) -> int:
             bins=cfg.bins,
             title=cfg.title,
             acting=cfg.acting,
-            compare=cfg.compare,
+            compare=compare,
             learned=cfg.learned,
             margin=cfg.margin,
+            choice=choice,
         )
     except ReportError as err:  # an input that does not hold what the key asks for: named in the message
         cli.fail("report.py", str(err))

@@ -40,6 +40,7 @@ SCHEMAS = {
     "probe_dreamer": "ProbeConfig",
     "fit_world_model": "FitConfig",
     "pack_record": "PackConfig",
+    "choose_acting": "ChooseConfig",
 }
 
 
@@ -321,6 +322,9 @@ BAD_VALUES = [
     ("profile_env", "steps=1e3", "steps=1e3: expected an integer"),
     ("render_levels", "levels=[3_2]", "levels=[3_2]: '3_2' is not allowed"),
     ("render_levels", "seed=-1", "seed=-1: expected an integer >= 0"),
+    ("choose_acting", "first=greedy", "first=greedy: 'greedy' is not allowed; allowed: sample, mode"),
+    ("choose_acting", "epsilon=2", "epsilon=2: expected a number in [0, 1]"),
+    ("choose_acting", "out=x.json", "runs: give the run directories, runs=[a,b]"),
     ("report", "window=-5", "window=-5: expected a positive integer"),
     ("report", "bins=1e3", "bins=1e3: expected an integer"),
     ("reproduce", "protocol=3_2", "protocol=3_2"),

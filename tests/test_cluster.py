@@ -168,10 +168,16 @@ def test_cells_run_through_submitit_s_local_executor(tmp_path):
     assert list((tmp_path / "submitit").rglob("*_submitted.pkl"))  # the jobs went through submitit
 
 
-#: one cell of each kind the smoke protocol has, the evaluation after the training whose model it needs (the whole
-#: protocol runs on the local engine in test_protocol.py; here the engines carry it: a third of its cells, a third of
-#: the minutes)
-ENGINE_CELLS = ["ref/oracle", "train/ppo/direct-1-1/seed0", "eval/ppo/direct-1-1/seed0", "report"]
+#: one cell of each kind the smoke protocol has, the evaluation after the training whose model it needs and the choice
+#: of the compared mode, which needs every training (the whole protocol runs on the local engine in test_protocol.py;
+#: here the engines carry a part of it)
+TRAININGS = [
+    "train/ppo/curriculum/seed0",
+    "train/ppo/direct-1-2/seed2",
+    "train/ppo/direct-1-1/seed2",
+    "train/ppo/ablation-no_vision/seed2",
+]
+ENGINE_CELLS = ["ref/oracle", *TRAININGS, "choose/acting", "eval/ppo/direct-1-1/seed2", "report"]
 
 
 @pytest.mark.slow
@@ -189,7 +195,7 @@ def test_the_smoke_protocol_end_to_end_on_an_engine(tmp_path, executor, request)
 
     cells = build_cells(load_protocol("smoke"), root)
     chosen = [c for c in cells if c.name in ENGINE_CELLS]
-    assert sorted(c.kind for c in chosen) == ["eval", "ref", "report", "train"]
+    assert sorted({c.kind for c in chosen}) == ["choose", "eval", "ref", "report", "train"]
     lay = Layout(root)
     assert all(status(c, lay, cells) == "done" for c in chosen if c.kind != "report")
     assert status(next(c for c in cells if c.kind == "report"), lay, cells) == "partial"  # made on what there is

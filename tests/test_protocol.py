@@ -14,8 +14,10 @@ import yaml
 from helpers import load_script
 
 import evaaa
+from evaaa.records import append_rows
 from evaaa_baselines.machine import processor
 from evaaa_baselines.paper.cells import Cell, Command, Layout, build_cells, plan_text, provenance, status
+from evaaa_baselines.paper.choice import choice_text
 from evaaa_baselines.paper.protocol import ProtocolError, load_protocol
 from evaaa_baselines.paper.running import Runner
 
@@ -152,6 +154,249 @@ def test_a_bad_field_is_refused_naming_it(tmp_path, change, message):
         load_protocol(path)
     assert message in str(err.value)
     assert str(path) in str(err.value)
+
+
+def _smoke_with(tmp_path, **changes) -> Path:
+    """conf/protocol/smoke.yaml with ``changes`` (``training__direct_seed_offset=1``: a field of a part) written to a
+    file of its own."""
+    base = yaml.safe_load((Path(__file__).parents[1] / "conf/protocol/smoke.yaml").read_text())
+    for key, value in changes.items():
+        *parts, last = key.split("__")
+        where = base
+        for part in parts:
+            where = where[part]
+        where[last] = value
+    path = tmp_path / "changed.yaml"
+    path.write_text(yaml.safe_dump(base))
+    return path
+
+
+def _load_error(path: Path) -> str:
+    with pytest.raises(ProtocolError) as err:
+        load_protocol(path)
+    assert "\n" not in str(err.value)  # one line
+    return str(err.value)
+
+
+def world_seeds(cells) -> dict[str, set[int]]:
+    """The seeds of the worlds each arm trains on, read from the planned training commands: a curriculum run of seed
+    s trains stage i on those of s + i (baselines/run.py), a direct run on those of its seed."""
+    arms: dict[str, set[int]] = {"curriculum": set(), "direct": set()}
+    for c in cells:
+        if c.kind != "train" or not ("/curriculum/" in c.name or "/direct-" in c.name):
+            continue
+        argv = c.commands[0].argv
+        seed = int(next(a for a in argv if a.startswith("seed=")).removeprefix("seed="))
+        stages = next((a for a in argv if a.startswith("level.stages=")), None)
+        n = len(stages.removeprefix("level.stages=[").rstrip("]").split(",")) if stages else 1
+        arms["curriculum" if stages else "direct"] |= {seed + i for i in range(n)}
+    return arms
+
+
+def test_direct_seeds_among_a_curriculum_s_seed_plus_stage_are_refused(tmp_path):
+    # smoke: seed 0, stages 1-1 and 1-2, so the curriculum trains on the worlds of seeds 0 and 1; an offset of 1 puts
+    # the direct runs on seed 1, curriculum stage 1's worlds
+    message = _load_error(_smoke_with(tmp_path, training__direct_seed_offset=1))
+    assert (
+        "field training.direct_seed_offset: the direct runs' training worlds (seeds 1) are the curriculum's (seed + "
+        "stage: 0-1), shared by the arms of the comparison; allowed: an offset that takes every direct seed out of "
+        "them (the smallest: 2), or training.allow_shared_worlds: true"
+    ) in message
+    assert "direct_seed_offset" in _load_error(_smoke_with(tmp_path, training__direct_seed_offset=0))
+    # said explicitly, the overlap loads (paper_learned's record ran so), and the plan names it
+    shared = load_protocol(_smoke_with(tmp_path, training__direct_seed_offset=0, training__allow_shared_worlds=True))
+    arms = world_seeds(build_cells(shared, tmp_path))
+    assert arms == {"curriculum": {0, 1}, "direct": {0}}
+    plan = plan_text(shared, build_cells(shared, tmp_path), Layout(tmp_path), 1)
+    assert "the arms share the worlds of seeds 0 (training.allow_shared_worlds)" in plan
+    learned = world_seeds(build_cells(load_protocol("paper_learned"), tmp_path))
+    assert learned["curriculum"] & learned["direct"] == {0, 1, 2}
+
+
+@pytest.mark.parametrize("name, offset", [("smoke", 2), ("paper_gpu", 10)])
+def test_with_the_offset_the_arms_train_on_disjoint_worlds_and_the_plan_names_them(tmp_path, capsys, name, offset):
+    p = load_protocol(name)
+    assert p.training.direct_seed_offset == offset
+    cells = build_cells(p, tmp_path)
+    arms = world_seeds(cells)
+    assert arms["curriculum"] == {s + i for s in p.seeds for i in range(len(p.stage_levels))}
+    assert arms["direct"] == {s + offset for s in p.seeds}
+    assert not arms["curriculum"] & arms["direct"]
+    # the ablations' `all` is the direct run on their level: every ablation trains on the direct runs' seeds
+    ablation_seeds = {int(c.name.rsplit("seed", 1)[1]) for c in cells if "/ablation-" in c.name and c.kind == "train"}
+    assert ablation_seeds == arms["direct"]
+    assert reproduce.main([f"protocol={name}", "plan=true", f"root={tmp_path}", f"out={tmp_path / 'r'}"]) == 0
+    seeds = ", ".join(map(str, sorted(arms["direct"])))
+    assert f"direct runs and ablations on seeds {seeds} (seed + direct_seed_offset {offset}); disjoint" in (
+        capsys.readouterr().out
+    )
+
+
+@pytest.mark.parametrize(
+    "changes, message",
+    [
+        (
+            {"training__overrides": ["preset=debug", "eval.sample=false"]},
+            "field evaluation.compare: validation chooses from in-training validation evaluations in both acting "
+            "modes; training.overrides must include eval.both_modes=true (and no algorithm's overrides set it false); "
+            "allowed: sample, mode, or validation with eval.both_modes=true",
+        ),
+        (
+            {"algorithms__ppo__overrides": ["reward=original", "eval.both_modes=false"]},
+            "field evaluation.compare: validation chooses from in-training validation evaluations in both acting modes",
+        ),
+        (
+            {"evaluation__modes": ["sample"]},
+            "field evaluation.compare: validation needs both acting modes evaluated (evaluation.modes: [sample, mode]; "
+            "here ['sample']); allowed: sample, or validation with both modes",
+        ),
+        (
+            {"evaluation__modes": ["sample"], "evaluation__compare": "mode"},
+            "field evaluation.compare: 'mode' is not an evaluated acting mode (evaluation.modes: ['sample']); "
+            "allowed: sample",
+        ),
+        ({"evaluation__compare": "best"}, "field evaluation.compare: Input should be 'sample', 'mode' or 'validation'"),
+    ],
+)
+def test_a_compared_mode_that_cannot_be_chosen_is_refused_at_load(tmp_path, changes, message):
+    assert message in _load_error(_smoke_with(tmp_path, **changes))
+
+
+def test_compare_validation_makes_a_choice_cell_every_checkpoint_evaluation_waits_for(tmp_path):
+    p = load_protocol("smoke")
+    assert p.evaluation.compare == "validation"
+    cells = build_cells(p, tmp_path)
+    by = {c.name: c for c in cells}
+    choose = by["choose/acting"]
+    trains = [c.name for c in cells if c.kind == "train"]
+    assert choose.needs_cells == trains and choose.needs == [Layout(tmp_path).marker(n) for n in trains]
+    argv = choose.commands[0].argv
+    assert argv[0] == "scripts/choose_acting.py" and f"out={tmp_path / 'compared_mode.json'}" in argv
+    assert all(f"{by[n].run_dir}" in argv[1] for n in trains)
+    for c in cells:
+        if c.kind == "eval":
+            assert "choose/acting" in c.needs_cells and tmp_path / "compared_mode.json" in c.needs
+    report = by["report"].commands[0].argv
+    assert f"compare_from={tmp_path / 'compared_mode.json'}" in report and not any(
+        a.startswith("compare=") for a in report
+    )
+    # a fixed choice: no such cell, and the report compares it (mode, not the first of the modes)
+    fixed = _smoke_with(tmp_path, evaluation__compare="mode")
+    cells = build_cells(load_protocol(fixed), tmp_path)
+    assert "choose/acting" not in names(cells) and all("choose/acting" not in c.needs_cells for c in cells)
+    assert "compare=mode+epsilon=0.05" in cells[-1].commands[0].argv
+
+
+def test_an_evaluation_waits_for_the_choice_and_runs_once_it_is_made(tmp_path):
+    # train -> choose -> eval: with three slots the evaluation still waits for the choice after its model exists
+    lay, (train, ev, rep) = _fake(tmp_path)
+    choice = lay.root / "compared_mode.json"
+    code = f"import pathlib, time; time.sleep(0.3); pathlib.Path({str(choice)!r}).write_text('{{}}')"
+    choose = Cell(
+        "choose/acting",
+        "choose",
+        [Command(_py(code))],
+        1.0,
+        "c",
+        needs=[lay.marker("train/a")],
+        needs_cells=["train/a"],
+        choice=choice,
+    )
+    ev.needs, ev.needs_cells = [*ev.needs, choice], [*ev.needs_cells, "choose/acting"]
+    ev.commands[0].argv[-1] = (
+        ev.commands[0]
+        .argv[-1]
+        .replace("assert m.exists();", f"assert m.exists() and pathlib.Path({str(choice)!r}).exists();")
+    )
+    rep.needs_cells.append("choose/acting")
+    cells = [train, choose, ev, rep]
+    assert _scheduler(lay, cells, jobs=3).run(cells) == 0
+    assert [status(c, lay, cells) for c in cells] == ["done"] * 4
+    assert lay.marker("choose/acting").stat().st_mtime <= (ev.commands[0].out / "episodes.csv").stat().st_mtime
+    # a training done in an earlier session (not among the cells to run): its evaluation waits for the choice alone
+    (ev.commands[0].out / "episodes.csv").unlink()
+    choice.unlink()
+    assert _scheduler(lay, cells, jobs=3).run([choose, ev]) == 0 and status(ev, lay) == "done"
+
+
+def _eval_csv(run: Path, rows: list[tuple]) -> Path:
+    """An eval.csv of (env_steps, stage, level, worlds, acting, steps) rows, one per episode."""
+    run.mkdir(parents=True, exist_ok=True)
+    lines = ["env_steps,stage,level,worlds,acting,episode,steps,return,end_type"]
+    lines += [f"{e},{s},{lv},{w},{a},{i},{n},0,FoodOutOfRange" for i, (e, s, lv, w, a, n) in enumerate(rows)]
+    (run / "eval.csv").write_text("\n".join(lines) + "\n")
+    return run
+
+
+def test_the_compared_mode_is_the_one_whose_last_validation_evaluations_survive_longer(tmp_path, capsys):
+    from evaaa_baselines.paper.choice import ChoiceError, choose
+
+    # a curriculum of two stages: each stage's last validation evaluation counts (stage 0's earlier one, where
+    # sampling was far ahead, does not; nor does a row on other worlds)
+    cur = _eval_csv(
+        tmp_path / "runs/cur",
+        [
+            (64, 0, "1-1", "validation", "sample", 5000),
+            (64, 0, "1-1", "validation", "mode", 10),
+            (128, 0, "1-1", "validation", "sample", 100),
+            (128, 0, "1-1", "validation", "sample", 300),
+            (128, 0, "1-1", "validation", "mode", 400),
+            (128, 0, "1-1", "validation", "mode", 600),
+            (128, 0, "1-1", "test", "mode", 1),
+            (256, 1, "1-2", "validation", "sample", 200),
+            (256, 1, "1-2", "validation", "sample", 200),
+            (256, 1, "1-2", "validation", "mode", 100),
+            (256, 1, "1-2", "validation", "mode", 120),
+        ],
+    )
+    direct = _eval_csv(
+        tmp_path / "runs/direct",
+        [(128, 0, "1-2", "validation", "sample", 1000), (128, 0, "1-2", "validation", "mode", 500)],
+    )
+    # DQN acts the same either way: its rows are `mode` only, and it is left out, named
+    dqn = _eval_csv(tmp_path / "runs/dqn", [(128, 0, "1-1", "validation", "mode", 9000)])
+    got = choose([cur, direct, dqn], first="sample", epsilon=0.05)
+    # by hand: sample 100, 300, 200, 200, 1000 (mean 360); mode 400, 600, 100, 120, 500 (mean 344): sample
+    assert got["chosen"] == "sample" and got["compare"] == "sample+epsilon=0.05"
+    assert got["survival"]["sample"] == {"episodes": 5, "mean": 360.0, "iqm": 233.33}
+    assert got["survival"]["mode"] == {"episodes": 5, "mean": 344.0, "iqm": 340.0}
+    assert (got["networks"], got["runs"]) == (3, 2)
+    assert got["left_out"] == [f"{dqn} stage 0 (1-1): one acting mode only (mode)"]
+    assert [(n["stage"], n["sample"], n["mode"]) for n in got["per_network"]] == [
+        (0, 200.0, 500.0),
+        (1, 200.0, 110.0),
+        (0, 1000.0, 500.0),
+    ]
+    # without the direct run `mode` survives longer (mean 305 against 200)
+    assert choose([cur], first="sample")["chosen"] == "mode"
+    # a tie goes to the protocol's first mode
+    tie = _eval_csv(tmp_path / "runs/tie", [(8, 0, "1-1", "validation", m, 50) for m in ("sample", "mode")])
+    assert choose([tie], first="mode")["chosen"] == "mode" and choose([tie], first="sample")["chosen"] == "sample"
+    assert "`mode`, the protocol's first mode, both surviving as long — mean 50.0" in choice_text(choose([tie], "mode"))
+    assert "`sample`, whose in-training validation evaluations survived longer — mean 360.0" in choice_text(got)
+    with pytest.raises(ChoiceError, match="runs: no network has a validation evaluation in both acting modes"):
+        choose([dqn])
+    # the script: written once, never over the first; refused where a checkpoint's evaluation exists already
+    script = load_script("choose_acting")
+    out, evals = tmp_path / "compared_mode.json", tmp_path / "evals"
+    append_rows(evals / "ref" / "random" / "episodes.csv", [{"policy": "random", "steps": 5}])
+    args = [f"runs=[{cur},{direct},{dqn}]", "epsilon=0.05", f"evals={evals}", f"out={out}"]
+    assert script.main(args) == 0
+    assert json.loads(out.read_text())["chosen"] == "sample"
+    assert "wrote " in capsys.readouterr().out
+    for setup, message in (
+        (lambda: None, "out: " + str(out) + " exists: the compared mode is chosen once; nothing was written"),
+        (
+            lambda: (out.unlink(), append_rows(evals / "ppo" / "x" / "episodes.csv", [{"policy": "m.pt", "steps": 1}])),
+            f"evals: {evals / 'ppo' / 'x' / 'episodes.csv'} holds a checkpoint's evaluation: the compared mode is "
+            "chosen before any (1 found); nothing was written",
+        ),
+    ):
+        setup()
+        with pytest.raises(SystemExit) as exit_:
+            script.main(args)
+        assert exit_.value.code == 2 and message in capsys.readouterr().err
+    assert not out.exists()
 
 
 def test_a_second_session_on_the_same_root_is_refused(tmp_path, capsys):
@@ -554,9 +799,20 @@ def test_the_smoke_protocol_produces_every_kind_of_cell_and_the_report(tmp_path)
     assert reproduce.main(["protocol=smoke", f"root={root}", "progress=false", "jobs=2"]) == 0
     lay = Layout(root)
     cells = build_cells(load_protocol("smoke"), root)
-    assert {c.kind for c in cells} == {"train", "eval", "ref", "report"}
+    assert {c.kind for c in cells} == {"train", "eval", "ref", "choose", "report"}
     assert all(status(c, lay, cells) == "done" for c in cells)
     report = (root / "report" / "report.md").read_text()
+    # the compared mode was chosen from validation rows before the first checkpoint's test evaluation, and the
+    # report compares it and says so with its numbers
+    choice = json.loads((root / "compared_mode.json").read_text())
+    first_test = min((root / "evals" / "ppo").rglob("episodes.csv"), key=lambda f: f.stat().st_mtime)
+    assert (root / "compared_mode.json").stat().st_mtime <= first_test.stat().st_mtime
+    assert choice["networks"] == 5 and choice["runs"] == 4  # the curriculum's two stages, three single-stage runs
+    assert f"The compared mode was {choice_text(choice)}." in report
+    assert f"The claims compare the checkpoints acting `{choice['compare']}`" in report
+    # the direct runs trained on seed 2, worlds no curriculum stage (seeds 0, 1) trained on
+    assert (root / "runs/ppo/direct-1-2/seed2/model-0-1-2.pt").is_file()
+    assert "direct runs and ablations on seeds 2 (seed + direct_seed_offset 2); disjoint" in report
     for heading in (
         "Fig. 4a, left",
         "Fig. 4a, right",

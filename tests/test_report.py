@@ -8,6 +8,7 @@ removes a key and nothing else."""
 from __future__ import annotations
 
 import csv
+import json
 import os
 import re
 import shutil
@@ -26,6 +27,7 @@ from omegaconf import OmegaConf
 import evaaa
 from evaaa.records import TRAINING_EPISODE_FIELDS, append_rows
 from evaaa_baselines.config import observation_keys, register_levels
+from evaaa_baselines.paper.choice import ChoiceError
 from evaaa_baselines.paths import CONF_DIR
 from evaaa_baselines.reports import ReportError, build_report
 from evaaa_baselines.reports.stats import clustered_rate, interval
@@ -677,6 +679,55 @@ def test_a_checkpoint_evaluated_in_two_ways_is_reported_both_ways_labelled_never
         checkpoint_cells = [v for k, v in got.items() if k not in ("level", "random")]
         assert checkpoint_cells == [expect([[r["steps"] for r in rows]])]
         assert f"Checkpoints acted: `{acting}`" in text and "random" in got
+
+
+def test_a_mode_chosen_from_validation_rows_is_compared_and_stated_with_its_numbers(world, tmp_path, capsys):
+    # report.py compare_from=: the protocol's compared_mode.json (scripts/choose_acting.py) decides what the claims
+    # compare, here `mode` (the first of the evaluations' modes would be `sample`), and the report says why
+    from evaaa_baselines.paper.choice import write_choice
+
+    sim = world["sim"]
+    run = next(d for d, info in sim.runs.items() if info["level"] == "1-1" and info["seed"] == 0)
+    ckpt = str(run / "checkpoint.pt")
+    for acting in ("sample", "mode"):
+        append_rows(tmp_path / acting / "episodes.csv", [r | {"acting": acting} for r in sim.evaluate(ckpt, "1-1", 3)])
+    choice = {
+        "chosen": "mode",
+        "compare": "mode",
+        "survival": {
+            "sample": {"episodes": 16, "mean": 1104.5, "iqm": 1090.25},
+            "mode": {"episodes": 16, "mean": 2250.0, "iqm": 2301.75},
+        },
+        "networks": 8,
+        "runs": 5,
+        "left_out": ["runs/dqn/matched-1-1/seed0 stage 0 (1-1): one acting mode only (mode)"],
+        "chosen_at": "20270101T000000Z",
+    }
+    path = write_choice(tmp_path / "compared_mode.json", choice)
+    script = load_report()
+    args = [f"runs=[{run}]", f"evals=[{tmp_path / 'sample'},{tmp_path / 'mode'}]", f"compare_from={path}"]
+    assert script.main([*args, f"out={tmp_path / 'out'}"]) == 0
+    text = (tmp_path / "out" / "report.md").read_text()
+    assert "The claims compare the checkpoints acting `mode` (the most likely action)" in text
+    assert (
+        "The compared mode was chosen from validation rows before any test evaluation (compared_mode.json, "
+        "20270101T000000Z): `mode`, whose in-training validation evaluations survived longer — mean 2,250.0 "
+        "decisions (IQM 2,301.8, 16 episodes) against mean 1,104.5 decisions (IQM 1,090.2, 16 episodes) acting "
+        "`sample`, the same episodes, at the last validation evaluation of 8 networks of 5 runs; 1 left out"
+    ) in text
+    # the choice is made once; the report takes one of compare and compare_from
+    with pytest.raises(ChoiceError, match="exists: the compared mode is chosen once"):
+        write_choice(path, choice | {"chosen": "sample"})
+    assert json.loads(path.read_text())["chosen"] == "mode"
+    capsys.readouterr()
+    for extra, message in (
+        ([args[2], "compare=sample"], "compare_from: give compare or compare_from, not both"),
+        ([f"compare_from={tmp_path / 'none.json'}"], "compare_from: cannot read"),
+    ):
+        with pytest.raises(SystemExit):
+            script.main([*args[:2], *extra, f"out={tmp_path / 'x'}"])
+        assert message in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()  # refused before anything was written
 
 
 def test_a_stage_best_model_is_tied_to_its_stage_and_the_final_model_is_preferred(world):

@@ -17,7 +17,16 @@ import evaaa
 
 from ..config import COMPUTE_BOUND_STEPS
 from ..rollout import samples_actions
-from .protocol import CHECKPOINTS, LEVEL_GROUPS, REPO, STARTUP_SECONDS, AlgorithmSpec, EvaluationSpec, Protocol
+from .protocol import (
+    CHECKPOINTS,
+    LEVEL_GROUPS,
+    REPO,
+    STARTUP_SECONDS,
+    AlgorithmSpec,
+    EvaluationSpec,
+    Protocol,
+    seed_span,
+)
 
 
 # ------------------------------------------------------------------------------------------------ cells
@@ -37,7 +46,7 @@ class Cell:
     """One experiment of the protocol: its name, what kind, its commands, the files it needs and makes."""
 
     name: str
-    kind: Literal["train", "eval", "ref", "report"]
+    kind: Literal["train", "eval", "ref", "choose", "report"]
     commands: list[Command]
     minutes: float  # estimated CPU-minutes
     group: str  # the budget line it counts in (e.g. "ppo curriculum", "evaluation")
@@ -47,6 +56,7 @@ class Cell:
     needs_cells: list[str] = field(default_factory=list)  # cells whose outputs those are
     keep_checkpoints: bool = True  # training: false deletes the run's checkpoints once it is done
     report_out: Path | None = None  # the report: its folder
+    choice: Path | None = None  # the choice of the compared acting mode: the file it writes
 
 
 def _safe(name: str) -> str:
@@ -75,6 +85,8 @@ class Layout:
         self.evals = self.root / "evals"
         self.logs = self.root / "logs"
         self.done = self.root / "done"
+        # evaluation.compare: validation: the acting mode the claims compare, chosen before any test evaluation
+        self.choice = self.root / "compared_mode.json"
 
     def marker(self, cell: str) -> Path:
         return self.done / f"{_safe(cell)}.done"
@@ -238,7 +250,11 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
                 )
                 seconds += STARTUP_SECONDS + ev.own_level.episodes * max_steps(own) / sps
         eval_outs.extend(c.out for c in cmds if c.out is not None)
-        return Cell(name, "eval", cmds, seconds / 60, f"{algo} evaluation", needs=[model], needs_cells=[train_cell])
+        needs, needs_cells = [model], [train_cell]
+        if ev.compare == "validation":
+            # no checkpoint meets a test world before the compared mode is chosen from validation rows
+            needs, needs_cells = [model, lay.choice], [train_cell, CHOOSE]
+        return Cell(name, "eval", cmds, seconds / 60, f"{algo} evaluation", needs=needs, needs_cells=needs_cells)
 
     if p.references is not None:
         ref = p.references
@@ -359,7 +375,7 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
                     algo,
                     spec,
                     f"direct-{lv}",
-                    seed,
+                    p.direct_seed(seed),  # worlds apart from the curriculum's (training.direct_seed_offset)
                     [f"level={lv}", f"total_steps={steps}"],
                     [lv],
                     "direct",
@@ -375,7 +391,7 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
                         algo,
                         spec,
                         f"ablation-{mod}",
-                        seed,
+                        p.direct_seed(seed),  # the seeds of the `all` condition, the direct run on the level
                         [f"level={ab.level}", f"total_steps={S}"],
                         [ab.level],
                         "ablations",
@@ -399,6 +415,32 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
                     minutes=m.cpu_minutes + STARTUP_SECONDS / 60,
                 )
     cells = [c for part in p.order for c in parts[part]]
+    trains = [c for c in cells if c.kind == "train"]
+    if ev.compare == "validation" and trains:
+        choose = Cell(
+            CHOOSE,
+            "choose",
+            [
+                Command(
+                    [
+                        "scripts/choose_acting.py",
+                        "runs=[" + ",".join(arg(c.run_dir) for c in trains) + "]",  # type: ignore[arg-type]
+                        f"first={eval_modes(ev)[0]}",
+                        f"epsilon={ev.epsilon:g}",
+                        f"evals={arg(lay.evals)}",
+                        f"out={arg(lay.choice)}",
+                    ]
+                )
+            ],
+            STARTUP_SECONDS / 60,
+            "choice",
+            # every training's done-marker: the choice pools every network's last validation evaluation
+            needs=[lay.marker(c.name) for c in trains],
+            needs_cells=[c.name for c in trains],
+            choice=lay.choice,
+        )
+        # after the last training, before the evaluations that wait for it
+        cells.insert(cells.index(trains[-1]) + 1, choose)
 
     out = (
         Path(report_out)
@@ -420,7 +462,9 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
     if any(c.kind == "eval" for c in cells):
         # one mode: the report reports it alone; several: it shows each, labelled. Its claims compare the first (an
         # algorithm without an action distribution, DQN, with its greedy action in a `sample` comparison)
-        argv += [f"acting={acting(ev)}"] * (len(modes) == 1) + [f"compare={acting(ev)}"]
+        argv += [f"acting={acting(ev)}"] * (len(modes) == 1)
+        # compare: validation: the mode choose/acting wrote before any test evaluation, read by the report
+        argv.append(f"compare_from={arg(lay.choice)}" if ev.compare == "validation" else f"compare={acting(ev)}")
     if p.report.learned is not None:
         argv.append(f"learned={p.report.learned:g}")
     # the verdict rules' margins, stated in the protocol file before its runs (docs/reports.md, "The verdict rules")
@@ -441,6 +485,8 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
 
 #: the env-step budget of a compute-matched run: more than any run reaches in its CPU minutes
 MATCHED_STEPS = COMPUTE_BOUND_STEPS
+#: the cell that chooses the compared acting mode from validation rows (evaluation.compare: validation)
+CHOOSE = "choose/acting"
 
 
 def eval_modes(ev: EvaluationSpec) -> list[str]:
@@ -450,8 +496,10 @@ def eval_modes(ev: EvaluationSpec) -> list[str]:
 
 def acting(ev: EvaluationSpec) -> str:
     """How evaluate.py names the acting mode of the protocol's checkpoint evaluations the report compares (its
-    ``acting`` column; the first of several modes)."""
-    return eval_modes(ev)[0] + (f"+epsilon={ev.epsilon:g}" if ev.epsilon else "")
+    ``acting`` column; ``evaluation.compare`` where it names one, else the first of several modes; with
+    ``compare: validation`` the first, which the report replaces by the mode chosen)."""
+    mode = ev.compare if ev.compare in ("sample", "mode") else eval_modes(ev)[0]
+    return mode + (f"+epsilon={ev.epsilon:g}" if ev.epsilon else "")
 
 
 def default_title(p: Protocol) -> str:
@@ -469,9 +517,40 @@ def acting_text(ev: EvaluationSpec) -> str:
     said = {"mode": "by their most likely action", "sample": "by sampling (DQN: its greedy action)"}
     if len(modes) == 1:
         return said[modes[0]] + eps
+    if ev.compare == "validation":
+        return (
+            " and ".join(said[m] for m in modes) + f"{eps}; the claims compare the mode whose in-training validation "
+            "evaluations survived longer, chosen before any test evaluation (compared_mode.json)"
+        )
+    if ev.compare in modes:
+        modes = [ev.compare, *(m for m in modes if m != ev.compare)]
     if modes[0] == "mode":
         said["sample"] = "by sampling where they have a distribution"
     return f"{said[modes[0]]}{eps}, the mode the claims compare, and " + " and ".join(said[m] for m in modes[1:])
+
+
+def world_seeds_text(p: Protocol) -> str:
+    """Which seeds' worlds the curriculum and the direct runs train on, and whether they are disjoint (the plan's and
+    the report's words)."""
+    t = p.training
+    cur, direct = p.curriculum_world_seeds, p.direct_seeds
+    parts = []
+    if cur:
+        parts.append(
+            f"curriculum seeds {', '.join(map(str, p.seeds))} train stage i on the worlds of seed + i "
+            f"({seed_span(cur)})"
+        )
+    if direct:
+        off = f" (seed + direct_seed_offset {t.direct_seed_offset})" if t.direct_seed_offset else ""
+        parts.append(f"direct runs and ablations on seeds {', '.join(map(str, sorted(direct)))}{off}")
+    if cur and direct:
+        shared = sorted(cur & direct)
+        parts.append(
+            f"the arms share the worlds of seeds {seed_span(set(shared))} (training.allow_shared_worlds)"
+            if shared
+            else "disjoint"
+        )
+    return "training worlds: " + "; ".join(parts) if parts else ""
 
 
 # ------------------------------------------------------------------------------------------------ status
@@ -485,6 +564,8 @@ def outputs(cell: Cell, lay: Layout) -> list[Path]:
         return [cell.final_model, lay.marker(cell.name)]  # type: ignore[list-item]
     if cell.kind in ("eval", "ref"):
         return [c.out / "episodes.csv" for c in cell.commands if c.out is not None]
+    if cell.kind == "choose":
+        return [cell.choice]  # type: ignore[list-item]
     return [cell.report_out / "report.md", lay.marker(cell.name)]  # type: ignore[operator]
 
 
@@ -564,6 +645,7 @@ def plan_text(p: Protocol, cells: Sequence[Cell], lay: Layout, threads: int) -> 
     lines = [
         f"protocol {p.name}: {len(cells)} cells under {lay.root}; S = {p.stage_steps:,} env steps per stage "
         f"(curriculum stage and direct run), seeds {p.seeds}; checkpoints act {acting_text(p.evaluation)}",
+        *([world_seeds_text(p)] if world_seeds_text(p) else []),
         "",
         f"{'cell':<{width}}  {'status':<7}  {'CPU-min':>8}  {'took':>8}",
     ]
@@ -679,12 +761,14 @@ def provenance(p: Protocol, cells: Sequence[Cell], lay: Layout, selects: str | N
     timed = [c for c in done if took[c.name] is not None]
     selects = selects or f"protocol={p.name}"
     example = next((c.name for c in cells if c.kind == "train"), cells[0].name)
+    worlds = world_seeds_text(p)
     lines = [
         "## How this report was made",
         "",
         f"The protocol `{p.name}`: S = {p.stage_steps:,} env steps per stage (curriculum "
         f"stage and direct run), seeds {', '.join(map(str, p.seeds))}, checkpoints act {acting_text(p.evaluation)}; "
-        f"{sum(c.kind != 'report' for c in cells)} cells besides the report, {len(done)} of them done when this "
+        + (f"{worlds}; " if worlds else "")
+        + f"{sum(c.kind != 'report' for c in cells)} cells besides the report, {len(done)} of them done when this "
         "report was made. From "
         "the repository root:",
         "",

@@ -22,6 +22,7 @@ trained again (``start_over=true``).
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Literal
@@ -114,6 +115,14 @@ class TrainingSpec(_Strict):
     # env steps of the direct run on the k-th level of `levels` (k from 0): `stage` gives every one S; `matched`
     # gives (k + 1) * S, what the curriculum had seen by the end of that stage (curriculum vs direct at equal steps)
     direct_steps: Literal["stage", "matched"] = "stage"
+    # the direct runs (and the ablations, whose `all` condition is the direct run on their level) train with seed +
+    # direct_seed_offset: a curriculum run of seed s trains its stage i on the worlds of seed s + i (baselines/run.py),
+    # so without an offset the direct run of seed s + i trains on the very worlds of curriculum s's stage i, and the
+    # two arms of claim (b) are not independent. Curriculum and compute-matched runs keep the protocol's seeds
+    direct_seed_offset: int = Field(default=0, ge=0)
+    # true: the curriculum's and the direct runs' training-world seeds may overlap (a protocol that ran so before
+    # the offset existed); false: such a protocol is refused at load
+    allow_shared_worlds: bool = False
 
     @field_validator("direct_levels")
     @classmethod
@@ -183,6 +192,29 @@ class EvaluationSpec(_Strict):
     testbeds: EvalPart | None = None  # every evaluated model on these levels (null: none)
     own_level: OwnLevelPart | None = None  # every evaluated model on the level it was trained up to (null: none)
     steps_per_second: float = Field(gt=0, description="measured world steps/s of evaluate.py (estimates)")
+    # the acting mode the report's claims compare: `sample` or `mode` (one of `modes`), fixed in the file; or
+    # `validation`: the one whose in-training validation evaluations (eval.csv rows, both modes recorded through
+    # eval.both_modes=true) survived longer, pooled over the protocol's networks at their last evaluation, chosen by
+    # the cell choose/acting once every training is done and before any checkpoint's test evaluation (which waits
+    # for it), written to <root>/compared_mode.json; null: the first of `modes`
+    compare: Literal["sample", "mode", "validation"] | None = None
+
+    @model_validator(mode="after")
+    def _compare(self) -> EvaluationSpec:
+        evaluated = list(self.modes) if self.modes is not None else ["sample" if self.sample else "mode"]
+        if self.compare == "validation" and sorted(set(evaluated)) != ["mode", "sample"]:
+            # the chosen mode must be one the test evaluations made, whichever it turns out to be
+            raise ValueError(
+                f"evaluation.compare: validation needs both acting modes evaluated (evaluation.modes: [sample, "
+                f"mode]; here {evaluated}); allowed: {', '.join(evaluated)}, or validation with both modes"
+            )
+        if self.compare in ("sample", "mode") and self.compare not in evaluated:
+            allowed = evaluated + (["validation"] if len(set(evaluated)) == 2 else [])
+            raise ValueError(
+                f"evaluation.compare: {self.compare!r} is not an evaluated acting mode (evaluation.modes: "
+                f"{evaluated}); allowed: {', '.join(allowed)}"
+            )
+        return self
 
 
 class ReferenceSpec(_Strict):
@@ -293,9 +325,82 @@ class Protocol(_Strict):
                 )
         return self
 
+    @model_validator(mode="after")
+    def _disjoint_worlds(self) -> Protocol:
+        t = self.training
+        if not (t.curriculum and t.direct) or t.allow_shared_worlds:
+            return self
+        shared = sorted(self.direct_seeds & self.curriculum_world_seeds)
+        if shared:
+            fit = next(k for k in range(t.direct_seed_offset + 1, 10**6) if not self._collide(k))
+            raise ValueError(
+                f"training.direct_seed_offset: the direct runs' training worlds (seeds "
+                f"{', '.join(map(str, sorted(self.direct_seeds)))}) are the curriculum's (seed + stage: "
+                f"{seed_span(self.curriculum_world_seeds)}), shared by the arms of the comparison; allowed: an offset that "
+                f"takes every direct seed out of them (the smallest: {fit}), or training.allow_shared_worlds: true"
+            )
+        return self
+
+    def _collide(self, offset: int) -> bool:
+        return bool({s + offset for s in self.seeds} & self.curriculum_world_seeds)
+
+    @model_validator(mode="after")
+    def _validation_rows(self) -> Protocol:
+        if self.evaluation.compare != "validation":
+            return self
+        # the choice reads validation rows of both modes from every run: each run's overrides must ask for them, and
+        # no algorithm's or matched run's own overrides may take them away (train.py: the last override wins)
+        key = "eval.both_modes="
+
+        def said(overrides: Sequence[str]) -> list[str]:
+            plain = (o.replace(" ", "").lstrip("+").lower() for o in overrides)
+            return [o for o in plain if o.startswith(key)]
+
+        runs = said(self.training.overrides)
+        later = said([o for spec in self.algorithms.values() for o in spec.overrides])
+        later += said([o for extra in (self.matched.overrides.values() if self.matched else ()) for o in extra])
+        if not runs or runs[-1] != key + "true" or any(o != key + "true" for o in later):
+            raise ValueError(
+                "evaluation.compare: validation chooses from in-training validation evaluations in both acting modes; "
+                "training.overrides must include eval.both_modes=true (and no algorithm's overrides set it false); "
+                "allowed: sample, mode, or validation with eval.both_modes=true"
+            )
+        return self
+
     @property
     def stage_levels(self) -> list[str]:
         return list(self.levels or evaaa.LEVELS)
+
+    @property
+    def curriculum_world_seeds(self) -> set[int]:
+        """The seeds of the worlds the curriculum runs train on: seed s's stage i on those of s + i
+        (baselines/run.py); empty without curriculum runs."""
+        if not self.training.curriculum:
+            return set()
+        return {s + i for s in self.seeds for i in range(len(self.stage_levels))}
+
+    @property
+    def direct_seeds(self) -> set[int]:
+        """The seeds the direct runs train with (their one stage's worlds): the protocol's, plus
+        ``training.direct_seed_offset``; empty without direct runs."""
+        if not self.training.direct:
+            return set()
+        return {s + self.training.direct_seed_offset for s in self.seeds}
+
+    def direct_seed(self, seed: int) -> int:
+        """The seed a direct (or ablation) run of the protocol's seed ``seed`` trains with."""
+        return seed + self.training.direct_seed_offset
+
+
+def seed_span(seeds: set[int]) -> str:
+    """``{0, 1, 2, 3, 7}`` as ``0-3, 7``."""
+    out: list[str] = []
+    for s in sorted(seeds):
+        if out and s == int(out[-1].split("-")[-1]) + 1:
+            out[-1] = f"{out[-1].split('-')[0]}-{s}"
+        else:
+            out.append(str(s))
+    return ", ".join(out)
 
 
 # integer arithmetic for settings derived from stage_steps in a protocol file: ${idiv:${stage_steps},2}
@@ -346,6 +451,10 @@ def load_protocol(spec: str | Path) -> Protocol:
         first = err.errors()[0]
         where = _field_path(first["loc"]) or "(top level)"
         msg = first["msg"].removeprefix("Value error, ")
+        # a check across fields names the one to change first in its message (``training.direct_seed_offset: ...``)
+        named = re.match(r"([a-z_]+(?:\.[a-z_]+)+): ", msg)
+        if named and (where == "(top level)" or named.group(1).startswith(where + ".")):
+            where, msg = named.group(1), msg[named.end() :]
         if first["type"] == "extra_forbidden":
             allowed = _fields_at(first["loc"])
             msg = "unknown field" + (f"; allowed: {', '.join(allowed)}" if allowed else "")

@@ -500,7 +500,11 @@ class Runner:
             return not pending
         if all(f.exists() for f in cell.needs):
             return True
-        if any(n in failed or n in finished or n not in selected for n in cell.needs_cells):
+        # the cells whose files are missing (``needs`` and ``needs_cells`` pair up where they are as many: an
+        # evaluation that waits for its model and for the choice of the compared mode waits on whichever is missing)
+        paired = len(cell.needs) == len(cell.needs_cells)
+        missing = [n for f, n in zip(cell.needs, cell.needs_cells) if not f.exists()] if paired else cell.needs_cells
+        if any(n in failed or n in finished or n not in selected for n in missing):
             return None
         return False
 

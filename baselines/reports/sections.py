@@ -18,6 +18,7 @@ import pandas as pd
 import evaaa
 
 from ..paper import claims as rules
+from ..paper.choice import choice_text
 from .aggregate import STAT_COLUMNS, across_seeds, curves, evaluation_points, final_survival, per_run, reference_stats
 from .figures import plot_bars, plot_lines
 from .load import (
@@ -91,6 +92,9 @@ class Inputs:
     learned_factor: float | None = None
     # the verdict rules' settings (margins; a protocol's ``report.verdicts``); "fails" uses ``learned_factor`` where set
     verdict_rules: rules.Rules = field(default_factory=lambda: rules.Rules())
+    # where ``compare`` was chosen from validation rows (a protocol's compared_mode.json, report option
+    # ``compare_from``): that file's data, which the report states with its numbers; None: a fixed choice
+    choice: dict | None = None
 
     @cached_property
     def verdicts(self) -> list[rules.Verdict]:
@@ -256,6 +260,7 @@ def read_inputs(
     compare: str | None = None,
     learned: float | None = None,
     margin: float = 0.1,
+    choice: dict | None = None,
 ) -> Inputs:
     """Check the arguments, read the runs and evaluations and tie the evaluated checkpoints to their runs."""
     if survival not in ("eval", "train"):
@@ -282,7 +287,7 @@ def read_inputs(
         margin=margin,
         fails_factor=learned if learned is not None else rules.Rules().fails_factor,
     )
-    inputs = Inputs(runs, evals, read_notes, survival, window, bins, compare, learned, verdict_rules)
+    inputs = Inputs(runs, evals, read_notes, survival, window, bins, compare, learned, verdict_rules, choice)
     describe_extras(inputs.usable)
     return inputs
 
@@ -351,9 +356,10 @@ def introduction(doc: Document, inp: Inputs, title: str) -> None:
     if len(ck):
         doc.md += [f"Checkpoints acted: {ways}; worlds: {worlds}.", ""]
         if inp.compared:
+            chosen = f" The compared mode was {choice_text(inp.choice)}." if inp.choice is not None else ""
             doc.md += [
                 f"**Compared acting.** The claims compare the checkpoints acting {inp.compared}; the tables and "
-                "figures also show any other acting mode, labelled, which decides no claim.",
+                f"figures also show any other acting mode, labelled, which decides no claim.{chosen}",
                 "",
             ]
         if (ck["worlds"].astype(str).str.contains("not held out")).any():
@@ -1762,13 +1768,15 @@ def build_report(
     compare: str | None = None,
     learned: float | None = None,
     margin: float = 0.1,
+    choice: dict | None = None,
 ) -> Report:
     """Read runs and evaluations, write ``out/report.md``, its PNG figures and ``out/data/*.csv`` (the tables'
     numbers); returns what was written.  ``acting``: which of the checkpoints' evaluation modes to report
     (:func:`.load.select_acting`); ``compare``: the one the claims compare, every mode staying in the tables
     (:func:`_one_mode`); ``learned``: the factor over the better of random and stand-still an agent's network
     with every sense must clear on the first level to have learned it (:mod:`.matched`; the bar of "fails");
-    ``margin``: the verdict rules' equivalence margin (:class:`..paper.claims.Rules`)."""
+    ``margin``: the verdict rules' equivalence margin (:class:`..paper.claims.Rules`); ``choice``: where ``compare``
+    was chosen from validation rows, the choice's data (:mod:`..paper.choice`), stated in the report."""
     inp = read_inputs(
         run_paths,
         eval_paths,
@@ -1779,6 +1787,7 @@ def build_report(
         compare=compare,
         learned=learned,
         margin=margin,
+        choice=choice,
     )
     doc = Document(Path(out))
     (doc.out / "data").mkdir(parents=True, exist_ok=True)
