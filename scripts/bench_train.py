@@ -387,18 +387,25 @@ class Learning:
     env_steps: int
 
 
-def standstill_survival(level: str, seed: int, episodes: int = LEARN_EPISODES) -> float:
-    """Mean survival of standing still on the validation worlds a run of ``seed`` evaluates on (``Run.evaluate``'s
-    worlds, seeded the same way)."""
+def standstill_survival(run_dir: Path) -> float:
+    """Mean survival of standing still on the validation worlds the run evaluated on: its level with its level
+    overrides (reward, ``env.overrides``), ``eval.episodes`` worlds seeded as ``Run.evaluate`` seeds them."""
     import torch
 
+    from evaaa_baselines.config import env_overrides
     from evaaa_baselines.rollout import EVALUATION_INFO, evaluate
 
+    cfg = OmegaConf.load(run_dir / ".hydra" / "config.yaml")
     env = evaaa.make_env(
-        level, num_envs=episodes, modalities=["interoception"], info=EVALUATION_INFO, worlds="validation"
+        cfg.level.name,
+        num_envs=cfg.eval.episodes,
+        modalities=["interoception"],
+        info=EVALUATION_INFO,
+        worlds="validation",
+        **env_overrides(cfg),
     )
     try:
-        env.set_seed(seed, static_seed=True)
+        env.set_seed(cfg.seed, static_seed=True)
 
         def still(td):
             return td.set("action", torch.zeros(td.batch_size, dtype=torch.long))
@@ -545,8 +552,6 @@ def main_learn(args: BenchConfig) -> int:
         f"{processor()}",
         flush=True,
     )
-    bars = {seed: args.bar * standstill_survival(args.level, seed) for seed in args.seeds}
-    print(f"  the bar: {args.bar:g} x stand-still on each seed's validation worlds = {sorted(set(bars.values()))}")
     cores = list(range(os.cpu_count() or 1))
     with concurrent.futures.ThreadPoolExecutor(args.jobs) as pool:
         slots = queue.Queue()
@@ -563,7 +568,10 @@ def main_learn(args: BenchConfig) -> int:
 
         dirs = list(pool.map(one, jobs))
     load = os.getloadavg()  # other work on the machine slows a run's CPU seconds too (shared caches): said with them
-    runs = [learning(d, algo, preset, seed, bars[seed]) for d, (algo, preset, seed) in zip(dirs, jobs)]
+    # the bar of each run: stand-still's survival on the validation worlds it evaluated on, with its level settings
+    bars = {str(d): args.bar * standstill_survival(d) for d in dirs}
+    print(f"  the bar: {args.bar:g} x stand-still on each run's validation worlds = {sorted(set(bars.values()))}")
+    runs = [learning(d, algo, preset, seed, bars[str(d)]) for d, (algo, preset, seed) in zip(dirs, jobs)]
     summary = learning_summary(runs)
     print(learning_table(summary, args.cpu_minutes))
     if args.json:
@@ -574,7 +582,10 @@ def main_learn(args: BenchConfig) -> int:
                 "cores": os.cpu_count(),
                 "load_average_at_end": [round(x, 2) for x in load],
                 "level": args.level,
-                "bar": {"times_standstill": args.bar, "by_seed": bars},
+                "bar": {
+                    "times_standstill": args.bar,
+                    "by_run": {str(Path(d).relative_to(root)): b for d, b in bars.items()},
+                },
                 "evaluation": f"validation worlds, sampled actions, {LEARN_EPISODES} episodes every {args.eval_every} env steps",
                 "cpu_minutes_budget": args.cpu_minutes,
                 "overrides": args.overrides,
@@ -639,6 +650,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     algos = args.algos
     if args.learn:
+        if args.level == "curriculum":
+            cli.fail("bench_train.py", "level=curriculum: learn=true measures one level (name a level or testbed)")
         return main_learn(args)
     if not algos and args.runs is None:
         cli.fail("bench_train.py", f"algos=[]: name at least one of {', '.join(algo_names())}")

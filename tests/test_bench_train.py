@@ -205,3 +205,32 @@ def test_the_median_counts_a_seed_that_never_learned_as_slower_than_any(tmp_path
     assert row["cpu_minutes_to_learn"] == [2.0, None, 2.0]
     (worse,) = bench.learning_summary(runs[1:2] * 2 + runs[:1])
     assert worse["median_cpu_minutes_to_learn"] is None  # two of three never learned
+
+
+@pytest.mark.slow
+def test_learn_mode_trains_evaluates_and_reports_the_cpu_minutes_to_learn(tmp_path):
+    # a debug PPO run to a few CPU seconds, evaluated every 64 env steps; the bar is 0.5 x stand-still's 48
+    # decisions (the debug episodes' step limit), which any policy reaches: learned at its first evaluation
+    out = tmp_path / "learn.json"
+    args = [
+        "learn=true",
+        "algos=[ppo]",
+        "presets=[debug]",
+        "seeds=[0]",
+        "cpu_minutes=0.05",
+        "eval_every=64",
+        "bar=0.5",
+        f"keep={tmp_path / 'runs'}",
+        f"json={out}",
+    ]
+    assert load_bench().main(args) == 0
+    report = json.loads(out.read_text())
+    (run,) = report["runs"]
+    assert report["bar"]["by_run"] == {"debug/ppo/seed0": 24.0}
+    assert run["evaluations"] and run["evaluations"][0]["env_steps"] == 64
+    assert run["env_steps_to_learn"] == 64 and run["cpu_minutes_to_learn"] >= 0
+    assert report["summary"][0]["learned"] == 1 and report["processor"]
+    # the same command again finds the final model and trains nothing more
+    before = (tmp_path / "runs" / "debug" / "ppo" / "seed0" / "eval.csv").read_text()
+    assert load_bench().main(args) == 0
+    assert (tmp_path / "runs" / "debug" / "ppo" / "seed0" / "eval.csv").read_text() == before
