@@ -1055,8 +1055,10 @@ def _resolved(path: Path) -> Path:
     """``path`` made absolute, links followed; a loop of links is a LevelError (Path.resolve raises RuntimeError)."""
     try:
         return path.resolve()
-    except (RuntimeError, OSError) as err:
-        raise LevelError(f"level file '{path}' cannot be read: {err}") from None
+    except RuntimeError:  # Python before 3.13: "Symlink loop from '<path>'", which would name the file twice
+        raise LevelError(f"level file '{path}' cannot be read: Symlink loop (its links lead back to it)") from None
+    except OSError as err:
+        raise LevelError(f"level file '{path}' cannot be read: {err.strerror or err}") from None
 
 
 def register_level(path: str | os.PathLike) -> str:
