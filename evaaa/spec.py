@@ -90,6 +90,13 @@ MAX_SOLID_BODIES = 1200
 MAX_ITEMS = 2000
 #: Landmark points of a patrol pattern (each predator plans routes between them).
 MAX_LANDMARKS = 10_000
+#: A chasing predator whose straight line to the agent is blocked plans a new route at most this often (decisions).
+REPLAN_EVERY = 5
+#: Route planning allowed per decision, in grid cells visited: a plan can be a shortest-path search over the whole
+#: grid of 1 m cells (scipy's Dijkstra, 400-600 ns a cell on the 2-core box), made by each searching predator every
+#: search_interval decisions and by each chasing one every REPLAN_EVERY.  1e6 is about 0.5 s a decision at the worst;
+#: 4-1 needs 6.4e3; the audit's 1,000 m arena with 50 predators searching every decision needed 6e7 (20-38 s a step).
+MAX_PLANNING_WORK = 1e6
 #: Work of one smoothing of the thermal field (cells times kernel width, both passes) allowed at every episode
 #: reset: the default 100 x 100 grid at sigma 10 costs 6.1e5; 1000 x 1000 cells at sigma 3 (3.8e7) took 15 ms of
 #: CPU on the 2-core box.  Painting the hotspots is held to the same number of cells.
@@ -581,6 +588,22 @@ class Level(_Spec):
     def _predators_need_landmarks(self) -> Level:
         if any(g.count for g in self.predators.values()) and self.landmarks is None:
             raise ValueError("predators patrol the convex hull of the landmarks: set landmarks.pattern")
+        return self
+
+    @model_validator(mode="after")
+    def _planning_bounded(self) -> Level:
+        # what predator.NavGrid plans on (1 m cells) and how often predator.Predators plans: see MAX_PLANNING_WORK
+        cells = math.ceil(self.arena.size[0]) * math.ceil(self.arena.size[1])
+        plans = sum(g.count * (1 / g.search_interval + 1 / REPLAN_EVERY) for g in self.predators.values())
+        if cells * plans > MAX_PLANNING_WORK:
+            named = [f"{n}: count {g.count}, search_interval {g.search_interval}" for n, g in self.predators.items()]
+            groups = "; ".join(named[:3]) + (f"; and {len(named) - 3} more" if len(named) > 3 else "")
+            raise ValueError(
+                f"predators plan routes over {cells * plans:.2g} grid cells a decision (arena.size "
+                f"{self.arena.size[0]:g} x {self.arena.size[1]:g} = {cells} cells of 1 m, times the predators' "
+                f"count x (1 / search_interval + 1 / {REPLAN_EVERY}), predators {groups}); at most "
+                f"{MAX_PLANNING_WORK:.0e}: a smaller arena, fewer predators or a longer search_interval"
+            )
         return self
 
     @model_validator(mode="after")

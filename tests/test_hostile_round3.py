@@ -400,3 +400,43 @@ def test_clients_trickling_their_bodies_hold_no_request_slot(monkeypatch):
     finally:
         httpd.shutdown()
         httpd.server_close()
+
+
+# ------------------------------------------------------------------------------------------------ 5. predator planning
+_AUDIT_PLANNING = """extends: "1-1"
+arena: {size: [1000, 1000]}
+landmarks: {pattern: [[1, 0], [0, 1]]}
+predators:
+  pack: {count: 50, x: [-400, 400], y: [-400, 400], search_interval: 1}
+obstacles:
+  rocks: {kind: rock, count: 1000, x: [-490, 490], y: [-490, 490]}
+"""
+
+
+def test_a_level_whose_predators_would_plan_for_seconds_a_step_is_refused_at_load(tmp_path):
+    """The audit's level (20-38 s a step) is refused before anything is built, in one line naming the fields and
+    the limit; the same arena with one predator searching every 60 decisions (2.2e5 cells a decision) loads."""
+    path = level_file(tmp_path, _AUDIT_PLANNING)
+    started = time.process_time()
+    with pytest.raises(LevelError) as refused:
+        evaaa.make_env(str(path))
+    assert time.process_time() - started < HANG_SECONDS
+    (line,) = str(refused.value).splitlines()[1:]  # "invalid level '...':" then the one rule it breaks
+    assert "predators plan routes over 6e+07 grid cells a decision" in line
+    for named in ("arena.size 1000 x 1000", "search_interval", "count", "pack: count 50, search_interval 1"):
+        assert named in line, named
+    assert line.endswith("at most 1e+06: a smaller arena, fewer predators or a longer search_interval")
+    one = level_file(
+        tmp_path, _AUDIT_PLANNING.replace("count: 50", "count: 1").replace("interval: 1}", "interval: 60}")
+    )
+    assert load_level(one).predators["pack"].count == 1
+
+
+def test_every_packaged_level_and_testbed_plans_within_the_bound():
+    from evaaa.spec import MAX_PLANNING_WORK, REPLAN_EVERY
+
+    for name in evaaa.LEVELS + evaaa.TESTBEDS:
+        level = load_level(name)
+        cells = level.arena.size[0] * level.arena.size[1]
+        work = cells * sum(g.count * (1 / g.search_interval + 1 / REPLAN_EVERY) for g in level.predators.values())
+        assert work <= MAX_PLANNING_WORK / 100, (name, work)  # far inside it: 4-1, the largest, needs 6.4e3
