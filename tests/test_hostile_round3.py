@@ -440,3 +440,79 @@ def test_every_packaged_level_and_testbed_plans_within_the_bound():
         cells = level.arena.size[0] * level.arena.size[1]
         work = cells * sum(g.count * (1 / g.search_interval + 1 / REPLAN_EVERY) for g in level.predators.values())
         assert work <= MAX_PLANNING_WORK / 100, (name, work)  # far inside it: 4-1, the largest, needs 6.4e3
+
+
+# ------------------------------------------------------------------------------------------------ 8. low items
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("resources:\n  food: {count: 010}\n", "count: '010' is octal in YAML 1.1 (8) and 10 in YAML 1.2"),
+        ("agent: {mass: 1:30}\n", "mass: '1:30' is a base-60 number in YAML 1.1 (90) and text in YAML 1.2"),
+        ("episode:\n  max_steps: 1:00:00\n", "max_steps: '1:00:00' is a base-60 number in YAML 1.1 (3600)"),
+        ("arena: {size: [0b1010, 20]}\n", "size[0]: '0b1010' is binary in YAML 1.1 (10)"),
+        ("arena: {walls: off}\n", "walls: 'off' is false in YAML 1.1 and text in YAML 1.2; write true or false"),
+        ("episode: {max_steps: " + "9" * 5000 + "}\n", "max_steps: an integer of 5000 digits"),
+        ("<<: {description: a}\n<<: {description: b}\n", "the merge key << is repeated (the last would silently win)"),
+    ],
+    ids=["octal", "base-60", "base-60 hours", "binary", "yes-no flag", "huge integer", "two merge keys"],
+)
+def test_yaml_1_1_forms_huge_integers_and_repeated_merge_keys_are_refused_naming_the_field(tmp_path, text, message):
+    path = level_file(tmp_path, 'extends: "1-1"\n' + text)
+    with pytest.raises(LevelError) as refused:
+        load_level(path)
+    (line,) = str(refused.value).splitlines()
+    assert line.startswith(f"level file '{path}': ") and message in line and "(line " in line, line
+
+
+def test_yaml_1_2_forms_and_quoted_text_still_read():
+    from evaaa.spec import parse_level_text
+
+    text = b"a: 10\nb: 0x1f\nc: 1_000\nd: '010'\ne: '1:30'\nf: true\ng: 1.5e3\nh: 0\ni: [0, 7]\nj: 'yes'\n"
+    assert parse_level_text(text, "f.yaml") == {
+        **{"a": 10, "b": 31, "c": 1000, "d": "010", "e": "1:30", "f": True, "g": 1500.0, "h": 0, "i": [0, 7]},
+        "j": "yes",
+    }
+
+
+def test_an_extends_chain_of_a_thousand_files_is_refused_in_one_line(tmp_path):
+    for i in range(1000):
+        (tmp_path / f"c{i}.yaml").write_text(f"extends: c{i + 1}.yaml\n")
+    (tmp_path / "c1000.yaml").write_text('extends: "1-1"\n')
+    with pytest.raises(LevelError) as refused:  # was a RecursionError
+        load_level(tmp_path / "c0.yaml")
+    (line,) = str(refused.value).splitlines()
+    assert "its extends: chain is longer than 32 files" in line and line.endswith(f"at '{tmp_path / 'c32.yaml'}'")
+    assert load_level(tmp_path / "c975.yaml").name == "c975"  # 26 files and 1-1's chain: within the limit
+
+
+def test_a_fifo_in_the_level_dir_is_refused_naming_it(tmp_path):
+    level_file(tmp_path, 'extends: "1-1"\n', "r3-fine.yaml")
+    os.mkfifo(tmp_path / "r3-pipe.yaml")  # was skipped without a word
+    started = time.monotonic()
+    with pytest.raises(LevelError, match=rf"level file '{tmp_path / 'r3-pipe.yaml'}' cannot be read: not a regular"):
+        play.register_level_dir(tmp_path)
+    assert time.monotonic() - started < HANG_SECONDS
+
+
+def test_a_request_with_two_host_headers_is_refused():
+    httpd = play.PlayServer("127.0.0.1", 0, b"<html></html>")
+    httpd.session = _QuickSession()
+    threading.Thread(target=httpd.serve_forever, daemon=True).start()
+    address = httpd.server_address[:2]
+    own = f"127.0.0.1:{address[1]}"
+    try:
+        for hosts, status in (([own], 200), ([own, "evil.example"], 400), (["evil.example", own], 400)):
+            with socket.create_connection(address) as sock:
+                sock.settimeout(10)
+                head = "".join(f"Host: {h}\r\n" for h in hosts)
+                sock.sendall(f"GET /api/state HTTP/1.1\r\n{head}Connection: close\r\n\r\n".encode())
+                answer = b""
+                while chunk := sock.recv(4096):  # to the end: the server closes the connection
+                    answer += chunk
+                answer = answer.decode()
+            assert answer.startswith(f"HTTP/1.0 {status} ") or answer.startswith(f"HTTP/1.1 {status} "), answer
+            if status == 400:
+                assert "refused: 2 Host headers; a request names its server once" in answer
+    finally:
+        httpd.shutdown()
+        httpd.server_close()
