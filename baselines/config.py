@@ -484,7 +484,16 @@ def check_level_file(cfg: DictConfig) -> None:
         evaaa.register_level(file)  # what stages() will do: it loads and checks the file
     except evaaa.LevelError as err:
         first, *rest = (line.strip() for line in str(err).splitlines())  # a level's value errors: one line each
-        raise ConfigError(f"level.file={file}: {first}" + (" " + "; ".join(rest) if rest else "")) from None
+        message = first + (" " + "; ".join(rest) if rest else "")
+        # evaaa names the file as it resolved it; said once, as the user typed it (a parent file keeps its own name)
+        spellings = {file, str(Path(file))}
+        with contextlib.suppress(OSError, RuntimeError):
+            spellings.add(str(Path(file).resolve()))
+        for spelling in sorted(spellings, key=len, reverse=True):
+            message = message.replace(f"level file '{spelling}'", "the file").replace(
+                f"invalid level '{spelling}'", "the level is invalid"
+            )
+        raise ConfigError(f"level.file={file}: {message}") from None
 
 
 #: why ``algo=dreamer`` stops on a machine without a GPU, and what to type instead (docs/training.md, "DreamerV3")

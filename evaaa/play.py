@@ -165,7 +165,8 @@ def register_level_dir(folder: Path) -> tuple[str, ...]:
     """Make every level file in ``folder`` (``*.yaml``, ``*.yml``) playable by its name; each is loaded, so checked,
     now.  Raises :class:`LevelError` naming the file that cannot be used."""
     try:
-        files = sorted(p for p in Path(folder).iterdir() if p.suffix in (".yaml", ".yml") and p.is_file())
+        # every .yaml entry, not only regular files: a FIFO or a folder named so is refused naming it, not skipped
+        files = sorted(p for p in Path(folder).iterdir() if p.suffix in (".yaml", ".yml"))
     except OSError as exc:
         raise LevelError(f"level_dir {folder} cannot be read: {exc.strerror or exc}") from None
     return tuple(register_level(path) for path in files)
@@ -561,7 +562,10 @@ class PlayHandler(BaseHTTPRequestHandler):
         ``Host`` must name this server (a web page cannot choose it, except by DNS rebinding: pointing a name of its
         own at 127.0.0.1, which leaves its name in ``Host``); ``Origin`` and ``Sec-Fetch-Site``, which browsers set
         on cross-site requests, must say the request comes from this server's own page."""
-        host = self.headers.get("Host")
+        hosts = self.headers.get_all("Host") or []
+        if len(hosts) > 1:  # which one counts differs between servers and proxies: none does
+            raise RequestError(400, f"refused: {len(hosts)} Host headers; a request names its server once")
+        host = hosts[0] if hosts else None
         if host is None or not self.server.is_own_host(host):
             raise RequestError(
                 403,

@@ -20,7 +20,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 
 from .entities import PREDATOR
-from .spec import Level
+from .spec import REPLAN_EVERY, Level  # REPLAN_EVERY: the level's planning bound counts on it
 from .worldgen import AGENT_HALF, PatrolArea
 
 RESTING, SEARCHING, CHASING, ATTACKING = range(4)
@@ -29,8 +29,6 @@ DECISION_SECONDS = 0.1
 PREDATOR_HALF = PREDATOR.base[0] / 2
 #: centres closer than this touch (the bodies' half-widths and a hand's breadth)
 CONTACT_DISTANCE = PREDATOR_HALF + AGENT_HALF + 0.2
-#: a chase re-plans at most this often when the straight line to the agent is blocked
-REPLAN_EVERY = 5
 #: sizes (grid cells each way) of the groups in which boxes are rasterised together; larger boxes go one by one
 BOX_GROUP_CELLS = (8, 32)
 

@@ -90,6 +90,13 @@ MAX_SOLID_BODIES = 1200
 MAX_ITEMS = 2000
 #: Landmark points of a patrol pattern (each predator plans routes between them).
 MAX_LANDMARKS = 10_000
+#: A chasing predator whose straight line to the agent is blocked plans a new route at most this often (decisions).
+REPLAN_EVERY = 5
+#: Route planning allowed per decision, in grid cells visited: a plan can be a shortest-path search over the whole
+#: grid of 1 m cells (scipy's Dijkstra, 400-600 ns a cell on the 2-core box), made by each searching predator every
+#: search_interval decisions and by each chasing one every REPLAN_EVERY.  1e6 is about 0.5 s a decision at the worst;
+#: 4-1 needs 6.4e3; the audit's 1,000 m arena with 50 predators searching every decision needed 6e7 (20-38 s a step).
+MAX_PLANNING_WORK = 1e6
 #: Work of one smoothing of the thermal field (cells times kernel width, both passes) allowed at every episode
 #: reset: the default 100 x 100 grid at sigma 10 costs 6.1e5; 1000 x 1000 cells at sigma 3 (3.8e7) took 15 ms of
 #: CPU on the 2-core box.  Painting the hotspots is held to the same number of cells.
@@ -584,6 +591,22 @@ class Level(_Spec):
         return self
 
     @model_validator(mode="after")
+    def _planning_bounded(self) -> Level:
+        # what predator.NavGrid plans on (1 m cells) and how often predator.Predators plans: see MAX_PLANNING_WORK
+        cells = math.ceil(self.arena.size[0]) * math.ceil(self.arena.size[1])
+        plans = sum(g.count * (1 / g.search_interval + 1 / REPLAN_EVERY) for g in self.predators.values())
+        if cells * plans > MAX_PLANNING_WORK:
+            named = [f"{n}: count {g.count}, search_interval {g.search_interval}" for n, g in self.predators.items()]
+            groups = "; ".join(named[:3]) + (f"; and {len(named) - 3} more" if len(named) > 3 else "")
+            raise ValueError(
+                f"predators plan routes over {cells * plans:.2g} grid cells a decision (arena.size "
+                f"{self.arena.size[0]:g} x {self.arena.size[1]:g} = {cells} cells of 1 m, times the predators' "
+                f"count x (1 / search_interval + 1 / {REPLAN_EVERY}), predators {groups}); at most "
+                f"{MAX_PLANNING_WORK:.0e}: a smaller arena, fewer predators or a longer search_interval"
+            )
+        return self
+
+    @model_validator(mode="after")
     def _agent_starts_on_the_floor(self) -> Level:
         # the body's centre keeps half its width (worldgen.AGENT_HALF, 0.5 m) from the floor's edge; a random start
         # falls back to start_position when its box is full, so that must lie on the floor either way
@@ -631,6 +654,8 @@ MAX_DEPTH = 32
 #: Most values (mappings, lists and scalars, counting each use of an alias as a copy of what it names) in one level
 #: file: ten times the largest landmark pattern.  A 7 x 7 alias chain would expand to 8e5, a 9 x 9 one to 4e8.
 MAX_NODES = 100_000
+#: Longest ``extends:`` chain, the file itself included (the packaged levels' longest, 4-2's, is 9 files)
+MAX_EXTENDS = 32
 #: keys of a level file about the file itself, not the level: they are not inherited through ``extends:``
 _FILE_KEYS = ("extends", "order")
 
@@ -645,6 +670,41 @@ def excerpt(value: Any) -> str:
     """``repr(value)`` cut to at most :data:`EXCERPT_CHARS` characters (nesting, items and text elided with ...)."""
     text = _EXCERPT.repr(value)
     return text if len(text) <= EXCERPT_CHARS else text[: EXCERPT_CHARS - 3] + "..."
+
+
+#: Most digits of an integer in a level file: a level's integers lie within MAX_INTEGER (10 digits), and Python
+#: refuses to read one of more than 4,300 digits (a raw ValueError) or takes quadratic time below that
+MAX_INTEGER_DIGITS = 100
+_INT = "tag:yaml.org,2002:int"
+
+
+def _yaml11_form(node: yaml.ScalarNode) -> str | None:
+    """What is wrong with a plain scalar PyYAML (YAML 1.1) resolved to a number or a flag that YAML 1.2, which the
+    level files are written in, reads otherwise (octal 010, base-60 1:30, binary 0b1, yes/no/on/off), or with an
+    integer too long to read; None when nothing is."""
+    if node.style is not None:  # quoted or a block: text in both versions
+        return None
+    text, number = node.value, node.value.lstrip("+-").replace("_", "")
+    if node.tag == _INT and len(number) > MAX_INTEGER_DIGITS:
+        return (
+            f"an integer of {len(number)} digits; a level's integers lie within [-{MAX_INTEGER:.0e}, {MAX_INTEGER:.0e}]"
+        )
+    if node.tag in (_INT, "tag:yaml.org,2002:float") and ":" in text:
+        return (
+            f"{excerpt(text)} is a base-60 number in YAML 1.1 ({yaml.safe_load(text)}) and text in YAML 1.2; "
+            "write the number you mean"
+        )
+    if node.tag == _INT and number[:2].lower() == "0b":
+        return f"{excerpt(text)} is binary in YAML 1.1 ({yaml.safe_load(text)}) and text in YAML 1.2; write the number you mean"
+    if node.tag == _INT and len(number) > 1 and number[0] == "0" and number[1].lower() != "x":
+        decimal = ("-" if text.startswith("-") else "") + (number.lstrip("0") or "0")
+        return (
+            f"{excerpt(text)} is octal in YAML 1.1 ({yaml.safe_load(text)}) and {decimal} in YAML 1.2; write the "
+            "number you mean without a leading 0"
+        )
+    if node.tag == "tag:yaml.org,2002:bool" and text.lower() not in ("true", "false"):
+        return f"{excerpt(text)} is {str(yaml.safe_load(text)).lower()} in YAML 1.1 and text in YAML 1.2; write true or false (or quote it)"
+    return None
 
 
 class _Refused(yaml.YAMLError):
@@ -669,6 +729,7 @@ class _LevelLoader(yaml.SafeLoader):
         self._deepest = 0  # deepest level reached inside the anchored node being composed, aliases expanded
         self._nodes = 0
         self._anchored: dict[str, tuple[int, int]] = {}  # anchor -> (values it stands for, its height)
+        self._checked: set[int] = set()  # lists whose scalars _check_scalars has checked
 
     def _count(self, nodes: int, deepest: int, mark: yaml.Mark) -> None:
         self._nodes += nodes
@@ -707,12 +768,31 @@ class _LevelLoader(yaml.SafeLoader):
     def compose_mapping_node(self, anchor: str | None) -> yaml.MappingNode:
         node = super().compose_mapping_node(anchor)
         seen: set[tuple[str, str]] = set()
-        for key, _ in node.value:
-            if isinstance(key, yaml.ScalarNode) and key.tag != "tag:yaml.org,2002:merge":
+        for key, value in node.value:
+            if isinstance(key, yaml.ScalarNode):
                 if (key.tag, key.value) in seen:  # a later key would silently win over the earlier one
+                    if key.tag == "tag:yaml.org,2002:merge":
+                        raise _Refused(
+                            "the merge key << is repeated (the last would silently win); merge several mappings "
+                            "with one key: <<: [*a, *b]",
+                            key.start_mark,
+                        )
                     raise _Refused(f"the key {excerpt(key.value)} is repeated", key.start_mark)
                 seen.add((key.tag, key.value))
+            self._check_scalars(excerpt(key.value)[1:-1] if isinstance(key, yaml.ScalarNode) else "a key", value)
         return node
+
+    def _check_scalars(self, where: str, node: yaml.Node) -> None:
+        """Refuse a plain scalar in ``node`` (a mapping's value, or a list's items, named ``where``) that YAML 1.1
+        reads otherwise than YAML 1.2 (:func:`_yaml11_form`) or whose integer Python would not read."""
+        if isinstance(node, yaml.ScalarNode):
+            problem = _yaml11_form(node)
+            if problem:
+                raise _Refused(f"{where}: {problem}", node.start_mark)
+        elif isinstance(node, yaml.SequenceNode) and id(node) not in self._checked:
+            self._checked.add(id(node))  # a list an alias repeats is checked once
+            for i, item in enumerate(node.value):
+                self._check_scalars(f"{where}[{i}]", item)
 
     def _not_level_data(self, node: yaml.Node) -> Any:
         raise _Refused(
@@ -722,6 +802,14 @@ class _LevelLoader(yaml.SafeLoader):
         )
 
 
+def _construct_int(loader: _LevelLoader, node: yaml.ScalarNode) -> int:
+    # a key is not checked by _check_scalars: an integer Python will not read (over 4,300 digits) is refused here
+    if len(node.value) > MAX_INTEGER_DIGITS:
+        raise _Refused(_yaml11_form(node) or "an integer too long to read", node.start_mark)
+    return yaml.SafeLoader.construct_yaml_int(loader, node)
+
+
+_LevelLoader.add_constructor(_INT, _construct_int)
 for _tag in ("set", "binary", "omap", "pairs"):
     _LevelLoader.add_constructor(f"tag:yaml.org,2002:{_tag}", _LevelLoader._not_level_data)
 # a date is text to a level (a description may start with one), not a datetime no field accepts
@@ -886,6 +974,11 @@ def _raw_level(source: str | Path, _seen: tuple[str, ...] = (), root: Path | Non
     key = str(source.resolve()) if isinstance(source, Path) else source
     if key in _seen:
         raise LevelError(f"level '{source}' extends itself through {' -> '.join(_seen + (key,))}")
+    if len(_seen) >= MAX_EXTENDS:  # each file is a frame of this recursion, and up to 64 KiB read
+        raise LevelError(
+            f"level file '{_seen[0]}': its extends: chain is longer than {MAX_EXTENDS} files (the limit; the "
+            f"packaged levels' longest is 9) at '{source}'"
+        )
     data = dict(_read_file(source))
     if "extends" in data:
         parent = _parent(data.pop("extends"), source, root)
@@ -1055,8 +1148,10 @@ def _resolved(path: Path) -> Path:
     """``path`` made absolute, links followed; a loop of links is a LevelError (Path.resolve raises RuntimeError)."""
     try:
         return path.resolve()
-    except (RuntimeError, OSError) as err:
-        raise LevelError(f"level file '{path}' cannot be read: {err}") from None
+    except RuntimeError:  # Python before 3.13: "Symlink loop from '<path>'", which would name the file twice
+        raise LevelError(f"level file '{path}' cannot be read: Symlink loop (its links lead back to it)") from None
+    except OSError as err:
+        raise LevelError(f"level file '{path}' cannot be read: {err.strerror or err}") from None
 
 
 def register_level(path: str | os.PathLike) -> str:

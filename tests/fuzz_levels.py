@@ -6,15 +6,17 @@ NaN and infinities, zero, negative and huge numbers, wrong types, swapped interv
 ``Literal``, removed groups, a fixed start anywhere.
 
 :func:`hostile_file` attacks the file itself rather than its values: nesting, alias chains, YAML tags, encodings
-and sizes.
+and sizes; :func:`audit_case` the families of issue 65's audit, some of them several files (links, FIFOs, chains).
 """
 
 from __future__ import annotations
 
 import functools
 import math
+import os
 import random
 import typing
+from pathlib import Path
 from typing import Any
 
 from pydantic import BaseModel
@@ -314,3 +316,101 @@ def hostile_file(seed: int) -> tuple[str, bytes]:
     body = {"depth": _deep, "aliases": _aliases, "tags": _tags, "sizes": _sizes}[kind](rng)
     base = rng.choice(['extends: "1-1"\n', 'extends: "two-resource-food"\n', ""])
     return kind, (base + body).encode()
+
+
+# ------------------------------------------------------------------------------------------------ round three
+#: pieces of names that would end an XML attribute or element, or lead out of a folder (issue 65, item 1)
+_NAME_PIECES = ('"', "'", "<", ">", "&", "/", "..", " ", "\\n", "\\t", "\\u0000", "é", "</mujoco>", "-", "_", ".")
+_INCLUDE = '"><include file="{fifo}"/></mujoco><mujoco model="'
+#: fields and values that YAML 1.1 reads otherwise than YAML 1.2, and some that read alike (issue 65, item 8)
+_YAML11_FIELDS = ("resources.food.count", "agent.mass", "episode.max_steps", "arena.walls", "episode.single_trial")
+_YAML11_VALUES = (
+    *("010", "-010", "00", "0_10", "1:30", "1:00:00", "-1:30", "1:30.5", "0b101", "0o17", "1_000"),
+    *("yes", "No", "ON", "off", "y", "0x1F", "'010'", "'1:30'", "10", "true", "2.5"),
+)
+#: of those, the forms the two versions read differently: a level file holding one must be refused
+YAML11_ONLY = ("010", "-010", "00", "0_10", "1:30", "1:00:00", "-1:30", "1:30.5", "0b101", "yes", "No", "ON", "off")
+AUDIT_FAMILIES = ("xml name", "yaml 1.1", "merge keys", "symlink loop", "fifo", "extends chain", "huge integer")
+
+
+def _xml_name(rng: random.Random, folder: Path) -> str:
+    fifo = folder / "pipe"
+    os.mkfifo(fifo)  # what an <include> of the old MJCF would have hung on
+    kind = rng.randrange(4)
+    if kind == 0:
+        name = "a" + _INCLUDE.format(fifo=fifo) + "b"
+    elif kind == 1:
+        name = "".join(rng.choice(_NAME_PIECES) for _ in range(rng.randint(1, 8)))
+    elif kind == 2:  # a name that is fine, or one character too long
+        name = "lvl-" + "x" * rng.choice([1, 59, 60, 61]) + rng.choice(["", ".1", "_a"])
+    else:
+        name = rng.choice(["../../x", "/etc/x", ".hidden", "-dash", "a" * 65, "", "a b", "x\\ny"])
+    return f'extends: "1-1"\nname: "{name.replace(chr(34), chr(92) + chr(34))}"\n'
+
+
+def _yaml11(rng: random.Random) -> str:
+    field, value = rng.choice(_YAML11_FIELDS), rng.choice(_YAML11_VALUES)
+    if rng.random() < 0.2:
+        return f'extends: "1-1"\narena: {{size: [{value}, 20]}}\n'  # inside a list
+    return 'extends: "1-1"\n' + _nest(field, value)
+
+
+def _merge_keys(rng: random.Random) -> str:
+    return rng.choice(
+        [
+            "<<: {description: a}\n<<: {description: b}\n",  # two at the top: the last would win
+            'extends: "1-1"\nx: &x {mass: 3}\ny: &y {mass: 4}\nagent: {<<: *x, <<: *y}\n',
+            'extends: "1-1"\nx: &x {mass: 3}\ny: &y {mass: 4}\nagent: {<<: [*x, *y]}\n',  # the way to merge several
+            'extends: "1-1"\nagent: {<<: 3}\n',
+            'extends: "1-1"\nagent: {<<: [1, 2]}\n',
+            'extends: "1-1"\nagent: {<<: *nowhere}\n',
+            'extends: "1-1"\n<<: {extends: "1-2"}\n',
+        ]
+    )
+
+
+def audit_case(seed: int, folder: Path) -> tuple[str, Path]:
+    """A level file of the audit's families (issue 65: XML-breaking names, YAML 1.1 forms, merge keys, symlink loops,
+    FIFOs, long extends chains, huge integers) made in ``folder`` with what it needs beside it, and the family; a
+    pure function of ``seed``.  The file may be a link, a FIFO or the head of a chain of files."""
+    rng = random.Random(seed)
+    family = AUDIT_FAMILIES[seed % len(AUDIT_FAMILIES)]  # every family as often as the others
+    path = folder / "level.yaml"
+    if family == "xml name":
+        path.write_text(_xml_name(rng, folder))
+    elif family == "yaml 1.1":
+        path.write_text(_yaml11(rng))
+    elif family == "merge keys":
+        path.write_text(_merge_keys(rng))
+    elif family == "symlink loop":
+        kind = rng.randrange(4)
+        if kind == 0:
+            path.symlink_to(path)
+        elif kind == 1:
+            (folder / "b.yaml").symlink_to(path)
+            path.symlink_to(folder / "b.yaml")
+        elif kind == 2:  # a fine file that extends a loop
+            (folder / "loop.yaml").symlink_to(folder / "loop.yaml")
+            path.write_text("extends: loop.yaml\n")
+        else:
+            path.symlink_to(folder / "nowhere.yaml")
+    elif family == "fifo":
+        if rng.random() < 0.5:
+            os.mkfifo(path)
+        else:  # a file whose parent is a FIFO
+            os.mkfifo(folder / "parent.yaml")
+            path.write_text("extends: parent.yaml\n")
+    elif family == "extends chain":
+        length = rng.choice([rng.randint(1, 40), 1000])
+        cycle = rng.random() < 0.2
+        for i in range(length):
+            (folder / f"c{i}.yaml").write_text(f"extends: c{i + 1}.yaml\n")
+        (folder / f"c{length}.yaml").write_text("extends: c0.yaml\n" if cycle else 'extends: "1-1"\n')
+        path = folder / "c0.yaml"
+    else:
+        digits = rng.choice([11, 100, 101, 4300, 4301, 20_000, 100_000])
+        number = rng.choice(["", "-", "+"]) + "9" * digits
+        where = rng.choice(["episode.max_steps", "agent.mass", "resources.food.count"])
+        body = _nest(where, number) if rng.random() < 0.7 else f"arena: {{size: [{number}, 20]}}\n"
+        path.write_text('extends: "1-1"\n' + body)
+    return family, path

@@ -94,3 +94,29 @@ def test_the_readme_gives_the_paper_learned_report_s_verdicts_cells_and_cpu_time
     total, done = re.search(r"(\d+) cells besides the report, (\d+) of them done", report).groups()
     hours = float(re.search(r"\| \*\*all\*\* \| \d+ \| \*\*([\d.]+)\*\*", report).group(1))
     assert re.search(rf"\b{done} of {total} cells done, {hours:.1f} CPU-hours", readme), (done, total, hours)
+
+
+def _prose(page: str) -> str:
+    """A docs page's text with its line breaks as spaces, so that a phrase wrapped over two lines is found."""
+    return " ".join((ROOT / "docs" / page).read_text().split())
+
+
+def test_the_level_name_rule_is_where_level_files_are_documented():
+    """docs/levels.md ("A level of your own") states the rule evaaa.spec enforces, word for word, so the page cannot
+    drift from the code (issue 65)."""
+    from evaaa.spec import LEVEL_NAME_RULE
+
+    section = _prose("levels.md").split("## A level of your own", 1)[1].split("## ", 1)[0]
+    assert LEVEL_NAME_RULE in section
+    assert "`name:`" in section and "refused at load" in section
+
+
+def test_the_checkpoint_refusals_are_where_checkpoints_are_documented():
+    """docs/training.md says which crafted checkpoints are refused, with the limit the code uses, and where a refused
+    latest checkpoint leaves a resume (issue 65)."""
+    from baselines.checkpoint import MAX_NESTING
+
+    text = _prose("training.md").split("Checkpoint files hold tensors and plain data only", 1)[1].split("**Ctrl-C**")[0]
+    assert f"nested more than {MAX_NESTING} deep (`MAX_NESTING`)" in text
+    for phrase in ("is malformed:", "NaN or infinite values", "is unusable", "falls back to `checkpoint-previous.pt`"):
+        assert phrase in text, phrase

@@ -7,22 +7,30 @@ version runs more, every modality on.
 
 Hostile files (``hostile_file``: nesting, aliases, tags, encodings, sizes) must end in a one-line LevelError naming the
 file (or, where only the level's values are wrong, the usual list of fields under a first line naming it) or in a
-level that runs, each within a time bound.
+level that runs, each within a time bound.  The families of issue 65's audit (``audit_case``: XML-breaking names,
+YAML 1.1 forms, merge keys, symlink loops, FIFOs, long extends chains, huge integers) go through ``make_env`` and
+``train.py level=file``.
 """
 
 from __future__ import annotations
 
 import collections
+import contextlib
+import signal
+import subprocess
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-from fuzz_levels import draw_case, hostile_file
+from fuzz_levels import AUDIT_FAMILIES, YAML11_ONLY, audit_case, draw_case, hostile_file
 
+import evaaa
 from evaaa.sim import Simulator
 from evaaa.spec import LevelError, load_level
 
+ROOT = Path(__file__).resolve().parents[1]
 STEPS = 50
 NO_VISION = ("interoception", "olfaction", "thermoception", "collision")
 #: fields that change what the camera draws: cases touching them are run with vision
@@ -147,3 +155,100 @@ def test_more_hostile_level_files(tmp_path):
     failures, outcomes = _hostile(range(150, 1650), tmp_path)
     assert not failures, f"{len(failures)} of 1500 cases failed:\n" + "\n".join(failures)
     assert outcomes["file"] >= 600 and outcomes["level"] >= 50, outcomes
+
+
+# ------------------------------------------------------------------------------------------------ round three
+#: a case that builds an env takes well under a second, but the 2-core box is shared: a FIFO's open would never end
+AUDIT_HANG_SECONDS = 30
+
+
+@contextlib.contextmanager
+def _deadline(seconds: float):
+    """TimeoutError in this (the main) thread after ``seconds``: a FIFO opened for reading would block for ever."""
+
+    def expire(signum, frame):
+        raise TimeoutError(f"still running after {seconds} s")
+
+    previous = signal.signal(signal.SIGALRM, expire)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def _check_refusal(case: str, message: str, folder: Path) -> list[str]:
+    """What is wrong with a LevelError's ``message`` for a case made in ``folder``: it must name one of the case's
+    files in its first line, and be one line unless the level's values are what is wrong."""
+    lines, problems = message.splitlines(), []
+    if str(folder) not in lines[0]:
+        problems.append(f"{case}\n  the error names none of the case's files: {message[:300]}")
+    if not message.startswith("invalid level") and len(lines) != 1:
+        problems.append(f"{case}\n  the error spans {len(lines)} lines: {message[:300]}")
+    if len(message) > 2000 or max(map(len, lines)) > 600:
+        problems.append(f"{case}\n  the error is {len(message)} characters long: {message[:300]}")
+    return problems
+
+
+def test_the_audits_families_through_make_env_end_in_a_named_error_or_an_env(tmp_path):
+    """Issue 65's families (XML-breaking names, YAML 1.1 forms, merge keys, symlink loops, FIFOs, long extends chains,
+    huge integers) through ``evaaa.make_env``: a one-line LevelError naming a file of the case, or an env that
+    steps, within the bound; never a hang or another exception."""
+    failures, outcomes = [], collections.Counter()
+    for seed in range(42):  # six of each family
+        folder = tmp_path / f"case{seed}"
+        folder.mkdir()
+        family, path = audit_case(seed, folder)
+        case = f"seed {seed} ({family}: {path.name})"
+        start = time.monotonic()
+        try:
+            with _deadline(AUDIT_HANG_SECONDS):
+                env = evaaa.make_env(str(path), seed=seed, modalities=NO_VISION)
+                try:
+                    env.rollout(3)
+                finally:
+                    env.close()
+            outcomes[family, "env"] += 1
+            text = path.read_text() if path.is_file() and not path.is_symlink() else ""
+            if any(f": {v}\n" in text or f"[{v}," in text for v in YAML11_ONLY) or text.count("<<:") > 1:
+                failures.append(f"{case}\n  read a YAML 1.1 form or a repeated merge key silently: {text!r}")
+        except LevelError as exc:
+            outcomes[family, "refused"] += 1
+            failures += _check_refusal(case, str(exc), folder)
+        except Exception as exc:  # noqa: BLE001 - a raw ValueError, RecursionError, a hang: the loader failed
+            failures.append(f"{case}\n  {type(exc).__name__}: {str(exc)[:300]}")
+        if time.monotonic() - start > AUDIT_HANG_SECONDS:
+            failures.append(f"{case}\n  took {time.monotonic() - start:.1f} s")
+    assert not failures, f"{len(failures)} of 42 cases failed:\n" + "\n".join(failures)
+    for family in AUDIT_FAMILIES:  # each family is refused at least once, or the generator would check little
+        assert outcomes[family, "refused"] >= 1, outcomes
+    assert sum(n for (_, how), n in outcomes.items() if how == "env") >= 3, outcomes  # and some are levels
+
+
+@pytest.mark.parametrize("family", ["yaml 1.1", "extends chain", "huge integer"])
+def test_the_audits_families_through_train_py_end_in_one_line_and_write_nothing(tmp_path, family):
+    """``train.py level=file`` with the first case of ``family`` that evaaa refuses: exit 2, one line naming
+    level.file and the path once, no run folder."""
+    for seed in range(AUDIT_FAMILIES.index(family), 700, len(AUDIT_FAMILIES)):
+        folder = tmp_path / f"case{seed}"
+        folder.mkdir()
+        path = audit_case(seed, folder)[1]
+        try:
+            load_level(path)
+        except LevelError as exc:
+            # what evaaa says after naming the file, which train.py says too
+            expected = str(exc).splitlines()[0].split(f"'{path}'", 1)[-1].lstrip(": ")[:40]
+            break
+    else:
+        pytest.fail(f"no case of {family} is refused")
+    root = tmp_path / "runs"
+    cmd = [sys.executable, str(ROOT / "scripts" / "train.py"), "algo=ppo", "preset=debug", "logger=csv", "level=file"]
+    done = subprocess.run(
+        [*cmd, f"level.file={path}", f"run.root={root}"], cwd=tmp_path, capture_output=True, text=True, timeout=120
+    )
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1, (seed, done.stderr[-3000:])
+    assert lines[0].startswith(f"train.py: error: level.file={path}: ") and lines[0].count(str(path)) == 1, lines[0]
+    assert expected in lines[0], (expected, lines[0])
+    assert not root.exists() and not (tmp_path / "outputs").exists()

@@ -163,7 +163,8 @@ def test_train_script_refuses_a_bad_level_file_in_one_line_and_writes_nothing(tm
     lines = done.stderr.strip().splitlines()
     assert done.returncode == 2 and len(lines) == 1, done.stderr[-3000:]
     assert lines[0].startswith("train.py: error: level") and message in lines[0], lines[0]
-    assert file is None or f"level.file={file}: " in lines[0]
+    # the field named with the path as typed, and the path said once (evaaa's own message names it as resolved)
+    assert file is None or (lines[0].startswith(f"train.py: error: level.file={file}: ") and lines[0].count(file) == 1)
     assert not root.exists() and not (tmp_path / "outputs").exists()  # no run folder, no Hydra output folder
     assert not (tmp_path / "pwned").exists()
 
@@ -396,6 +397,122 @@ def test_clients_trickling_their_bodies_hold_no_request_slot(monkeypatch):
             thread.join(timeout=30)
         assert time.monotonic() - start < 10  # each was cut off at its deadline, not after its 30 s of trickling
         assert len(answers) == 4 and all(b" 408 " in a[:20] for a in answers), answers
+    finally:
+        httpd.shutdown()
+        httpd.server_close()
+
+
+# ------------------------------------------------------------------------------------------------ 5. predator planning
+_AUDIT_PLANNING = """extends: "1-1"
+arena: {size: [1000, 1000]}
+landmarks: {pattern: [[1, 0], [0, 1]]}
+predators:
+  pack: {count: 50, x: [-400, 400], y: [-400, 400], search_interval: 1}
+obstacles:
+  rocks: {kind: rock, count: 1000, x: [-490, 490], y: [-490, 490]}
+"""
+
+
+def test_a_level_whose_predators_would_plan_for_seconds_a_step_is_refused_at_load(tmp_path):
+    """The audit's level (20-38 s a step) is refused before anything is built, in one line naming the fields and
+    the limit; the same arena with one predator searching every 60 decisions (2.2e5 cells a decision) loads."""
+    path = level_file(tmp_path, _AUDIT_PLANNING)
+    started = time.process_time()
+    with pytest.raises(LevelError) as refused:
+        evaaa.make_env(str(path))
+    assert time.process_time() - started < HANG_SECONDS
+    (line,) = str(refused.value).splitlines()[1:]  # "invalid level '...':" then the one rule it breaks
+    assert "predators plan routes over 6e+07 grid cells a decision" in line
+    for named in ("arena.size 1000 x 1000", "search_interval", "count", "pack: count 50, search_interval 1"):
+        assert named in line, named
+    assert line.endswith("at most 1e+06: a smaller arena, fewer predators or a longer search_interval")
+    one = level_file(
+        tmp_path, _AUDIT_PLANNING.replace("count: 50", "count: 1").replace("interval: 1}", "interval: 60}")
+    )
+    assert load_level(one).predators["pack"].count == 1
+
+
+def test_every_packaged_level_and_testbed_plans_within_the_bound():
+    from evaaa.spec import MAX_PLANNING_WORK, REPLAN_EVERY
+
+    for name in evaaa.LEVELS + evaaa.TESTBEDS:
+        level = load_level(name)
+        cells = level.arena.size[0] * level.arena.size[1]
+        work = cells * sum(g.count * (1 / g.search_interval + 1 / REPLAN_EVERY) for g in level.predators.values())
+        assert work <= MAX_PLANNING_WORK / 100, (name, work)  # far inside it: 4-1, the largest, needs 6.4e3
+
+
+# ------------------------------------------------------------------------------------------------ 8. low items
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("resources:\n  food: {count: 010}\n", "count: '010' is octal in YAML 1.1 (8) and 10 in YAML 1.2"),
+        ("agent: {mass: 1:30}\n", "mass: '1:30' is a base-60 number in YAML 1.1 (90) and text in YAML 1.2"),
+        ("episode:\n  max_steps: 1:00:00\n", "max_steps: '1:00:00' is a base-60 number in YAML 1.1 (3600)"),
+        ("arena: {size: [0b1010, 20]}\n", "size[0]: '0b1010' is binary in YAML 1.1 (10)"),
+        ("arena: {walls: off}\n", "walls: 'off' is false in YAML 1.1 and text in YAML 1.2; write true or false"),
+        ("episode: {max_steps: " + "9" * 5000 + "}\n", "max_steps: an integer of 5000 digits"),
+        ("<<: {description: a}\n<<: {description: b}\n", "the merge key << is repeated (the last would silently win)"),
+    ],
+    ids=["octal", "base-60", "base-60 hours", "binary", "yes-no flag", "huge integer", "two merge keys"],
+)
+def test_yaml_1_1_forms_huge_integers_and_repeated_merge_keys_are_refused_naming_the_field(tmp_path, text, message):
+    path = level_file(tmp_path, 'extends: "1-1"\n' + text)
+    with pytest.raises(LevelError) as refused:
+        load_level(path)
+    (line,) = str(refused.value).splitlines()
+    assert line.startswith(f"level file '{path}': ") and message in line and "(line " in line, line
+
+
+def test_yaml_1_2_forms_and_quoted_text_still_read():
+    from evaaa.spec import parse_level_text
+
+    text = b"a: 10\nb: 0x1f\nc: 1_000\nd: '010'\ne: '1:30'\nf: true\ng: 1.5e3\nh: 0\ni: [0, 7]\nj: 'yes'\n"
+    assert parse_level_text(text, "f.yaml") == {
+        **{"a": 10, "b": 31, "c": 1000, "d": "010", "e": "1:30", "f": True, "g": 1500.0, "h": 0, "i": [0, 7]},
+        "j": "yes",
+    }
+
+
+def test_an_extends_chain_of_a_thousand_files_is_refused_in_one_line(tmp_path):
+    for i in range(1000):
+        (tmp_path / f"c{i}.yaml").write_text(f"extends: c{i + 1}.yaml\n")
+    (tmp_path / "c1000.yaml").write_text('extends: "1-1"\n')
+    with pytest.raises(LevelError) as refused:  # was a RecursionError
+        load_level(tmp_path / "c0.yaml")
+    (line,) = str(refused.value).splitlines()
+    assert "its extends: chain is longer than 32 files" in line and line.endswith(f"at '{tmp_path / 'c32.yaml'}'")
+    assert load_level(tmp_path / "c975.yaml").name == "c975"  # 26 files and 1-1's chain: within the limit
+
+
+def test_a_fifo_in_the_level_dir_is_refused_naming_it(tmp_path):
+    level_file(tmp_path, 'extends: "1-1"\n', "r3-fine.yaml")
+    os.mkfifo(tmp_path / "r3-pipe.yaml")  # was skipped without a word
+    started = time.monotonic()
+    with pytest.raises(LevelError, match=rf"level file '{tmp_path / 'r3-pipe.yaml'}' cannot be read: not a regular"):
+        play.register_level_dir(tmp_path)
+    assert time.monotonic() - started < HANG_SECONDS
+
+
+def test_a_request_with_two_host_headers_is_refused():
+    httpd = play.PlayServer("127.0.0.1", 0, b"<html></html>")
+    httpd.session = _QuickSession()
+    threading.Thread(target=httpd.serve_forever, daemon=True).start()
+    address = httpd.server_address[:2]
+    own = f"127.0.0.1:{address[1]}"
+    try:
+        for hosts, status in (([own], 200), ([own, "evil.example"], 400), (["evil.example", own], 400)):
+            with socket.create_connection(address) as sock:
+                sock.settimeout(10)
+                head = "".join(f"Host: {h}\r\n" for h in hosts)
+                sock.sendall(f"GET /api/state HTTP/1.1\r\n{head}Connection: close\r\n\r\n".encode())
+                answer = b""
+                while chunk := sock.recv(4096):  # to the end: the server closes the connection
+                    answer += chunk
+                answer = answer.decode()
+            assert answer.startswith(f"HTTP/1.0 {status} ") or answer.startswith(f"HTTP/1.1 {status} "), answer
+            if status == 400:
+                assert "refused: 2 Host headers; a request names its server once" in answer
     finally:
         httpd.shutdown()
         httpd.server_close()
