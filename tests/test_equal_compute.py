@@ -156,11 +156,11 @@ def test_equal_compute_section_tells_who_learned_and_when(tmp_path):
     which = text[text.index("**Which agents learned.**") :].split("\n\n- **(a)")[0]
     lstm = hand_iqm([300 + seed + 3 * i for seed in (0, 1, 2) for i in range(6)])
     assert (
-        f"ppo_lstm (10 CPU-min): {lstm:,.0f} decisions on 1-1, {lstm / STILL:.2f}× stand-still — did not learn at "
-        "this budget (under 2×)"
+        f"ppo_lstm (10 CPU-min): {lstm:,.0f} [306, 312] decisions on 1-1, {lstm / STILL:.2f}× stand-still — did not "
+        f"learn at this budget (interval not above 2× = {2 * STILL:,.0f})"
     ) in which
     # PPO judged at each budget it is compared at: its compute-matched runs and its direct runs of a step budget
-    assert "- ppo (10 CPU-min): 2,508 decisions" in which and "- ppo (100 env steps): 1,501 decisions" in which
+    assert "- ppo (10 CPU-min): 2,508 [" in which and "- ppo (100 env steps): 1,501 [" in which
 
 
 def test_claim_c_at_equal_compute(tmp_path):
@@ -169,8 +169,9 @@ def test_claim_c_at_equal_compute(tmp_path):
     assert part(c, "dreamer_xs survives longest").verdict == rules.REPRODUCED
     assert part(c, "dqn > ppo").verdict == rules.REPRODUCED
     assert part(c, "dqn learns 1-1 fastest").verdict == rules.REPRODUCED
-    # PPO+LSTM did not learn: not in the other comparisons, and its failing is judged against random
-    assert "ppo_lstm" not in " ".join(part(c, "dreamer_xs survives longest").evidence)
+    # PPO+LSTM did not learn, yet the gate decides nothing: it is compared like every agent, and it fails by the
+    # one definition of failing (its interval not above the bar)
+    assert "ppo_lstm" in " ".join(part(c, "dreamer_xs survives longest").evidence)
     assert part(c, "ppo_lstm fails").verdict == rules.REPRODUCED
     assert c.verdict == rules.REPRODUCED
 
@@ -179,9 +180,11 @@ def test_claim_c_at_equal_compute(tmp_path):
     ("change", "which", "verdict"),
     [
         ({"ppo": (2500, 0, 5)}, "dqn learns 1-1 fastest", rules.CONTRADICTED),  # PPO got there first
-        ({"dqn": (1500, 1, 4)}, "dqn learns 1-1 fastest", rules.NOT_LEARNED),  # DQN under 2x stand-still
-        ({"dqn": (1500, 1, 4)}, "dqn > ppo", rules.NOT_LEARNED),
-        ({"dreamer_xs": (2000, 2, 3)}, "dreamer_xs survives longest", rules.NOT_LEARNED),
+        # DQN's final network under 2x stand-still: its validation curves still reached the bar first (speed is
+        # decided by them), and it survives shorter than PPO; the gate decides neither
+        ({"dqn": (1500, 1, 4)}, "dqn learns 1-1 fastest", rules.REPRODUCED),
+        ({"dqn": (1500, 1, 4)}, "dqn > ppo", rules.CONTRADICTED),
+        ({"dreamer_xs": (2000, 2, 3)}, "dreamer_xs survives longest", rules.CONTRADICTED),  # below DQN's 3000
         ({"dreamer_xs": (2600, 2, 3)}, "dreamer_xs survives longest", rules.CONTRADICTED),  # below DQN's 3000
         ({"ppo_lstm": (2900, 1, 4)}, "ppo_lstm fails", rules.CONTRADICTED),
     ],
@@ -198,22 +201,21 @@ def test_without_the_gate_every_agent_is_compared(tmp_path):
     assert "ppo_lstm" in " ".join(longest.evidence) and longest.verdict == rules.REPRODUCED
 
 
-def test_an_agent_is_judged_at_the_budget_it_is_compared_at(tmp_path):
-    # PPO's direct runs of a step budget survive 1,500 (1.35x stand-still): under a bar of 2 they did not learn and
-    # take part in no claim, while its compute-matched runs (2,500: 2.25x) take part in (c); under a bar of 1.2 both
+def test_the_gate_judges_an_agent_at_its_budget_and_hides_no_part(tmp_path):
+    # PPO's direct runs of a step budget survive 1,500 (1.35x stand-still): under a bar of 2 they did not learn,
+    # its compute-matched runs (2,500: 2.25x) did; the gate says so of each budget apart, and decides no part:
+    # (a)'s parts on PPO's direct runs are there under a bar of 2 as under 1.2
     runs, evals = record(tmp_path)
     inp = read_inputs(runs, evals, compare="sample", learned=2)
     direct = next(r for r in inp.usable if r.algo == "ppo" and r.cpu_budget is None)
     matched = next(r for r in inp.usable if r.algo == "ppo" and r.cpu_budget is not None)
     assert not inp.enters(direct) and inp.enters(matched)
-    (a,) = [v for v in claim_verdicts(inp) if v.claim.startswith("(a)")]
-    assert not any(p.claim.startswith("ppo") for p in a.parts)
-    assert part(claim_c(runs, evals), "dqn > ppo").verdict == rules.REPRODUCED
     lower = read_inputs(runs, evals, compare="sample", learned=1.2)
     assert lower.enters(direct) and lower.enters(matched)
-    (a,) = [v for v in claim_verdicts(lower) if v.claim.startswith("(a)")]
-    assert any(p.claim.startswith("ppo") for p in a.parts)
-    assert read_inputs(runs, evals, compare="sample").enters(direct)  # no gate: every agent
+    for gated in (inp, lower):
+        (a,) = [v for v in claim_verdicts(gated) if v.claim.startswith("(a)")]
+        assert any(p.claim.startswith("ppo") for p in a.parts)
+    assert part(claim_c(runs, evals), "dqn > ppo").verdict == rules.REPRODUCED
 
 
 def test_the_gate_factor_is_checked(tmp_path):
