@@ -683,25 +683,29 @@ def main(argv: list[str] | None = None) -> int:
         f"{args.threads or 'default'}, {platform.machine()}, {os.cpu_count()} cores",
         flush=True,
     )
-    rows = []
+    rows, failed = [], {}
     with tempfile.TemporaryDirectory(prefix="evaaa-bench-train-") as scratch:
         root = Path(args.keep) if args.keep else Path(scratch)
         root.mkdir(parents=True, exist_ok=True)
         for algo in algos:
             print(f"  {algo} ...", flush=True)
-            rows.append(
-                run_one(
-                    algo,
-                    args.level,
-                    args.minutes,
-                    args.threads,
-                    root.resolve(),
-                    args.overrides,
-                    str(device),
-                    args.skip,
-                    args.progress,
+            try:
+                rows.append(
+                    run_one(
+                        algo,
+                        args.level,
+                        args.minutes,
+                        args.threads,
+                        root.resolve(),
+                        args.overrides,
+                        str(device),
+                        args.skip,
+                        args.progress,
+                    )
                 )
-            )
+            except SystemExit as err:  # one algorithm not measured: the others' figures still count
+                failed[algo] = str(err.code)
+                print(f"  {algo}: not measured: {err.code}", flush=True)
     print(table(rows))
     print(split_table(rows))
     if args.json:
@@ -716,9 +720,10 @@ def main(argv: list[str] | None = None) -> int:
                 "overrides": args.overrides,
                 "cores": os.cpu_count(),
                 "rows": [asdict(r) for r in rows],
+                "not_measured": failed,
             },
         )
-    return 0
+    return 1 if failed else 0
 
 
 def torch_device_name(device) -> str:
