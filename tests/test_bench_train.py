@@ -4,6 +4,7 @@ step and device from its log, and one real (tiny) run end to end."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -234,3 +235,21 @@ def test_learn_mode_trains_evaluates_and_reports_the_cpu_minutes_to_learn(tmp_pa
     before = (tmp_path / "runs" / "debug" / "ppo" / "seed0" / "eval.csv").read_text()
     assert load_bench().main(args) == 0
     assert (tmp_path / "runs" / "debug" / "ppo" / "seed0" / "eval.csv").read_text() == before
+
+
+def test_an_algorithm_that_cannot_be_measured_leaves_the_others_figures(tmp_path, monkeypatch, capsys):
+    bench = load_bench()
+    measured = bench.Throughput("ppo", 100, 10.0, 10.0, 10.0, None, None, device="cpu")
+
+    def run_one(algo, *args, **kwargs):
+        if algo == "dreamer_xs":
+            raise SystemExit("bench_train.py: dreamer_xs: fewer than two log rows")
+        return replace(measured, algo=algo)
+
+    monkeypatch.setattr(bench, "run_one", run_one)
+    out = tmp_path / "bench.json"
+    assert bench.main(["algos=[ppo,dreamer_xs,dqn]", "device=cpu", f"json={out}"]) == 1
+    written = json.loads(out.read_text())
+    assert [r["algo"] for r in written["rows"]] == ["ppo", "dqn"]
+    assert written["not_measured"] == {"dreamer_xs": "bench_train.py: dreamer_xs: fewer than two log rows"}
+    assert "dreamer_xs: not measured" in capsys.readouterr().out
