@@ -385,6 +385,8 @@ class Learning:
     final_learned: bool | None
     train_cpu_minutes: float
     env_steps: int
+    acting: str = "sample"  # the acting mode of the evaluations read (a greedy DQN's: mode)
+    eval_cpu_left_out: bool = True  # False: a run older than the eval/cpu_seconds log, its evaluations counted
 
 
 def standstill_survival(run_dir: Path) -> float:
@@ -419,11 +421,14 @@ def learning(run_dir: Path, algo: str, preset: str, seed: int, bar: float) -> Le
     """The learning speed of a run from its ``eval.csv`` (mean survival and the stage's CPU seconds per evaluation)
     and the CPU seconds each evaluation took (``eval/cpu_seconds`` in its log), which are left out."""
     evals = pd.read_csv(run_dir / "eval.csv")
-    evals = evals[evals["acting"] == "sample"]
+    acting = "sample" if (evals["acting"] == "sample").any() else "mode"  # DQN evaluates greedily only
+    evals = evals[(evals["acting"] == acting) & (evals["stage"] == evals["stage"].min())]
     if evals.empty:
-        raise SystemExit(f"bench_train.py: {run_dir}/eval.csv holds no evaluation with sampled actions")
+        raise SystemExit(f"bench_train.py: {run_dir}/eval.csv holds no evaluation")
     per = evals.groupby("env_steps").agg(survival=("steps", "mean"), cpu_seconds=("cpu_seconds", "max")).reset_index()
-    spent = {int(step): float(v) for step, v in read_scalar(run_dir, "eval/cpu_seconds")}
+    # the evaluations' own CPU seconds, logged since issue 61 (an older run's are counted as training)
+    logged = read_scalar(run_dir, "eval/cpu_seconds") if has_scalar(run_dir, "eval/cpu_seconds") else []
+    spent = {int(step): float(v) for step, v in logged}
     per["eval_cpu"] = per["env_steps"].map(lambda step: spent.get(int(step), 0.0)).cumsum()
     per["train_cpu_minutes"] = (per["cpu_seconds"] - per["eval_cpu"]) / 60
     above = per["survival"] >= bar
@@ -450,6 +455,8 @@ def learning(run_dir: Path, algo: str, preset: str, seed: int, bar: float) -> Le
         final_learned=bool(last["survival"] >= bar),
         train_cpu_minutes=float(last["train_cpu_minutes"]),
         env_steps=int(last["env_steps"]),
+        acting=acting,
+        eval_cpu_left_out=bool(logged),
     )
 
 
@@ -531,19 +538,42 @@ def learning_summary(runs: list[Learning]) -> list[dict]:
 
 
 def learning_table(summary: list[dict], budget: float) -> str:
-    lines = [f"{'preset':<16}{'algo':<12}{'learned':>9}{'stayed':>8}{'final':>7}{'median CPU-min':>16}  per seed"]
+    lines = [f"{'preset':<24}{'algo':<12}{'learned':>9}{'stayed':>8}{'final':>7}{'median CPU-min':>16}  per seed"]
     for row in summary:
         median = row["median_cpu_minutes_to_learn"]
         seeds = ", ".join("–" if m is None else f"{m:.1f}" for m in row["cpu_minutes_to_learn"])
         lines.append(
-            f"{row['preset']:<16}{row['algo']:<12}{row['learned']:>5}/{row['seeds']:<3}{row['stayed']:>8}"
+            f"{row['preset']:<24}{row['algo']:<12}{row['learned']:>5}/{row['seeds']:<3}{row['stayed']:>8}"
             f"{row['final_learned']:>7}{(f'{median:.1f}' if median is not None else f'> {budget:g}'):>16}  {seeds}"
         )
     return "\n".join(lines)
 
 
+def finished_learning(dirs: list[str], bar: float) -> list[Learning]:
+    """``learn=true runs=[...]``: the learning speed of runs already made (a protocol's record, say), each labelled
+    by its folder (``<label>/seed<s>``) and measured against ``bar`` x stand-still on its own validation worlds."""
+    runs = []
+    for d in map(Path, dirs):
+        cfg = OmegaConf.load(d / ".hydra" / "config.yaml")
+        label = "/".join(d.parts[-3:-1]) if d.name.startswith("seed") else d.name
+        runs.append(learning(d, str(cfg.algo.name), label, int(cfg.seed), bar * standstill_survival(d)))
+    return runs
+
+
 def main_learn(args: BenchConfig) -> int:
     """``learn=true``: CPU-minutes to learn, per preset, algorithm and seed (module docstring)."""
+    if args.runs:
+        runs = finished_learning(args.runs, args.bar)
+        print(f"evaaa bench_train learn: {len(runs)} existing runs; {processor()}")
+        summary = learning_summary(runs)
+        print(learning_table(summary, max(r.train_cpu_minutes for r in runs)))
+        if args.json:
+            write_json(
+                args.json,
+                {"runs_read": args.runs, "bar_times_standstill": args.bar, "summary": summary}
+                | {"runs": [asdict(r) for r in runs]},
+            )
+        return 0
     jobs = [(algo, preset, seed) for preset in args.presets for algo in args.algos for seed in args.seeds]
     root = Path(args.keep or "runs/bench-learn").resolve()
     print(
@@ -614,7 +644,9 @@ class BenchConfig:
     keep: str | None = option(None, "keep the run directories under this folder (null: a temporary one)")
     json: str | None = option(None, "also write the figures to this file")
     runs: list[str] | None = option(
-        None, "report these finished run directories (glob patterns allowed) instead of training"
+        None,
+        "report these finished run directories (glob patterns allowed) instead of training (learn=true: how fast "
+        "they learned)",
     )
     device: str = option(
         "auto",
@@ -649,17 +681,19 @@ def main(argv: list[str] | None = None) -> int:
         examples=["algos=[ppo,dqn] minutes=2 threads=1", '"runs=[runs/acceptance/*/seed0]"'],
     )
     algos = args.algos
+    if args.runs is not None:  # patterns are expanded here, so that they may be quoted on the command line
+        args.runs = [d for pattern in args.runs for d in (sorted(glob.glob(pattern)) or [pattern])]
+    for d in args.runs or ():
+        if not (Path(d) / ".hydra" / "config.yaml").is_file():
+            cli.fail("bench_train.py", f"runs: {d} is not a run directory of scripts/train.py (no .hydra/config.yaml)")
+        if args.learn and not (Path(d) / "eval.csv").is_file():
+            cli.fail("bench_train.py", f"runs: {d} has no eval.csv (learn=true reads its validation evaluations)")
     if args.learn:
         if args.level == "curriculum":
             cli.fail("bench_train.py", "level=curriculum: learn=true measures one level (name a level or testbed)")
         return main_learn(args)
     if not algos and args.runs is None:
         cli.fail("bench_train.py", f"algos=[]: name at least one of {', '.join(algo_names())}")
-    if args.runs is not None:  # patterns are expanded here, so that they may be quoted on the command line
-        args.runs = [d for pattern in args.runs for d in (sorted(glob.glob(pattern)) or [pattern])]
-    for d in args.runs or ():
-        if not (Path(d) / ".hydra" / "config.yaml").is_file():
-            cli.fail("bench_train.py", f"runs: {d} is not a run directory of scripts/train.py (no .hydra/config.yaml)")
     if args.runs:
         rows = [read_throughput(Path(d), run_algo(Path(d)), args.skip) for d in args.runs]
         print(f"evaaa bench_train: {len(rows)} existing runs")

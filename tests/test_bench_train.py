@@ -195,6 +195,35 @@ def test_cpu_minutes_to_learn_leave_the_evaluations_out(tmp_path):
     assert got.train_cpu_minutes == pytest.approx((660 - 120) / 60)
 
 
+def test_finished_runs_are_read_with_their_own_acting_mode_and_folder(tmp_path, monkeypatch, capsys):
+    # a protocol's record: a PPO run evaluated sampled, a greedy DQN run (mode), neither logging its evaluations'
+    # CPU (runs older than issue 61), so their CPU counts whole
+    bench = load_bench()
+    ppo, dqn = tmp_path / "ppo" / "matched-1-1" / "seed1", tmp_path / "dqn" / "matched-1-1" / "seed0"
+    write_evaluations(ppo, [(10_000, 120.0, [1000, 1200], 0.0), (20_000, 300.0, [2500, 2600], 0.0)])
+    (ppo / "logs" / "scalars" / "eval" / "cpu_seconds.csv").unlink()
+    write_evaluations(dqn, [(10_000, 60.0, [3000, 3000], 0.0)])
+    (dqn / "logs" / "scalars" / "eval" / "cpu_seconds.csv").unlink()
+    (dqn / "eval.csv").write_text((dqn / "eval.csv").read_text().replace(",sample,", ",mode,"))
+    for run, algo, seed in ((ppo, "ppo", 1), (dqn, "dqn", 0)):
+        (run / ".hydra").mkdir()
+        (run / ".hydra" / "config.yaml").write_text(f"algo:\n  name: {algo}\nseed: {seed}\n")
+    monkeypatch.setattr(bench, "standstill_survival", lambda run_dir: 1112.0)
+    out = tmp_path / "learn.json"
+    assert bench.main(["learn=true", f"runs=[{tmp_path}/*/matched-1-1/seed*]", f"json={out}"]) == 0
+    got = {r["algo"]: r for r in json.loads(out.read_text())["runs"]}
+    assert got["ppo"]["preset"] == "ppo/matched-1-1" and got["ppo"]["seed"] == 1
+    assert got["ppo"]["cpu_minutes_to_learn"] == pytest.approx(5.0) and got["ppo"]["acting"] == "sample"
+    assert got["ppo"]["eval_cpu_left_out"] is False and got["ppo"]["bar"] == pytest.approx(2224.0)
+    assert got["dqn"]["acting"] == "mode" and got["dqn"]["cpu_minutes_to_learn"] == pytest.approx(1.0)
+    assert "ppo/matched-1-1" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as refused:  # a run directory without evaluations
+        (tmp_path / "bare" / ".hydra").mkdir(parents=True)
+        (tmp_path / "bare" / ".hydra" / "config.yaml").write_text("algo:\n  name: ppo\n")
+        bench.main(["learn=true", f"runs=[{tmp_path / 'bare'}]"])
+    assert refused.value.code == 2 and "has no eval.csv" in capsys.readouterr().err
+
+
 def test_the_median_counts_a_seed_that_never_learned_as_slower_than_any(tmp_path):
     bench = load_bench()
     runs = []
