@@ -582,7 +582,7 @@ def main_learn(args: BenchConfig) -> int:
         f"{processor()}",
         flush=True,
     )
-    cores = list(range(os.cpu_count() or 1))
+    cores = args.cores or list(range(os.cpu_count() or 1))
     with concurrent.futures.ThreadPoolExecutor(args.jobs) as pool:
         slots = queue.Queue()
         for i in range(args.jobs):
@@ -669,6 +669,11 @@ class BenchConfig:
     bar: float = option(2.0, "learn=true: learned = mean survival at least this many times stand-still's")
     jobs: int = option(
         1, "learn=true: runs at a time, each on a core of its own", check=(lambda v: v >= 1, "at least 1")
+    )
+    cores: list[int] | None = option(
+        None,
+        "learn=true: the cores the runs are pinned to, one run each (null: 0, 1, ...), e.g. [1] beside other work",
+        check=(lambda c: 0 <= c < (os.cpu_count() or 1), f"a core number below {os.cpu_count()}"),
     )
 
 

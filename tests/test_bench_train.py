@@ -282,3 +282,20 @@ def test_an_algorithm_that_cannot_be_measured_leaves_the_others_figures(tmp_path
     assert [r["algo"] for r in written["rows"]] == ["ppo", "dqn"]
     assert written["not_measured"] == {"dreamer_xs": "bench_train.py: dreamer_xs: fewer than two log rows"}
     assert "dreamer_xs: not measured" in capsys.readouterr().out
+
+
+def test_learning_runs_are_pinned_to_the_cores_named(tmp_path, monkeypatch, capsys):
+    bench = load_bench()
+    pinned = []
+
+    def run_learning(job, args, root, core):
+        pinned.append((job[2], core))
+        raise SystemExit("stop here")  # the pinning is what is checked, not the training
+
+    monkeypatch.setattr(bench, "run_learning", run_learning)
+    with pytest.raises(SystemExit, match="stop here"):
+        bench.main(["learn=true", "seeds=[3]", "cores=[1]", f"keep={tmp_path}"])
+    assert pinned == [(3, 1)]
+    with pytest.raises(SystemExit) as refused:
+        bench.main(["learn=true", "cores=[4096]"])
+    assert refused.value.code == 2 and "cores=[4096]: expected a core number below" in capsys.readouterr().err
