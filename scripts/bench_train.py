@@ -570,7 +570,8 @@ def main_learn(args: BenchConfig) -> int:
         if args.json:
             write_json(
                 args.json,
-                {"runs_read": args.runs, "bar_times_standstill": args.bar, "summary": summary}
+                {"processor": processor(), "runs_read": args.runs, "bar_times_standstill": args.bar}
+                | {"summary": summary}
                 | {"runs": [asdict(r) for r in runs]},
             )
         return 0

@@ -212,6 +212,7 @@ def test_finished_runs_are_read_with_their_own_acting_mode_and_folder(tmp_path, 
     out = tmp_path / "learn.json"
     assert bench.main(["learn=true", f"runs=[{tmp_path}/*/matched-1-1/seed*]", f"json={out}"]) == 0
     got = {r["algo"]: r for r in json.loads(out.read_text())["runs"]}
+    assert json.loads(out.read_text())["processor"]
     assert got["ppo"]["preset"] == "ppo/matched-1-1" and got["ppo"]["seed"] == 1
     assert got["ppo"]["cpu_minutes_to_learn"] == pytest.approx(5.0) and got["ppo"]["acting"] == "sample"
     assert got["ppo"]["eval_cpu_left_out"] is False and got["ppo"]["bar"] == pytest.approx(2224.0)
