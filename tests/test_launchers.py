@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -15,6 +16,7 @@ from pathlib import Path
 
 import pytest
 from helpers import ray_head
+from omegaconf import OmegaConf
 
 from evaaa_baselines import checkpoint
 
@@ -219,3 +221,40 @@ def test_a_slurm_time_limit_checkpoints_the_run_and_requeues_it_to_continue(tmp_
     assert (run_dir / "model-0-1-1.pt").exists()
     steps = checkpoint.load_checkpoint(run_dir / checkpoint.CHECKPOINT)["counters"]["steps"]
     assert steps >= 1024
+
+
+@pytest.mark.slow
+def test_ray_cluster_puts_runs_of_a_relative_run_root_under_the_driver_s_directory(tmp_path, ray_cluster):
+    """run.root relative (the default, runs): the driver writes multirun.yaml under its own directory, and every run
+    lands under that same root, not under the Ray worker's directory."""
+    driver = tmp_path / "driver"
+    driver.mkdir()
+    root = Path(__file__).parents[1]
+    relative = f"runs-{tmp_path.name}"  # were it taken from a worker's directory, a folder no other test makes
+    cmd = [
+        sys.executable,
+        str(root / "scripts" / "train.py"),
+        "-m",
+        "hydra/launcher=ray_cluster",
+        f"hydra.launcher.address={ray_cluster}",
+        "hydra.launcher.num_cpus=1",
+        "algo=ppo",
+        "preset=debug",
+        "logger=csv",
+        "progress=false",
+        "threads=1",
+        "total_steps=64",
+        "seed=0",
+        f"run.root={relative}",
+    ]
+    env = {**os.environ, "HYDRA_FULL_ERROR": "1"}
+    done = subprocess.run(cmd, cwd=driver, capture_output=True, text=True, timeout=400, env=env)
+    strays = [p for p in (root / relative, Path.cwd() / relative) if p.exists() and not p.is_relative_to(tmp_path)]
+    for stray in strays:  # the runs of the code before the fix: under the worker's directory
+        shutil.rmtree(stray)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert not strays, strays
+    assert (driver / relative / "multirun.yaml").exists()
+    run_dir = driver / relative / "1-1" / "ppo" / "all-squared-debug" / "seed0"
+    assert (run_dir / "model-0-1-1.pt").exists()
+    assert OmegaConf.load(run_dir / ".hydra" / "config.yaml").run.root == str(driver / relative)
