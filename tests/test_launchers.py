@@ -249,7 +249,7 @@ def test_ray_cluster_puts_runs_of_a_relative_run_root_under_the_driver_s_directo
     ]
     env = {**os.environ, "HYDRA_FULL_ERROR": "1"}
     done = subprocess.run(cmd, cwd=driver, capture_output=True, text=True, timeout=400, env=env)
-    strays = [p for p in (root / relative, Path.cwd() / relative) if p.exists() and not p.is_relative_to(tmp_path)]
+    strays = [p for p in {root / relative, Path.cwd() / relative} if p.exists() and not p.is_relative_to(tmp_path)]
     for stray in strays:  # the runs of the code before the fix: under the worker's directory
         shutil.rmtree(stray)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
