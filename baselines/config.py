@@ -38,15 +38,18 @@ def register_levels() -> None:
 
 
 def register_launchers() -> None:
-    """Make ``hydra/launcher=ray_cluster`` (evaaa's launcher plugin, hydra_plugins/evaaa_ray_launcher) known to
-    Hydra. Hydra finds launchers by walking the ``hydra_plugins`` namespace's folders, which misses the plugin of an
-    editable install (its folder is reached through setuptools' import hook, not a path); registering it is Hydra's
-    way for that (``Plugins.register``) and harmless where the walk found it."""
+    """Make evaaa's launcher plugins (hydra_plugins/evaaa_ray_launcher: ``hydra/launcher=ray_cluster``'s, and the
+    submitit launchers of ``slurm`` and ``slurm_local`` whose requeued jobs resume) known to Hydra. Hydra finds
+    launchers by walking the ``hydra_plugins`` namespace's folders, which misses the plugins of an editable install
+    (their folder is reached through setuptools' import hook, not a path); registering them is Hydra's way for that
+    (``Plugins.register``) and harmless where the walk found them."""
     from hydra.core.plugins import Plugins
 
     from hydra_plugins.evaaa_ray_launcher.ray_launcher import RayLauncher
+    from hydra_plugins.evaaa_ray_launcher.submitit_launchers import LocalLauncher, SlurmLauncher
 
-    Plugins.instance().register(RayLauncher)
+    for launcher in (RayLauncher, SlurmLauncher, LocalLauncher):
+        Plugins.instance().register(launcher)
 
 
 #: a step budget this large stands for none: the run is bounded by its time budget (``max_cpu_minutes``), as the

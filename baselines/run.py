@@ -88,7 +88,10 @@ EVAL_COLUMNS_BEFORE_CPU = EVAL_COLUMNS[:-1]
 
 
 class Interrupted(KeyboardInterrupt):
-    """Training stopped on request; the message says what a resume continues from."""
+    """Training stopped on request; the message says what a resume continues from, ``signals`` which signals asked
+    (SIGINT, SIGTERM, SIGUSR2: ``baselines.training.STOP_SIGNALS``)."""
+
+    signals: tuple[int, ...] = ()
 
 
 def parameter_count(model: nn.Module) -> int:

@@ -16,7 +16,8 @@ leaves every file of the existing run as it was:
 
 Ctrl-C: the first one lets the gradient step (DreamerV3) or iteration (the others) under way finish, writes a
 checkpoint and stops (:class:`~baselines.run.Interrupted`, one line); a second one stops within seconds, even
-inside a minute-long gradient step (:class:`StopRequest`).
+inside a minute-long gradient step (:class:`StopRequest`).  SIGTERM and SIGUSR2 (:data:`STOP_SIGNALS`: ``kill``,
+``scancel``, a SLURM time limit or pre-emption through submitit) stop the run as the first Ctrl-C does.
 """
 
 from __future__ import annotations
@@ -252,10 +253,18 @@ def _write_records(run_dir: Path, records: Mapping[str, Any] | None, resumed: bo
         path.write_text(text)
 
 
+#: the signals that ask a training to stop at its next safe point with a checkpoint: Ctrl-C (SIGINT), SIGTERM (``kill``,
+#: ``scancel``, a node shutting down) and SIGUSR2 (what submitit has SLURM send ahead of a job's time limit, and on
+#: pre-emption; ``scripts/train.py`` then lets submitit requeue the job)
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGUSR2)
+
+
 class StopRequest:
     """Ctrl-C while a run trains.  The first SIGINT asks the loop to stop at its next safe point (after the gradient
     step under way for DreamerV3, after the iteration for the others), where it writes a checkpoint; a second one
-    stops at once.
+    stops at once.  SIGTERM and SIGUSR2 ask what the first Ctrl-C asks, however many arrive (a scheduler's signals
+    never turn the checkpointed stop into one without a checkpoint; its SIGKILL ends what does not stop in time);
+    :attr:`signals` keeps which arrived, in order.
 
     Python runs a signal handler only between bytecodes, and signals that arrive while the main thread is inside
     one long call (a DreamerV3-S backward pass on a CPU: a minute) reach the handler as ONE call.  So the signals
@@ -275,22 +284,29 @@ class StopRequest:
         #: what the first Ctrl-C waits for, in words (the stage under way sets it: :meth:`Run.stop_wait`)
         self.wait: Callable[[], str] = lambda: "the iteration under way"
         self._handled = 0  # SIGINTs the Python handler has seen (two coalesced signals count once here)
+        #: the stop signals that arrived (each once, in order of arrival)
+        self.signals: list[int] = []
 
     def is_set(self) -> bool:
         return self.event.is_set()
 
-    def request(self) -> None:
+    def request(self, signum: int = signal.SIGINT) -> None:
+        if signum not in self.signals:
+            self.signals.append(signum)
         if not self.event.is_set():
             self.event.set()
+            what = "Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name
+            again = "Ctrl-C again" if signum == signal.SIGINT else "Ctrl-C twice"
             log.warning(
-                "Ctrl-C: stopping after %s, then writing a checkpoint (Ctrl-C again to stop at once)", self.wait()
+                "%s: stopping after %s, then writing a checkpoint (%s to stop at once)", what, self.wait(), again
             )
 
     def handler(self, signum, frame) -> None:
-        self._handled += 1
-        if self._handled >= 2:
-            raise KeyboardInterrupt
-        self.request()
+        if signum == signal.SIGINT:
+            self._handled += 1
+            if self._handled >= 2:
+                raise KeyboardInterrupt
+        self.request(signum)
 
     def watch(self, fd: int) -> None:
         """The watcher thread: one byte per signal on ``fd``; 0 ends it."""
@@ -302,10 +318,11 @@ class StopRequest:
                 continue
             if not data or 0 in data:
                 return
+            for signum in data:
+                if signum in STOP_SIGNALS:
+                    self.request(signum)
             signals += data.count(signal.SIGINT)
-            if signals == 1:
-                self.request()
-            elif signals >= 2:
+            if signals >= 2:
                 if self.finished.wait(self.GRACE):
                     return
                 print(f"{Path(sys.argv[0]).name}: {stopped_at_once(self.run_dir)}", file=sys.stderr, flush=True)
@@ -325,13 +342,13 @@ def stopped_at_once(run_dir: Path) -> str:
 
 @contextmanager
 def _graceful_interrupts(run_dir: Path) -> Iterator[StopRequest]:
-    """Ctrl-C as :class:`StopRequest` says while the block runs.  Outside the main thread, Ctrl-C keeps its usual
-    meaning."""
+    """Ctrl-C, SIGTERM and SIGUSR2 as :class:`StopRequest` says while the block runs; the handlers before it are put
+    back after it.  Outside the main thread, the signals keep their usual meaning."""
     stop = StopRequest(run_dir)
     if threading.current_thread() is not threading.main_thread():
         yield stop
         return
-    previous = signal.signal(signal.SIGINT, stop.handler)
+    previous = {signum: signal.signal(signum, stop.handler) for signum in STOP_SIGNALS}
     read_fd, write_fd = os.pipe()
     os.set_blocking(write_fd, False)
     try:
@@ -354,7 +371,8 @@ def _graceful_interrupts(run_dir: Path) -> Iterator[StopRequest]:
             watcher.join()
         os.close(read_fd)
         os.close(write_fd)
-        signal.signal(signal.SIGINT, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
 
 
 def train(cfg: DictConfig, run_dir: str | Path, *, records: Mapping[str, Any] | None = None) -> Path:
@@ -366,17 +384,18 @@ def train(cfg: DictConfig, run_dir: str | Path, *, records: Mapping[str, Any] | 
     With ``resume=true`` a run with a checkpoint continues exactly where that checkpoint was taken.
 
     Raises :class:`RunRefused` (or ``CheckpointError``) before writing anything when the command would change an
-    existing run (see the module docstring), and :class:`~baselines.run.Interrupted` on Ctrl-C.
+    existing run (see the module docstring), and :class:`~baselines.run.Interrupted` on Ctrl-C, SIGTERM or SIGUSR2
+    (its ``signals``: the ones that arrived).
     """
     run_dir = Path(run_dir)
     # from the start: a Ctrl-C while the checks run or an old run is moved aside waits for a consistent state too
     with _graceful_interrupts(run_dir) as stop:
         try:
             return _train(cfg, run_dir, records, stop)
-        except Interrupted:
-            raise
-        except KeyboardInterrupt:
-            raise Interrupted(stopped_at_once(run_dir)) from None
+        except KeyboardInterrupt as err:
+            stopped = err if isinstance(err, Interrupted) else Interrupted(stopped_at_once(run_dir))
+            stopped.signals = tuple(stop.signals)
+            raise stopped from None
 
 
 def _train(cfg: DictConfig, run_dir: Path, records: Mapping[str, Any] | None, stop: StopRequest) -> Path:

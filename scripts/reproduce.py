@@ -24,7 +24,7 @@ from evaaa_baselines import cli
 from evaaa_baselines.cli import option
 from evaaa_baselines.paper.cells import Layout, build_cells, keep_out_of_git, plan_text, status
 from evaaa_baselines.paper.protocol import REPO, ProtocolError, load_protocol
-from evaaa_baselines.paper.running import EXECUTORS, Runner, select
+from evaaa_baselines.paper.running import EXECUTORS, STOP_GRACE_SECONDS, Runner, select
 
 
 @dataclass
@@ -97,6 +97,17 @@ class ReproduceConfig:
     slurm_parallel: int = option(
         64, "executor=slurm: jobs of one array running at once", check=(lambda v: v > 0, "a positive integer")
     )
+    slurm_mem_gb: int = option(
+        16,
+        "executor=slurm: each job's memory request in GB (a DQN run's replay buffer alone takes about 2.5)",
+        check=(lambda v: v > 0, "a positive integer"),
+    )
+    slurm_requeues: int = option(
+        10,
+        "executor=slurm: times a job is requeued at its time limit, continuing from its checkpoint (a 340-hour "
+        "DreamerV3 curriculum needs 8 at 48 hours)",
+        check=(lambda v: v >= 0, "0 or more"),
+    )
     submitit_cluster: str = option(
         "slurm",
         "executor=slurm: slurm, or local (submitit's local executor: the jobs "
@@ -162,7 +173,14 @@ def main(argv: list[str] | None = None) -> int:
         f"reproduce.py: {len(todo)} of {len(cells)} cells to run under {lay.root}, {where}; logs in {lay.logs}",
         flush=True,
     )
-    slurm = {"timeout_min": cfg.slurm_minutes, "slurm_array_parallelism": cfg.slurm_parallel}
+    slurm = {
+        "timeout_min": cfg.slurm_minutes,
+        "mem_gb": cfg.slurm_mem_gb,
+        "slurm_array_parallelism": cfg.slurm_parallel,
+        # SIGUSR2 this long before the time limit: the running command stops as on Ctrl-C (a training writes its
+        # checkpoint, within STOP_GRACE_SECONDS) and submitit requeues the job
+        "slurm_signal_delay_s": int(STOP_GRACE_SECONDS) + 60,
+    }
     if cfg.slurm_partition:
         slurm["slurm_partition"] = cfg.slurm_partition
     runner = Runner(
@@ -180,6 +198,7 @@ def main(argv: list[str] | None = None) -> int:
         ray_retries=cfg.ray_retries,
         submitit_cluster=cfg.submitit_cluster,
         slurm=slurm if cfg.submitit_cluster == "slurm" else {"timeout_min": cfg.slurm_minutes},
+        slurm_requeues=cfg.slurm_requeues,
         selects=" ".join(
             f"{k}={v}" for k, v in (("protocol", cfg.protocol), ("root", cfg.root), ("out", cfg.out)) if v
         ),

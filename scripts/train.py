@@ -6,7 +6,9 @@ is ``runs/<level>/<algo>/<modality>-<reward>/seed<seed>`` (``run.root``, ``run.n
 ``resume=true`` continues a killed run.  A folder that already holds a run is never overwritten: the command is
 refused (in one line, changing nothing) unless it says ``resume=true`` or ``start_over=true``.  Ctrl-C writes a
 checkpoint after the gradient step (DreamerV3) or iteration under way and stops; a second Ctrl-C stops within
-seconds.  A finished run prints its folder, final evaluation and model last.  See docs/training.md.
+seconds.  SIGTERM and SIGUSR2 stop a run as the first Ctrl-C does; in a SLURM job of ``hydra/launcher=slurm``, SIGUSR2
+(submitit's time-limit and pre-emption signal) then has submitit requeue the job, which continues with resume=true.
+A finished run prints its folder, final evaluation and model last.  See docs/training.md.
 
     python scripts/train.py algo=ppo level=1-1
     python scripts/train.py algo=dqn level=curriculum resume=true
@@ -43,6 +45,21 @@ def _stop_sweep(signum, frame):
         file=sys.stderr,
         flush=True,
     )
+
+
+def _requeue_through_submitit(stopped: BaseException) -> None:
+    """A run stopped by SIGUSR2 in a submitit job (hydra/launcher=slurm, slurm_local): its checkpoint is written, and
+    submitit's own handler of that signal — which the training's handler stood in for while it ran — now does what
+    it does on a time limit or pre-emption: asks the launcher for the job's checkpoint (``checkpoint()``: the same
+    job with resume=true, hydra_plugins/evaaa_ray_launcher/submitit_launchers.py), requeues it and exits."""
+    if signal.SIGUSR2 not in getattr(stopped, "signals", ()):
+        return
+    submitit = sys.modules.get("submitit")
+    handler = signal.getsignal(signal.SIGUSR2)
+    if submitit is not None and isinstance(
+        getattr(handler, "__self__", None), submitit.core.job_environment.SignalHandler
+    ):
+        handler(signal.SIGUSR2, None)
 
 
 signal.signal(signal.SIGINT, _stop_before_start)  # first, so that even the imports below stop in one line
@@ -95,6 +112,7 @@ def main(cfg: DictConfig) -> None:
         raise SystemExit(2) from None
     except Interrupted as err:
         print(f"train.py: {err}", file=sys.stderr, flush=True)
+        _requeue_through_submitit(err)  # in a submitit job stopped by SIGUSR2: requeued, and exits there
         raise SystemExit(130) from None
     except OSError as err:  # a full or read-only disk: one line; what was written before stays as it was
         if err.errno not in DISK_ERRNOS:

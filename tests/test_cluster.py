@@ -204,3 +204,37 @@ def test_the_smoke_protocol_end_to_end_on_an_engine(tmp_path, executor, request)
     assert all(_runs(lay, c.name) == len(c.commands) for c in chosen)
     assert any(len(c.commands) > 1 for c in chosen)
     assert "Fig. 4a, left" in (root / "report" / "report.md").read_text()
+
+
+def test_a_cell_at_its_slurm_time_limit_checkpoints_and_its_job_is_requeued_to_continue(tmp_path):
+    """submitit's timeout signal (SIGUSR2, here from its local executor's controller, signal_delay_s before the time
+    limit; SLURM sends it the same way) to a job mid-training: the training is stopped as a Ctrl-C stops it and writes
+    its checkpoint, submitit requeues the job, and the requeued job continues the cell (resume=true) to done."""
+    run_dir = tmp_path / "runs" / "a"
+    code = (
+        f"import pathlib,signal,sys,time; d=pathlib.Path({str(run_dir)!r}); d.mkdir(parents=True, exist_ok=True)\n"
+        "if 'resume=true' in sys.argv:\n"
+        "    assert (d/'checkpoint.pt').read_text() == 'c'; (d/'model-0-1-1.pt').write_text('m'); raise SystemExit(0)\n"
+        "def stop(*a): (d/'checkpoint.pt').write_text('c'); raise SystemExit(130)\n"
+        "signal.signal(signal.SIGINT, stop); (d/'started').write_text('')\n"
+        "time.sleep(300)"
+    )
+    lay, cells = _cells(tmp_path, code)
+    runner = Runner(
+        load_protocol("smoke"),
+        cells[:1],
+        lay,
+        executor="slurm",
+        submitit_cluster="local",
+        # a one-minute job: the local executor sends its timeout signal 30 s before the end
+        slurm={"timeout_min": 1},
+        progress=False,
+        echo=lambda s: None,
+    )
+    assert runner.run(cells[:1]) == 0
+    assert status(cells[0], lay, cells) == "done"
+    log = lay.log("train/ppo/a").read_text()
+    # stopped by one SIGINT (its checkpoint written), then the requeued job ran it again with resume=true
+    assert _runs(lay, "train/ppo/a") == 2 and log.rstrip().endswith("resume=true"), log
+    errors = "".join(p.read_text() for p in (tmp_path / "submitit").rglob("*_log.*"))
+    assert "Requeued job" in errors, errors[-3000:]

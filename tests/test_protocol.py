@@ -1105,3 +1105,41 @@ def test_paper_learned_compares_sampled_actions_and_its_done_evaluations_stay_do
         ("mode", "sample"): ["compare=mode"],
         ("sample",): ["acting=sample", "compare=sample"],
     }
+
+
+def test_paper_gpu_s_cpu_bound_cells_request_no_gpu_and_its_gpu_plan_names_its_rate_and_card(tmp_path):
+    from evaaa_baselines.paper.cells import cell_resources, gpu_plan
+
+    p = load_protocol("paper_gpu")
+    cells = build_cells(p, tmp_path)
+    trainings = [c for c in cells if c.kind == "train"]
+    for c in cells:
+        cpus, gpus = cell_resources(p, c)
+        algo = c.name.split("/")[1] if c.kind == "train" else None
+        if algo == "dreamer":  # the one algorithm that trains on the GPU it requests
+            assert gpus == 1 and {"device=cuda", "deterministic=false"} <= set(c.commands[0].argv), c.name
+        else:  # PPO, PPO+LSTM, DQN, evaluations, references, the choice, the report: on the CPUs, no GPU reserved
+            assert gpus == 0, c.name
+            if c.kind == "train":
+                assert "device=cpu" in c.commands[0].argv and "device=cuda" not in c.commands[0].argv, c.name
+    assert {c.name.split("/")[1] for c in trainings} == {"dreamer", "ppo", "ppo_lstm", "dqn"}
+    # the GPU plan: DreamerV3's runs alone, at the rate the protocol file names with its card
+    plan = "\n".join(gpu_plan(p, cells))
+    assert re.search(r"^  dreamer\s+42\s+4\.9\s", plan, re.M) and not re.search(r"^  (ppo|dqn)", plan, re.M)
+    text = (Path(__file__).parents[1] / "conf/protocol/paper_gpu.yaml").read_text()
+    assert "16-core" not in text
+    assert "4.9 env steps/s on one NVIDIA H200 with non-deterministic kernels" in text and "2.59" in text
+    assert json.loads((Path(__file__).parents[1] / "docs/bench_train.json").read_text())["cores"] == 2
+    assert "2-core development machine (docs/bench_train.json" in text
+
+
+@pytest.mark.parametrize(
+    "gpus, device, message",
+    [
+        (0, "device=cuda", "field algorithms.ppo.gpus: 0, but its runs train with device=cuda: request the GPUs"),
+        (1, "device=cpu", "field algorithms.ppo.gpus: 1, but its runs train with device=cpu: the GPUs they reserve"),
+    ],
+)
+def test_an_algorithm_whose_device_and_gpus_disagree_is_refused(tmp_path, gpus, device, message):
+    path = _smoke_with(tmp_path, algorithms={"ppo": {"steps_per_second": 30, "gpus": gpus, "overrides": [device]}})
+    assert message in _load_error(path)

@@ -445,6 +445,32 @@ def test_ctrl_c_checkpoints_after_the_iteration_and_resume_continues_exactly(run
     assert_same_run(runs("ppo")["whole"], tmp_path / "run")
 
 
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGUSR2], ids=["SIGTERM", "SIGUSR2"])
+def test_sigterm_and_sigusr2_checkpoint_like_the_first_ctrl_c_and_resume_continues_exactly(
+    runs, tmp_path, monkeypatch, signum
+):
+    """kill/scancel (SIGTERM) and a SLURM time limit through submitit (SIGUSR2) stop the run as the first Ctrl-C
+    does, however many of them arrive: a checkpoint after the iteration, and the resumed run is the whole run."""
+    end_iteration = run_loop.Run.end_iteration
+
+    def signalled_at(self, td):
+        if self.steps == 96:
+            os.kill(os.getpid(), signum)
+            os.kill(os.getpid(), signum)  # again: still the checkpointed stop, not the one at once
+        end_iteration(self, td)
+
+    monkeypatch.setattr(run_loop.Run, "end_iteration", signalled_at)
+    before = {s: signal.getsignal(s) for s in training.STOP_SIGNALS}
+    with pytest.raises(run_loop.Interrupted, match="interrupted at env step 96 of 1-1: checkpoint written to") as err:
+        train(debug_cfg("ppo"), tmp_path / "run")
+    monkeypatch.undo()
+    assert err.value.signals == (signum,)  # what train.py reads to let submitit requeue the job (SIGUSR2)
+    assert {s: signal.getsignal(s) for s in training.STOP_SIGNALS} == before  # the handlers are put back
+    assert checkpoint.load_checkpoint(tmp_path / "run" / checkpoint.CHECKPOINT)["counters"]["steps"] == 96
+    train(debug_cfg("ppo", "resume=true"), tmp_path / "run")
+    assert_same_run(runs("ppo")["whole"], tmp_path / "run")
+
+
 def test_a_second_ctrl_c_stops_at_once_and_names_the_checkpoint_left(tmp_path, monkeypatch):
     end_iteration = run_loop.Run.end_iteration
 

@@ -723,10 +723,12 @@ def gpu_plan(p: Protocol, cells: Sequence[Cell]) -> list[str]:
     if not train:
         return []
     hours = {c.name: c.minutes / 60 * cell_resources(p, c)[1] for c in train}
+    on_cpus = [n for n, a in p.algorithms.items() if a.enabled and a.gpus == 0]
+    cpu_trainings = f"the trainings of {', '.join(on_cpus)} (gpus: 0), " if on_cpus else ""
     lines = [
         "",
         "estimated GPU-hours (training runs at each algorithm's measured env steps/s, rate_from; "
-        "evaluations and references run on the CPUs):",
+        f"{cpu_trainings}evaluations and references run on the CPUs):",
         f"  {'':<12}{'runs':>6}{'steps/s':>10}{'GPU-hours':>12}{'GPU-days':>10}  rate",
     ]
     for algo, spec in p.algorithms.items():

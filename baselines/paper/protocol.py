@@ -341,6 +341,29 @@ class Protocol(_Strict):
             )
         return self
 
+    @model_validator(mode="after")
+    def _devices_match_gpus(self) -> Protocol:
+        # a run that trains on a GPU must request one (Ray's num_gpus, SLURM's GPUs), and one that requests a GPU must
+        # use it: a CPU-bound run reserving a whole GPU idles it (train.py: the last device= override wins)
+        for name, spec in self.algorithms.items():
+            said = [
+                o.replace(" ", "").lstrip("+").lower().split("=", 1)[1]
+                for o in [*self.training.overrides, *spec.overrides]
+                if o.replace(" ", "").lstrip("+").lower().startswith("device=")
+            ]
+            device = said[-1] if said else "auto"
+            if spec.gpus == 0 and device.startswith("cuda"):
+                raise ValueError(
+                    f"algorithms.{name}.gpus: 0, but its runs train with device={device}: request the GPUs they use "
+                    f"(gpus: 1), or train them on the CPU (device=cpu)"
+                )
+            if spec.gpus > 0 and device == "cpu":
+                raise ValueError(
+                    f"algorithms.{name}.gpus: {spec.gpus:g}, but its runs train with device=cpu: the GPUs they reserve "
+                    f"would idle; allowed: gpus: 0, or device=cuda (or auto) in its overrides"
+                )
+        return self
+
     def _collide(self, offset: int) -> bool:
         return bool({s + offset for s in self.seeds} & self.curriculum_world_seeds)
 

@@ -139,6 +139,28 @@ def _interrupt(signum: int, frame: Any) -> None:
     raise KeyboardInterrupt
 
 
+#: how to stop the command this process is running (one SIGINT, then wait): set while :func:`_run_command` runs it
+_RUNNING: list[Callable[[], None]] = []
+
+
+class CellJob:
+    """:func:`run_cell` as a submitit job that SLURM may requeue (submitit's checkpointing: a callable with a
+    ``checkpoint`` method). On SIGUSR2 — what submitit has SLURM send ``signal_delay_s`` ahead of the job's time
+    limit, and on pre-emption — submitit calls :meth:`checkpoint`: the running command is stopped as a Ctrl-C stops
+    it (one SIGINT: a training writes its checkpoint), and the same task is handed back, which submitit requeues in
+    the job's place; the requeued job continues the cell from its files (a started training with resume=true)."""
+
+    def __call__(self, task: CellTask) -> CellResult:
+        return run_cell(task)
+
+    def checkpoint(self, task: CellTask) -> Any:
+        import submitit
+
+        for stop in list(_RUNNING):
+            stop()
+        return submitit.helpers.DelayedSubmission(self, task)
+
+
 def _run_cell(task: CellTask) -> CellResult:
     cell, lay = task.cell, Layout(task.root)
     result = CellResult(cell.name, ran=False)
@@ -214,13 +236,9 @@ def _run_command(cmd: Command, cell: Cell, lay: Layout, env: dict[str, str], tas
             path.write_text(json.dumps(rounded(account)) + "\n")
             return proc.returncode
 
-        try:
-            while (rc := reap(False)) is None:
-                if STOP.is_set():
-                    raise KeyboardInterrupt
-                time.sleep(0.2)
-            return rc
-        except KeyboardInterrupt:
+        def stop() -> None:
+            if proc.returncode is not None:
+                return
             proc.send_signal(signal.SIGINT)  # one: a training writes its checkpoint and stops
             deadline = time.monotonic() + STOP_GRACE_SECONDS
             while reap(False) is None and time.monotonic() < deadline:
@@ -228,7 +246,19 @@ def _run_command(cmd: Command, cell: Cell, lay: Layout, env: dict[str, str], tas
             if proc.returncode is None:
                 proc.kill()
                 reap(True)
+
+        _RUNNING.append(stop)
+        try:
+            while (rc := reap(False)) is None:
+                if STOP.is_set():
+                    raise KeyboardInterrupt
+                time.sleep(0.2)
+            return rc
+        except KeyboardInterrupt:
+            stop()
             raise
+        finally:
+            _RUNNING.remove(stop)
 
 
 def _report_command(cmd: Command) -> Command:
@@ -388,15 +418,19 @@ class RayEngine(_Engine):
 
 class SubmititEngine(_Engine):
     """Cells as SLURM jobs through submitit: those released together go as one job array per (CPUs, GPUs);
-    ``cluster="local"``: submitit's local executor (subprocesses of this machine, the same code path)."""
+    ``cluster="local"``: submitit's local executor (subprocesses of this machine, the same code path). Each job is a
+    :class:`CellJob`: at its time limit (or on pre-emption) its training writes a checkpoint and submitit requeues
+    it, up to ``requeues`` times (pre-emptions do not count)."""
 
-    def __init__(self, p: Protocol, lay: Layout, cluster: str, slurm: dict[str, Any]):
+    def __init__(self, p: Protocol, lay: Layout, cluster: str, slurm: dict[str, Any], requeues: int = 10):
         try:
             import submitit
         except ImportError:
             raise ProtocolError("executor=slurm needs submitit: pip install -e '.[cluster]'") from None
         self.submitit, self.p = submitit, p
-        self.executor = submitit.AutoExecutor(folder=lay.root / "submitit" / "%j", cluster=cluster)
+        self.executor = submitit.AutoExecutor(
+            folder=lay.root / "submitit" / "%j", cluster=cluster, **{f"{cluster}_max_num_timeout": requeues}
+        )
         self.executor.update_parameters(**slurm)
 
     def submit(self, tasks):
@@ -408,7 +442,7 @@ class SubmititEngine(_Engine):
             self.executor.update_parameters(cpus_per_task=cpus, gpus_per_node=int(gpus + 0.999))
             with self.executor.batch():  # one job array
                 for t in group:
-                    jobs[t.name] = self.executor.submit(run_cell, t)
+                    jobs[t.name] = self.executor.submit(CellJob(), t)
         return [jobs[t.name] for t in tasks]
 
     def wait(self, handles, timeout):
@@ -473,6 +507,7 @@ class Runner:
         ray_retries: int = 3,
         submitit_cluster: str = "slurm",
         slurm: dict[str, Any] | None = None,
+        slurm_requeues: int = 10,
     ):
         if executor not in EXECUTORS:
             raise ProtocolError(f"executor={executor}: not an executor; allowed: {', '.join(EXECUTORS)}")
@@ -481,13 +516,13 @@ class Runner:
         self.max_minutes, self.redo, self.python, self.progress, self.echo = max_minutes, redo, python, progress, echo
         self.end_minutes = end_minutes
         self.executor, self.ray_address, self.ray_retries = executor, ray_address, ray_retries
-        self.submitit_cluster, self.slurm = submitit_cluster, dict(slurm or {})
+        self.submitit_cluster, self.slurm, self.slurm_requeues = submitit_cluster, dict(slurm or {}), slurm_requeues
 
     def _engine(self) -> _Engine:
         if self.executor == "ray":
             return RayEngine(self.p, self.ray_address, self.jobs, self.ray_retries)
         if self.executor == "slurm":
-            return SubmititEngine(self.p, self.lay, self.submitit_cluster, self.slurm)
+            return SubmititEngine(self.p, self.lay, self.submitit_cluster, self.slurm, self.slurm_requeues)
         return LocalEngine(self.jobs)
 
     def _ready(self, cell: Cell, finished: set[str], failed: set[str], selected: set[str]) -> bool | None:

@@ -30,14 +30,21 @@ def _run_one(
     config: DictConfig,
     task_function: TaskFunction,
     singleton_state: dict[Any, Any],
+    driver_cwd: str,
 ) -> JobReturn:
-    """One job of the sweep, in a Ray worker: its config, its run directory, the task function."""
+    """One job of the sweep, in a Ray worker: its config, its run directory, the task function. A relative
+    ``run.root`` or ``hydra.sweep.dir`` is taken from ``driver_cwd``, the directory train.py was started in, as the
+    driver took it for the sweep's multirun.yaml (a worker's own directory is Ray's, or another node's)."""
     setup_globals()
     Singleton.set_state(singleton_state)
     sweep_config = hydra_context.config_loader.load_sweep_config(config, list(overrides))
     with open_dict(sweep_config):
         sweep_config.hydra.job.id = f"{sweep_config.hydra.job.name}_{idx}"
         sweep_config.hydra.job.num = idx
+        for key in ("run.root", "hydra.sweep.dir"):
+            value = OmegaConf.select(sweep_config, key)
+            if value is not None and not Path(str(value)).is_absolute():
+                OmegaConf.update(sweep_config, key, str(Path(driver_cwd) / str(value)))
     HydraConfig.instance().set_config(sweep_config)
     return run_job(
         hydra_context=hydra_context,
@@ -100,6 +107,7 @@ class RayLauncher(Launcher):
             log.info(f"\t#{initial_job_idx + idx} : {' '.join(filter_overrides(overrides))}")
         task = ray.remote(num_cpus=self.num_cpus, num_gpus=self.num_gpus, max_retries=self.max_retries)(_run_one)
         singleton_state = Singleton.get_state()
+        driver_cwd = str(self.config.hydra.runtime.cwd)  # where relative run roots are, for every worker
         refs = [
             task.remote(
                 initial_job_idx + idx,
@@ -108,6 +116,7 @@ class RayLauncher(Launcher):
                 self.config,
                 self.task_function,
                 singleton_state,
+                driver_cwd,
             )
             for idx, overrides in enumerate(job_overrides)
         ]
