@@ -91,8 +91,8 @@ class Mp4Writer:
 
 class GifWriter:
     """An animated GIF of every ``every``-th RGB frame scaled by ``scale`` (small enough for a README): frames are
-    kept in memory and written on :meth:`close`, all with the palette of the first, undithered (flat colours
-    compress well and do not flicker)."""
+    kept in memory and written on :meth:`close`, all with one palette drawn from up to 32 of them, undithered (flat
+    colours compress well and do not flicker)."""
 
     def __init__(self, path: str | os.PathLike, fps: float = 10.0, every: int = 2, scale: float = 0.5):
         if every < 1 or not 0 < scale <= 1:
@@ -100,30 +100,29 @@ class GifWriter:
         self.path = Path(path)
         self.every, self.scale = int(every), float(scale)
         self.duration_ms = round(1000 * self.every / fps)
-        self._frames: list = []
+        self._frames: list[np.ndarray] = []
         self._seen = 0
 
     def write(self, frame_rgb: np.ndarray) -> None:
         if self._seen % self.every == 0:
-            from PIL import Image
-
             if self.scale != 1:
                 h, w = frame_rgb.shape[:2]
                 size = (max(1, round(w * self.scale)), max(1, round(h * self.scale)))
                 frame_rgb = cv2.resize(frame_rgb, size, interpolation=cv2.INTER_AREA)
-            image = Image.fromarray(np.ascontiguousarray(frame_rgb))
-            if not self._frames:
-                self._palette = image.quantize(colors=255, dither=Image.Dither.NONE)
-            self._frames.append(image.quantize(palette=self._palette, dither=Image.Dither.NONE))
+            self._frames.append(np.ascontiguousarray(frame_rgb))
         self._seen += 1
 
     def close(self) -> None:
         if not self._frames:
             return
+        from PIL import Image
+
+        sample = self._frames[:: max(1, len(self._frames) // 32)]
+        palette = Image.fromarray(np.concatenate(sample, axis=0)).quantize(colors=255, dither=Image.Dither.NONE)
+        images = [Image.fromarray(f).quantize(palette=palette, dither=Image.Dither.NONE) for f in self._frames]
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        first, *rest = self._frames
-        first.save(
-            self.path, save_all=True, append_images=rest, duration=self.duration_ms, loop=0, optimize=True, disposal=1
+        images[0].save(
+            self.path, save_all=True, append_images=images[1:], duration=self.duration_ms, loop=0, optimize=True
         )
         self._frames = []
 

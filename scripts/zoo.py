@@ -44,6 +44,8 @@ def main(argv: list[str] | None = None) -> int:
         cli.fail(PROG, "name= and model= go together (both to add a network, neither to list the zoo)")
     if cfg.name is None:
         return _list()
+    if not zoo.NAME.match(cfg.name):
+        cli.fail(PROG, f"name={cfg.name}: expected lower-case letters, digits, '.', '_' or '-' (e.g. ppo-1-1)")
     if not Path(cfg.model).is_file():
         cli.fail(PROG, f"model={cfg.model}: no such file; give a checkpoint such as <run>/model-0-1-1.pt")
     model = Path(cfg.model)

@@ -41,6 +41,7 @@ SCHEMAS = {
     "fit_world_model": "FitConfig",
     "pack_record": "PackConfig",
     "choose_acting": "ChooseConfig",
+    "zoo": "ZooConfig",
 }
 
 
