@@ -149,7 +149,7 @@ def main(argv=None) -> int:
     final = args.out / "final_frame.png"
     cv2.imwrite(str(final), frame)
     traces = args.out / "ev_traces.png"
-    plot_traces(traces, evs, ends, params, args.level)
+    plot_traces(traces, evs, ends, params, args.level, policy=policy.name)
 
     rate = args.steps * n / env_time
     print(
