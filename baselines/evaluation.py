@@ -19,6 +19,7 @@ from evaaa.records import EpisodeTracker, StepLog
 
 from .policies import LoadedPolicy, load_policy
 from .rollout import acting_mode
+from .zoo import is_zoo
 
 #: the policies of an evaluation that are not checkpoints (evaaa.agents): the privileged oracle, uniformly random
 #: actions, and standing still
@@ -31,8 +32,8 @@ class EvaluationError(ValueError):
 
 
 class EvaluatedPolicy:
-    """One policy of an evaluation — ``oracle``, ``random``, ``still`` or a checkpoint file — that builds the env of
-    a level and picks actions for a batch of worlds.
+    """One policy of an evaluation — ``oracle``, ``random``, ``still``, a checkpoint file or ``zoo:<name>`` — that
+    builds the env of a level and picks actions for a batch of worlds.
 
     ``sample``: a checkpoint draws its actions from its distribution instead of taking the most likely one;
     ``epsilon``: the chance of a uniformly random action instead, at each step (drawn from a generator seeded with
@@ -56,14 +57,17 @@ class EvaluatedPolicy:
         self.loaded: LoadedPolicy | None = None
         if spec not in REFERENCE_AGENTS:
             path = Path(spec)
-            if not path.is_file():
-                raise EvaluationError(f"policy {spec!r} is neither {', '.join(REFERENCE_AGENTS)} nor a checkpoint file")
+            if not (is_zoo(spec) or path.is_file()):
+                raise EvaluationError(
+                    f"policy {spec!r} is neither {', '.join(REFERENCE_AGENTS)}, zoo:NAME nor a checkpoint file"
+                )
             try:
-                self.loaded = load_policy(path, modalities=modalities, device=device)
+                self.loaded = load_policy(spec if is_zoo(spec) else path, modalities=modalities, device=device)
             except ValueError as err:  # e.g. modalities= names keys the checkpoint was not trained on
                 raise EvaluationError(f"policy={spec}: {err}") from None
-        # a checkpoint is named by its path: reports look the run's configuration up from it
-        self.name = spec if self.loaded is None else str(path)
+        # a checkpoint is named by its path: reports look the run's configuration up from it; a zoo network, which
+        # has no run here, by its zoo name
+        self.name = spec if self.loaded is None or is_zoo(spec) else str(path)
         # how it acts, recorded with every episode so that evaluations made in different ways stay apart
         self.acting = acting_mode(None if self.loaded is None else self.loaded.algo, sample, epsilon)
 

@@ -26,6 +26,7 @@ from .algos import algorithm
 from .checkpoint import CHECKPOINT_FORMAT, CheckpointError, load_checkpoint
 from .devices import OnDevice, resolve_device
 from .rollout import wrap_env
+from .zoo import checkpoint_path
 
 
 def _one_line(err: BaseException) -> str:
@@ -129,21 +130,23 @@ class LoadedPolicy:
 def load_policy(
     path: str | Path, *, modalities: Iterable[str] | str | None = None, device: str | torch.device = "cpu"
 ) -> LoadedPolicy:
-    """Load a checkpoint (``checkpoint.pt`` or ``model-*.pt`` of a run directory) as a policy.
+    """Load a checkpoint (``checkpoint.pt`` or ``model-*.pt`` of a run directory, or ``zoo:<name>``, a network
+    shipped in the zoo: :mod:`baselines.zoo`) as a policy.
 
     Args:
-        path: the checkpoint file.
+        path: the checkpoint file, or ``zoo:<name>``.
         modalities: the observation keys the caller will feed (e.g. an ablation's); if given and different from
             the keys the checkpoint was trained on, a ``ValueError`` says which keys differ.
         device: where the network runs (``auto``, ``cpu``, ``cuda``, ``cuda:N``), whatever device trained it; the
             policy still acts on tensordicts of CPU worlds.
 
     A file that is damaged, cut short or holds anything but tensors and plain data (so could run code) is refused
-    with a :class:`~baselines.checkpoint.CheckpointError` (a ``ValueError``) naming it.
+    with a :class:`~baselines.checkpoint.CheckpointError` (a ``ValueError``) naming it, as is a zoo file whose
+    sha256 differs from the zoo's manifest; a name the zoo does not hold with a :class:`~baselines.zoo.ZooError`.
     """
     device = resolve_device(device)
 
-    path = Path(path)
+    path = checkpoint_path(path)
     state = load_checkpoint(path)
     if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT or "model" not in state:
         raise ValueError(f"{path} is not an evaaa baseline checkpoint (format {CHECKPOINT_FORMAT})")

@@ -199,11 +199,13 @@ BOUND = (0, 190, 255)
 
 
 class FrameDrawer:
-    """Composes a video frame (BGR uint8): the upscaled eye on the left, the EV bars on the right."""
+    """Composes a video frame (BGR uint8): the upscaled eye on the left, the EV bars on the right (under the level,
+    step, episode and, when given, the ``policy`` acting)."""
 
-    def __init__(self, params: PhysiologyParams, level: str, eye_hw: tuple[int, int]):
+    def __init__(self, params: PhysiologyParams, level: str, eye_hw: tuple[int, int], policy: str = ""):
         self.low, self.high, self.setpoint = params.low, params.high, params.setpoint
         self.level = level
+        self.policy = policy
         self.height = eye_hw[0] * EYE_SCALE
         self.eye_width = eye_hw[1] * EYE_SCALE
 
@@ -217,6 +219,8 @@ class FrameDrawer:
         cv2.putText(panel, f"level {self.level}  step {step}  ep {episode}", (10, 20), font, 0.45, TEXT, 1, cv2.LINE_AA)
         if end is not None:
             cv2.putText(panel, f"episode end: {end}", (10, 38), font, 0.42, BAD, 1, cv2.LINE_AA)
+        elif self.policy:
+            cv2.putText(panel, f"policy {self.policy}", (10, 38), font, 0.42, DIM, 1, cv2.LINE_AA)
         top, row_h = 52, (self.height - 52) // 4
         for i, name in enumerate(EV_NAMES):
             self._bar(

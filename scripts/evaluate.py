@@ -2,6 +2,7 @@
 
     python scripts/evaluate.py policy=[oracle,random,still] levels=testbeds episodes=20
     python scripts/evaluate.py policy=runs/ppo-1-1/checkpoint.pt levels=[1-1,two-resource-food] episodes=20
+    python scripts/evaluate.py policy=[zoo:ppo-1-1,random,still] levels=[1-1] episodes=20   # a shipped network
 
 Episodes are played on the test worlds of ``seed`` (evaaa/worlds.py: no training run of any seed steps them, and the
 periodic evaluations during training use other worlds again, the validation worlds); ``worlds=validation`` plays
@@ -36,7 +37,7 @@ from tqdm import tqdm
 
 import evaaa
 from evaaa.records import DISK_ERRNOS, DiskError, StepLog, append_rows, disk_error, new_log_path, read_rows
-from evaaa_baselines import cli
+from evaaa_baselines import cli, zoo
 from evaaa_baselines.cli import option
 from evaaa_baselines.evaluation import REFERENCE_AGENTS, EvaluatedPolicy, EvaluationError, episode_records
 from evaaa_baselines.reports import SUMMARY_NOTE, markdown_table, plot_outcomes, plot_summary, read_episodes, summarize
@@ -47,6 +48,12 @@ OUTPUTS = ("episodes.csv", "summary.md", "success.png", "survival.png", "outcome
 
 
 def _policy_ok(spec: str) -> bool:
+    if zoo.is_zoo(spec):
+        try:
+            zoo.entry(spec)
+        except zoo.ZooError as err:  # one line, with the zoo's names and the closest one
+            raise cli.UsageError(f"policy={spec}: {err}") from None
+        return True
     return spec in REFERENCE_AGENTS or Path(spec).is_file()
 
 
@@ -54,8 +61,9 @@ def _policy_ok(spec: str) -> bool:
 class EvalConfig:
     policy: list[str] = option(
         ["oracle", "random", "still"],
-        "oracle, random, still (stands still), or a checkpoint file of a baseline; a list evaluates each",
-        check=(_policy_ok, "oracle, random, still or an existing checkpoint file"),
+        "oracle, random, still (stands still), a checkpoint file of a baseline, or zoo:NAME (a shipped network: "
+        "scripts/zoo.py lists them); a list evaluates each",
+        check=(_policy_ok, "oracle, random, still, zoo:NAME or an existing checkpoint file"),
     )
     levels: list[str] = option(
         ["testbeds"],

@@ -75,6 +75,19 @@ def decode_mp4(path: Path) -> list:
     return frames
 
 
+def video_stream(path: Path) -> str:
+    """How ffmpeg (the one imageio-ffmpeg ships) describes the video stream of ``path``: codec first, then pixel
+    format and size, e.g. ``h264 (High) (avc1 / 0x31637661), yuv420p(progressive), 64x64, ...``."""
+    import imageio_ffmpeg
+
+    probe = subprocess.run(
+        [imageio_ffmpeg.get_ffmpeg_exe(), "-hide_banner", "-i", str(path)], capture_output=True, text=True
+    )
+    streams = [line.split("Video:", 1)[1].strip() for line in probe.stderr.splitlines() if "Video:" in line]
+    assert streams, f"ffmpeg finds no video stream in {path}:\n{probe.stderr}"
+    return streams[0]
+
+
 #: the columns two identical runs differ in: when a row was written and the CPU time spent until then
 CLOCK_COLUMNS = ("wall_time", "cpu_seconds")
 

@@ -41,6 +41,7 @@ SCHEMAS = {
     "fit_world_model": "FitConfig",
     "pack_record": "PackConfig",
     "choose_acting": "ChooseConfig",
+    "zoo": "ZooConfig",
 }
 
 
@@ -302,11 +303,14 @@ BAD_VALUES = [
     ("demo", "steps=-5", "steps=-5: expected a positive integer"),
     ("demo", "steps=1e3", "steps=1e3: expected an integer"),
     ("demo", "seed=-1", "seed=-1: expected an integer >= 0"),
+    ("demo", "policy=zoo:ppo-11", "policy=zoo:ppo-11: zoo:ppo-11 is not in the zoo; did you mean zoo:ppo-1-1?"),
+    ("demo", "gif_scale=2", "gif_scale=2: expected in (0, 1]"),
     ("evaluate", "levels=[3_2]", "levels=[3_2]: '3_2' is not allowed"),
     ("evaluate", "episodes=-5", "episodes=-5: expected a positive integer"),
     ("evaluate", "episodes=1e3", "episodes=1e3: expected an integer"),
     ("evaluate", "sample=on", "sample=on: expected true or false"),
     ("evaluate", "seed=-1", "seed=-1: expected an integer >= 0"),
+    ("evaluate", "policy=[random,zoo:pp-1-1]", "did you mean zoo:ppo-1-1?"),
     ("fit_world_model", "updates=-5", "updates=-5: expected >= 1"),
     ("fit_world_model", "updates=1e3", "updates=1e3: expected an integer"),
     ("fit_world_model", "keys=[3_2]", "keys=[3_2]: '3_2' is not allowed"),
@@ -334,6 +338,9 @@ BAD_VALUES = [
     ("reproduce", "plan=on", "plan=on: expected true or false"),
     ("wall_hits", "angles=[-5]", "angles=[-5]: expected angles in [0, 90)"),
     ("wall_hits", "angles=on", "angles=on: expected"),
+    ("zoo", "replace=on", "replace=on: expected true or false"),
+    ("zoo", "name=ppo-x", "name= and model= go together"),
+    ("zoo", "model=nowhere.pt", "name= and model= go together"),
 ]
 
 

@@ -6,7 +6,8 @@ from pathlib import Path
 
 import cv2
 import pytest
-from helpers import load_script
+from helpers import load_script, video_stream
+from PIL import Image
 
 import evaaa  # noqa: F401  (sets MUJOCO_GL before mujoco, and so cv2's users, load)
 
@@ -56,6 +57,8 @@ def test_demo_writes_video_and_plots(tmp_path, capsys):
 
     video = tmp_path / "rollout.mp4"
     assert video.is_file() and video.stat().st_size > 0, "rollout.mp4 was not written"
+    assert video_stream(video).startswith("h264"), "browsers play H.264 mp4, not mp4v"
+    assert "note:" not in printed
     cap = cv2.VideoCapture(str(video))
     try:
         assert cap.isOpened(), "rollout.mp4 cannot be opened"
@@ -76,3 +79,31 @@ def test_demo_writes_video_and_plots(tmp_path, capsys):
     assert final.shape == first_shape
     traces = read_png(tmp_path / "ev_traces.png")
     assert traces.shape[0] > 200 and traces.shape[1] > 200
+
+
+def test_demo_plays_a_zoo_network_and_writes_a_small_gif(tmp_path, capsys):
+    demo = load_script("demo")
+    gif = tmp_path / "media" / "ppo.gif"
+    argv = ["policy=zoo:ppo-1-1", "level=1-1", "steps=12", f"out={tmp_path / 'out'}", f"gif={gif}", "gif_every=3"]
+    assert demo.main(argv) == 0
+    printed = capsys.readouterr()
+    assert "zoo:ppo-1-1" in printed.err  # the progress bar names the policy
+    assert str(gif) in printed.out
+    video = tmp_path / "out" / "rollout.mp4"
+    assert video_stream(video).startswith("h264")
+    with Image.open(gif) as image:
+        first_width = read_png(tmp_path / "out" / "final_frame.png").shape[1]
+        assert image.n_frames == 4 and image.size[0] == first_width // 2  # every 3rd of 12 frames, half size
+
+
+def test_demo_refuses_a_policy_it_does_not_know_in_one_line(tmp_path, capsys):
+    demo = load_script("demo")
+    for policy, expected in [
+        ("zoo:ppo1-1", "did you mean zoo:ppo-1-1?"),
+        ("greedy", "expected oracle, random, still, zoo:NAME or an existing checkpoint file"),
+    ]:
+        with pytest.raises(SystemExit) as exc:
+            demo.main([f"policy={policy}", f"out={tmp_path / 'out'}"])
+        err = capsys.readouterr().err
+        assert exc.value.code == 2 and err.count("\n") == 1 and expected in err, err
+    assert not (tmp_path / "out").exists()
