@@ -27,13 +27,11 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import torch
 from tqdm import tqdm
 
 import evaaa  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
-from evaaa import END_TYPES, make_env
+from evaaa import END_TYPES
 from evaaa.pictures import PANEL_WIDTH, FrameDrawer, plot_traces
-from evaaa.video import VideoSink
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
 
@@ -61,6 +59,12 @@ def main(argv=None) -> int:
         "(ev_traces.png). Prints the env's steps/s (video drawing and encoding excluded).",
         examples=["level=1-2 steps=1000 num_envs=2 seed=3"],
     )
+    # the env, torch and the video writer load once --help and the command line have passed
+    import torch
+
+    from evaaa import make_env
+    from evaaa.video import VideoSink
+
     level = evaaa.load_level(args.level)
     args.out.mkdir(parents=True, exist_ok=True)
 

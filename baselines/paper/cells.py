@@ -16,7 +16,6 @@ from typing import Literal
 import evaaa
 
 from ..config import COMPUTE_BOUND_STEPS
-from ..rollout import samples_actions
 from .protocol import (
     CHECKPOINTS,
     LEVEL_GROUPS,
@@ -202,6 +201,8 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
     modes = eval_modes(ev)
 
     def eval_cell(name: str, model: Path, own: str, train_cell: str, sps: float, algo: str) -> Cell:
+        from ..rollout import samples_actions  # torch: not for reproduce.py --help
+
         cmds, seconds = [], 0.0
         # an algorithm without an action distribution acts the same when asked to sample: evaluated once
         own_modes = [m for m in modes if m == "mode" or samples_actions(algo)] or modes
