@@ -98,7 +98,7 @@ def test_train_help_lists_every_key_of_the_composed_config(capsys):
 @pytest.mark.parametrize(
     "name, args, message",
     [
-        ("bench_env", ["level=1-3"], "level=1-3: '1-3' is not allowed; allowed: 1-1, 1-2"),
+        ("bench_env", ["level=1-3"], "level=1-3: '1-3' is not allowed (did you mean 1-2 or 1-1?); allowed: 1-1, 1-2"),
         ("bench_env", ["steps=many"], "steps=many: expected an integer"),
         ("bench_train", ["minutes=0"], "minutes=0: expected a positive number"),
         ("demo", ["num_envs=1.5"], "num_envs=1.5: expected an integer"),
@@ -140,9 +140,9 @@ def test_a_string_key_keeps_its_text_and_a_single_value_is_a_list():
         (["eval.sample=maybe"], "eval.sample=maybe: expected true or false"),
         (["max_minutes=soon"], "max_minutes=soon: expected a number"),
         (["algo.encoder.cnn.channels=[a,b]"], "algo.encoder.cnn.channels=[a,b]: expected a list of integers"),
-        (["totl_steps=5"], "unknown key 'totl_steps'; keys here: seed, total_steps"),
+        (["totl_steps=5"], "unknown key 'totl_steps' (did you mean total_steps?); keys here: seed, total_steps"),
         (["+totl_steps=5"], "unknown key 'totl_steps'"),
-        (["algo.lrr=1"], "unknown key 'algo.lrr'; keys here: algo.name"),
+        (["algo.lrr=1"], "unknown key 'algo.lrr' (did you mean algo.lr?); keys here: algo.name"),
         (["algo=a2c"], "algo=a2c: no option 'a2c' in algo; allowed: dqn, dreamer, dreamer_xs, ppo, ppo_lstm"),
         (["level=1-3"], "level=1-3: no option '1-3' in level (did you mean level=1-2?); allowed: 1-1, 1-2"),
         (["env.overrides.episode.max_steps=5"], "add it with ++env.overrides.episode.max_steps=5"),

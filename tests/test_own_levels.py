@@ -122,7 +122,7 @@ def test_train_names_the_closest_key():
     with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
         with pytest.raises(ConfigError, match=r"unknown key 'total_step' \(did you mean total_steps\?\)"):
             compose_checked(["algo=ppo", "total_step=5"])
-        with pytest.raises(ConfigError, match=r"unknown key 'eval.evry' \(did you mean eval.every"):
+        with pytest.raises(ConfigError, match=r"unknown key 'eval.evry' \(did you mean eval.every\?\)"):
             compose_checked(["algo=ppo", "eval.evry=5"])
 
 

@@ -171,9 +171,13 @@ def _choices(choices: Sequence[Any] | Callable[[], Sequence[Any]]) -> list[Any]:
 # ------------------------------------------------------------------------------------------------- parsing
 def did_you_mean(word: Any, allowed: Sequence[Any]) -> str:
     """`` (did you mean X?)`` naming the allowed values closest to ``word`` (at most three, closest first), or
-    nothing where none is close: for a typo of a key, a level or a choice."""
-    close = difflib.get_close_matches(str(word), [str(a) for a in allowed], n=3, cutoff=0.6)
-    return f" (did you mean {' or '.join(close)}?)" if close else ""
+    nothing where none is close: for a typo of a key, a level or a choice.  A dotted key is compared by its last
+    part where every allowed key shares the rest (``algo.lrr``: ``algo.lr``, not every ``algo.*``)."""
+    word, allowed = str(word), [str(a) for a in allowed]
+    parent = word.rpartition(".")[0]
+    cut = len(parent) + 1 if parent and all(a.startswith(parent + ".") for a in allowed) else 0
+    close = difflib.get_close_matches(word[cut:], [a[cut:] for a in allowed], n=3, cutoff=0.6)
+    return f" (did you mean {' or '.join(word[:cut] + c for c in close)}?)" if close else ""
 
 
 def read(schema: type[T], argv: Sequence[str], checks: bool = True) -> T:
