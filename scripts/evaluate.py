@@ -38,7 +38,6 @@ import evaaa
 from evaaa.records import DISK_ERRNOS, DiskError, StepLog, append_rows, disk_error, new_log_path, read_rows
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
-from evaaa_baselines.reports import SUMMARY_NOTE, markdown_table, plot_outcomes, plot_summary, read_episodes, summarize
 
 if TYPE_CHECKING:  # torch and TorchRL load once --help and the command line have passed
     from evaaa_baselines.evaluation import EvaluatedPolicy
@@ -123,18 +122,30 @@ class EvalConfig:
     )
 
 
+HELP = {
+    "prog": "evaluate.py",
+    "description": __doc__.split("\n\n")[0],
+    "examples": [
+        "policy=[oracle,random] levels=testbeds episodes=20",
+        "policy=[runs/1-1/ppo/all-squared/seed0/model-0-1-1.pt,random] levels=[1-1] sample=true",
+    ],
+}
+if __name__ == "__main__":
+    cli.help_first(EvalConfig, **HELP)  # before the reports' libraries (pandas, matplotlib, scipy) load
+
+from evaaa_baselines.reports import (  # noqa: E402
+    SUMMARY_NOTE,
+    markdown_table,
+    plot_outcomes,
+    plot_summary,
+    read_episodes,
+    summarize,
+)
+
+
 def parse(argv: list[str] | None = None) -> EvalConfig:
     """The config from ``key=value`` arguments (``--help`` lists the keys); level groups expanded, in order."""
-    cfg = cli.parse(
-        EvalConfig,
-        argv,
-        prog="evaluate.py",
-        description=__doc__.split("\n\n")[0],
-        examples=[
-            "policy=[oracle,random] levels=testbeds episodes=20",
-            "policy=[runs/1-1/ppo/all-squared/seed0/model-0-1-1.pt,random] levels=[1-1] sample=true",
-        ],
-    )
+    cfg = cli.parse(EvalConfig, argv, **HELP)
     given = cli.given(sys.argv[1:] if argv is None else argv, "levels")
     levels: list[str] = []
     for name in cfg.levels:
