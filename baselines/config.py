@@ -26,6 +26,8 @@ from omegaconf import DictConfig, OmegaConf
 import evaaa
 from evaaa.sensors import SENSORS, resolve_modalities
 
+from .cli import did_you_mean
+
 
 def register_levels() -> None:
     """Make ``level=<name>`` available for every name in ``evaaa.LEVELS + evaaa.TESTBEDS``, and the ``level_stem``
@@ -267,8 +269,10 @@ def validate(cfg: DictConfig, defaults: DictConfig, path: str = "", typed: dict[
         if full.startswith(FREE_FORM):
             continue
         if key not in defaults.keys():  # ``in`` alone is false for a mandatory value (``???``) such as level.file
-            allowed = ", ".join(f"{path}{k}" for k in defaults.keys())
-            raise ConfigError(f"unknown key '{full}'; keys here: {allowed} (see --help)")
+            here = [f"{path}{k}" for k in defaults.keys()]
+            raise ConfigError(
+                f"unknown key '{full}'{did_you_mean(full, here)}; keys here: {', '.join(here)} (see --help)"
+            )
         if OmegaConf.is_interpolation(cfg, key):
             continue  # a reference to another key: that key is checked
         if OmegaConf.is_missing(defaults, key):
@@ -389,9 +393,8 @@ def compose_checked(overrides: list[str], values: bool = True) -> DictConfig:
         if full_key and "not in" in str(cause):
             parent = full_key.rpartition(".")[0]
             node = OmegaConf.select(defaults, parent) if parent else defaults
-            keys = ", ".join(
-                f"{parent + '.' if parent else ''}{k}" for k in (node.keys() if OmegaConf.is_dict(node) else ())
-            )
+            here = [f"{parent + '.' if parent else ''}{k}" for k in (node.keys() if OmegaConf.is_dict(node) else ())]
+            keys = ", ".join(here)
             if node is None:
                 raise ConfigError(
                     f"unknown key '{full_key}': {parent} is null with these options; set it whole, "
@@ -400,7 +403,9 @@ def compose_checked(overrides: list[str], values: bool = True) -> DictConfig:
             if OmegaConf.is_dict(node) and not len(node):  # an empty mapping (env.overrides) takes new keys
                 line = next((o.input_line for o in parsed if o.key_or_group.startswith(full_key)), full_key)
                 raise ConfigError(f"'{full_key}' is not in {parent} yet: add it with ++{line.lstrip('+')}") from None
-            raise ConfigError(f"unknown key '{full_key}'; keys here: {keys} (see --help)") from None
+            raise ConfigError(
+                f"unknown key '{full_key}'{did_you_mean(full_key, here)}; keys here: {keys} (see --help)"
+            ) from None
         raise ConfigError(one_line(err)) from None
     typed = typed_values(parsed)
     validate(cfg, defaults, typed=typed)
@@ -483,8 +488,16 @@ def check_level_file(cfg: DictConfig) -> None:
     file = cfg.level.file
     if not isinstance(file, str) or not file:
         raise ConfigError(f"level.file={show(file)}: expected the path of a .yaml level file")
+    level_file(file, "level.file")  # what stages() will do: it loads and checks the file
+
+
+def level_file(file: str, key: str) -> str:
+    """The name of the level in the user's file ``file``, named on a command line by ``key`` (``level.file`` of
+    train.py, ``levels`` of evaluate.py, ``level`` of play.py), registered with :func:`evaaa.register_level` so that
+    the name loads in this process.  A file that cannot be used is a :class:`ConfigError` of one line,
+    ``<key>=<file>: <why>``, naming the file once, as the user typed it."""
     try:
-        evaaa.register_level(file)  # what stages() will do: it loads and checks the file
+        return evaaa.register_level(file)
     except evaaa.LevelError as err:
         first, *rest = (line.strip() for line in str(err).splitlines())  # a level's value errors: one line each
         message = first + (" " + "; ".join(rest) if rest else "")
@@ -496,7 +509,7 @@ def check_level_file(cfg: DictConfig) -> None:
             message = message.replace(f"level file '{spelling}'", "the file").replace(
                 f"invalid level '{spelling}'", "the level is invalid"
             )
-        raise ConfigError(f"level.file={file}: {message}") from None
+        raise ConfigError(f"{key}={file}: {message}") from None
 
 
 #: why ``algo=dreamer`` stops on a machine without a GPU, and what to type instead (docs/training.md, "DreamerV3")

@@ -25,6 +25,7 @@ from __future__ import annotations
 import csv
 import logging
 import os
+import shlex
 import signal
 import sys
 import threading
@@ -44,6 +45,7 @@ from .checkpoint import CHECKPOINT, PREVIOUS, CheckpointError, load_latest, remo
 from .config import observation_keys, stages
 from .devices import deterministic_kernels, resolve_device
 from .machine import keep_freed_memory
+from .paths import CONF_DIR
 from .run import Interrupted, Run
 
 log = logging.getLogger(__name__)
@@ -483,10 +485,17 @@ def summary(cfg: DictConfig, run_dir: Path) -> str:
         )
         model = run_dir / f"model-{last['stage']}-{last['level']}.pt"
         if model.exists():
-            lines.append(
-                f"final model: {model} (python scripts/evaluate.py policy={model} levels=[{last['level']}] "
-                f"evaluates it on the test worlds)"
-            )
+            # absolute paths: the command works from any folder; a level of your own is named by its file
+            file = OmegaConf.select(cfg, "level.file", default=None)
+            own = isinstance(file, str) and last["level"] == Path(file).stem
+            level = Path(file).resolve() if own else last["level"]
+            command = [
+                "python",
+                str(CONF_DIR.parent / "scripts" / "evaluate.py"),
+                f"policy={model.resolve()}",
+                f"levels=[{level}]",
+            ]
+            lines.append(f"final model: {model} ({shlex.join(command)} evaluates it on the test worlds)")
     else:
         lines.append("no evaluation was made (eval.every=0)")
     return "\n".join(lines)

@@ -97,7 +97,8 @@ class PlaySettings:
 
     level: str = _setting(
         "1-1",
-        "level or testbed to play (the page can switch to another): a packaged one, or the name of a file in level_dir",
+        "level or testbed to play (the page can switch to another): a packaged one, the name of a file in level_dir, "
+        "or the path of a .yaml level file of your own",
         choices=lambda: (*level_names(), *registered_levels()),
     )
     level_dir: Path | None = _setting(

@@ -52,21 +52,78 @@ from functools import partial
 from pathlib import Path
 
 import evaaa  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
-
-# isort: split
-import gymnasium
-import mujoco
-import numpy as np
-import torch
-
-from evaaa.env import EvaaaEnv, make_env
-from evaaa.render import BatchRenderer
-from evaaa.scene import GROUP_AGENT
-from evaaa.sim import Simulator, default_threads
-from evaaa.spec import load_level
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
-from evaaa_baselines.machine import processor
+
+
+@dataclass
+class BenchConfig:
+    level: str = option(
+        "1-1", "level or testbed whose scene is measured", choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS]
+    )
+    steps: int = option(
+        3000,
+        "decisions per setting (the first 50 warm up)",
+        check=(lambda v: v > 60, "more than 60 (the first 50 decisions warm up)"),
+    )
+    num_envs: int = option(8, "worlds of the batched setting", check=(lambda v: v >= 1, "a positive integer"))
+    resets: int = option(50, "resets timed for the cost of a reset", check=(lambda v: v >= 1, "a positive integer"))
+    memory_steps: int = option(
+        20000,
+        "steps of the memory run (resident memory is sampled every 1000 steps)",
+        check=(lambda v: v >= 2000, "at least 2000 (memory is sampled every 1000 steps)"),
+    )
+    skip_parallel: bool = option(False, "leave out the ParallelEnv settings")
+    peer: bool = option(True, "also time MiniWorld-CollectHealth (installed on demand into peer_venv)")
+    peer_venv: str = option("~/.cache/evaaa/bench-miniworld", "virtual environment the peer is installed into")
+    json: str | None = option(None, "also write the figures to this file")
+    backend: str = option(
+        "cpu", "cpu: the settings above; warp: the MuJoCo Warp backend beside the CPU one", choices=("cpu", "warp")
+    )
+    levels: list[str] = option(
+        ["1-1", "4-2"], "backend=warp: levels measured", choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS]
+    )
+    counts: list[int] = option(
+        [],
+        "backend=warp: numbers of worlds ([]: 256, 1024, 4096, 8192 on a GPU, 2 and 8 on a CPU)",
+        check=(lambda v: v >= 1, "positive integers"),
+    )
+    warp_steps: int = option(
+        100,
+        "backend=warp: decisions timed per setting (after a tenth of that, at least 3, warming up)",
+        check=(lambda v: v >= 1, "a positive integer"),
+    )
+    cpu_max_worlds: int = option(
+        64,
+        "backend=warp: the CPU backend is measured at the counts up to this",
+        check=(lambda v: v >= 0, "an integer >= 0"),
+    )
+
+
+HELP = {
+    "prog": "bench_env.py",
+    "description": __doc__.split("\n\n")[0],
+    "examples": [
+        "",
+        "level=4-2 steps=1500 skip_parallel=true json=docs/bench_env_4-2.json",
+        "backend=warp json=docs/bench/bench_env_warp_h100.json",
+    ],
+}
+if __name__ == "__main__":
+    cli.help_first(BenchConfig, **HELP)  # before torch and the env load
+
+# isort: split
+import gymnasium  # noqa: E402
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+from evaaa.env import EvaaaEnv, make_env  # noqa: E402
+from evaaa.render import BatchRenderer  # noqa: E402
+from evaaa.scene import GROUP_AGENT  # noqa: E402
+from evaaa.sim import Simulator, default_threads  # noqa: E402
+from evaaa.spec import load_level  # noqa: E402
+from evaaa_baselines.machine import processor  # noqa: E402
 
 torch.set_num_threads(1)
 
@@ -510,62 +567,8 @@ def measure(args) -> dict:
     return results
 
 
-@dataclass
-class BenchConfig:
-    level: str = option(
-        "1-1", "level or testbed whose scene is measured", choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS]
-    )
-    steps: int = option(
-        3000,
-        "decisions per setting (the first 50 warm up)",
-        check=(lambda v: v > 60, "more than 60 (the first 50 decisions warm up)"),
-    )
-    num_envs: int = option(8, "worlds of the batched setting", check=(lambda v: v >= 1, "a positive integer"))
-    resets: int = option(50, "resets timed for the cost of a reset", check=(lambda v: v >= 1, "a positive integer"))
-    memory_steps: int = option(
-        20000,
-        "steps of the memory run (resident memory is sampled every 1000 steps)",
-        check=(lambda v: v >= 2000, "at least 2000 (memory is sampled every 1000 steps)"),
-    )
-    skip_parallel: bool = option(False, "leave out the ParallelEnv settings")
-    peer: bool = option(True, "also time MiniWorld-CollectHealth (installed on demand into peer_venv)")
-    peer_venv: str = option("~/.cache/evaaa/bench-miniworld", "virtual environment the peer is installed into")
-    json: str | None = option(None, "also write the figures to this file")
-    backend: str = option(
-        "cpu", "cpu: the settings above; warp: the MuJoCo Warp backend beside the CPU one", choices=("cpu", "warp")
-    )
-    levels: list[str] = option(
-        ["1-1", "4-2"], "backend=warp: levels measured", choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS]
-    )
-    counts: list[int] = option(
-        [],
-        "backend=warp: numbers of worlds ([]: 256, 1024, 4096, 8192 on a GPU, 2 and 8 on a CPU)",
-        check=(lambda v: v >= 1, "positive integers"),
-    )
-    warp_steps: int = option(
-        100,
-        "backend=warp: decisions timed per setting (after a tenth of that, at least 3, warming up)",
-        check=(lambda v: v >= 1, "a positive integer"),
-    )
-    cpu_max_worlds: int = option(
-        64,
-        "backend=warp: the CPU backend is measured at the counts up to this",
-        check=(lambda v: v >= 0, "an integer >= 0"),
-    )
-
-
 def main(argv=None) -> int:
-    args = cli.parse(
-        BenchConfig,
-        argv,
-        prog="bench_env.py",
-        description=__doc__.split("\n\n")[0],
-        examples=[
-            "",
-            "level=4-2 steps=1500 skip_parallel=true json=docs/bench_env_4-2.json",
-            "backend=warp json=docs/bench/bench_env_warp_h100.json",
-        ],
-    )
+    args = cli.parse(BenchConfig, argv, **HELP)
     results = measure_backends(args) if args.backend == "warp" else measure(args)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)

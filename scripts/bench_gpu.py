@@ -36,8 +36,6 @@ import traceback
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-import torch
-
 import evaaa
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
@@ -83,6 +81,17 @@ class GpuBenchConfig:
     )
     level: str = option("1-1", "level the PPO and DQN runs train on", choices=lambda: list(evaaa.LEVELS))
     deterministic: bool = option(True, "deterministic CUDA kernels, as training's default deterministic=true")
+
+
+HELP = {
+    "prog": "bench_gpu.py",
+    "description": __doc__.split("\n\n")[0],
+    "examples": ["out=docs/bench/gpu-h100.json", "device=cpu tiny=true out=/tmp/gpu.json"],
+}
+if __name__ == "__main__":
+    cli.help_first(GpuBenchConfig, **HELP)  # before torch loads
+
+import torch  # noqa: E402
 
 
 class Bench:
@@ -409,13 +418,7 @@ def load_bench_train():
 
 # ------------------------------------------------------------------------------------------------ main
 def main(argv: list[str] | None = None) -> int:
-    args = cli.parse(
-        GpuBenchConfig,
-        argv,
-        prog="bench_gpu.py",
-        description=__doc__.split("\n\n")[0],
-        examples=["out=docs/bench/gpu-h100.json", "device=cpu tiny=true out=/tmp/gpu.json"],
-    )
+    args = cli.parse(GpuBenchConfig, argv, **HELP)
     if args.env_threads and len(args.env_threads) != len(args.worlds):
         cli.fail(
             "bench_gpu.py",

@@ -37,16 +37,13 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import torch
 from tqdm import tqdm
 
 import evaaa  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
 from evaaa import END_TYPES, EV_NAMES
 from evaaa.pictures import PANEL_WIDTH, FrameDrawer, plot_traces
-from evaaa.video import VideoSink
 from evaaa_baselines import cli, zoo
 from evaaa_baselines.cli import option
-from evaaa_baselines.evaluation import REFERENCE_AGENTS, EvaluatedPolicy, EvaluationError
 
 
 def _policy_ok(spec: str) -> bool:
@@ -56,6 +53,8 @@ def _policy_ok(spec: str) -> bool:
         except zoo.ZooError as err:  # one line, with the zoo's names and the closest one
             raise cli.UsageError(f"policy={spec}: {err}") from None
         return True
+    from evaaa_baselines.evaluation import REFERENCE_AGENTS  # torch: checked after --help
+
     return spec in REFERENCE_AGENTS or Path(spec).is_file()
 
 
@@ -95,6 +94,12 @@ def main(argv=None) -> int:
         "and encoding excluded).",
         examples=["level=1-2 steps=1000 num_envs=2 seed=3", "policy=zoo:ppo-1-1 level=1-1 steps=600"],
     )
+    # the env, torch and the video writer load once --help and the command line have passed
+    import torch
+
+    from evaaa.video import VideoSink
+    from evaaa_baselines.evaluation import EvaluatedPolicy, EvaluationError
+
     level = evaaa.load_level(args.level)
     try:
         policy = EvaluatedPolicy(args.policy, args.seed, sample=args.sample)

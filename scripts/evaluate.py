@@ -31,20 +31,23 @@ import tempfile
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import torch
 from tqdm import tqdm
 
 import evaaa
 from evaaa.records import DISK_ERRNOS, DiskError, StepLog, append_rows, disk_error, new_log_path, read_rows
 from evaaa_baselines import cli, zoo
 from evaaa_baselines.cli import option
-from evaaa_baselines.evaluation import REFERENCE_AGENTS, EvaluatedPolicy, EvaluationError, episode_records
-from evaaa_baselines.reports import SUMMARY_NOTE, markdown_table, plot_outcomes, plot_summary, read_episodes, summarize
+
+if TYPE_CHECKING:  # torch and TorchRL load once --help and the command line have passed
+    from evaaa_baselines.evaluation import EvaluatedPolicy
 
 GROUPS = {"testbeds": evaaa.TESTBEDS, "training": evaaa.LEVELS, "all": evaaa.LEVELS + evaaa.TESTBEDS}
 #: what an evaluation writes to ``out``: any of them there means ``out`` already holds one
 OUTPUTS = ("episodes.csv", "summary.md", "success.png", "survival.png", "outcomes.png")
+#: how a level of your own is named in ``levels`` (docs/levels.md, "A level of your own")
+OWN_LEVEL = "the path of a .yaml level file of your own, e.g. levels=[1-1,path/to/my.yaml]"
 
 
 def _policy_ok(spec: str) -> bool:
@@ -54,6 +57,8 @@ def _policy_ok(spec: str) -> bool:
         except zoo.ZooError as err:  # one line, with the zoo's names and the closest one
             raise cli.UsageError(f"policy={spec}: {err}") from None
         return True
+    from evaaa_baselines.evaluation import REFERENCE_AGENTS  # torch: checked after --help
+
     return spec in REFERENCE_AGENTS or Path(spec).is_file()
 
 
@@ -67,8 +72,8 @@ class EvalConfig:
     )
     levels: list[str] = option(
         ["testbeds"],
-        "level and testbed names, or the groups testbeds, training, all",
-        choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS, *GROUPS],
+        f"level and testbed names ({', '.join((*evaaa.LEVELS, *evaaa.TESTBEDS))}), the groups testbeds, training, "
+        f"all, or {OWN_LEVEL}; episodes.csv names a file's level by its stem, as train.py level=file does",
     )
     episodes: int = option(20, "episodes per level and policy", check=(lambda v: v >= 1, "a positive integer"))
     num_envs: int = option(4, "worlds run together", check=(lambda v: v >= 1, "a positive integer"))
@@ -125,23 +130,72 @@ class EvalConfig:
     )
 
 
+HELP = {
+    "prog": "evaluate.py",
+    "description": __doc__.split("\n\n")[0],
+    "examples": [
+        "policy=[oracle,random] levels=testbeds episodes=20",
+        "policy=[runs/1-1/ppo/all-squared/seed0/model-0-1-1.pt,random] levels=[1-1] sample=true",
+    ],
+}
+if __name__ == "__main__":
+    cli.help_first(EvalConfig, **HELP)  # before the reports' libraries (pandas, matplotlib, scipy) load
+
+from evaaa_baselines.reports import (  # noqa: E402
+    SUMMARY_NOTE,
+    markdown_table,
+    plot_outcomes,
+    plot_summary,
+    read_episodes,
+    summarize,
+)
+
+
 def parse(argv: list[str] | None = None) -> EvalConfig:
     """The config from ``key=value`` arguments (``--help`` lists the keys); level groups expanded, in order."""
-    cfg = cli.parse(
-        EvalConfig,
-        argv,
-        prog="evaluate.py",
-        description=__doc__.split("\n\n")[0],
-        examples=[
-            "policy=[oracle,random] levels=testbeds episodes=20",
-            "policy=[runs/1-1/ppo/all-squared/seed0/model-0-1-1.pt,random] levels=[1-1] sample=true",
-        ],
-    )
+    cfg = cli.parse(EvalConfig, argv, **HELP)
+    given = cli.given(sys.argv[1:] if argv is None else argv, "levels")
     levels: list[str] = []
     for name in cfg.levels:
-        levels += [level for level in GROUPS.get(name, (name,)) if level not in levels]
+        levels += [level for level in _levels(name, given) if level not in levels]
     cfg.levels = levels
+    # a device this machine lacks is refused now, before out= is made (torch loads here, not for --help)
+    from evaaa_baselines.devices import DeviceError, resolve_device
+
+    try:
+        resolve_device(cfg.device)
+    except DeviceError as err:
+        cli.fail("evaluate.py", str(err))
     return cfg
+
+
+#: the file each level of your own was read from, by its name
+OWN_FILES: dict[str, Path] = {}
+
+
+def _levels(name: str, given: str) -> tuple[str, ...]:
+    """The levels ``name`` of ``levels=`` stands for: a group's, a packaged level, or the level of a file of your own
+    (registered, so that its name loads; checked now, before anything is written).  A name that is none of them
+    exits 2 in one line, naming the closest names."""
+    if name in GROUPS:
+        return tuple(GROUPS[name])
+    if name in (*evaaa.LEVELS, *evaaa.TESTBEDS):
+        return (name,)
+    if name.endswith((".yaml", ".yml")):
+        from evaaa_baselines.config import ConfigError, level_file
+
+        try:
+            level = level_file(name, "levels")
+        except ConfigError as err:
+            cli.fail("evaluate.py", str(err))
+        OWN_FILES[level] = Path(name).resolve()
+        return (level,)
+    names = [*evaaa.LEVELS, *evaaa.TESTBEDS, *GROUPS]
+    cli.fail(
+        "evaluate.py",
+        f"levels={given}: '{name}' is not allowed{cli.did_you_mean(name, names)}; allowed: {', '.join(names)}, "
+        f"or {OWN_LEVEL}",
+    )
 
 
 def episodes(summary) -> str:
@@ -204,18 +258,23 @@ def main(argv: list[str] | None = None) -> int:
             f"evaluate.py: {out} already holds an evaluation ({', '.join(earlier)}); nothing was "
             "changed: choose another out=, or move those files away first"
         )
-    try:
-        _writable(out)
-    except DiskError as err:
-        raise SystemExit(f"evaluate.py: {err}; nothing was written") from None
+    import torch
+
+    from evaaa_baselines.evaluation import EvaluatedPolicy, EvaluationError
+
     if cfg.threads is not None:
         torch.set_num_threads(cfg.threads)
-    try:
+    try:  # before out= is made: a policy refused leaves nothing behind
         policies = [
             EvaluatedPolicy(spec, cfg.seed, cfg.modalities, cfg.epsilon, cfg.sample, cfg.device) for spec in cfg.policy
         ]
     except EvaluationError as err:
         cli.fail("evaluate.py", str(err))
+    made = not out.exists()
+    try:
+        _writable(out)
+    except DiskError as err:
+        raise SystemExit(f"evaluate.py: {err}; nothing was written") from None
     if completing:
         _check_episodes(out / "episodes.csv", policies, cfg)
         print(f"{out / 'episodes.csv'} holds every episode of this evaluation: writing its summary and figures")
@@ -226,6 +285,10 @@ def main(argv: list[str] | None = None) -> int:
             raise SystemExit(
                 f"evaluate.py: {err}; no episodes.csv was written (run the command again once the disk takes writes)"
             ) from None
+        except SystemExit:  # an episode refused (EvaluationError): a folder this command made stays only if used
+            if made and out.is_dir() and not any(out.iterdir()):
+                out.rmdir()
+            raise
     try:
         written, table = _summarize(cfg, out)
     except OSError as err:
@@ -241,6 +304,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run_episodes(cfg: EvalConfig, policies: list[EvaluatedPolicy], out: Path) -> None:
+    from evaaa_baselines.evaluation import EvaluationError, episode_records
+
     total = len(policies) * len(cfg.levels) * cfg.episodes
     # episodes go to a hidden file until the last one is done: an interrupted evaluation leaves no episodes.csv
     partial = out / ".episodes.csv.partial"
@@ -284,7 +349,9 @@ def _summarize(cfg: EvalConfig, out: Path) -> tuple[list[Path], str]:
     summary = summarize(rows)
     table = markdown_table(summary)
     written = [out / "episodes.csv"]
-    tests = summary[summary["level"].isin(evaaa.TESTBEDS)]
+    # a level of your own is drawn with the testbeds where it has a success rule, else with the training levels
+    own, judged = ~summary["level"].isin((*evaaa.LEVELS, *evaaa.TESTBEDS)), summary["success_rate"].notna()
+    tests = summary[summary["level"].isin(evaaa.TESTBEDS) | (own & judged)]
     if len(tests):
         written.append(
             _atomic(
@@ -292,7 +359,7 @@ def _summarize(cfg: EvalConfig, out: Path) -> tuple[list[Path], str]:
                 lambda p: plot_summary(tests, p, success=True, title=f"Success per testbed ({episodes(tests)})"),
             )
         )
-    training = summary[summary["level"].isin(evaaa.LEVELS)]
+    training = summary[summary["level"].isin(evaaa.LEVELS) | (own & ~judged)]
     if len(training):
         written.append(
             _atomic(
@@ -308,6 +375,7 @@ def _summarize(cfg: EvalConfig, out: Path) -> tuple[list[Path], str]:
         + ("; checkpoints sample their actions (DQN's act greedily: it has no distribution)" if cfg.sample else "")
         + (f"; checkpoints act epsilon-greedily, epsilon {cfg.epsilon:g}" if cfg.epsilon else "")
         + ")\n\n"
+        + "".join(f"Level {name}: the file {OWN_FILES[name]}.\n\n" for name in cfg.levels if name in OWN_FILES)
         + SUMMARY_NOTE
         + "\n\n"
         + table

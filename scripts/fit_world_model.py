@@ -21,13 +21,9 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-import torch
-
 from evaaa.sensors import SENSORS, resolve_modalities
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
-from evaaa_baselines.devices import DeviceError, resolve_device
-from evaaa_baselines.dreamer.probes import eat_success_readout, fit_world_model
 
 
 @dataclass
@@ -66,6 +62,12 @@ def main(argv: list[str] | None = None) -> int:
         description=__doc__.split("\n\n")[0],
         examples=['run=runs/1-1/dreamer_xs/all-squared/seed0 updates=1000 "set=[consume_share=0.5]"'],
     )
+    # torch and DreamerV3's code load once --help and the command line have passed
+    import torch
+
+    from evaaa_baselines.devices import DeviceError, resolve_device
+    from evaaa_baselines.dreamer.probes import eat_success_readout, fit_world_model
+
     if cfg.threads is not None:
         torch.set_num_threads(cfg.threads)
     try:

@@ -8,6 +8,7 @@ and the level: the rows the evaluation tool writes for agents, so a report can p
     python scripts/play.py level=1-2 participant=p02 rate=5 seed=3 port=8080 out=outputs/human
     python scripts/play.py level=1-1 overrides.episode.max_steps=200 # any level field, by its dotted path
     python scripts/play.py level_dir=my-levels level=maze           # my-levels/maze.yaml (the page offers them all)
+    python scripts/play.py level=path/to/my.yaml                    # one level file of your own
 
 Keys: up = forward, left/right = turn, space = eat, period = do nothing, Enter = new episode once one ended.
 Steps advance on each key press; with ``rate=R`` they advance R times a second instead, a second without a
@@ -57,9 +58,17 @@ def parse_args(argv: list[str]) -> PlaySettings:
     """The settings from ``key=value`` arguments.  Raises :class:`UsageError` (one line naming the key)."""
     try:
         # the levels of level_dir are registered before the values are checked: level= may name one of them
-        level_dir = cli.read(PlaySettings, argv, checks=False).level_dir
-        if level_dir is not None:
-            register_level_dir(level_dir)
+        first = cli.read(PlaySettings, argv, checks=False)
+        if first.level_dir is not None:
+            register_level_dir(first.level_dir)
+        if first.level.endswith((".yaml", ".yml")):  # a level file of your own, by its path: played by its name
+            from evaaa_baselines.config import ConfigError, level_file
+
+            try:
+                name = level_file(first.level, "level")
+            except ConfigError as exc:
+                raise UsageError(str(exc)) from None
+            argv = [f"level={name}" if a.partition("=")[0].lstrip("+") == "level" else a for a in argv]
         options = cli.read(PlaySettings, argv)
     except cli.UsageError as exc:
         raise UsageError(str(exc)) from None

@@ -19,7 +19,6 @@ from dataclasses import dataclass
 
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
-from evaaa_baselines.dreamer.probes import ev_decoding_errors, imagined_action_values
 
 
 @dataclass
@@ -48,6 +47,9 @@ def main(argv: list[str] | None = None) -> int:
             "run=runs/1-1/dreamer_xs/all-sparse/seed0 model=runs/1-1/dreamer_xs/all-sparse/seed0/model-best-0-1-1.pt",
         ],
     )
+    # DreamerV3's code (torch, TorchRL) loads once --help and the command line have passed
+    from evaaa_baselines.dreamer.probes import ev_decoding_errors, imagined_action_values
+
     try:
         result = ev_decoding_errors(cfg.run, cfg.sequences, cfg.model)
     except (ValueError, FileNotFoundError) as err:

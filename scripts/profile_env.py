@@ -15,8 +15,6 @@ import os
 import pstats
 from dataclasses import dataclass
 
-import torch
-
 import evaaa
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
@@ -44,6 +42,8 @@ def main(argv: list[str] | None = None) -> int:
         description=__doc__.split("\n\n")[0],
         examples=["level=4-2 num_envs=8 steps=500 top=30"],
     )
+    import torch  # once --help and the command line have passed
+
     torch.set_num_threads(1)
     env = evaaa.EvaaaEnv(args.level, num_envs=args.num_envs, seed=0, threads=1)
     generator = torch.Generator().manual_seed(0)

@@ -6,6 +6,7 @@ not done; a tiny real protocol runs end to end into a report and a second run do
 from __future__ import annotations
 
 import json
+import os
 import re
 from pathlib import Path
 
@@ -477,6 +478,36 @@ def test_cells_run_when_what_they_need_exists_and_a_second_run_has_nothing_to_do
     assert [status(c, lay, cells) for c in cells] == ["done"] * 3
     assert lay.marker("train/a").is_file() and lay.marker("report").is_file()
     assert all(lay.log(c.name).read_text().count("\n== ") == 1 for c in cells)
+
+
+def _stamp(lay: Layout, cell: str, finished: str) -> None:
+    """Give ``cell``'s done-marker another finished time (its UTC stamp, as the runner writes it)."""
+    marker = lay.marker(cell)
+    marker.write_text(json.dumps({**json.loads(marker.read_text()), "finished": finished}) + "\n")
+
+
+def test_a_report_made_after_every_cell_stays_done_whatever_order_a_clone_wrote_the_files_in(tmp_path):
+    # git keeps no modification times: a clone writes the record's files in its own order, often the report's marker
+    # before the evaluations' episodes.csv (issue 64: a fresh clone's plan said "102 done, 1 partial"); the markers'
+    # finished stamps say which came first
+    lay, cells = _fake(tmp_path)
+    assert _scheduler(lay, cells).run(cells) == 0
+    _stamp(lay, "train/a", "20261129T040000Z")
+    _stamp(lay, "eval/a", "20261129T041000Z")
+    _stamp(lay, "report", "20261207T142044Z")
+    os.utime(lay.marker("report"), (1_000_000, 1_000_000))  # checked out first
+    assert [status(c, lay, cells) for c in cells] == ["done"] * 3
+    # an evaluation redone after the report (its marker's stamp later): the report is out of date again
+    _stamp(lay, "eval/a", "20261208T000000Z")
+    assert status(cells[2], lay, cells) == "partial"
+
+
+def test_a_report_is_out_of_date_where_a_cell_without_a_marker_was_written_after_it(tmp_path):
+    lay, cells = _fake(tmp_path)
+    assert _scheduler(lay, cells).run(cells) == 0
+    lay.marker("eval/a").unlink()  # an evaluation made by hand: done by its episodes.csv alone, which is newer
+    os.utime(lay.marker("report"), (1_000_000, 1_000_000))
+    assert status(cells[1], lay, cells) == "done" and status(cells[2], lay, cells) == "partial"
 
 
 def test_an_evaluation_runs_as_soon_as_its_model_exists_before_later_trainings(tmp_path):

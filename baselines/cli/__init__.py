@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import difflib
 import sys
 import textwrap
 import types
@@ -168,6 +169,17 @@ def _choices(choices: Sequence[Any] | Callable[[], Sequence[Any]]) -> list[Any]:
 
 
 # ------------------------------------------------------------------------------------------------- parsing
+def did_you_mean(word: Any, allowed: Sequence[Any]) -> str:
+    """`` (did you mean X?)`` naming the allowed values closest to ``word`` (at most three, closest first), or
+    nothing where none is close: for a typo of a key, a level or a choice.  A dotted key is compared by its last
+    part where every allowed key shares the rest (``algo.lrr``: ``algo.lr``, not every ``algo.*``)."""
+    word, allowed = str(word), [str(a) for a in allowed]
+    parent = word.rpartition(".")[0]
+    cut = len(parent) + 1 if parent and all(a.startswith(parent + ".") for a in allowed) else 0
+    close = difflib.get_close_matches(word[cut:], [a[cut:] for a in allowed], n=3, cutoff=0.6)
+    return f" (did you mean {' or '.join(word[:cut] + c for c in close)}?)" if close else ""
+
+
 def read(schema: type[T], argv: Sequence[str], checks: bool = True) -> T:
     """``argv`` (``key=value`` strings) over ``schema``'s defaults.  Raises :class:`UsageError` with one line.
     ``checks=False`` checks keys and types only, not the allowed values (a documentation test of commands whose
@@ -183,7 +195,7 @@ def read(schema: type[T], argv: Sequence[str], checks: bool = True) -> T:
             raise UsageError(f"'{arg}' is not of the form key=value; keys: {keys} (see --help)")
         top = key.split(".")[0]
         if top not in fields:
-            raise UsageError(f"unknown key '{key}'; keys: {keys} (see --help)")
+            raise UsageError(f"unknown key '{key}'{did_you_mean(top, list(fields))}; keys: {keys} (see --help)")
         tp = hints[top]
         try:
             value = OmegaConf.to_container(OmegaConf.from_dotlist([f"v={text}"]))["v"]
@@ -222,7 +234,7 @@ def read(schema: type[T], argv: Sequence[str], checks: bool = True) -> T:
     try:
         cfg = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(schema), given))
     except ConfigKeyError as err:
-        raise UsageError(f"unknown key '{err.full_key}'; keys: {keys} (see --help)") from None
+        raise UsageError(f"unknown key '{err.full_key}'; keys: {keys} (see --help)") from None  # a nested key
     except OmegaConfBaseException as err:
         top = str(err.full_key or "").split(".")[0].split("[")[0]
         if top not in fields:
@@ -242,14 +254,19 @@ def read(schema: type[T], argv: Sequence[str], checks: bool = True) -> T:
             bad = [v for v in items if v not in allowed]
             if bad:
                 raise UsageError(
-                    f"{f.name}={_given(argv, f.name)}: '{_show(bad[0])}' is not allowed; "
-                    f"allowed: {', '.join(map(str, allowed))}"
+                    f"{f.name}={_given(argv, f.name)}: '{_show(bad[0])}' is not allowed"
+                    f"{did_you_mean(_show(bad[0]), allowed)}; allowed: {', '.join(map(str, allowed))}"
                 )
         bad = [v for v in items if check is not None and not check[0](v)]
         if bad:
             got = f" (got {_show(bad[0])})" if isinstance(value, list) else ""
             raise UsageError(f"{f.name}={_given(argv, f.name)}: expected {check[1]}{got}")
     return cfg
+
+
+def given(argv: Sequence[str], key: str) -> str:
+    """The text the user gave for ``key`` on the command line (the last one), as messages quote it."""
+    return _given(argv, key)
 
 
 def _given(argv: Sequence[str], key: str) -> str:
@@ -262,6 +279,14 @@ def fail(prog: str, message: str) -> typing.NoReturn:
     """Print one line ``<prog>: error: <message>`` to stderr and exit with status 2 (as argparse does)."""
     print(f"{prog}: error: {message}", file=sys.stderr)
     raise SystemExit(2)
+
+
+def help_first(schema: type, prog: str, description: str, examples: Sequence[str] = ()) -> None:
+    """``--help`` before a script's slow imports (torch, the env): called under ``if __name__ == "__main__"`` ahead
+    of them, it prints :func:`usage` and exits with status 0 when the command line asks for help."""
+    if any(a in HELP_FLAGS for a in sys.argv[1:]):
+        print(usage(schema, prog, description, examples))
+        raise SystemExit(0)
 
 
 def parse(

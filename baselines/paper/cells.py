@@ -16,7 +16,6 @@ from typing import Literal
 import evaaa
 
 from ..config import COMPUTE_BOUND_STEPS
-from ..rollout import samples_actions
 from .protocol import (
     CHECKPOINTS,
     LEVEL_GROUPS,
@@ -202,6 +201,8 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
     modes = eval_modes(ev)
 
     def eval_cell(name: str, model: Path, own: str, train_cell: str, sps: float, algo: str) -> Cell:
+        from ..rollout import samples_actions  # torch: not for reproduce.py --help
+
         cmds, seconds = [], 0.0
         # an algorithm without an action distribution acts the same when asked to sample: evaluated once
         own_modes = [m for m in modes if m == "mode" or samples_actions(algo)] or modes
@@ -558,6 +559,26 @@ def _newest(paths: Sequence[Path]) -> float:
     return max((q.stat().st_mtime for q in paths if q.exists()), default=0.0)
 
 
+def _finished(cell: Cell, lay: Layout) -> str | None:
+    """The UTC stamp the runner wrote into ``cell``'s done-marker when it finished it (None: no marker, or none
+    readable)."""
+    try:
+        stamp = json.loads(lay.marker(cell.name).read_text()).get("finished")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return stamp if isinstance(stamp, str) else None
+
+
+def _newer(cell: Cell, report: Cell, lay: Layout) -> bool:
+    """Whether ``cell`` was (re)done after ``report`` was made.  The done-markers' finished stamps decide where both
+    have one: git keeps no modification times, so a clone writes the record's files in its own order; a cell without
+    a stamp (an evaluation made by hand), or one stamped in the report's second, is compared by its files' times."""
+    mine, theirs = _finished(cell, lay), _finished(report, lay)
+    if mine is not None and theirs is not None and mine != theirs:
+        return mine > theirs  # YYYYmmddTHHMMSSZ: in time order as text
+    return _newest(outputs(cell, lay)) > lay.marker(report.name).stat().st_mtime
+
+
 def outputs(cell: Cell, lay: Layout) -> list[Path]:
     """The files whose presence makes ``cell`` done."""
     if cell.kind == "train":
@@ -582,9 +603,7 @@ def status(cell: Cell, lay: Layout, cells: Sequence[Cell] = ()) -> Literal["done
         if cell.kind != "report":
             return "done"
         others = [c for c in cells if c.kind != "report"]
-        if all(status(c, lay) == "done" for c in others) and lay.marker(cell.name).stat().st_mtime >= _newest(
-            [o for c in others for o in outputs(c, lay)]
-        ):
+        if all(status(c, lay) == "done" for c in others) and not any(_newer(c, cell, lay) for c in others):
             return "done"
         return "partial"  # written before some cell was (re)done
     if cell.kind == "train":

@@ -42,7 +42,7 @@ from .load import (
 )
 from .matched import curve_points, learned_gate, reaching, threshold
 from .stats import MIN_SEEDS
-from .tables import caption, cell, pivot_table
+from .tables import caption, cell, markdown_table, pivot_table, summarize
 
 
 @dataclass
@@ -1738,6 +1738,28 @@ def claims(doc: Document, inp: Inputs) -> None:
 
 
 #: The sections after the runs, in the order the report shows them.
+def own_levels(doc: Document, inp: Inputs) -> None:
+    """Evaluations on levels of your own (``evaluate.py levels=[path/to/my.yaml]``, ``train.py level=file``), when
+    there are any: evaluate.py's table, a row per level and a column per policy.  The paper's sections above compare
+    the packaged levels only."""
+    frames = [f for f in (inp.evals.references, inp.evals.checkpoints) if len(f)]
+    rows = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=["level"])
+    rows = rows[~rows["level"].isin((*evaaa.LEVELS, *evaaa.TESTBEDS))]
+    if not len(rows):
+        return
+    table = summarize(rows)
+    doc.tables["own_levels"] = table
+    doc.md += [
+        "## Levels of your own",
+        "",
+        "Levels outside the package, as evaluate.py's summary shows them: the success rate where the level has a "
+        "success rule, else survival (decisions); episodes are the units (cells as described under Statistics).",
+        "",
+        markdown_table(table),
+        "",
+    ]
+
+
 SECTIONS = (
     survival_per_level,
     curriculum_vs_direct,
@@ -1750,6 +1772,7 @@ SECTIONS = (
     evaluation_curves,
     ablation_curves,
     ablation_success,
+    own_levels,
     claims,
 )
 
