@@ -108,7 +108,7 @@ def test_a_peer_that_cannot_be_installed_is_skipped_with_the_reason(tmp_path, ca
     "args, message",
     [
         (["steps=10"], "steps=10: expected more than 60"),
-        (["level=1-3"], "level=1-3: '1-3' is not allowed; allowed: 1-1, 1-2"),
+        (["level=1-3"], "level=1-3: '1-3' is not allowed (did you mean 1-2 or 1-1?); allowed: 1-1, 1-2"),
         (["steps=abc"], "steps=abc: expected an integer"),
         (["--steps", "80"], "'--steps' is not of the form key=value"),
     ],

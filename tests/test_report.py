@@ -913,7 +913,7 @@ def test_launcher_presets_compose_with_hydra_config():
     assert make_cfg("hydra/launcher=basic", hydra=True).hydra.launcher._target_.endswith("BasicLauncher")
     assert make_cfg("hydra/launcher=local", "hydra.launcher.n_jobs=8", hydra=True).hydra.launcher.n_jobs == 8
     slurm = make_cfg("hydra/launcher=slurm", "hydra.launcher.partition=cpu", hydra=True).hydra.launcher
-    assert slurm._target_ == "hydra_plugins.hydra_submitit_launcher.submitit_launcher.SlurmLauncher"
+    assert slurm._target_ == "hydra_plugins.evaaa_ray_launcher.submitit_launchers.SlurmLauncher"
     assert slurm.partition == "cpu" and slurm.cpus_per_task == 4 and slurm.max_num_timeout > 0
     assert "export MUJOCO_GL=egl" in slurm.setup
     # a SLURM sweep tried through submitit's local executor

@@ -210,10 +210,13 @@ def test_evaluate_plays_test_worlds_and_stand_still_never_moves(tmp_path):
     "args,message",
     [
         (["worlds=train"], "worlds=train: 'train' is not allowed; allowed: test, validation"),
-        (["levels=[no-such-testbed]"], "levels=[no-such-testbed]: 'no-such-testbed' is not allowed; allowed: 1-1"),
+        (
+            ["levels=[no-such-testbed]"],
+            "levels=[no-such-testbed]: 'no-such-testbed' is not allowed (did you mean testbeds?); allowed: 1-1",
+        ),
         (
             ["policy=missing/checkpoint.pt"],
-            "policy=missing/checkpoint.pt: expected oracle, random, still or an existing",
+            "policy=missing/checkpoint.pt: expected oracle, random, still, zoo:NAME or an existing",
         ),
         (["episodes=0"], "episodes=0: expected a positive integer"),
         (["episodes=abc"], "episodes=abc: expected an integer"),

@@ -21,6 +21,13 @@ from evaaa_baselines.timing import PHASES, TimeSplit, shares
 SHAPES = {"pixels": (64, 64, 3), "interoception": (4,)}
 
 
+def PAPER_PPO():  # noqa: N802 - PPO with the paper's sizes: four stacked frames, as the rollouts below are made
+    return OmegaConf.merge(
+        OmegaConf.load(CONF_DIR / "algo" / "ppo.yaml"),
+        OmegaConf.load(CONF_DIR / "preset" / "algo" / "ppo_paper_sizes.yaml"),
+    )
+
+
 #: where episodes end in the rollouts below, (world, step) -> terminated: world 0 truncated at step 5, world 1
 #: terminated at step 9; with TWICE, world 2 truncated at steps 3 and 11 too (more than the single call's budget)
 ONCE = {(0, 5): False, (1, 9): True}
@@ -60,7 +67,7 @@ def _rollout(worlds: int, steps: int, ends: dict, seed: int = 0) -> TensorDict:
 
 @pytest.mark.parametrize("ends", [ONCE, TWICE], ids=["single-call", "two-truncations-the-long-way"])
 def test_single_call_gae_gives_the_two_call_advantages_across_truncations_and_terminations(ends, monkeypatch):
-    cfg = OmegaConf.load(CONF_DIR / "algo" / "ppo.yaml")
+    cfg = PAPER_PPO()
     torch.manual_seed(0)
     model = ppo.make_model(cfg, SHAPES)
     batch = _rollout(worlds=3, steps=16, ends=ends)
@@ -93,7 +100,7 @@ def _counting(forward, calls: list):
 def test_the_single_call_changes_the_values_a_wrong_next_observation_would_give():
     """The check above can fail: with the truncated step's next observation replaced by the reset one (what a naive
     shift does), the advantage of that step changes."""
-    cfg = OmegaConf.load(CONF_DIR / "algo" / "ppo.yaml")
+    cfg = PAPER_PPO()
     torch.manual_seed(0)
     model = ppo.make_model(cfg, SHAPES)
     batch = _rollout(worlds=3, steps=16, ends=ONCE)
