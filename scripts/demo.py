@@ -42,20 +42,8 @@ from tqdm import tqdm
 import evaaa  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
 from evaaa import END_TYPES, EV_NAMES
 from evaaa.pictures import PANEL_WIDTH, FrameDrawer, plot_traces
-from evaaa_baselines import cli, zoo
+from evaaa_baselines import cli
 from evaaa_baselines.cli import option
-
-
-def _policy_ok(spec: str) -> bool:
-    if zoo.is_zoo(spec):
-        try:
-            zoo.entry(spec)
-        except zoo.ZooError as err:  # one line, with the zoo's names and the closest one
-            raise cli.UsageError(f"policy={spec}: {err}") from None
-        return True
-    from evaaa_baselines.evaluation import REFERENCE_AGENTS  # torch: checked after --help
-
-    return spec in REFERENCE_AGENTS or Path(spec).is_file()
 
 
 # ------------------------------------------------------------------------------------------------- main
@@ -72,7 +60,7 @@ class DemoConfig:
         "random",
         "oracle, random, still (stands still), a checkpoint file of a baseline, or zoo:NAME (a shipped network: "
         "scripts/zoo.py lists them)",
-        check=(_policy_ok, "oracle, random, still, zoo:NAME or an existing checkpoint file"),
+        check=(cli.policy_ok, "oracle, random, still, zoo:NAME or an existing checkpoint file"),
     )
     sample: bool = option(
         False, "for checkpoints: sample actions from the policy's distribution instead of taking the most likely one"

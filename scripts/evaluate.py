@@ -37,7 +37,7 @@ from tqdm import tqdm
 
 import evaaa
 from evaaa.records import DISK_ERRNOS, DiskError, StepLog, append_rows, disk_error, new_log_path, read_rows
-from evaaa_baselines import cli, zoo
+from evaaa_baselines import cli
 from evaaa_baselines.cli import option
 
 if TYPE_CHECKING:  # torch and TorchRL load once --help and the command line have passed
@@ -50,25 +50,13 @@ OUTPUTS = ("episodes.csv", "summary.md", "success.png", "survival.png", "outcome
 OWN_LEVEL = "the path of a .yaml level file of your own, e.g. levels=[1-1,path/to/my.yaml]"
 
 
-def _policy_ok(spec: str) -> bool:
-    if zoo.is_zoo(spec):
-        try:
-            zoo.entry(spec)
-        except zoo.ZooError as err:  # one line, with the zoo's names and the closest one
-            raise cli.UsageError(f"policy={spec}: {err}") from None
-        return True
-    from evaaa_baselines.evaluation import REFERENCE_AGENTS  # torch: checked after --help
-
-    return spec in REFERENCE_AGENTS or Path(spec).is_file()
-
-
 @dataclass
 class EvalConfig:
     policy: list[str] = option(
         ["oracle", "random", "still"],
         "oracle, random, still (stands still), a checkpoint file of a baseline, or zoo:NAME (a shipped network: "
         "scripts/zoo.py lists them); a list evaluates each",
-        check=(_policy_ok, "oracle, random, still, zoo:NAME or an existing checkpoint file"),
+        check=(cli.policy_ok, "oracle, random, still, zoo:NAME or an existing checkpoint file"),
     )
     levels: list[str] = option(
         ["testbeds"],

@@ -302,3 +302,19 @@ def parse(
         return read(schema, argv)
     except UsageError as err:
         fail(prog, str(err))
+
+
+def policy_ok(spec: str) -> bool:
+    """``check=`` of a script's ``policy`` option: a reference agent, ``zoo:NAME`` (a wrong name is refused in one
+    line with the zoo's names and the closest one) or an existing checkpoint file."""
+    from evaaa_baselines import zoo
+
+    if zoo.is_zoo(spec):
+        try:
+            zoo.entry(spec)
+        except zoo.ZooError as err:
+            raise UsageError(f"policy={spec}: {err}") from None
+        return True
+    from evaaa_baselines.evaluation import REFERENCE_AGENTS  # torch: checked after --help
+
+    return spec in REFERENCE_AGENTS or Path(spec).is_file()
