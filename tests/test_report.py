@@ -918,7 +918,7 @@ def test_launcher_presets_compose_with_hydra_config():
     assert "export MUJOCO_GL=egl" in slurm.setup
     # a SLURM sweep tried through submitit's local executor
     slurm_local = make_cfg("hydra/launcher=slurm_local", hydra=True).hydra.launcher
-    assert slurm_local._target_ == "hydra_plugins.hydra_submitit_launcher.submitit_launcher.LocalLauncher"
+    assert slurm_local._target_ == "hydra_plugins.evaaa_ray_launcher.submitit_launchers.LocalLauncher"
     # Ray: evaaa's own launcher plugin (Hydra's, hydra-ray-launcher, does not install beside the pinned packages)
     ray = make_cfg("hydra/launcher=ray_cluster", "hydra.launcher.address=auto", hydra=True).hydra.launcher
     assert ray._target_ == "hydra_plugins.evaaa_ray_launcher.ray_launcher.RayLauncher"
