@@ -193,12 +193,14 @@ def episodes(summary) -> str:
 
 
 def _writable(out: Path) -> None:
-    """Fail now, not after the episodes, where ``out`` cannot take files (a real write: root passes permission
-    checks yet cannot write a read-only mount)."""
+    """Fail now, not after the episodes, where ``out`` cannot take files: a real write of 64 KiB made durable
+    (root passes permission checks yet cannot write a read-only mount, and a full disk still creates empty files)."""
     try:
         out.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=out, prefix=".write-test-"):
-            pass
+        with tempfile.NamedTemporaryFile(dir=out, prefix=".write-test-") as probe:
+            probe.write(bytes(64 * 1024))
+            probe.flush()
+            os.fsync(probe.fileno())
     except OSError as exc:
         raise DiskError(out, exc) from None
 
@@ -262,7 +264,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         _writable(out)
     except DiskError as err:
-        raise SystemExit(f"evaluate.py: {err}; nothing was written") from None
+        if made and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()
+        raise SystemExit(f"evaluate.py: {err}; nothing was written, no episode was played") from None
     if completing:
         _check_episodes(out / "episodes.csv", policies, cfg)
         print(f"{out / 'episodes.csv'} holds every episode of this evaluation: writing its summary and figures")

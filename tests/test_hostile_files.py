@@ -291,12 +291,17 @@ def test_an_evaluation_the_disk_stops_says_so_and_the_same_command_completes_it(
     assert not (out / "summary.md").exists()
 
 
-def test_an_evaluation_whose_episodes_the_disk_refuses_writes_nothing(tmp_path, monkeypatch):
+def test_an_evaluation_on_a_full_disk_refuses_before_its_first_episode_and_writes_nothing(tmp_path, monkeypatch):
+    import evaaa_baselines.evaluation as evaluation
+
     script = load_script("evaluate")
     out = tmp_path / "eval"
+    played = []
+    monkeypatch.setattr(evaluation, "episode_records", lambda *a, **k: played.append(a) or [])
     monkeypatch.setattr(os, "fsync", lambda fd: (_ for _ in ()).throw(OSError(errno.ENOSPC, "No space left on device")))
     with pytest.raises(SystemExit) as info:
         script.main(["policy=random", "levels=[two-resource-food]", "episodes=2", "num_envs=2", f"out={out}"])
-    assert "\n" not in str(info.value.code) and "No space left on device" in str(info.value.code)
-    assert list(out.iterdir()) == []
+    message = str(info.value.code)
+    assert "\n" not in message and "No space left on device" in message and "no episode was played" in message
+    assert played == [] and not out.exists()
     assert evaaa.TESTBEDS  # (the level list stayed importable)
