@@ -168,22 +168,37 @@ def test_cells_run_through_submitit_s_local_executor(tmp_path):
     assert list((tmp_path / "submitit").rglob("*_submitted.pkl"))  # the jobs went through submitit
 
 
-#: one cell of each kind the smoke protocol has, the evaluation after the training whose model it needs and the choice
-#: of the compared mode, which needs every training (the whole protocol runs on the local engine in test_protocol.py;
-#: here the engines carry a part of it)
-TRAININGS = [
-    "train/ppo/curriculum/seed0",
-    "train/ppo/direct-1-2/seed2",
-    "train/ppo/direct-1-1/seed2",
-    "train/ppo/ablation-no_vision/seed2",
-]
-ENGINE_CELLS = ["ref/oracle", *TRAININGS, "choose/acting", "eval/ppo/direct-1-1/seed2", "report"]
+#: a protocol with one cell of each kind the smoke protocol has (a reference, a training, the choice of the compared
+#: mode from the training's validation rows, the evaluation of its model in both modes, the report) and one more
+#: reference that is not selected: the whole smoke protocol runs on the local engine in test_protocol.py; here the
+#: engines carry every kind of cell, the smallest of each (one 128-step training, one testbed episode per command)
+ENGINE = """
+name: engine
+stage_steps: 128
+seeds: [0]
+levels: [1-1]
+training:
+  overrides: [preset=debug, logger=csv, progress=false, eval.every=128, eval.episodes=2, eval.both_modes=true]
+  curriculum: false
+algorithms:
+  ppo: {steps_per_second: 30, overrides: [reward=original]}
+evaluation:
+  modes: [sample, mode]
+  compare: validation
+  testbeds: {levels: [two-resource-temp], episodes: 1, num_envs: 1}
+  steps_per_second: 300
+references: {policies: [oracle, random], levels: [two-resource-temp], episodes: 1, num_envs: 1, steps_per_second: 300}
+report: {out: null}
+"""
+ENGINE_CELLS = ["ref/oracle", "train/ppo/direct-1-1/seed0", "choose/acting", "eval/ppo/direct-1-1/seed0", "report"]
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("executor", ["ray", "slurm"])
-def test_the_smoke_protocol_end_to_end_on_an_engine(tmp_path, executor, request):
-    args = ["protocol=smoke", f"root={tmp_path / 'root'}", "progress=false", f"executor={executor}"]
+def test_every_kind_of_protocol_cell_end_to_end_on_an_engine(tmp_path, executor, request):
+    spec = tmp_path / "engine.yaml"
+    spec.write_text(ENGINE)
+    args = [f"protocol={spec}", f"root={tmp_path / 'root'}", "progress=false", f"executor={executor}"]
     args.append(f"cells=[{','.join(ENGINE_CELLS)}]")
     if executor == "ray":
         args.append(f"ray_address={request.getfixturevalue('ray_cluster')}")
@@ -193,14 +208,16 @@ def test_the_smoke_protocol_end_to_end_on_an_engine(tmp_path, executor, request)
     root = tmp_path / "root"
     from evaaa_baselines.paper.cells import build_cells
 
-    cells = build_cells(load_protocol("smoke"), root)
+    cells = build_cells(load_protocol(spec), root)
     chosen = [c for c in cells if c.name in ENGINE_CELLS]
+    assert sorted(c.name for c in chosen) == sorted(ENGINE_CELLS)
     assert sorted({c.kind for c in chosen}) == ["choose", "eval", "ref", "report", "train"]
     lay = Layout(root)
     assert all(status(c, lay, cells) == "done" for c in chosen if c.kind != "report")
     assert status(next(c for c in cells if c.kind == "report"), lay, cells) == "partial"  # made on what there is
+    assert [c.name for c in cells if c not in chosen] == ["ref/random"]
     assert all(status(c, lay, cells) == "todo" for c in cells if c not in chosen)  # the others not touched
-    # every command of every chosen cell ran once (an evaluation cell has one command per set of levels)
+    # every command of every chosen cell ran once (an evaluation cell has one command per acting mode)
     assert all(_runs(lay, c.name) == len(c.commands) for c in chosen)
     assert any(len(c.commands) > 1 for c in chosen)
     assert "Fig. 4a, left" in (root / "report" / "report.md").read_text()
