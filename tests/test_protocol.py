@@ -141,6 +141,10 @@ def test_plan_lists_every_cell_its_status_estimate_total_and_command(tmp_path, c
         ),
         ({"report": {"out": "x", "survival": "best"}}, "field report.survival: Input should be 'eval' or 'train'"),
         (
+            {"training": {"eval_steps_per_second": 0}},
+            "field training.eval_steps_per_second: Input should be greater than 0",
+        ),
+        (
             {"references": {"steps_per_second": 1, "levels_of": {"oracle": ["maze"]}}},
             "field references.levels_of: 'maze' is not a level, testbed or group",
         ),
@@ -423,8 +427,8 @@ def test_an_unknown_protocol_name_and_a_bad_key_are_one_line_errors(capsys):
         reproduce.main(["protocol=paper_tpu", "plan=true"])
     assert stop.value.code == 2
     assert (
-        "protocol=paper_tpu: no such protocol; allowed: paper_cpu, paper_gpu, paper_learned, smoke"
-        in capsys.readouterr().err
+        "protocol=paper_tpu: no such protocol; allowed: paper_cpu, paper_gpu, paper_learned, paper_settle, "
+        "paper_settle_pilot, smoke" in capsys.readouterr().err
     )
     with pytest.raises(SystemExit) as stop:
         reproduce.main(["protocol=smoke", "executor=kubernetes"])
@@ -1245,3 +1249,8 @@ def test_paper_settle_s_pilot_chooses_on_validation_worlds_and_its_arms_train_on
     hours = {p.name: sum(c.minutes for c in cs) / 60 for p, cs in ((pilot, pilot_cells), (settle, cells))}
     assert hours["paper_settle_pilot"] <= pilot.budget_cpu_hours and hours["paper_settle"] <= settle.budget_cpu_hours
     assert sum(hours.values()) <= 60
+    docs = (Path(__file__).parents[1] / "docs/reports.md").read_text()
+    docs = docs[docs.index("## The protocol that settles (a) and (b)") : docs.index("## Sweeps and launchers")]
+    for name, h in hours.items():
+        assert f"**{h:.2f}** |" in docs and f"protocol={name} plan=true" in docs
+    assert f"Pilot and runs: {sum(hours.values()):.1f} CPU-hours planned" in docs
