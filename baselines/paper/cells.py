@@ -89,7 +89,8 @@ def validation_seconds(
 ) -> float:
     """Seconds a training run of ``argv`` spends in its in-training validation evaluations, each episode taken to its
     level's step limit (an upper bound): per stage one every ``eval.every`` env steps (the last at the stage's end),
-    ``eval.episodes`` episodes, played twice where ``eval.both_modes=true`` and ``algo`` can sample."""
+    ``eval.episodes`` episodes, played twice where ``eval.both_modes=true`` and ``algo`` can sample; the settings as
+    ``argv``'s overrides give them, else conf/config.yaml's (a preset's own ``eval`` settings are not read)."""
     from ..rollout import samples_actions  # the algorithms' modules load torch: only plans that count evaluations
 
     defaults = _eval_defaults()
