@@ -1217,7 +1217,7 @@ def test_the_plan_counts_in_training_evaluations_where_the_protocol_gives_their_
         1,
     )
     assert "trainings with their in-training validation evaluations at 400 world steps/s" in plan
-    assert "in-training" not in plan_text(load_protocol("smoke"), [*plain.values()], Layout(tmp_path), 1)
+    assert "trainings with their" not in plan_text(load_protocol("smoke"), [*plain.values()], Layout(tmp_path), 1)
 
 
 def test_paper_settle_s_pilot_chooses_on_validation_worlds_and_its_arms_train_on_disjoint_worlds(tmp_path):
