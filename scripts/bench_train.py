@@ -417,11 +417,22 @@ def standstill_survival(run_dir: Path) -> float:
         env.close(raise_if_closed=False)
 
 
+def eval_acting(run_dir: Path, algo: str) -> str:
+    """How the in-training evaluations of a run whose ``eval.csv`` has no ``acting`` column acted, as
+    baselines/reports/load.py reads such files: sampled where the run's ``eval.sample`` was true (DQN, which has no
+    action distribution, took its most likely action whatever it said), the most likely action otherwise."""
+    sample = bool((OmegaConf.load(run_dir / ".hydra" / "config.yaml").get("eval") or {}).get("sample", False))
+    return "sample" if sample and algo != "dqn" else "mode"
+
+
 def learning(run_dir: Path, algo: str, preset: str, seed: int, bar: float) -> Learning:
     """The learning speed of a run from its ``eval.csv`` (mean survival and the stage's CPU seconds per evaluation)
     and the CPU seconds each evaluation took (``eval/cpu_seconds`` in its log), which are left out."""
     evals = pd.read_csv(run_dir / "eval.csv")
-    acting = "sample" if (evals["acting"] == "sample").any() else "mode"  # DQN evaluates greedily only
+    if "acting" not in evals:  # written before eval.csv named its acting mode: as the run's eval.sample said
+        evals["acting"] = eval_acting(run_dir, algo)
+    # eval.both_modes: rows of both modes; the sampled ones are the measure (DQN evaluates greedily only)
+    acting = "sample" if (evals["acting"] == "sample").any() else "mode"
     evals = evals[(evals["acting"] == acting) & (evals["stage"] == evals["stage"].min())]
     if evals.empty:
         raise SystemExit(f"bench_train.py: {run_dir}/eval.csv holds no evaluation")

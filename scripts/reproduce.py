@@ -31,7 +31,8 @@ from evaaa_baselines.paper.running import EXECUTORS, STOP_GRACE_SECONDS, Runner,
 class ReproduceConfig:
     protocol: str = option(
         "paper_cpu",
-        "a protocol of conf/protocol/ (paper_cpu, paper_gpu, paper_learned, smoke) or the path of a protocol YAML file",
+        "a protocol of conf/protocol/ (paper_cpu, paper_gpu, paper_learned, paper_settle, paper_settle_pilot, smoke) or "
+        "the path of a protocol YAML file",
     )
     root: str | None = option(
         None,

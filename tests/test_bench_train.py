@@ -225,6 +225,35 @@ def test_finished_runs_are_read_with_their_own_acting_mode_and_folder(tmp_path, 
     assert refused.value.code == 2 and "has no eval.csv" in capsys.readouterr().err
 
 
+def test_learning_reads_the_sampled_rows_of_both_modes_and_old_files_by_their_config(tmp_path):
+    bench = load_bench()
+    # eval.both_modes: each evaluation's episodes played again by the most likely action, rows of their own; only
+    # the sampled ones measure learning (the greedy ones here would pass the bar 10 k steps earlier)
+    both = tmp_path / "both"
+    write_evaluations(both, [(10_000, 120.0, [1000, 1200], 0.0), (20_000, 300.0, [2500, 2600], 0.0)])
+    text = (both / "eval.csv").read_text()
+    mode_rows = [r.replace(",sample,", ",mode,") for r in text.splitlines()[1:]]
+    mode_rows[0] = mode_rows[0].replace(",1000,", ",9000,")
+    (both / "eval.csv").write_text(text + "\n".join(mode_rows) + "\n")
+    got = bench.learning(both, "ppo", "none", 0, bar=2224.0)
+    assert got.acting == "sample" and got.env_steps_to_learn == 20_000 and len(got.evaluations) == 2
+    # a file written before eval.csv named its acting mode: as the run's eval.sample said (sampled here; most likely
+    # action where it was false, and for DQN whatever it said)
+    for name, config, algo, acting in (
+        ("sampled", "eval:\n  sample: true\n", "ppo", "sample"),
+        ("greedy", "eval:\n  sample: false\n", "ppo", "mode"),
+        ("dqn", "eval:\n  sample: true\n", "dqn", "mode"),
+    ):
+        old = tmp_path / name
+        write_evaluations(old, [(10_000, 120.0, [3000, 3000], 0.0)])
+        rows = [r.split(",") for r in (old / "eval.csv").read_text().splitlines()]
+        (old / "eval.csv").write_text("\n".join(",".join(r[:4] + r[5:]) for r in rows) + "\n")  # no acting
+        (old / ".hydra").mkdir()
+        (old / ".hydra" / "config.yaml").write_text(config)
+        got = bench.learning(old, algo, "none", 0, bar=2224.0)
+        assert got.acting == acting and got.env_steps_to_learn == 10_000
+
+
 def test_the_median_counts_a_seed_that_never_learned_as_slower_than_any(tmp_path):
     bench = load_bench()
     runs = []

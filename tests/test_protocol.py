@@ -141,6 +141,10 @@ def test_plan_lists_every_cell_its_status_estimate_total_and_command(tmp_path, c
         ),
         ({"report": {"out": "x", "survival": "best"}}, "field report.survival: Input should be 'eval' or 'train'"),
         (
+            {"training": {"eval_steps_per_second": 0}},
+            "field training.eval_steps_per_second: Input should be greater than 0",
+        ),
+        (
             {"references": {"steps_per_second": 1, "levels_of": {"oracle": ["maze"]}}},
             "field references.levels_of: 'maze' is not a level, testbed or group",
         ),
@@ -423,8 +427,8 @@ def test_an_unknown_protocol_name_and_a_bad_key_are_one_line_errors(capsys):
         reproduce.main(["protocol=paper_tpu", "plan=true"])
     assert stop.value.code == 2
     assert (
-        "protocol=paper_tpu: no such protocol; allowed: paper_cpu, paper_gpu, paper_learned, smoke"
-        in capsys.readouterr().err
+        "protocol=paper_tpu: no such protocol; allowed: paper_cpu, paper_gpu, paper_learned, paper_settle, "
+        "paper_settle_pilot, smoke" in capsys.readouterr().err
     )
     with pytest.raises(SystemExit) as stop:
         reproduce.main(["protocol=smoke", "executor=kubernetes"])
@@ -1174,3 +1178,79 @@ def test_paper_gpu_s_cpu_bound_cells_request_no_gpu_and_its_gpu_plan_names_its_r
 def test_an_algorithm_whose_device_and_gpus_disagree_is_refused(tmp_path, gpus, device, message):
     path = _smoke_with(tmp_path, algorithms={"ppo": {"steps_per_second": 30, "gpus": gpus, "overrides": [device]}})
     assert message in _load_error(path)
+
+
+def test_the_plan_counts_in_training_evaluations_where_the_protocol_gives_their_rate(tmp_path):
+    # smoke: S = 128, eval.every=128 and eval.episodes=2 in both acting modes; every level's step limit is 5,000.
+    # Per stage one evaluation (at its end): 2 episodes x 2 modes x 5,000 world steps, at 400 world steps/s 50 s
+    plain = {c.name: c for c in build_cells(load_protocol("smoke"), tmp_path)}
+    counted = {
+        c.name: c
+        for c in build_cells(load_protocol(_smoke_with(tmp_path, training__eval_steps_per_second=400)), tmp_path)
+    }
+    assert set(plain) == set(counted)
+    extra = {n: 60 * (counted[n].minutes - plain[n].minutes) for n in plain}
+    assert extra["train/ppo/curriculum/seed0"] == pytest.approx(2 * 50)  # two stages
+    assert extra["train/ppo/direct-1-2/seed2"] == pytest.approx(50)
+    assert extra["train/ppo/ablation-no_vision/seed2"] == pytest.approx(50)
+    assert all(v == 0 for n, v in extra.items() if not n.startswith("train/"))
+    # without the rate the estimate is what it always was: steps / rate and the start-up
+    assert plain["train/ppo/curriculum/seed0"].minutes == pytest.approx((10 + 2 * 128 / 30) / 60)
+    # one mode where the runs record one; none where eval.every=0; the last override wins, as in train.py
+    for overrides, seconds in (
+        (["eval.every=128", "eval.episodes=2", "eval.both_modes=false"], 2 * 25),
+        (["eval.every=64", "eval.episodes=2", "eval.both_modes=true"], 2 * 100),
+        (["eval.every=128", "eval.every=0"], 0),
+    ):
+        path = _smoke_with(
+            tmp_path,
+            training__eval_steps_per_second=400,
+            training__overrides=["preset=debug", *overrides],
+            evaluation__compare="sample",  # validation needs eval.both_modes=true
+        )
+        cell = next(c for c in build_cells(load_protocol(path), tmp_path) if c.name == "train/ppo/curriculum/seed0")
+        assert 60 * cell.minutes - (10 + 2 * 128 / 30) == pytest.approx(seconds)
+    plan = plan_text(
+        load_protocol(_smoke_with(tmp_path, training__eval_steps_per_second=400)),
+        [*counted.values()],
+        Layout(tmp_path),
+        1,
+    )
+    assert "trainings with their in-training validation evaluations at 400 world steps/s" in plan
+    assert "trainings with their" not in plan_text(load_protocol("smoke"), [*plain.values()], Layout(tmp_path), 1)
+
+
+def test_paper_settle_s_pilot_chooses_on_validation_worlds_and_its_arms_train_on_disjoint_worlds(tmp_path):
+    pilot, settle = load_protocol("paper_settle_pilot"), load_protocol("paper_settle")
+    pilot_cells = build_cells(pilot, tmp_path / "pilot")
+    cells = build_cells(settle, tmp_path / "settle")
+    # the pilot: the curriculum to 3-1, nothing on test worlds (its evaluations and references on validation worlds)
+    assert pilot.stage_levels == ["1-1", "1-2", "2-1", "2-2", "3-1"] and not pilot.training.direct
+    checked = [cmd.argv for c in pilot_cells if c.kind in ("eval", "ref") for cmd in c.commands]
+    assert checked and all("worlds=validation" in argv for argv in checked)
+    # paper_settle: five seeds, PPO's default recipe (not the paper's sizes), the mode chosen from validation rows
+    # recorded in both modes, direct runs at the curriculum's env steps on the levels (b) is judged on
+    assert settle.seeds == [0, 1, 2, 3, 4] and settle.evaluation.compare == "validation"
+    assert settle.evaluation.worlds == "test" and pilot.stage_steps < settle.stage_steps
+    trains = [c for c in cells if c.kind == "train"]
+    assert trains and all("preset=paper_sizes" not in c.commands[0].argv for c in trains)
+    assert all(
+        "eval.both_modes=true" in c.commands[0].argv for c in [*trains, *(c for c in pilot_cells if c.kind == "train")]
+    )
+    assert {c.name for c in trains if "/direct-" in c.name} == {
+        f"train/ppo/direct-{lv}/seed{s + 20}" for lv in ("1-2", "2-1", "2-2", "3-1") for s in settle.seeds
+    }
+    # the arms' training worlds are disjoint, and neither arm trains on the pilot's worlds
+    arms, piloted = world_seeds(cells), world_seeds(pilot_cells)
+    assert arms["curriculum"] == set(range(12)) and arms["direct"] == set(range(20, 25))
+    assert not arms["curriculum"] & arms["direct"]
+    assert not (arms["curriculum"] | arms["direct"]) & piloted["curriculum"]
+    # the two plans within the issue's 60 CPU-hours, each within its own budget
+    hours = {p.name: sum(c.minutes for c in cs) / 60 for p, cs in ((pilot, pilot_cells), (settle, cells))}
+    assert hours["paper_settle_pilot"] <= pilot.budget_cpu_hours and hours["paper_settle"] <= settle.budget_cpu_hours
+    assert sum(hours.values()) <= 60
+    docs = (Path(__file__).parents[1] / "docs/reports.md").read_text()
+    docs = docs[docs.index("## The protocol that settles (a) and (b)") : docs.index("## Sweeps and launchers")]
+    for name, h in hours.items():
+        assert f"**{h:.2f}** |" in docs and f"protocol={name} plan=true" in docs
+    assert f"Pilot and runs: {sum(hours.values()):.1f} CPU-hours planned" in docs

@@ -4,6 +4,7 @@ from the files they write; the plan (CPU- and GPU-hours) and the provenance of a
 from __future__ import annotations
 
 import json
+import math
 import os
 import shlex
 from collections import Counter
@@ -13,9 +14,12 @@ from functools import cache
 from pathlib import Path
 from typing import Literal
 
+from omegaconf import OmegaConf
+
 import evaaa
 
 from ..config import COMPUTE_BOUND_STEPS
+from ..paths import CONF_DIR
 from .protocol import (
     CHECKPOINTS,
     LEVEL_GROUPS,
@@ -66,6 +70,38 @@ def _safe(name: str) -> str:
 def max_steps(level: str) -> int:
     """A level's episode cap (decisions), for the estimates."""
     return int(evaaa.load_level(level).episode.max_steps)
+
+
+@cache
+def _eval_defaults() -> dict:
+    """train.py's ``eval`` settings where no override names them (conf/config.yaml)."""
+    return dict(OmegaConf.to_container(OmegaConf.load(CONF_DIR / "config.yaml").eval))
+
+
+def override(argv: Sequence[str], key: str, default: object) -> str:
+    """The value the last ``key=value`` of ``argv`` gives (train.py: the last override wins), else ``default``."""
+    said = [a.split("=", 1)[1] for a in argv if a.replace(" ", "").lstrip("+").split("=", 1)[0] == key]
+    return said[-1].strip() if said else str(default)
+
+
+def validation_seconds(
+    argv: Sequence[str], algo: str, stages: Sequence[str], budgets: Sequence[int], steps_per_second: float
+) -> float:
+    """Seconds a training run of ``argv`` spends in its in-training validation evaluations, each episode taken to its
+    level's step limit (an upper bound): per stage one every ``eval.every`` env steps (the last at the stage's end),
+    ``eval.episodes`` episodes, played twice where ``eval.both_modes=true`` and ``algo`` can sample; the settings as
+    ``argv``'s overrides give them, else conf/config.yaml's (a preset's own ``eval`` settings are not read)."""
+    from ..rollout import samples_actions  # the algorithms' modules load torch: only plans that count evaluations
+
+    defaults = _eval_defaults()
+    every = int(override(argv, "eval.every", defaults["every"]).replace("_", ""))
+    if every <= 0:
+        return 0.0
+    episodes = int(override(argv, "eval.episodes", defaults["episodes"]))
+    both = override(argv, "eval.both_modes", defaults["both_modes"]).lower() == "true"
+    modes = 2 if both and samples_actions(algo) else 1
+    evaluations = sum(math.ceil(b / every) * max_steps(lv) for lv, b in zip(stages, budgets))
+    return evaluations * episodes * modes / steps_per_second
 
 
 def expand_levels(names: Sequence[str]) -> list[str]:
@@ -311,6 +347,9 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
         ]
         if minutes is None:
             minutes = (STARTUP_SECONDS + (steps or S * len(stages)) / spec.steps_per_second) / 60
+            if p.training.eval_steps_per_second is not None:
+                budgets = [steps or S] * len(stages)
+                minutes += validation_seconds(argv, algo, stages, budgets, p.training.eval_steps_per_second) / 60
         final = run_dir / f"model-{len(stages) - 1}-{stages[-1]}.pt"
         cells = parts[part]
         cells.append(
@@ -681,7 +720,14 @@ def plan_text(p: Protocol, cells: Sequence[Cell], lay: Layout, threads: int) -> 
     lines += [
         "",
         f"estimated CPU-hours (threads={p.threads} per cell, hours of one cell; rates in the protocol file; evaluation episodes "
-        "taken to their step limit):",
+        "taken to their step limit"
+        + (
+            f"; trainings with their in-training validation evaluations at {p.training.eval_steps_per_second:g} world "
+            "steps/s"
+            if p.training.eval_steps_per_second is not None
+            else ""
+        )
+        + "):",
     ]
     split = budget(cells)
     parts = (

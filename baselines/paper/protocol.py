@@ -123,6 +123,11 @@ class TrainingSpec(_Strict):
     # true: the curriculum's and the direct runs' training-world seeds may overlap (a protocol that ran so before
     # the offset existed); false: such a protocol is refused at load
     allow_shared_worlds: bool = False
+    # measured world steps/s of the runs' in-training validation evaluations: given, the plan counts them in every
+    # training cell (each stage's evaluations every eval.every env steps, eval.episodes episodes, in both acting modes
+    # where eval.both_modes=true and the algorithm samples, each taken to its level's step limit: an upper bound);
+    # null: not counted, as the protocols before it were planned (a compute-matched run's CPU minutes hold them anyway)
+    eval_steps_per_second: float | None = Field(default=None, gt=0)
 
     @field_validator("direct_levels")
     @classmethod
