@@ -260,6 +260,7 @@ def read_inputs(
     compare: str | None = None,
     learned: float | None = None,
     margin: float = 0.1,
+    gain_margin: float = 0.1,
     choice: dict | None = None,
 ) -> Inputs:
     """Check the arguments, read the runs and evaluations and tie the evaluated checkpoints to their runs."""
@@ -271,6 +272,8 @@ def read_inputs(
         raise ReportError(f"learned must be a positive factor (e.g. 2), not {learned!r}")
     if not 0 <= margin < 1:
         raise ReportError(f"margin must lie in [0, 1), not {margin!r}")
+    if not 0 < gain_margin < 1:
+        raise ReportError(f"gain_margin must lie in (0, 1), not {gain_margin!r}")
     check_acting("compare", compare)
     if not run_paths and not eval_paths:
         raise ReportError(
@@ -286,6 +289,7 @@ def read_inputs(
     verdict_rules = rules.Rules(
         margin=margin,
         fails_factor=learned if learned is not None else rules.Rules().fails_factor,
+        gain_margin=gain_margin,
     )
     inputs = Inputs(runs, evals, read_notes, survival, window, bins, compare, learned, verdict_rules, choice)
     describe_extras(inputs.usable)
@@ -1608,6 +1612,10 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
         if per_stage is not None
         else pd.DataFrame(columns=["agent", "level", *STAT_COLUMNS])
     )
+    if per_stage is not None:  # each cell's seeds by run, in its samples' order: (d) redraws a curriculum's together
+        gen["units"] = list(
+            per_stage.groupby(["agent", "ckpt_level"], sort=False)["run"].agg(lambda r: tuple(map(str, r)))
+        )
     vr = inp.verdict_rules
     factor = inp.learned_factor if inp.learned_factor is not None else vr.fails_factor
     refs_train = inp.reference_training
@@ -1685,7 +1693,7 @@ def claims(doc: Document, inp: Inputs) -> None:
         "",
         "Each claim of the EVAAA paper judged against the numbers above by fixed rules that decide both ways "
         '(docs/reports.md, "The verdict rules"; margins from the protocol: '
-        f"`margin={inp.verdict_rules.margin:g}`). "
+        f"`margin={inp.verdict_rules.margin:g}`, `gain_margin={inp.verdict_rules.gain_margin:g}`). "
         f"**A beats B** (survival; testbed success the same on rates): the ratio of their IQMs with its 95 % bootstrap interval — above "
         f"{1 + inp.verdict_rules.margin:g} reproduces, at or under {1 + inp.verdict_rules.margin:g} contradicts (equal "
         "within the margin, or worse), straddling it is not resolvable. **Censoring**: a cell with more than a "
@@ -1694,10 +1702,13 @@ def claims(doc: Document, inp: Inputs) -> None:
         "learn by the gate — the survival interval not above "
         f"{inp.verdict_rules.fails_factor:g}× the better of random and stand-still on that level. **The gate "
         "decides nothing**: every agent is compared; a part the data leave undecided says which of its agents "
-        'did not learn. (d)\'s "no monotonic gain": '
-        "a drop between consecutive training levels, one-sided two-proportion tests on the effective episodes "
-        "(the seeds' design effect), Holm-corrected over the steps, with the smallest drop it finds at "
-        f"{100 * inp.verdict_rules.power:.0f} % power stated. A part whose agent cells have fewer than {MIN_SEEDS} "
+        'did not learn. (d)\'s "no monotonic gain": the gain of mean testbed success along the least-squares '
+        "line from the first training level to the last, its 95 % interval from a two-stage bootstrap that redraws "
+        "a curriculum's seeds together across its levels — at or under "
+        f"+{inp.verdict_rules.gain_margin:g} (no gain beyond the margin) reproduces, above it contradicts — or a "
+        "drop between consecutive training levels (one-sided two-proportion tests on the effective episodes, "
+        "Holm-corrected over the steps), which reproduces too; the power of both at these seeds and episodes is "
+        f"stated ({100 * inp.verdict_rules.power:.0f} %). A part whose agent cells have fewer than {MIN_SEEDS} "
         "seeds has no interval and is not decided (`not resolvable: 2 seeds`); agents that acted differently are "
         "not compared"
         + (
@@ -1791,6 +1802,7 @@ def build_report(
     compare: str | None = None,
     learned: float | None = None,
     margin: float = 0.1,
+    gain_margin: float = 0.1,
     choice: dict | None = None,
 ) -> Report:
     """Read runs and evaluations, write ``out/report.md``, its PNG figures and ``out/data/*.csv`` (the tables'
@@ -1798,7 +1810,7 @@ def build_report(
     (:func:`.load.select_acting`); ``compare``: the one the claims compare, every mode staying in the tables
     (:func:`_one_mode`); ``learned``: the factor over the better of random and stand-still an agent's network
     with every sense must clear on the first level to have learned it (:mod:`.matched`; the bar of "fails");
-    ``margin``: the verdict rules' equivalence margin (:class:`..paper.claims.Rules`); ``choice``: where ``compare``
+    ``margin``, ``gain_margin``: the verdict rules' margins (:class:`..paper.claims.Rules`); ``choice``: where ``compare``
     was chosen from validation rows, the choice's data (:mod:`..paper.choice`), stated in the report."""
     inp = read_inputs(
         run_paths,
@@ -1810,6 +1822,7 @@ def build_report(
         compare=compare,
         learned=learned,
         margin=margin,
+        gain_margin=gain_margin,
         choice=choice,
     )
     doc = Document(Path(out))
