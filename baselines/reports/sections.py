@@ -42,7 +42,7 @@ from .load import (
 )
 from .matched import curve_points, learned_gate, reaching, threshold
 from .stats import MIN_SEEDS
-from .tables import caption, cell, markdown_table, pivot_table, summarize
+from .tables import capped, caption, cell, censored_note, markdown_table, pivot_table, summarize
 
 
 @dataclass
@@ -866,11 +866,14 @@ def learned_table(inp: Inputs) -> pd.DataFrame:
         groups = [g for _, g in part.groupby(key, sort=False)] if key else [part]
         per = lambda col: [float(g[col].astype(float).mean()) for g in groups]  # noqa: E731
         ends = part["end_type"].map(lambda e: ENDS.get(e, e)).value_counts(normalize=True)
-        surv = across_seeds(
+        eaten = lambda g: tuple(g["food_eaten"].astype(float) + g["water_eaten"].astype(float))  # noqa: E731
+        surv = across_seeds(  # with the level and what was eaten: the share at the step cap and the intake
             pd.DataFrame(
                 {
                     "scores": [tuple(g["steps"].astype(float)) for g in groups],
+                    "eaten": [eaten(g) for g in groups],
                     "episodes": [len(g) for g in groups],
+                    "level": level,
                     "g": 0,
                 }
             ),
@@ -895,6 +898,8 @@ def learned_table(inp: Inputs) -> pd.DataFrame:
             "survival": float(surv["value"]),
             "survival_low": float(surv["low"]),
             "survival_high": float(surv["high"]),
+            "at_cap": float(surv["at_cap"]),
+            "intake": float(surv["intake"]),
         }
 
     for (policy, level), part in refs.groupby(["policy", "level"], sort=False):
@@ -923,7 +928,7 @@ def learned_table(inp: Inputs) -> pd.DataFrame:
             continue
         b = better.loc[row.level]
         ratio = row.survival / b["survival"] if b["survival"] else float("nan")
-        vs.append(f"{ratio:.2f}× {b['label']}")
+        vs.append(f"{'≥ ' if capped(row._asdict()) else ''}{ratio:.2f}× {b['label']}")  # a capped IQM: a lower bound
         eats = row.food + row.water > most_eaten.get(row.level, np.inf)
         lives = ratio > 1
         eats_more.append(bool(eats))
@@ -1057,10 +1062,12 @@ def what_it_learned(doc: Document, inp: Inputs) -> None:
             else (f"{r.n} seeds, {r.episodes} ep." if r.unit == "seeds" else f"{r.episodes} ep.")
         )
         interval_ = "" if np.isnan(r.survival_low) else f" [{r.survival_low:.0f}, {r.survival_high:.0f}]"
+        said = censored_note(r._asdict())  # a capped IQM is a lower bound: the share at the cap and the intake
+        interval_ += f"; {said}" if said else ""
         doc.md.append(
             f"| {r.level} | {r.label} | {n} | {r.food:.2f}{seeds(r.food_seeds, r.unit)} | "
             f"{r.water:.2f}{seeds(r.water_seeds, r.unit)} | {r.collisions:.1f} | {r.ends} | "
-            f"{r.survival:.0f}{interval_} | {r.vs_reference} | {r.learned} |"
+            f"{'≥ ' if capped(r._asdict()) else ''}{r.survival:.0f}{interval_} | {r.vs_reference} | {r.learned} |"
         )
     doc.md += [
         "",
@@ -1195,7 +1202,8 @@ def equal_compute(doc: Document, inp: Inputs) -> None:
                 return ", ".join(f"{v:,.0f}" if ok else "never" for v, ok in zip(mine[column], mine["reached"]))
 
             line += (
-                f" {g['ratio']:.2f}× {'stand-still' if g['reference'] == 'still' else g['reference']} | "
+                f" {'≥ ' if capped(g) else ''}{g['ratio']:.2f}× "
+                f"{'stand-still' if g['reference'] == 'still' else g['reference']} | "
                 f"{'yes' if g['learned'] else 'did not learn at this budget'} | {when('steps')} | "
                 f"{when('cpu_minutes')} |"
                 if g is not None
@@ -1271,6 +1279,8 @@ def training_curves(doc: Document, inp: Inputs) -> None:
         # each run's own last bin, the seeds pooled (compute-matched runs end at different env steps: the pooled
         # curve's last bin holds one seed)
         last = by.sort_values("bin").groupby("run", sort=False).tail(1)
+        # on its last stage's level: a cell with more than a quarter of its episodes at that level's cap says so
+        last = last.assign(level=last["run"].map(lambda d: by_dir[d].stages[-1][1] if by_dir[d].stages else ""))
         ends = across_seeds(last, ["group", "label"], "survival")
         table = pivot_table(
             ends.rename(columns={"group": "level"}),
@@ -1322,6 +1332,9 @@ def evaluation_curves(doc: Document, inp: Inputs) -> None:
         )
         # each run's own last evaluation, the seeds pooled (compute-matched runs end at different env steps)
         last = by.sort_values("steps").groupby(["run", "acting"], sort=False).tail(1)
+        # on its stage's level: a cell with more than a quarter of its episodes at that level's cap says so
+        stage_level = {d: {i: lv for i, lv, _ in inp.by_dir[d].stages} for d in set(last["run"])}
+        last = last.assign(level=[stage_level[d].get(int(i), "") for d, i in zip(last["run"], last["stage"])])
         ends = across_seeds(last, ["group", "label"], "survival")
         table = pivot_table(
             ends.rename(columns={"group": "level"}),
