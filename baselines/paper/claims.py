@@ -735,10 +735,19 @@ def no_monotonic_gain(agent: str, part: pd.DataFrame, order: Sequence[str], rule
         f"drops between consecutive levels (one-sided two-proportion tests on the effective episodes, Holm over the "
         f"{len(tested)} steps): {'; '.join(tested) or 'none tested'}; resolved: "
         f"{', '.join(f'{a}→{b}' for a, b in found) or 'none'}",
-        f"power at these seeds and episodes (the gain's standard error {g.se:.3f}): with no gain its interval lies at "
-        f"or under +{m:g} with probability {100 * p_flat:.0f} % (reproduces); a gain of {smallest:.3f} or more lies "
-        f"above it with {100 * rules.power:.0f} % (contradicts); a drop of {mdd:.3f} between two consecutive levels "
-        f"is resolved with {100 * rules.power:.0f} % (one-sided, alpha {rules.alpha:g} / {max(len(tested), 1)})",
+        (
+            f"power at these seeds and episodes (the gain's standard error {g.se:.3f}): with no gain its interval lies "
+            f"at or under +{m:g} with probability {100 * p_flat:.0f} % (reproduces); a gain of {smallest:.3f} or more "
+            f"lies above it with {100 * rules.power:.0f} % (contradicts)"
+            if not math.isnan(p_flat)
+            else "power: the gain has no standard error here (no interval)"
+        )
+        + (
+            f"; a drop of {mdd:.3f} between two consecutive levels is resolved with {100 * rules.power:.0f} % "
+            f"(one-sided, alpha {rules.alpha:g} / {len(tested)})"
+            if not math.isnan(mdd)
+            else ""
+        ),
     ]
     if found or (not math.isnan(g.high) and g.high <= m):
         verdict = REPRODUCED
