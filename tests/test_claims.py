@@ -60,7 +60,10 @@ def test_a_flat_survival_is_a_decided_contradiction_by_equivalence():
     # 4-2 / 1-1 = 700 / 700, bounds [690 / 710, 710 / 690] = [0.972, 1.029]: at or above 1 − 0.1, no fall beyond the
     # margin — contradicted, though Spearman's rho of equal values says nothing
     v = c.survival_falls(frame(per_level("ppo", [700] * 8)), LEVELS)
-    assert v.parts[0].verdict == c.CONTRADICTED and "4-2 / 1-1 = 1.00 [0.97, 1.03] ≥ 0.9" in v.parts[0].evidence[1]
+    assert (
+        v.parts[0].verdict == c.CONTRADICTED
+        and "4-2 / 1-1 = 1.00 [0.97, 1.03] (bounds of the cells' intervals) ≥ 0.9" in v.parts[0].evidence[1]
+    )
     # a margin of 0.02 leaves the same interval straddling 0.98: not resolvable
     tight = c.survival_falls(frame(per_level("ppo", [700] * 8)), LEVELS, rules=c.Rules(margin=0.02))
     assert tight.parts[0].verdict == c.UNRESOLVED
@@ -288,7 +291,7 @@ def test_spearman_p_is_exact_for_few_levels_so_a_perfect_order_of_four_is_not_si
     assert rho == pytest.approx(-1.0) and p == pytest.approx(2 / 24)  # two of the 24 orders are this extreme
     assert c.spearman(range(8), range(8, 0, -1))[1] == pytest.approx(2 / 40320)
     v = c.survival_falls(frame(per_level("dqn", [900, 800, 300, 200], levels=LEVELS[:4])), LEVELS)
-    assert v.verdict == c.UNRESOLVED and "p = 0.0833" in v.parts[0].evidence[1]
+    assert v.verdict == c.UNRESOLVED and "p = 0.0833" in v.parts[0].evidence[2]  # the shape beside the ratio
 
 
 def test_no_part_is_decided_on_fewer_than_three_seeds():
