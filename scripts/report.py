@@ -83,6 +83,13 @@ class ReportConfig:
         "(docs/reports.md)",
         check=(lambda v: 0 <= v < 1, "a number in [0, 1)"),
     )
+    gain_margin: float = option(
+        0.1,
+        "claim (d)'s margin, in testbed success (0.1: 10 points): 'no monotonic gain' is reproduced when the 95 % "
+        "interval of the gain along the least-squares line from the first training level to the last lies at or "
+        "under +gain_margin and contradicted when it lies above (docs/reports.md)",
+        check=(lambda v: 0 < v < 1, "a number in (0, 1)"),
+    )
 
 
 def parse(argv: list[str] | None = None) -> ReportConfig:
@@ -123,6 +130,7 @@ def main(argv: list[str] | None = None) -> int:
             compare=compare,
             learned=cfg.learned,
             margin=cfg.margin,
+            gain_margin=cfg.gain_margin,
             choice=choice,
         )
     except ReportError as err:  # an input that does not hold what the key asks for: named in the message

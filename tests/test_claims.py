@@ -31,7 +31,9 @@ def test_a_survival_falling_and_a_drop_at_3_2_is_reproduced():
     v = c.survival_falls(frame(per_level("ppo", [900, 850, 800, 780, 700, 200, 150, 100])), LEVELS)
     assert v.verdict == c.REPRODUCED
     falls, drop = v.parts
-    assert "Spearman's rho -1.00" in falls.evidence[1] and "3-2: 200 [190, 210]" in falls.evidence[0]
+    # 4-2 / 1-1 = 100 / 900 = 0.11, bounds [90 / 910, 110 / 890] = [0.099, 0.124]: under 1 − 0.1
+    assert "4-2 / 1-1 = 0.11 [0.10, 0.12]" in falls.evidence[1] and falls.verdict == c.REPRODUCED
+    assert "Spearman's rho -1.00" in falls.evidence[2] and "3-2: 200 [190, 210]" in falls.evidence[0]
     # 3-2 / 3-1 = 200 / 700 = 0.29, bounds [190 / 710, 210 / 690] = [0.27, 0.30]: under 1 − 0.1
     assert "3-2 / 3-1 = 0.29 [0.27, 0.30]" in drop.evidence[1] and drop.verdict == c.REPRODUCED
 
@@ -42,11 +44,29 @@ def test_a_survival_rising_is_contradicted():
 
 
 def test_a_falling_but_the_drop_at_3_2_not_resolved_is_not_resolvable():
-    # 3-2 / 3-1 = 650 / 700 with bounds [450 / 900, 850 / 500] = [0.5, 1.7]: straddles 0.9
-    v = c.survival_falls(frame(per_level("ppo", [900, 850, 800, 750, 700, 650, 600, 550], half=200)), LEVELS)
+    # 4-2 / 1-1 = 550 / 900, bounds [540 / 910, 560 / 890] = [0.59, 0.63]: a fall; 3-2 / 3-1 = 650 / 700 with bounds
+    # [450 / 900, 850 / 500] = [0.5, 1.7]: straddles 0.9
+    halves = [10, 10, 10, 10, 200, 200, 10, 10]
+    rows = [
+        cell(v, h, algo="ppo", level=lv) for lv, v, h in zip(LEVELS, [900, 850, 800, 750, 700, 650, 600, 550], halves)
+    ]
+    v = c.survival_falls(frame(rows), LEVELS)
     assert [p.verdict for p in v.parts] == [c.REPRODUCED, c.UNRESOLVED] and v.verdict == c.UNRESOLVED
-    assert "[0.50, 1.70]" in v.parts[1].evidence[1]
+    assert "[0.59, 0.63]" in v.parts[0].evidence[1] and "[0.50, 1.70]" in v.parts[1].evidence[1]
     assert c.survival_falls(frame([]), LEVELS).verdict == c.UNRESOLVED
+
+
+def test_a_flat_survival_is_a_decided_contradiction_by_equivalence():
+    # 4-2 / 1-1 = 700 / 700, bounds [690 / 710, 710 / 690] = [0.972, 1.029]: at or above 1 − 0.1, no fall beyond the
+    # margin — contradicted, though Spearman's rho of equal values says nothing
+    v = c.survival_falls(frame(per_level("ppo", [700] * 8)), LEVELS)
+    assert (
+        v.parts[0].verdict == c.CONTRADICTED
+        and "4-2 / 1-1 = 1.00 [0.97, 1.03] (bounds of the cells' intervals) ≥ 0.9" in v.parts[0].evidence[1]
+    )
+    # a margin of 0.02 leaves the same interval straddling 0.98: not resolvable
+    tight = c.survival_falls(frame(per_level("ppo", [700] * 8)), LEVELS, rules=c.Rules(margin=0.02))
+    assert tight.parts[0].verdict == c.UNRESOLVED
 
 
 def test_a_no_drop_at_3_2_within_the_margin_is_contradicted():
@@ -148,8 +168,8 @@ def refs(human=True):
     return frame(rows)
 
 
-def gen(values, episodes=100):
-    return frame([cell(v, 0.05, agent="ppo", level=lv, episodes=episodes) for lv, v in zip(LEVELS, values)])
+def gen(values, episodes=100, half=0.05):
+    return frame([cell(v, half, agent="ppo", level=lv, episodes=episodes) for lv, v in zip(LEVELS, values)])
 
 
 def test_d_agents_below_humans_at_ceiling_and_a_drop_is_reproduced():
@@ -159,8 +179,8 @@ def test_d_agents_below_humans_at_ceiling_and_a_drop_is_reproduced():
     assert v.verdict == c.REPRODUCED, [(p.claim, p.verdict) for p in v.parts]
     # 2-1 → 2-2: 0.3 → 0.1 of 100 effective episodes each: pooled 0.2, z = 0.2 / sqrt(0.2 · 0.8 · 2 / 100) = 3.54,
     # one-sided p = 0.000203 < 0.05 / 7 (Holm's first step over the 7 steps)
-    assert "2-1→2-2: p = 0.000203 (rejected)" in v.parts[-1].evidence[1]
-    assert "Holm over the 7 steps" in v.parts[-1].evidence[1]
+    assert "2-1→2-2: p = 0.000203 (rejected)" in v.parts[-1].evidence[2]
+    assert "Holm over the 7 steps" in v.parts[-1].evidence[2]
 
 
 def test_d_the_drop_rule_has_power_at_three_seeds_and_says_it():
@@ -172,7 +192,7 @@ def test_d_the_drop_rule_has_power_at_three_seeds_and_says_it():
     v = c.testbeds_below_ceiling(frame([]), refs(), gen([0.1] * 7 + [0.0], episodes=300), LEVELS)
     assert v.parts[-1].verdict == c.REPRODUCED
     # at the mean rate 0.0875: (2.448 + 0.842) · sqrt(2 · 0.0875 · 0.9125 / 300) = 0.076
-    assert "finds a drop of 0.076" in v.parts[-1].evidence[2] and "80 % probability" in v.parts[-1].evidence[2]
+    assert "a drop of 0.076 between two consecutive levels is resolved with 80 %" in v.parts[-1].evidence[3]
 
 
 def test_d_without_human_records_is_not_resolvable_and_says_so():
@@ -188,8 +208,24 @@ def test_d_agents_at_the_oracle_and_a_monotonic_rise_are_contradicted():
     v = c.testbeds_below_ceiling(success, refs(human=False), rising, LEVELS)
     assert [p.verdict for p in v.parts[1:]] == [c.CONTRADICTED, c.CONTRADICTED]
     assert v.verdict == c.CONTRADICTED
-    flat = c.testbeds_below_ceiling(success, refs(human=False), gen([0.1] * 8), LEVELS)
-    assert flat.parts[-1].verdict == c.UNRESOLVED
+    # the gain along the least-squares line over levels 0..7 is Σ (x − 3.5) / 6 · p: a rise of 0.1 a level gives
+    # 0.7; each level's standard error 0.05 / 1.96 = 0.0255, the gain's sqrt(Σ w²) = sqrt(7 / 6) times it, 0.0276:
+    # 0.7 ± 1.96 · 0.0276 = [0.646, 0.754], above +0.1
+    assert "+0.700 [+0.646, +0.754]" in v.parts[-1].evidence[1]
+
+
+def test_d_a_flat_success_is_a_decided_no_gain_by_equivalence_and_its_power_is_stated():
+    success = frame([cell(0.1, 0.1, agent="ppo · curriculum", level=t) for t in TESTBEDS])
+    # flat at 0.1, each level ± 0.05: the gain 0 ± 1.96 · 0.0276 = [−0.054, +0.054], at or under +0.1: no gain beyond
+    # the margin, with no drop resolved
+    flat = c.testbeds_below_ceiling(success, refs(human=False), gen([0.1] * 8), LEVELS).parts[-1]
+    assert flat.verdict == c.REPRODUCED and "0.000 [-0.054, +0.054]" in flat.evidence[1]
+    assert "resolved: none" in flat.evidence[2]
+    # power: Φ(0.1 / 0.0276 − 1.96) = Φ(1.67) = 95 % to reproduce with no gain; 0.1 + (1.96 + 0.842) · 0.0276 = 0.177
+    assert "probability 95 %" in flat.evidence[3] and "a gain of 0.177 or more" in flat.evidence[3]
+    # a margin of 0.05 under the interval's top: not resolvable — the margin is the protocol's, not the data's
+    tight = c.testbeds_below_ceiling(success, refs(human=False), gen([0.1] * 8), LEVELS, c.Rules(gain_margin=0.05))
+    assert tight.parts[-1].verdict == c.UNRESOLVED
 
 
 # ------------------------------------------------------------------------------------------------ (e)
@@ -255,7 +291,7 @@ def test_spearman_p_is_exact_for_few_levels_so_a_perfect_order_of_four_is_not_si
     assert rho == pytest.approx(-1.0) and p == pytest.approx(2 / 24)  # two of the 24 orders are this extreme
     assert c.spearman(range(8), range(8, 0, -1))[1] == pytest.approx(2 / 40320)
     v = c.survival_falls(frame(per_level("dqn", [900, 800, 300, 200], levels=LEVELS[:4])), LEVELS)
-    assert v.verdict == c.UNRESOLVED and "p = 0.0833" in v.parts[0].evidence[1]
+    assert v.verdict == c.UNRESOLVED and "p = 0.0833" in v.parts[0].evidence[2]  # the shape beside the ratio
 
 
 def test_no_part_is_decided_on_fewer_than_three_seeds():

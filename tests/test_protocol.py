@@ -121,6 +121,18 @@ def test_plan_lists_every_cell_its_status_estimate_total_and_command(tmp_path, c
     assert f"S = **{load_protocol('paper_cpu').stage_steps:,}** env steps" in docs
 
 
+def test_the_report_cell_states_the_protocol_s_verdict_margins(tmp_path):
+    # paper_learned's file says margin 0.1 and gain_margin 0.1; a changed file reaches report.py's arguments
+    argv = build_cells(load_protocol("paper_learned"), tmp_path)[-1].commands[0].argv
+    assert "margin=0.1" in argv and "gain_margin=0.1" in argv
+    base = yaml.safe_load((Path(__file__).parents[1] / "conf/protocol/smoke.yaml").read_text())
+    base["report"] = {**base.get("report", {}), "verdicts": {"margin": 0.2, "gain_margin": 0.05}}
+    path = tmp_path / "margins.yaml"
+    path.write_text(yaml.safe_dump(base))
+    argv = build_cells(load_protocol(path), tmp_path)[-1].commands[0].argv
+    assert "margin=0.2" in argv and "gain_margin=0.05" in argv
+
+
 @pytest.mark.parametrize(
     "change, message",
     [
@@ -143,6 +155,14 @@ def test_plan_lists_every_cell_its_status_estimate_total_and_command(tmp_path, c
         (
             {"training": {"eval_steps_per_second": 0}},
             "field training.eval_steps_per_second: Input should be greater than 0",
+        ),
+        (
+            {"report": {"verdicts": {"margin": 0.1, "gain_margin": 10}}},
+            "field report.verdicts.gain_margin: Input should be less than 1",
+        ),
+        (
+            {"report": {"verdicts": {"gains": 0.1}}},
+            "field report.verdicts.gains: unknown field; allowed: margin, gain_margin",
         ),
         (
             {"references": {"steps_per_second": 1, "levels_of": {"oracle": ["maze"]}}},

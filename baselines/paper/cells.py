@@ -508,7 +508,7 @@ def build_cells(p: Protocol, root: Path, report_out: Path | None = None) -> list
     if p.report.learned is not None:
         argv.append(f"learned={p.report.learned:g}")
     # the verdict rules' margins, stated in the protocol file before its runs (docs/reports.md, "The verdict rules")
-    argv.append(f"margin={p.report.verdicts.margin:g}")
+    argv += [f"margin={p.report.verdicts.margin:g}", f"gain_margin={p.report.verdicts.gain_margin:g}"]
     cells.append(
         Cell(
             "report",

@@ -17,9 +17,12 @@ behind it.  The rules decide both ways (issue 62); their margins are settings (:
   stand-still on that level (IQM).  Contradicted ("it learned") when the interval lies above that bar.
 * **The gate does not hide what the data decide**: an agent that did not learn is still compared; a part left
   undecided says which of its agents did not learn.
-* **(d) no monotonic gain**: a drop of mean testbed success between consecutive training levels, each a one-sided
-  two-proportion test on the effective episodes (the seeds' design effect), Holm-corrected over the steps;
-  the report states the smallest drop the test finds with 80 % power at the protocol's seeds and episodes.
+* **(d) no monotonic gain**: the gain of mean testbed success along the least-squares line from the first training
+  level to the last (:mod:`..reports.trend`), its 95 % interval from a two-stage bootstrap that redraws a
+  curriculum's seeds together across its levels: at or under ``+gain_margin`` (no gain beyond the margin: flat
+  within it, or falling) reproduces, above it contradicts; a drop between consecutive levels (one-sided
+  two-proportion tests on the effective episodes, Holm-corrected over the steps) reproduces too (the gain is not
+  monotonic).  The report states the power of both at the protocol's seeds and episodes.
 * **A claim of parts** is reproduced when every part is, contradicted when any part is (a claim that states
   several things is false when one of them is), otherwise not resolvable.
 
@@ -40,6 +43,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats as sps
 
+from ..reports import trend
 from ..reports.load import GREEDY_STAND_IN, same_acting
 from ..reports.stats import MIN_SEEDS, TooFewSeeds, design_effect, detectable_drop, drop_pvalue, holm, ratio_interval
 from ..reports.tables import capped
@@ -56,6 +60,9 @@ class Rules:
     margin: float = 0.1
     #: fails: survival interval not above this × the better of random and stand-still (the report's learned gate)
     fails_factor: float = 2.0
+    #: (d) "no monotonic gain": the gain of mean testbed success (a share, 0.1 = 10 points) from the first training
+    #: level to the last whose 95 % interval lies at or under +gain_margin reproduces; above it contradicts
+    gain_margin: float = 0.1
     #: the family-wise error of (d)'s drop tests and the power the report states for them
     alpha: float = 0.05
     power: float = 0.8
@@ -270,77 +277,72 @@ def _explain(verdict: Verdict, who: Sequence[str], gate: pd.DataFrame | None) ->
 
 
 # ------------------------------------------------------------------------------------------------ (a)
+def falls_beyond(a, b, margin: float, names: tuple[str, str]) -> tuple[str, str]:
+    """Whether survival falls from ``b`` to ``a`` by more than ``margin``: the ratio ``a`` / ``b`` (:func:`ratio`),
+    its 95 % interval under 1 − margin reproduces (a fall beyond the margin), at or above 1 − margin contradicts
+    (no fall beyond it); otherwise not resolvable.  Censoring: a capped ``a`` makes the ratio a lower bound (it can
+    contradict, not reproduce), a capped ``b`` an upper bound (it can reproduce, not contradict)."""
+    r, lo, hi, how = ratio(a, b)
+    line = f"{names[0]} / {names[1]} = {r:.2f}" + ("" if math.isnan(lo) else f" [{lo:.2f}, {hi:.2f}]")
+    line += " (bounds of the cells' intervals)" if how == "bounds" else ""
+    if math.isnan(lo):
+        return UNRESOLVED, line + " (no interval)"
+    if hi < 1 - margin and not capped(a):
+        return REPRODUCED, line + f" < {1 - margin:g}"
+    if lo >= 1 - margin and not capped(b):
+        return CONTRADICTED, line + f" ≥ {1 - margin:g}"
+    return UNRESOLVED, line + f" straddles {1 - margin:g}"
+
+
 def survival_falls(
     survival: pd.DataFrame, order: Sequence[str], hard_from: str = HARD_FROM, rules: Rules = DEFAULT_RULES
 ) -> Verdict:
     """(a) Survival falls with level difficulty, sharply from 3-2 on.  ``survival``: columns algo, level, value,
-    low, high (survival per training level).  Two parts per algorithm: *falls* — Spearman's rho of survival against
-    level order (exact two-sided p): reproduced rho < 0 with p < alpha, contradicted rho > 0 with p < alpha; *drops
-    at ``hard_from``* — the ratio of ``hard_from``'s survival to the level before it: reproduced when its interval
-    lies under 1 − margin (a drop beyond the margin), contradicted when at or above 1 − margin (no drop beyond
-    it)."""
+    low, high (survival per training level; ``samples``, ``at_cap``).  Two parts per algorithm, each by
+    :func:`falls_beyond` (a fall beyond the margin reproduces, none beyond it contradicts): *falls* — the hardest
+    level's survival over the easiest's (the last and first of ``order`` it has; Spearman's rho of the levels'
+    IQMs against their order, exact p, beside it as the shape); *drops at ``hard_from``* — ``hard_from``'s survival
+    over the level's before it."""
     claim = f"(a) survival falls with level difficulty, sharply from {hard_from} on"
-    rule_falls = f"Spearman's rho of survival IQM against level order, exact p < {rules.alpha:g} (rho < 0 reproduces, > 0 contradicts)"
+    low = f"{1 - rules.margin:g}"
     if not len(survival):
         return missing(claim, "no survival per training level")
     cut = list(order).index(hard_from)
     before = order[cut - 1]
     rule_drop = (
-        f"{hard_from} / {before} survival ratio, 95 % interval: under {1 - rules.margin:g} (a drop beyond the "
-        f"margin) reproduces, at or above {1 - rules.margin:g} contradicts"
+        f"{hard_from} / {before} survival ratio, 95 % interval: under {low} (a drop beyond the margin) reproduces, "
+        f"at or above {low} contradicts"
     )
     parts = []
     for algo, part in survival.groupby("algo", sort=False):
         part = _sorted(part.dropna(subset=["value"]), order)
-        rank = part["level"].map({n: i for i, n in enumerate(order)})
         levels = "; ".join(f"{r.level}: {_fmt(r._asdict())}" for r in part.itertuples())
-        if len(part) < 3 or part["value"].nunique() < 2:
+        if len(part) < 3:
             parts.append(
-                _gate(
-                    Verdict(f"{algo}: falls", UNRESOLVED, rule_falls, [levels, "fewer than 3 levels, or all equal"]),
-                    part,
-                )
+                _gate(Verdict(f"{algo}: falls with level", UNRESOLVED, "no rule: fewer than 3 levels", [levels]), part)
             )
         else:
-            rho, p = spearman(rank, part["value"])
-            verdict = (
-                REPRODUCED
-                if rho < 0 and p < rules.alpha
-                else CONTRADICTED
-                if rho > 0 and p < rules.alpha
-                else UNRESOLVED
+            first, last = part.iloc[0], part.iloc[-1]
+            rule_falls = (
+                f"survival ratio of the hardest level to the easiest ({last['level']} / {first['level']}), 95 % "
+                f"interval: under {low} (a fall beyond the margin) reproduces, at or above {low} contradicts"
             )
-            evidence = [levels, f"Spearman's rho {rho:.2f} (p = {p:.3g}, {len(part)} levels)"]
-            parts.append(_gate(Verdict(f"{algo}: falls with level", verdict, rule_falls, evidence), part))
+            verdict, line = falls_beyond(last, first, rules.margin, (str(last["level"]), str(first["level"])))
+            rank = part["level"].map({n: i for i, n in enumerate(order)})
+            rho, p = spearman(rank, part["value"]) if part["value"].nunique() > 1 else (0.0, 1.0)
+            shape = f"the shape: Spearman's rho {rho:.2f} (exact p = {p:.3g}, {len(part)} levels)"
+            parts.append(
+                _gate(Verdict(f"{algo}: falls with level", verdict, rule_falls, [levels, line, shape]), first, last)
+            )
         cells = part.set_index("level")
         if hard_from in cells.index and before in cells.index:
             a, b = cells.loc[hard_from], cells.loc[before]
-            r, lo, hi, how = ratio(a, b)
-            line = f"{hard_from} / {before} = {r:.2f}" + ("" if math.isnan(lo) else f" [{lo:.2f}, {hi:.2f}]")
-            line += " (bounds of the cells' intervals)" if how == "bounds" else ""
-            if math.isnan(lo):
-                verdict = UNRESOLVED
-            elif hi < 1 - rules.margin and not capped(a):
-                verdict = REPRODUCED
-            elif lo >= 1 - rules.margin and not capped(b):
-                verdict = CONTRADICTED
-            else:
-                verdict = UNRESOLVED
-            parts.append(
-                _gate(
-                    Verdict(
-                        f"{algo}: drops at {hard_from}",
-                        verdict,
-                        rule_drop,
-                        [f"{hard_from}: {_fmt(a)}; {before}: {_fmt(b)}", line],
-                    ),
-                    a,
-                    b,
-                )
-            )
+            verdict, line = falls_beyond(a, b, rules.margin, (hard_from, before))
+            evidence = [f"{hard_from}: {_fmt(a)}; {before}: {_fmt(b)}", line]
+            parts.append(_gate(Verdict(f"{algo}: drops at {hard_from}", verdict, rule_drop, evidence), a, b))
         else:
             parts.append(missing(f"{algo}: drops at {hard_from}", f"no survival on {before} and {hard_from}"))
-    return combine(claim, parts, f"{rule_falls}; {rule_drop}")
+    return combine(claim, parts, "each part by its rule")
 
 
 # ------------------------------------------------------------------------------------------------ (b)
@@ -639,10 +641,9 @@ def testbeds_below_ceiling(
     """(d) On the testbeds humans are near the ceiling, agents far below, and more training difficulty does not give
     monotonic gains.  ``success``: agents' testbed success (agent, level, value, low, high, n, unit);
     ``references``: the same for oracle, random and human (column agent); ``generalisation``: per agent the mean
-    testbed success by the level trained up to (agent, level, value, low, high, n, unit, episodes; ``samples``).
-    "No monotonic gain": reproduced by a resolved drop between consecutive levels (:func:`drops`); contradicted
-    by a rising order (Spearman's rho > 0, exact p < alpha) whose last level's interval lies above the first's and
-    no resolved drop."""
+    testbed success by the level trained up to (agent, level, value, low, high, n, unit, episodes; ``samples``,
+    ``units``: each seed's name, so that a curriculum's seeds are redrawn together across its levels).  "No
+    monotonic gain": :func:`no_monotonic_gain`."""
     claim = "(d) testbeds: humans ≈ ceiling, agents far below; no monotonic gain with training difficulty"
     refs = {a: p.set_index("level") for a, p in references.groupby("agent")} if len(references) else {}
     parts = []
@@ -697,37 +698,70 @@ def testbeds_below_ceiling(
             if len(part) < 3:
                 parts.append(missing(f"{agent}: no monotonic gain", "fewer than 3 training levels"))
                 continue
-            found, tested, mdd = drops(part, order, rules)
-            rank = part["level"].map({n: i for i, n in enumerate(order)})
-            rho, p = spearman(rank, part["value"]) if part["value"].nunique() > 1 else (0.0, 1.0)
-            rises = rho > 0 and p < rules.alpha and above(part.iloc[-1], part.iloc[0])
-            evidence = [
-                "; ".join(f"{r.level}: {_fmt(r._asdict())}" for r in part.itertuples()),
-                f"drops between consecutive levels (one-sided two-proportion tests on the effective episodes, "
-                f"Holm over the {len(tested)} steps): {'; '.join(tested) or 'none tested'}; resolved: "
-                f"{', '.join(f'{a}→{b}' for a, b in found) or 'none'}",
-                f"power: at the mean rate {part['value'].mean():.3g} and the cells' effective episodes, the test "
-                f"finds a drop of {mdd:.3f} ({100 * mdd:.1f} points) or more with {100 * rules.power:.0f} % "
-                f"probability (one-sided, alpha {rules.alpha:g} / {max(len(tested), 1)})",
-                f"Spearman's rho {rho:.2f} (p = {p:.3g}); last level's interval above the first's: "
-                f"{'yes' if above(part.iloc[-1], part.iloc[0]) else 'no'}",
-            ]
-            verdict = REPRODUCED if found else CONTRADICTED if rises else UNRESOLVED
-            parts.append(
-                _gate(
-                    Verdict(
-                        f"{agent}: no monotonic gain with training level",
-                        verdict,
-                        "reproduced by a resolved drop between consecutive training levels (one-sided "
-                        "two-proportion tests on the effective episodes, Holm-corrected over the steps); "
-                        f"contradicted by a rising order (Spearman's rho > 0, exact p < {rules.alpha:g}) whose "
-                        "last level's interval lies above the first's",
-                        evidence,
-                    ),
-                    part,
-                )
-            )
+            parts.append(_gate(no_monotonic_gain(agent, part, order, rules), part))
     return combine(claim, parts, "each part by its rule")
+
+
+def level_gain(part: pd.DataFrame, order: Sequence[str]) -> trend.Gain:
+    """The gain of ``part``'s rates (one agent's levels, in ``order``) along the least-squares line from its first
+    level to its last (:func:`..reports.trend.gain`): from each level's episodes (``samples``; a curriculum's seeds
+    paired across levels by ``units`` where the table has them), else from the cells' intervals."""
+    positions = part["level"].map({n: i for i, n in enumerate(order)}).tolist()
+    samples = [_samples(r) for _, r in part.iterrows()]
+    if all(s is not None for s in samples):
+        named = "units" in part and part["units"].map(lambda u: isinstance(u, tuple)).all()
+        units = list(part["units"]) if named else None
+        try:
+            return trend.gain(samples, positions, units)
+        except TooFewSeeds:
+            pass
+    return trend.gain_from_intervals(part["value"], part["low"], part["high"], positions)
+
+
+def no_monotonic_gain(agent: str, part: pd.DataFrame, order: Sequence[str], rules: Rules = DEFAULT_RULES) -> Verdict:
+    """(d)'s "no monotonic gain with training difficulty" for one agent's mean testbed success by training level
+    (``part``: level, value, low, high, episodes; ``samples``, ``units``), by the gain along the least-squares line
+    (:func:`level_gain`): its 95 % interval at or under ``+gain_margin`` reproduces (no gain beyond the margin),
+    above it contradicts; a resolved drop between consecutive levels (:func:`drops`) reproduces too."""
+    m = rules.gain_margin
+    found, tested, mdd = drops(part, order, rules)
+    g = level_gain(part, order)
+    p_flat, smallest = trend.power(g.se, m, power=rules.power)
+    first, last = part["level"].iloc[0], part["level"].iloc[-1]
+    interval = "no interval" if math.isnan(g.low) else f"[{g.low:+.3f}, {g.high:+.3f}]"
+    evidence = [
+        "; ".join(f"{r.level}: {_fmt(r._asdict())}" for r in part.itertuples()),
+        f"gain along the least-squares line from {first} to {last}: {g.value:+.3f} {interval} ({g.how}); margin +{m:g}",
+        f"drops between consecutive levels (one-sided two-proportion tests on the effective episodes, Holm over the "
+        f"{len(tested)} steps): {'; '.join(tested) or 'none tested'}; resolved: "
+        f"{', '.join(f'{a}→{b}' for a, b in found) or 'none'}",
+        (
+            f"power at these seeds and episodes (the gain's standard error {g.se:.3f}): with no gain its interval lies "
+            f"at or under +{m:g} with probability {100 * p_flat:.0f} % (reproduces); a gain of {smallest:.3f} or more "
+            f"lies above it with {100 * rules.power:.0f} % (contradicts)"
+            if not math.isnan(p_flat)
+            else "power: the gain has no standard error here (no interval)"
+        )
+        + (
+            f"; a drop of {mdd:.3f} between two consecutive levels is resolved with {100 * rules.power:.0f} % "
+            f"(one-sided, alpha {rules.alpha:g} / {len(tested)})"
+            if not math.isnan(mdd)
+            else ""
+        ),
+    ]
+    if found or (not math.isnan(g.high) and g.high <= m):
+        verdict = REPRODUCED
+    elif not math.isnan(g.low) and g.low > m:
+        verdict = CONTRADICTED
+    else:
+        verdict = UNRESOLVED
+    rule = (
+        f"the gain of mean testbed success along the least-squares line from the first training level to the last, "
+        f"95 % interval at or under +{m:g} (no gain beyond the margin) reproduces, above +{m:g} contradicts; a "
+        "resolved drop between consecutive levels (one-sided two-proportion tests on the effective episodes, "
+        "Holm-corrected over the steps) reproduces too"
+    )
+    return Verdict(f"{agent}: no monotonic gain with training level", verdict, rule, evidence)
 
 
 # ------------------------------------------------------------------------------------------------ (e)

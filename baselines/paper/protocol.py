@@ -247,6 +247,10 @@ class VerdictSpec(_Strict):
     # 'A beats B' (survival IQMs, testbed success rates) is reproduced when the 95 % interval of A / B lies above
     # 1 + margin, contradicted when it lies at or under 1 + margin (equal within the margin, or worse)
     margin: float = Field(default=0.1, ge=0, lt=1)
+    # claim (d)'s "no monotonic gain": the gain of mean testbed success (a share: 0.1 is 10 points) along the
+    # least-squares line from the first training level to the last reproduces it when its 95 % interval lies at or
+    # under +gain_margin (no gain beyond the margin), contradicts it when it lies above
+    gain_margin: float = Field(default=0.1, gt=0, lt=1)
 
 
 class ReportSpec(_Strict):

@@ -26,6 +26,7 @@ import pandas as pd
 from .aggregate import across_seeds, level_cap
 from .load import RunRecord
 from .stats import iqm
+from .tables import capped
 
 #: the references an agent must beat to have learned: the better of the two
 GATE_REFERENCES = ("random", "still")
@@ -95,6 +96,7 @@ def learned_gate(
         "threshold",
         "reference",
         "ratio",
+        "at_cap",
         "learned",
         "reading",
     ]
@@ -111,6 +113,7 @@ def learned_gate(
         limit, ref = bar
         learned = not math.isnan(low) and low > limit  # its interval above the bar (claims.fails: the same rule)
         ratio = value * factor / limit if limit else float("nan")
+        bound = "≥ " if capped(est) else ""
         rows.append(
             {
                 "algo": algo,
@@ -126,10 +129,12 @@ def learned_gate(
                 "threshold": limit,
                 "reference": ref,
                 "ratio": ratio,
+                "at_cap": float(est["at_cap"]),
                 "learned": learned,
+                # a capped cell's IQM is a lower bound, and so its ratio to the references
                 "reading": (
-                    f"{algo} ({budget}): {'≥ ' if est['at_cap'] > 0.25 else ''}{value:,.0f} "
-                    f"[{low:,.0f}, {float(est['high']):,.0f}] decisions on {level}, {ratio:.2f}× "
+                    f"{algo} ({budget}): {bound}{value:,.0f} "
+                    f"[{low:,.0f}, {float(est['high']):,.0f}] decisions on {level}, {bound}{ratio:.2f}× "
                     f"{'stand-still' if ref == 'still' else ref} — "
                     + (
                         f"learned (interval above {factor:g}× = {limit:,.0f})"

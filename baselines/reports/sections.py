@@ -42,7 +42,7 @@ from .load import (
 )
 from .matched import curve_points, learned_gate, reaching, threshold
 from .stats import MIN_SEEDS
-from .tables import caption, cell, markdown_table, pivot_table, summarize
+from .tables import capped, caption, cell, censored_note, markdown_table, pivot_table, summarize
 
 
 @dataclass
@@ -260,6 +260,7 @@ def read_inputs(
     compare: str | None = None,
     learned: float | None = None,
     margin: float = 0.1,
+    gain_margin: float = 0.1,
     choice: dict | None = None,
 ) -> Inputs:
     """Check the arguments, read the runs and evaluations and tie the evaluated checkpoints to their runs."""
@@ -271,6 +272,8 @@ def read_inputs(
         raise ReportError(f"learned must be a positive factor (e.g. 2), not {learned!r}")
     if not 0 <= margin < 1:
         raise ReportError(f"margin must lie in [0, 1), not {margin!r}")
+    if not 0 < gain_margin < 1:
+        raise ReportError(f"gain_margin must lie in (0, 1), not {gain_margin!r}")
     check_acting("compare", compare)
     if not run_paths and not eval_paths:
         raise ReportError(
@@ -286,6 +289,7 @@ def read_inputs(
     verdict_rules = rules.Rules(
         margin=margin,
         fails_factor=learned if learned is not None else rules.Rules().fails_factor,
+        gain_margin=gain_margin,
     )
     inputs = Inputs(runs, evals, read_notes, survival, window, bins, compare, learned, verdict_rules, choice)
     describe_extras(inputs.usable)
@@ -862,11 +866,14 @@ def learned_table(inp: Inputs) -> pd.DataFrame:
         groups = [g for _, g in part.groupby(key, sort=False)] if key else [part]
         per = lambda col: [float(g[col].astype(float).mean()) for g in groups]  # noqa: E731
         ends = part["end_type"].map(lambda e: ENDS.get(e, e)).value_counts(normalize=True)
-        surv = across_seeds(
+        eaten = lambda g: tuple(g["food_eaten"].astype(float) + g["water_eaten"].astype(float))  # noqa: E731
+        surv = across_seeds(  # with the level and what was eaten: the share at the step cap and the intake
             pd.DataFrame(
                 {
                     "scores": [tuple(g["steps"].astype(float)) for g in groups],
+                    "eaten": [eaten(g) for g in groups],
                     "episodes": [len(g) for g in groups],
+                    "level": level,
                     "g": 0,
                 }
             ),
@@ -891,6 +898,8 @@ def learned_table(inp: Inputs) -> pd.DataFrame:
             "survival": float(surv["value"]),
             "survival_low": float(surv["low"]),
             "survival_high": float(surv["high"]),
+            "at_cap": float(surv["at_cap"]),
+            "intake": float(surv["intake"]),
         }
 
     for (policy, level), part in refs.groupby(["policy", "level"], sort=False):
@@ -919,7 +928,7 @@ def learned_table(inp: Inputs) -> pd.DataFrame:
             continue
         b = better.loc[row.level]
         ratio = row.survival / b["survival"] if b["survival"] else float("nan")
-        vs.append(f"{ratio:.2f}× {b['label']}")
+        vs.append(f"{'≥ ' if capped(row._asdict()) else ''}{ratio:.2f}× {b['label']}")  # a capped IQM: a lower bound
         eats = row.food + row.water > most_eaten.get(row.level, np.inf)
         lives = ratio > 1
         eats_more.append(bool(eats))
@@ -1053,10 +1062,12 @@ def what_it_learned(doc: Document, inp: Inputs) -> None:
             else (f"{r.n} seeds, {r.episodes} ep." if r.unit == "seeds" else f"{r.episodes} ep.")
         )
         interval_ = "" if np.isnan(r.survival_low) else f" [{r.survival_low:.0f}, {r.survival_high:.0f}]"
+        said = censored_note(r._asdict())  # a capped IQM is a lower bound: the share at the cap and the intake
+        interval_ += f"; {said}" if said else ""
         doc.md.append(
             f"| {r.level} | {r.label} | {n} | {r.food:.2f}{seeds(r.food_seeds, r.unit)} | "
             f"{r.water:.2f}{seeds(r.water_seeds, r.unit)} | {r.collisions:.1f} | {r.ends} | "
-            f"{r.survival:.0f}{interval_} | {r.vs_reference} | {r.learned} |"
+            f"{'≥ ' if capped(r._asdict()) else ''}{r.survival:.0f}{interval_} | {r.vs_reference} | {r.learned} |"
         )
     doc.md += [
         "",
@@ -1191,7 +1202,8 @@ def equal_compute(doc: Document, inp: Inputs) -> None:
                 return ", ".join(f"{v:,.0f}" if ok else "never" for v, ok in zip(mine[column], mine["reached"]))
 
             line += (
-                f" {g['ratio']:.2f}× {'stand-still' if g['reference'] == 'still' else g['reference']} | "
+                f" {'≥ ' if capped(g) else ''}{g['ratio']:.2f}× "
+                f"{'stand-still' if g['reference'] == 'still' else g['reference']} | "
                 f"{'yes' if g['learned'] else 'did not learn at this budget'} | {when('steps')} | "
                 f"{when('cpu_minutes')} |"
                 if g is not None
@@ -1267,6 +1279,8 @@ def training_curves(doc: Document, inp: Inputs) -> None:
         # each run's own last bin, the seeds pooled (compute-matched runs end at different env steps: the pooled
         # curve's last bin holds one seed)
         last = by.sort_values("bin").groupby("run", sort=False).tail(1)
+        # on its last stage's level: a cell with more than a quarter of its episodes at that level's cap says so
+        last = last.assign(level=last["run"].map(lambda d: by_dir[d].stages[-1][1] if by_dir[d].stages else ""))
         ends = across_seeds(last, ["group", "label"], "survival")
         table = pivot_table(
             ends.rename(columns={"group": "level"}),
@@ -1318,6 +1332,9 @@ def evaluation_curves(doc: Document, inp: Inputs) -> None:
         )
         # each run's own last evaluation, the seeds pooled (compute-matched runs end at different env steps)
         last = by.sort_values("steps").groupby(["run", "acting"], sort=False).tail(1)
+        # on its stage's level: a cell with more than a quarter of its episodes at that level's cap says so
+        stage_level = {d: {i: lv for i, lv, _ in inp.by_dir[d].stages} for d in set(last["run"])}
+        last = last.assign(level=[stage_level[d].get(int(i), "") for d, i in zip(last["run"], last["stage"])])
         ends = across_seeds(last, ["group", "label"], "survival")
         table = pivot_table(
             ends.rename(columns={"group": "level"}),
@@ -1608,6 +1625,10 @@ def claim_verdicts(inp: Inputs) -> list[rules.Verdict]:
         if per_stage is not None
         else pd.DataFrame(columns=["agent", "level", *STAT_COLUMNS])
     )
+    if per_stage is not None:  # each cell's seeds by run, in its samples' order: (d) redraws a curriculum's together
+        gen["units"] = list(
+            per_stage.groupby(["agent", "ckpt_level"], sort=False)["run"].agg(lambda r: tuple(map(str, r)))
+        )
     vr = inp.verdict_rules
     factor = inp.learned_factor if inp.learned_factor is not None else vr.fails_factor
     refs_train = inp.reference_training
@@ -1685,7 +1706,7 @@ def claims(doc: Document, inp: Inputs) -> None:
         "",
         "Each claim of the EVAAA paper judged against the numbers above by fixed rules that decide both ways "
         '(docs/reports.md, "The verdict rules"; margins from the protocol: '
-        f"`margin={inp.verdict_rules.margin:g}`). "
+        f"`margin={inp.verdict_rules.margin:g}`, `gain_margin={inp.verdict_rules.gain_margin:g}`). "
         f"**A beats B** (survival; testbed success the same on rates): the ratio of their IQMs with its 95 % bootstrap interval — above "
         f"{1 + inp.verdict_rules.margin:g} reproduces, at or under {1 + inp.verdict_rules.margin:g} contradicts (equal "
         "within the margin, or worse), straddling it is not resolvable. **Censoring**: a cell with more than a "
@@ -1694,10 +1715,13 @@ def claims(doc: Document, inp: Inputs) -> None:
         "learn by the gate — the survival interval not above "
         f"{inp.verdict_rules.fails_factor:g}× the better of random and stand-still on that level. **The gate "
         "decides nothing**: every agent is compared; a part the data leave undecided says which of its agents "
-        'did not learn. (d)\'s "no monotonic gain": '
-        "a drop between consecutive training levels, one-sided two-proportion tests on the effective episodes "
-        "(the seeds' design effect), Holm-corrected over the steps, with the smallest drop it finds at "
-        f"{100 * inp.verdict_rules.power:.0f} % power stated. A part whose agent cells have fewer than {MIN_SEEDS} "
+        'did not learn. (d)\'s "no monotonic gain": the gain of mean testbed success along the least-squares '
+        "line from the first training level to the last, its 95 % interval from a two-stage bootstrap that redraws "
+        "a curriculum's seeds together across its levels — at or under "
+        f"+{inp.verdict_rules.gain_margin:g} (no gain beyond the margin) reproduces, above it contradicts — or a "
+        "drop between consecutive training levels (one-sided two-proportion tests on the effective episodes, "
+        "Holm-corrected over the steps), which reproduces too; the power of both at these seeds and episodes is "
+        f"stated ({100 * inp.verdict_rules.power:.0f} %). A part whose agent cells have fewer than {MIN_SEEDS} "
         "seeds has no interval and is not decided (`not resolvable: 2 seeds`); agents that acted differently are "
         "not compared"
         + (
@@ -1791,6 +1815,7 @@ def build_report(
     compare: str | None = None,
     learned: float | None = None,
     margin: float = 0.1,
+    gain_margin: float = 0.1,
     choice: dict | None = None,
 ) -> Report:
     """Read runs and evaluations, write ``out/report.md``, its PNG figures and ``out/data/*.csv`` (the tables'
@@ -1798,7 +1823,7 @@ def build_report(
     (:func:`.load.select_acting`); ``compare``: the one the claims compare, every mode staying in the tables
     (:func:`_one_mode`); ``learned``: the factor over the better of random and stand-still an agent's network
     with every sense must clear on the first level to have learned it (:mod:`.matched`; the bar of "fails");
-    ``margin``: the verdict rules' equivalence margin (:class:`..paper.claims.Rules`); ``choice``: where ``compare``
+    ``margin``, ``gain_margin``: the verdict rules' margins (:class:`..paper.claims.Rules`); ``choice``: where ``compare``
     was chosen from validation rows, the choice's data (:mod:`..paper.choice`), stated in the report."""
     inp = read_inputs(
         run_paths,
@@ -1810,6 +1835,7 @@ def build_report(
         compare=compare,
         learned=learned,
         margin=margin,
+        gain_margin=gain_margin,
         choice=choice,
     )
     doc = Document(Path(out))
