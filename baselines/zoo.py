@@ -40,8 +40,8 @@ _HEADER = """\
 # The zoo: trained networks shipped with evaaa_baselines, loaded as policy=zoo:<name> (baselines/zoo.py).
 # Written by scripts/zoo.py, which reads algo, level, seed and env_steps from the checkpoint's own record and the
 # command from its run's .hydra/overrides.yaml; a file whose sha256 differs from the one here is refused.
-# validation_survival / test_survival: mean survival steps of the network on validation / test worlds, with the
-# command that measured them, filled in when it is evaluated (null: not yet).
+# validation_survival / test_survival: the network's survival (decisions) on validation / test worlds, filled in
+# from an evaluation (null: not yet): mean, se (standard error), iqm, episodes, acting (sample or mode), command.
 """
 
 
@@ -68,6 +68,16 @@ class ZooEntry:
 
     def path(self, folder: Path | None = None) -> Path:
         return (folder or ZOO_DIR) / self.file
+
+    @staticmethod
+    def survival_text(survival: Any) -> str:
+        """``3482 ± 278 (20 episodes, sample)`` from a survival field; ``not measured`` where it is empty."""
+        if not survival:
+            return "not measured"
+        if isinstance(survival, dict) and {"mean", "se", "episodes"} <= survival.keys():
+            acting = f", {survival['acting']}" if survival.get("acting") else ""
+            return f"{survival['mean']:.0f} ± {survival['se']:.0f} ({survival['episodes']} episodes{acting})"
+        return str(survival)
 
 
 def is_zoo(spec: Any) -> bool:

@@ -95,7 +95,8 @@ def _list() -> int:
         bad += state != "ok"
         print(
             f"zoo:{name}  {e.algo} on {e.level}, seed {e.seed}, {e.env_steps} env steps  "
-            f"validation {e.validation_survival}, test {e.test_survival}  [{state}] {path}"
+            f"validation {e.survival_text(e.validation_survival)}, test {e.survival_text(e.test_survival)}  "
+            f"[{state}] {path}"
         )
     if not known:
         print(f"the zoo ({zoo.ZOO_DIR / zoo.MANIFEST}) holds no network")

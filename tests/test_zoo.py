@@ -40,9 +40,22 @@ def test_the_shipped_zoo_records_each_network_and_its_file_matches():
         assert zoo.resolve(f"zoo:{name}") == zoo.ZOO_DIR / e.file
         assert zoo.sha256(zoo.ZOO_DIR / e.file) == e.sha256
     assert known["ppo-1-1"].level == "1-1"
-    # the fields the lead fills in once the network is evaluated are there, even while empty
+    # the survival fields, filled in from an evaluation of the network on each kind of world by the command they name
     fields = yaml.safe_load((zoo.ZOO_DIR / zoo.MANIFEST).read_text())["networks"]["ppo-1-1"]
     assert {"validation_survival", "test_survival", "trained_by", "sha256"} <= fields.keys()
+    for worlds in ("validation", "test"):
+        survival = fields[f"{worlds}_survival"]
+        assert f"worlds={worlds}" in survival["command"] and "policy=[zoo:ppo-1-1]" in survival["command"]
+        assert survival["se"] < survival["mean"] <= 5000 and survival["episodes"] == 20
+
+
+def test_a_survival_field_reads_as_mean_se_episodes_and_acting():
+    text = zoo.ZooEntry.survival_text
+    assert (
+        text({"mean": 3481.96, "se": 278.04, "episodes": 20, "acting": "sample"}) == "3482 ± 278 (20 episodes, sample)"
+    )
+    assert text({"mean": 1112.0, "se": 0.0, "episodes": 8}) == "1112 ± 0 (8 episodes)"
+    assert text(None) == "not measured"
 
 
 def test_a_wheel_ships_the_zoo():
