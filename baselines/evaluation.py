@@ -415,8 +415,6 @@ def expand_levels(names: Iterable[str], given: str | None = None) -> tuple[list[
     """The levels ``names`` stand for, in order (groups expanded, repeats dropped), and the file each level of your
     own was read from (registered, so that its name loads).  A name that is none of them raises
     :class:`EvaluationError` in one line naming the closest names; ``given``: the text typed, for the message."""
-    from .config import ConfigError, level_file
-
     levels: list[str] = []
     files: dict[str, Path] = {}
     names = list(names)
@@ -427,6 +425,8 @@ def expand_levels(names: Iterable[str], given: str | None = None) -> tuple[list[
         elif name in (*evaaa.LEVELS, *evaaa.TESTBEDS):
             found = (name,)
         elif name.endswith((".yaml", ".yml")):
+            from .config import ConfigError, level_file  # Hydra's: only where a level file is named
+
             try:
                 found = (level_file(name, "levels"),)
             except ConfigError as err:
