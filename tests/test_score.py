@@ -67,17 +67,11 @@ def standing_gym(obs):
 )
 def test_a_policy_of_your_own_plays_the_worlds_random_and_still_play(policy, short, tmp_path):
     out = tmp_path / "score"
-    result = score(policy, levels=[str(short), "two-resource-food"], episodes=2, num_envs=2, out=out, name="mine")
-    assert {p.name for p in result.files} == {
-        "episodes.csv",
-        "summary.md",
-        "success.png",
-        "survival.png",
-        "outcomes.png",
-    }
+    result = score(policy, levels=[str(short)], episodes=2, num_envs=2, out=out, name="mine")
+    assert {p.name for p in result.files} == {"episodes.csv", "summary.md", "survival.png", "outcomes.png"}
     found = rows(out)
     assert [(r["policy"], r["level"]) for r in found] == [
-        (p, level) for p in ("mine", "random", "still") for level in ("short", "two-resource-food") for _ in range(2)
+        (p, "short") for p in ("mine", "random", "still") for _ in "ab"
     ]
     assert {r["worlds"] for r in found} == {"test"}
     mine, still = by_policy(found, "mine"), by_policy(found, "still")
@@ -100,7 +94,7 @@ def test_a_wrong_action_or_folder_is_refused_in_one_line_and_nothing_is_written(
     assert not out.exists()
     with pytest.raises(EvaluationError, match="is not a policy"):
         score(42, levels=["1-1"], out=out)
-    with pytest.raises(EvaluationError, match=r"levels=\[1-l\]: '1-l' is not allowed \(did you mean 1-1"):
+    with pytest.raises(EvaluationError, match=r"levels=\[1-l\]: '1-l' is not allowed \(did you mean 1-2 or 1-1\?\)"):
         score(standing, levels=["1-l"], out=out)
     out.mkdir()
     (out / "summary.md").write_text("an earlier evaluation\n")
