@@ -303,9 +303,13 @@ def train(run: Run) -> None:
                 stats = {k: losses[k] for k in (*LOSS_TERMS, *LOGGED)} | {"grad_norm": grad_norm}
                 for key, value in stats.items():
                     totals[key] = totals.get(key, 0.0) + value.detach().float()
+                # each gradient step reported as it ends (the first with the advantage's time): the bar moves, and
+                # the run's time estimate comes with the first one instead of after the iteration's last
+                now = time.perf_counter()
+                run.updated(1, now - began, run.updates + 1)
+                began = now
         scheduler.step()
         done_updates = -(-run.steps // cfg.frames_per_batch) * updates  # every iteration makes as many
-        run.updated(updates, time.perf_counter() - began, done_updates)
         run.log(
             {
                 **{k: v / updates for k, v in totals.items()},

@@ -5,11 +5,13 @@ return), :func:`evaluate` (one episode per world), and how a policy acts (:func:
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
+from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torchrl.envs import Compose, EnvBase, RewardSum, Transform, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
@@ -81,7 +83,13 @@ class EvalResult:
         return float(np.mean(self.returns))
 
 
-def evaluate(env: EnvBase, policy: TensorDictModuleBase, *, sample: bool = False) -> EvalResult:
+def evaluate(
+    env: EnvBase,
+    policy: TensorDictModuleBase | Callable[[TensorDictBase], TensorDictBase],
+    *,
+    sample: bool = False,
+    on_episode: Callable[[], Any] | None = None,
+) -> EvalResult:
     """Run ``policy`` until every world of ``env`` has finished one episode (from a reset).
 
     The policy acts deterministically (greedy Q-values, the mode of its action distribution), or with
@@ -90,6 +98,7 @@ def evaluate(env: EnvBase, policy: TensorDictModuleBase, *, sample: bool = False
     ``env`` must emit the keys the policy reads (see :meth:`LoadedPolicy.wrap`) and the ``"info"`` fields of
     :data:`EVALUATION_INFO`; episodes end by death or by the
     level's ``episode.max_steps``.  Worlds that finish early keep stepping, unrecorded, until the last one ends.
+    ``on_episode`` is called as each world's episode ends (a progress bar's update).
     """
     emitted = env.observation_spec.keys(include_nested=True)
     missing = [field for field in EVALUATION_INFO if ("info", field) not in emitted]
@@ -113,4 +122,6 @@ def evaluate(env: EnvBase, policy: TensorDictModuleBase, *, sample: bool = False
             for w, row in zip(np.flatnonzero(done), finished):
                 if rows[w] is None:  # a world's later episodes are not counted
                     rows[w] = row
+                    if on_episode is not None:
+                        on_episode()
     return EvalResult([row | {"episode": w} for w, row in enumerate(rows)])

@@ -550,6 +550,8 @@ class Run:
         self.updates, self._ratio = total, ratio
         self.meter.add(self.steps, count, seconds)
         self._show()
+        # the first timed gradient step completes what the estimate needs: said now, not at the iteration's end
+        self._estimate()
 
     def set_phase(self, phase: str | None) -> None:
         if phase != self.phase:
@@ -729,7 +731,17 @@ class Run:
         modes = [sample]
         if self.cfg.eval.get("both_modes", False) and samples_actions(self.cfg.algo.name):
             modes.append(not sample)
-        results = {mode: self._evaluate_once(mode) for mode in modes}
+        # episodes as they end, below the training bar where there is one (the final evaluation follows a full bar)
+        shown = self.progress is not None and not self.progress.disable
+        with tqdm(
+            total=len(modes) * self.cfg.eval.episodes,
+            desc=f"{'final ' if self.done else ''}evaluation on {self.stage.level}",
+            unit="episode",
+            dynamic_ncols=True,
+            leave=False,
+            disable=not shown,
+        ) as bar:
+            results = {mode: self._evaluate_once(mode, on_episode=bar.update) for mode in modes}
         result = results[sample]
         self.last_eval = result.survival_mean
         if self.best_eval is None or result.survival_mean > self.best_eval:
@@ -763,14 +775,14 @@ class Run:
         self.logger.log_metrics(metrics | {"eval/cpu_seconds": time.process_time() - began}, step=self.steps)
         self._show(force=True)
 
-    def _evaluate_once(self, sample: bool) -> EvalResult:
+    def _evaluate_once(self, sample: bool, on_episode: Callable[[], Any] | None = None) -> EvalResult:
         """One episode in each validation world, acting by sampling or by the most likely action."""
         seed = self.cfg.seed
         self._eval_env.set_seed(seed, static_seed=True)
         # a sampling policy draws from torch's RNG: a forked, freshly seeded one leaves the training stream as it was
         with torch.random.fork_rng(devices=[self.device] if self.device.type == "cuda" else []):
             torch.manual_seed(seed)
-            return evaluate(self._eval_env, self.policy, sample=sample)
+            return evaluate(self._eval_env, self.policy, sample=sample, on_episode=on_episode)
 
     def status(self) -> str:
         """The bar's text after the step counter: smoothed and session env steps/s, gradient steps (count, rate,

@@ -456,16 +456,76 @@ def _train(cfg: DictConfig, run_dir: Path, records: Mapping[str, Any] | None, st
     return run_dir
 
 
-def summary(cfg: DictConfig, run_dir: Path) -> str:
-    """What a finished run shows last: its folder, its final evaluation (the last row of ``eval.csv``) and its
+def _eval_rows(run_dir: Path) -> list[dict]:
+    """The rows of the run's ``eval.csv`` (none where it has no evaluation)."""
+    if not (run_dir / "eval.csv").is_file():
+        return []
+    with open(run_dir / "eval.csv", newline="") as f:
+        return list(csv.DictReader(f))
+
+
+#: the reference agents a finished run's final evaluation is shown beside, as the summary names them
+BESIDE = {"random": "random", "still": "stand-still"}
+
+
+def reference_survival(cfg: DictConfig, run_dir: Path) -> dict[str, float]:
+    """Mean survival of the random and stand-still agents on the worlds of the run's final evaluation — its level,
+    its ``eval.episodes`` validation worlds of the run's seed, the run's level settings — so that the summary
+    shows what the network's number is worth (standing still outlives many a policy on 1-1).  A progress bar
+    counts their episodes where the output is a terminal.  Empty where the run made no evaluation."""
+    from tqdm import tqdm
+
+    import evaaa
+    from evaaa.agents import RandomAgent, StillAgent
+
+    from .config import env_overrides
+    from .rollout import EVALUATION_INFO, evaluate
+
+    rows = _eval_rows(Path(run_dir))
+    if not rows:
+        return {}
+    level, n = rows[-1]["level"], int(cfg.eval.episodes)
+    survival = {}
+    shown = bool(OmegaConf.select(cfg, "progress", default=True))
+    with tqdm(
+        total=len(BESIDE) * n,
+        desc=f"{' and '.join(BESIDE.values())} on the same worlds",
+        unit="episode",
+        dynamic_ncols=True,
+        leave=False,
+        disable=None if shown else True,
+    ) as bar:
+        for name in BESIDE:
+            agent = RandomAgent(int(cfg.seed)) if name == "random" else StillAgent()
+            # the final evaluation's env (Run.evaluate) without the senses these agents do not read
+            env = evaaa.make_env(
+                level,
+                num_envs=n,
+                modalities=["interoception"],
+                info=EVALUATION_INFO,
+                worlds="validation",
+                **env_overrides(cfg),
+            )
+            try:
+                env.set_seed(int(cfg.seed), static_seed=True)
+
+                def act(td, env=env, agent=agent):
+                    return td.set("action", torch.from_numpy(agent.act(env.sim)).reshape(td.batch_size))
+
+                survival[name] = evaluate(env, act, on_episode=bar.update).survival_mean
+            finally:
+                env.close()
+    return survival
+
+
+def summary(cfg: DictConfig, run_dir: Path, beside: Mapping[str, float] | None = None) -> str:
+    """What a finished run shows last: its folder, its final evaluation (the last rows of ``eval.csv``) with
+    ``beside`` (:func:`reference_survival`: random's and stand-still's mean survival on the same worlds), and its
     final model."""
     run_dir = Path(run_dir)
     with suppress(ValueError):  # as the command named it: runs/..., not the absolute path Hydra resolved
         run_dir = run_dir.resolve().relative_to(Path.cwd().resolve())
-    rows = []
-    if (run_dir / "eval.csv").is_file():
-        with open(run_dir / "eval.csv", newline="") as f:
-            rows = list(csv.DictReader(f))
+    rows = _eval_rows(run_dir)
     lines = [f"run folder: {run_dir}"]
     if rows:
         last = rows[-1]
@@ -483,6 +543,12 @@ def summary(cfg: DictConfig, run_dir: Path) -> str:
             f"worlds): mean survival {sum(steps) / len(steps):.0f} steps over {len(steps)} episodes (min "
             f"{min(steps)}, max {max(steps)}; {acting}; ended by {ends})"
         )
+        if beside:
+            lines.append(
+                "on the same worlds: "
+                + ", ".join(f"{BESIDE.get(name, name)} {value:.0f}" for name, value in beside.items())
+                + " steps (mean survival)"
+            )
         model = run_dir / f"model-{last['stage']}-{last['level']}.pt"
         if model.exists():
             # absolute paths: the command works from any folder; a level of your own is named by its file

@@ -3,8 +3,8 @@
 #   1. the system libraries for headless OpenGL (EGL through Mesa) and Debian's Chromium with its driver for the
 #      browser test of scripts/play.py (installed with apt-get when run as root),
 #   2. a virtual environment in .venv with the pinned packages of constraints.txt (torch 2.13.0 CPU build; the
-#      extras train, dev, cluster (Ray, submitit: tests/test_cluster.py and test_launchers.py run them) and `warp`
-#      (the tests of the MuJoCo Warp backend: tests/test_warp.py)),
+#      extras train, dev, cluster (Ray, submitit: tests/test_cluster.py and test_launchers.py run them), `warp`
+#      (the tests of the MuJoCo Warp backend: tests/test_warp.py) and sb3 (Stable-Baselines3: tests/test_score.py)),
 #   3. one off-screen render.
 # Safe to run again: each step is skipped when already done. Called by `make setup`, `make train`, `make demo` and
 # `make test`.
@@ -17,7 +17,8 @@ usage: bash scripts/setup.sh [-h | --help]
 Sets up evaaa on a Debian/Ubuntu machine and checks that it works:
   1. the system libraries for headless OpenGL (EGL through Mesa; MUJOCO_GL=osmesa: OSMesa) and Chromium for the
      browser test, installed with apt-get when run as root (otherwise the command to run is printed),
-  2. .venv with the pinned packages of constraints.txt (PyTorch CPU build; the extras train, dev and warp),
+  2. .venv with the pinned packages of constraints.txt (PyTorch CPU build; the extras train, cluster, dev, warp
+     and sb3),
   3. one off-screen render.
 Each step already done is skipped, so it is safe to run again. It takes no other arguments.
 TEXT
@@ -82,7 +83,7 @@ stamp=.venv/.evaaa-installed
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ constraints.txt -nt "$stamp" ]; then
   say "installing packages (pinned by constraints.txt; first time takes a few minutes)"
   .venv/bin/python -m pip install --quiet --upgrade pip
-  .venv/bin/python -m pip install --quiet -c constraints.txt -e ".[train,cluster,dev,warp]"
+  .venv/bin/python -m pip install --quiet -c constraints.txt -e ".[train,cluster,dev,warp,sb3]"
   touch "$stamp"
 fi
 

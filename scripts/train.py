@@ -8,7 +8,8 @@ refused (in one line, changing nothing) unless it says ``resume=true`` or ``star
 checkpoint after the gradient step (DreamerV3) or iteration under way and stops; a second Ctrl-C stops within
 seconds.  SIGTERM and SIGUSR2 stop a run as the first Ctrl-C does; in a SLURM job of ``hydra/launcher=slurm``, SIGUSR2
 (submitit's time-limit and pre-emption signal) then has submitit requeue the job, which continues with resume=true.
-A finished run prints its folder, final evaluation and model last.  See docs/training.md.
+A finished run prints its folder, its final evaluation beside the random and stand-still agents' survival on the
+same worlds, and its model last.  See docs/training.md.
 
     python scripts/train.py algo=ppo level=1-1
     python scripts/train.py algo=dqn level=curriculum resume=true
@@ -91,7 +92,7 @@ def main(cfg: DictConfig) -> None:
     from evaaa_baselines.checkpoint import CheckpointError
     from evaaa_baselines.devices import DeviceError
     from evaaa_baselines.run import Interrupted
-    from evaaa_baselines.training import RunRefused, summary
+    from evaaa_baselines.training import RunRefused, reference_survival, summary
 
     hydra_cfg = HydraConfig.get()
     # what Hydra would have written to .hydra/ itself (conf/config.yaml: output_subdir null)
@@ -102,7 +103,8 @@ def main(cfg: DictConfig) -> None:
     }
     try:
         run_dir = train(cfg, hydra_cfg.runtime.output_dir, records=records)
-        print(summary(cfg, run_dir), flush=True)
+        # the final evaluation's number beside random's and stand-still's on the same worlds (a few seconds)
+        print(summary(cfg, run_dir, beside=reference_survival(cfg, run_dir)), flush=True)
     except (RunRefused, CheckpointError) as err:
         # printed, not logged: logging would append to the existing run's log file
         print(f"train.py: {err}", file=sys.stderr, flush=True)

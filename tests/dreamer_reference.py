@@ -37,7 +37,8 @@ import torch
 #: the runs recorded: name -> algo and extra overrides
 RUNS = {
     "dreamer": ("dreamer", ()),
-    "dreamer_xs": ("dreamer_xs", ()),
+    # the reward it trained on before squared_death became its default
+    "dreamer_xs": ("dreamer_xs", ("reward=squared",)),
     "aids": (
         "dreamer",
         (

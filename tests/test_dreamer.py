@@ -18,6 +18,7 @@ from pathlib import Path
 import matplotlib.image
 import pytest
 import torch
+import yaml
 from helpers import RESUME_DEVICE, load_script, read_csv, train_scalars
 from hydra import compose, initialize_config_dir
 from tensordict import TensorDict
@@ -71,7 +72,7 @@ def test_sizes_s_as_the_paper_xs_and_debug_smaller():
         assert small.model.dense < s.model.dense and small.model.recurrent < s.model.recurrent
         assert small.model.cnn.depth < s.model.cnn.depth and small.model.stochastic < s.model.stochastic
     assert debug_cfg(algo="dreamer_xs").algo.model.dense == debug.model.dense
-    assert make_cfg("algo=dreamer_xs", "modality=no_vision").run.name == "1-1/dreamer_xs/no_vision-squared/seed0"
+    assert make_cfg("algo=dreamer_xs", "modality=no_vision").run.name == "1-1/dreamer_xs/no_vision-squared_death/seed0"
 
 
 @pytest.mark.parametrize("modality", ["all", "no_vision", "no_olfaction"])
@@ -282,6 +283,22 @@ def test_a_budget_within_the_prefill_is_refused_before_anything_is_written(tmp_p
     cfg = make_cfg("algo=dreamer_xs", "level=curriculum", "level.stage_steps=16384")
     assert dreamer.check_config(cfg).startswith("level.stage_steps=16384:")
     assert dreamer.check_config(make_cfg("algo=dreamer_xs", "total_steps=16385")) is None
+
+
+def test_dreamer_xs_trains_on_squared_death_unless_the_command_names_a_reward():
+    # conf/algo/dreamer_xs.yaml and docs/training.md: the reward DreamerV3-XS is meant for
+    xs = make_cfg("algo=dreamer_xs")
+    assert xs.reward.name == "squared_death" and xs.reward.overrides.terminal_penalty == -3000.0
+    assert xs.run.name == "1-1/dreamer_xs/all-squared_death/seed0"
+    for reward in ("squared", "original"):  # a reward named in the command wins
+        assert make_cfg("algo=dreamer_xs", f"reward={reward}").reward.name == reward
+    for algo in ("dreamer", "ppo", "dqn", "ppo_lstm"):  # the others keep the project's default
+        assert make_cfg(f"algo={algo}").reward.name == "squared"
+    # recorded protocols name their rewards, so their commands compose as they ran
+    for path in sorted((CONF_DIR / "protocol").glob("*.yaml")):
+        arm = (yaml.safe_load(path.read_text()).get("algorithms") or {}).get("dreamer_xs")
+        if arm is not None:
+            assert any(str(o).startswith("reward=") for o in arm.get("overrides", [])), path.name
 
 
 def test_a_time_budget_spent_within_the_prefill_says_the_final_model_is_untrained(tmp_path, caplog):

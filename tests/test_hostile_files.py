@@ -259,12 +259,14 @@ def test_episode_records_and_step_logs_the_disk_refuses(tmp_path, monkeypatch):
 
 # ------------------------------------------------------------------------------------------------ 6, 7. evaluations
 def test_an_evaluation_the_disk_stops_says_so_and_the_same_command_completes_it(tmp_path, monkeypatch, capsys):
+    from evaaa_baselines import reports  # where the evaluation's figures are drawn
+
     script = load_script("evaluate")
     out = tmp_path / "eval"
     args = ["policy=random", "levels=[two-resource-food]", "episodes=2", "num_envs=2", f"out={out}"]
-    real_plot = script.plot_outcomes
+    real_plot = reports.plot_outcomes
     monkeypatch.setattr(
-        script,
+        reports,
         "plot_outcomes",
         lambda rows, path: (_ for _ in ()).throw(OSError(errno.ENOSPC, "No space left on device", str(path))),
     )
@@ -274,7 +276,7 @@ def test_an_evaluation_the_disk_stops_says_so_and_the_same_command_completes_it(
     assert "\n" not in message and "No space left on device" in message and "episodes.csv is complete" in message
     episodes = (out / "episodes.csv").read_bytes()
     assert not (out / "summary.md").exists() and not list(out.glob(".*"))  # no partial figure, no temporary
-    monkeypatch.setattr(script, "plot_outcomes", real_plot)
+    monkeypatch.setattr(reports, "plot_outcomes", real_plot)
     assert script.main(args) == 0  # the same command writes what is missing, from the episodes it has
     assert (out / "episodes.csv").read_bytes() == episodes
     assert {p.name for p in out.iterdir()} == {"episodes.csv", "summary.md", "success.png", "outcomes.png"}

@@ -861,6 +861,101 @@ def test_a_run_states_its_budget_and_ends_with_its_folder_and_final_evaluation(t
     assert lines[2].startswith(f"final model: {run_dir / 'model-0-1-1.pt'}")
 
 
+class _Bars:
+    """Stands in for tqdm in baselines/run.py: records every bar's description, total and updates (a bar is drawn as
+    though the output were a terminal)."""
+
+    made: list = []
+
+    def __init__(self, *args, total=None, desc="", disable=None, initial=0, **kwargs):
+        self.total, self.desc, self.disable, self.n = total, desc, bool(disable), initial
+        _Bars.made.append(self)
+
+    def update(self, n=1):
+        self.n += n
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self):
+        pass
+
+    def set_description(self, desc, refresh=True):
+        self.desc = desc
+
+    def set_postfix_str(self, *args, **kwargs):
+        pass
+
+    def refresh(self):
+        pass
+
+
+def test_a_finished_run_shows_its_final_evaluation_beside_random_and_stand_still_on_the_same_worlds(
+    tmp_path, monkeypatch
+):
+    # episodes long enough for the three to differ: the debug preset's 48-step cap lifted to 1-1's own
+    cfg = debug_cfg("ppo", "progress=true", "eval.episodes=2", "++env.overrides.episode.max_steps=5000", total_steps=32)
+    _Bars.made = []
+    monkeypatch.setattr(run_loop, "tqdm", _Bars)
+    run_dir = train(cfg, tmp_path / "run")
+    # the final evaluation counted its episodes on a bar of its own, below the (full) training bar
+    (final,) = [b for b in _Bars.made if b.desc.startswith("final evaluation on 1-1")]
+    assert final.total == 2 and final.n == 2 and not final.disable
+    beside = training.reference_survival(cfg, run_dir)
+    assert set(beside) == {"random", "still"}
+    # the same worlds and settings as the final evaluation: standing still there lasts as long as a zero action does
+    # on the seed's validation worlds with the run's level settings (one episode per world, from the seed's reset)
+    env = evaaa.make_env(
+        "1-1", num_envs=2, modalities=["interoception"], info=True, worlds="validation", **env_overrides(cfg)
+    )
+    env.set_seed(cfg.seed, static_seed=True)
+    try:
+        still = evaluate(env, lambda td: td.set("action", torch.zeros(2, dtype=torch.long)))
+    finally:
+        env.close()
+    assert beside["still"] == still.survival_mean > 48  # past the debug cap: the run's own level settings
+    lines = summary(cfg, run_dir, beside).splitlines()
+    assert lines[1].startswith("final evaluation on 1-1 at env step 32")
+    assert lines[2] == (
+        f"on the same worlds: random {beside['random']:.0f}, stand-still {beside['still']:.0f} steps (mean survival)"
+    )
+    assert lines[3].startswith("final model:")
+
+
+def test_the_time_estimate_comes_with_the_first_timed_gradient_step(caplog, monkeypatch):
+    # PPO's shape: an iteration collects for 30 s, then makes its gradient steps; the estimate is said once the first
+    # of them is timed, not after the iteration's last
+    now = [0.0]
+    run = _estimating_run(monkeypatch, now, budget=10_000, iteration=1000)
+    run.planned_updates = lambda steps: -(-steps // 1000) * 8
+    run.progress = None
+    with caplog.at_level(logging.INFO, logger="evaaa_baselines.run"):
+        now[0], run.counters["steps"] = 30.0, 1000
+        run.meter.add(1000, now=30.0)
+        now[0] = 31.0
+        run.updated(1, 1.0, 1)
+    (line,) = [r.getMessage() for r in caplog.records if "time estimate" in r.getMessage()]
+    assert "for the 10,000 env steps (1,000 done)" in line and "1 s per gradient step" in line
+
+
+def test_ppo_reports_each_gradient_step_as_it_ends(tmp_path, monkeypatch):
+    reported = []
+    real = run_loop.Run.updated
+
+    def updated(self, count, seconds, total, ratio=None):
+        reported.append((count, total))
+        return real(self, count, seconds, total, ratio)
+
+    monkeypatch.setattr(run_loop.Run, "updated", updated)
+    cfg = debug_cfg("ppo", total_steps=64)
+    train(cfg, tmp_path / "run")
+    per_iteration = cfg.algo.epochs * cfg.algo.num_minibatches
+    assert reported == [(1, n) for n in range(1, 2 * per_iteration + 1)]  # two iterations of 32 env steps
+
+
 def test_the_time_estimate_comes_from_the_run_s_own_speed(caplog, monkeypatch):
     now = [0.0]
     monkeypatch.setattr(run_loop.time, "perf_counter", lambda: now[0])

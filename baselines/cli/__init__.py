@@ -55,6 +55,8 @@ def option(
 
 #: ``check=`` of a seed: numpy's generators take no negative seed
 SEED = (lambda v: v >= 0, "an integer >= 0")
+#: how a level of your own is named in ``levels`` (docs/levels.md, "A level of your own")
+OWN_LEVEL = "the path of a .yaml level file of your own, e.g. levels=[1-1,path/to/my.yaml]"
 
 
 class UsageError(ValueError):
@@ -304,9 +306,11 @@ def parse(
         fail(prog, str(err))
 
 
-def policy_ok(spec: str) -> bool:
+def policy_ok(spec: str, own: bool = False) -> bool:
     """``check=`` of a script's ``policy`` option: a reference agent, ``zoo:NAME`` (a wrong name is refused in one
-    line with the zoo's names and the closest one) or an existing checkpoint file."""
+    line with the zoo's names and the closest one) or an existing checkpoint file; with ``own``, also a policy of your
+    own, ``py:MODULE:NAME`` or ``py:FILE.py:NAME``, whose form and file are checked here (nothing is imported: that
+    happens once every argument has passed)."""
     from evaaa_baselines import zoo
 
     if zoo.is_zoo(spec):
@@ -315,6 +319,11 @@ def policy_ok(spec: str) -> bool:
         except zoo.ZooError as err:
             raise UsageError(f"policy={spec}: {err}") from None
         return True
-    from evaaa_baselines.evaluation import REFERENCE_AGENTS  # torch: checked after --help
+    from evaaa_baselines.evaluation import REFERENCE_AGENTS, is_own, own_spec_problem  # torch: checked after --help
 
+    if own and is_own(spec):
+        problem = own_spec_problem(spec)
+        if problem is not None:
+            raise UsageError(problem)
+        return True
     return spec in REFERENCE_AGENTS or Path(spec).is_file()
