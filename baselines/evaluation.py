@@ -54,13 +54,13 @@ from evaaa.records import (
 from evaaa.sensors import resolve_modalities
 
 from . import cli
+from .cli import OWN_PREFIX, REFERENCE_AGENTS, is_own, own_source, own_spec_problem
 from .policies import LoadedPolicy, load_policy
 from .rollout import acting_mode
 from .zoo import is_zoo
 
 #: the policies of an evaluation that are not checkpoints (evaaa.agents): the privileged oracle, uniformly random
 #: actions, and standing still
-REFERENCE_AGENTS = ("oracle", "random", "still")
 _REFERENCE = {"oracle": lambda seed: OracleAgent(), "random": RandomAgent, "still": lambda seed: StillAgent()}
 
 
@@ -183,8 +183,6 @@ def episode_records(
 
 
 # ------------------------------------------------------------------------------------------------ your own policy
-#: how a policy of your own is named on a command line: ``py:<module>:<name>`` or ``py:<file.py>:<name>``
-OWN_PREFIX = "py:"
 #: what a policy of your own may be, in words (errors, ``--help``)
 OWN_FORMS = (
     "a TorchRL module (TensorDictModuleBase), a Stable-Baselines3 model, a callable on the observation TensorDict, "
@@ -201,31 +199,6 @@ def gym_policy(fn: Callable[[dict[str, np.ndarray]], Any]) -> Callable[[dict[str
     return fn
 
 
-def is_own(spec: Any) -> bool:
-    """Whether ``spec`` (a policy argument) names a policy of your own (``py:...``)."""
-    return isinstance(spec, str) and spec.startswith(OWN_PREFIX)
-
-
-def _own_source(spec: str) -> tuple[str, str, bool]:
-    """``(source, attribute, is_file)`` of ``py:<source>:<attribute>``."""
-    source, _, attr = spec[len(OWN_PREFIX) :].rpartition(":")
-    return source, attr, source.endswith(".py") or os.sep in source or "/" in source
-
-
-def own_spec_problem(spec: str) -> str | None:
-    """Why ``spec`` is not a well-formed ``py:`` policy (nothing is imported), or None."""
-    source, attr, is_file = _own_source(spec)
-    form = "py:MODULE:NAME or py:FILE.py:NAME (e.g. py:my_agent.py:policy)"
-    if not source or not attr or not all(part.isidentifier() for part in attr.split(".")):
-        return f"policy={spec}: expected {form}"
-    if is_file:
-        if not Path(source).is_file():
-            return f"policy={spec}: {source}: no such file"
-    elif not all(part.isidentifier() for part in source.split(".")):
-        return f"policy={spec}: '{source}' is neither a module name nor a .py file; expected {form}"
-    return None
-
-
 def load_own(spec: str) -> Any:
     """The object ``py:<module>:<name>`` or ``py:<file.py>:<name>`` names: the module is imported (a file is run as a
     module, its folder on the import path while it loads) — the one place an evaluation runs code it is given, and
@@ -234,7 +207,7 @@ def load_own(spec: str) -> Any:
     problem = own_spec_problem(spec)
     if problem is not None:
         raise EvaluationError(problem)
-    source, attr, is_file = _own_source(spec)
+    source, attr, is_file = own_source(spec)
     try:
         if is_file:
             path = Path(source).resolve()

@@ -216,11 +216,12 @@ def test_evaluate_plays_test_worlds_and_stand_still_never_moves(tmp_path):
         ),
         (
             ["policy=missing/checkpoint.pt"],
-            "policy=missing/checkpoint.pt: expected oracle, random, still, zoo:NAME or an existing",
+            "policy=missing/checkpoint.pt: expected oracle, random, still, zoo:NAME, an existing checkpoint file or "
+            "py:MODULE:NAME",
         ),
         (["episodes=0"], "episodes=0: expected a positive integer"),
         (["episodes=abc"], "episodes=abc: expected an integer"),
-        (["colour=red"], "unknown key 'colour'; keys: policy, levels, episodes"),
+        (["colour=red"], "unknown key 'colour'; keys: policy, references, levels, episodes"),
     ],
 )
 def test_evaluate_rejects_bad_input(args, message, tmp_path, capsys):

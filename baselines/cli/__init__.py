@@ -18,6 +18,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import difflib
+import os
 import sys
 import textwrap
 import types
@@ -306,6 +307,37 @@ def parse(
         fail(prog, str(err))
 
 
+#: the reference agents a ``policy`` argument may name
+REFERENCE_AGENTS = ("oracle", "random", "still")
+#: how a policy of your own is named on a command line: ``py:<module>:<name>`` or ``py:<file.py>:<name>``
+OWN_PREFIX = "py:"
+
+
+def is_own(spec: Any) -> bool:
+    """Whether ``spec`` (a policy argument) names a policy of your own (``py:...``)."""
+    return isinstance(spec, str) and spec.startswith(OWN_PREFIX)
+
+
+def own_source(spec: str) -> tuple[str, str, bool]:
+    """``(source, attribute, is_file)`` of ``py:<source>:<attribute>``."""
+    source, _, attr = spec[len(OWN_PREFIX) :].rpartition(":")
+    return source, attr, source.endswith(".py") or os.sep in source or "/" in source
+
+
+def own_spec_problem(spec: str) -> str | None:
+    """Why ``spec`` is not a well-formed ``py:`` policy (nothing is imported), or None."""
+    source, attr, is_file = own_source(spec)
+    form = "py:MODULE:NAME or py:FILE.py:NAME (e.g. py:my_agent.py:policy)"
+    if not source or not attr or not all(part.isidentifier() for part in attr.split(".")):
+        return f"policy={spec}: expected {form}"
+    if is_file:
+        if not Path(source).is_file():
+            return f"policy={spec}: {source}: no such file"
+    elif not all(part.isidentifier() for part in source.split(".")):
+        return f"policy={spec}: '{source}' is neither a module name nor a .py file; expected {form}"
+    return None
+
+
 def policy_ok(spec: str, own: bool = False) -> bool:
     """``check=`` of a script's ``policy`` option: a reference agent, ``zoo:NAME`` (a wrong name is refused in one
     line with the zoo's names and the closest one) or an existing checkpoint file; with ``own``, also a policy of your
@@ -319,8 +351,6 @@ def policy_ok(spec: str, own: bool = False) -> bool:
         except zoo.ZooError as err:
             raise UsageError(f"policy={spec}: {err}") from None
         return True
-    from evaaa_baselines.evaluation import REFERENCE_AGENTS, is_own, own_spec_problem  # torch: checked after --help
-
     if own and is_own(spec):
         problem = own_spec_problem(spec)
         if problem is not None:
