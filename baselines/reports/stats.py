@@ -100,15 +100,23 @@ def replicates(
         raise ValueError(f"statistic must be one of {sorted(STATISTICS)}, got {statistic!r}")
     strata = [np.asarray(s, dtype=float).ravel() for s in samples]
     strata = [s for s in strata if s.size]
-    k = len(strata)
+    rng = np.random.default_rng(seed)
+    chosen = rng.integers(0, len(strata), size=(resamples, len(strata)))  # step 1: seeds
+    return pooled_replicates(strata, chosen, rng, statistic)
+
+
+def pooled_replicates(
+    strata: Sequence[np.ndarray], chosen: np.ndarray, rng: np.random.Generator, statistic: str = "iqm"
+) -> np.ndarray:
+    """Step 2 of the two-stage scheme for seeds already drawn: per replicate (a row of ``chosen``, indices into
+    ``strata``), each drawn seed's episodes redrawn from that seed alone and pooled, then ``statistic`` of them."""
     sizes = np.array([s.size for s in strata])
-    padded = np.full((k, sizes.max()), np.nan)
+    padded = np.full((len(strata), sizes.max()), np.nan)
     for i, s in enumerate(strata):
         padded[i, : s.size] = s
-    rng = np.random.default_rng(seed)
-    chosen = rng.integers(0, k, size=(resamples, k))  # step 1: seeds
+    resamples = chosen.shape[0]
     m = sizes[chosen]  # (resamples, k) episodes of each drawn seed
-    draws = np.floor(rng.random((resamples, k, sizes.max())) * m[:, :, None]).astype(int)  # step 2: episodes
+    draws = np.floor(rng.random((*chosen.shape, sizes.max())) * m[:, :, None]).astype(int)  # step 2: episodes
     values = padded[chosen[:, :, None], draws]
     live = np.arange(sizes.max())[None, None, :] < m[:, :, None]
     # pool each replicate's episodes into one row, those beyond a seed's own count left out

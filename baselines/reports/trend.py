@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats as sps
 
-from .stats import MIN_SEEDS, TooFewSeeds
+from .stats import MIN_SEEDS, TooFewSeeds, pooled_replicates
 
 __all__ = ["Gain", "gain", "gain_from_intervals", "power", "weights"]
 
@@ -56,20 +56,6 @@ def weights(positions: Sequence[float]) -> np.ndarray:
 
 def _strata(samples: Sequence[Sequence[float]]) -> list[np.ndarray]:
     return [a for a in (np.asarray(s, dtype=float).ravel() for s in samples) if a.size]
-
-
-def _pooled_means(strata: list[np.ndarray], chosen: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Per replicate (a row of ``chosen``, the seeds drawn): the mean of every drawn seed's episodes, each redrawn
-    from that seed's own, pooled."""
-    sizes = np.array([s.size for s in strata])
-    padded = np.zeros((len(strata), sizes.max()))
-    for i, s in enumerate(strata):
-        padded[i, : s.size] = s
-    m = sizes[chosen]
-    draws = np.floor(rng.random((*chosen.shape, sizes.max())) * m[:, :, None]).astype(int)
-    live = np.arange(sizes.max())[None, None, :] < m[:, :, None]
-    values = np.where(live, padded[chosen[:, :, None], draws], 0.0)
-    return values.sum(axis=(1, 2)) / m.sum(axis=1)
 
 
 def gain(
@@ -107,9 +93,9 @@ def gain(
         means = []
         for u, s in zip(names, levels):
             at = {n: i for i, n in enumerate(u)}
-            means.append(_pooled_means([s[at[n]] for n in names[0]], chosen, rng))
+            means.append(pooled_replicates([s[at[n]] for n in names[0]], chosen, rng, "mean"))
     else:
-        means = [_pooled_means(s, rng.integers(0, len(s), size=(resamples, len(s))), rng) for s in levels]
+        means = [pooled_replicates(s, rng.integers(0, len(s), size=(resamples, len(s))), rng, "mean") for s in levels]
     reps = w @ np.vstack(means)
     alpha = 100 * (1 - confidence) / 2
     low, high = np.percentile(reps, [alpha, 100 - alpha])
