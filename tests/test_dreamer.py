@@ -89,6 +89,29 @@ def test_only_the_enabled_keys_are_encoded_and_decoded(modality):
     assert [tuple(x.shape[1:]) for x in latent] == [SHAPES[k] for k in keys]
 
 
+def test_without_pixel_decoding_the_pixels_are_encoded_and_learn_from_the_rest_of_the_loss():
+    from test_dreamer_update import random_batch
+
+    from evaaa_baselines.dreamer.update import Learner
+
+    cfg = debug_cfg("algo.world_model.decode_pixels=false")
+    keys = observation_keys(cfg)
+    torch.manual_seed(0)
+    model = dreamer.make_model(cfg.algo, {k: SHAPES[k] for k in keys})
+    assert "pixels" in keys and hasattr(model.encoder, "cnn") and not hasattr(model.decoder, "cnn")
+    assert model.decoder.keys == tuple(k for k in keys if k != "pixels")
+    learner = Learner(cfg.algo, model, torch.device("cpu"))
+    batch = random_batch(keys, torch.Generator().manual_seed(0))
+    assert "pixels" not in learner.model_loss.loss.tensor_keys.pixels  # the reconstruction loss's keys
+    before = [p.detach().clone() for p in model.encoder.cnn.parameters()]
+    metrics = learner.update(batch)
+    assert all(torch.isfinite(v).all() for v in metrics.values())
+    # the image encoder still learns: through the posterior, from the vector keys', reward's and continue's losses
+    assert any(not torch.equal(a, b) for a, b in zip(before, model.encoder.cnn.parameters(), strict=True))
+    with pytest.raises(ValueError, match="decode_pixels=false needs a vector observation key"):
+        dreamer.make_model(cfg.algo, {"pixels": SHAPES["pixels"]})
+
+
 # ------------------------------------------------------------------------------------------------ runs
 class Killed(Exception):
     """Stands for the process being killed between two checkpoints."""

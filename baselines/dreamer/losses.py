@@ -88,7 +88,8 @@ class WorldModelLoss(nn.Module):
                 f"algo.world_model.raw_keys must name vector observation keys of this run "
                 f"({self.vector_keys}), got {list(self.raw_keys)}"
             )
-        symlogged = [k != "pixels" and k not in self.raw_keys for k in keys]
+        decoded = model.decoder.keys
+        symlogged = [k != "pixels" and k not in self.raw_keys for k in decoded]
         self.loss = DreamerV3ModelLoss(
             world_model(model),
             kl_mode="separate",
@@ -104,7 +105,7 @@ class WorldModelLoss(nn.Module):
             # the vector keys' extra reconstruction term needs the graph; everything else reads the output detached
             detach_output=not (self.vector_extra or self.prior_scale),
         )
-        self.loss.set_keys(pixels=list(keys), reco_pixels=[f"reco_{k}" for k in keys])
+        self.loss.set_keys(pixels=list(decoded), reco_pixels=[f"reco_{k}" for k in decoded])
 
     def forward(
         self, batch: TensorDictBase

@@ -97,7 +97,7 @@ class DreamerDecoder(nn.Module):
 
     def __init__(self, obs_shapes: Mapping[str, Sequence[int]], latent: int, cfg: DictConfig):
         super().__init__()
-        self.keys = tuple(obs_shapes)
+        self.keys = tuple(obs_shapes)  # the keys reconstructed (the model leaves pixels out with decode_pixels=false)
         if "pixels" in obs_shapes:
             height, width, channels = obs_shapes["pixels"]
             self.cnn = DreamerV3ImageDecoder(
@@ -175,7 +175,13 @@ class DreamerModel(nn.Module):
             norm_eps=m.norm_eps,
             unimix=m.unimix,
         )
-        self.decoder = DreamerDecoder(obs_shapes, latent, m)
+        decoded = {k: v for k, v in obs_shapes.items() if k != "pixels" or decode_pixels(cfg)}
+        if not decoded:
+            raise ValueError(
+                "algo.world_model.decode_pixels=false needs a vector observation key to reconstruct, and this run "
+                f"observes only {list(obs_shapes)}: keep decode_pixels=true or enable a vector modality"
+            )
+        self.decoder = DreamerDecoder(decoded, latent, m)
         # reward and critic: two-hot over symexp-spaced bins, zero-initialised outputs (DreamerV3's outscale 0)
         self.reward = DreamerV3MLP(
             latent, m.bins, depth=m.mlp_layers, num_cells=m.dense, outscale=0.0, norm_eps=m.norm_eps
@@ -195,6 +201,13 @@ class DreamerModel(nn.Module):
             for name in ("encoder", "prior", "posterior", "decoder", "reward", "cont")
             for p in getattr(self, name).parameters()
         ]
+
+
+def decode_pixels(cfg: DictConfig) -> bool:
+    """Whether the world model reconstructs the pixels (``algo.world_model.decode_pixels``, DreamerV3's true).  False
+    keeps the pixels in the encoder and leaves them out of the decoder and its loss: the latent learns from the
+    pixels only what helps predict the vector keys, the reward and the episode's end."""
+    return bool(cfg.world_model.get("decode_pixels", True))
 
 
 def make_model(cfg: DictConfig, obs_shapes: Mapping[str, Sequence[int]]) -> DreamerModel:
@@ -229,7 +242,9 @@ def world_model(model: DreamerModel) -> TensorDictSequential:
         TensorDictModule(_one_hot, in_keys=["action"], out_keys=["action_onehot"]),
         TensorDictModule(model.encoder, in_keys=_next(*keys), out_keys=_next("encoded_latents")),
         rollout,
-        TensorDictModule(model.decoder, in_keys=_next(*LATENT), out_keys=_next(*(f"reco_{k}" for k in keys))),
+        TensorDictModule(
+            model.decoder, in_keys=_next(*LATENT), out_keys=_next(*(f"reco_{k}" for k in model.decoder.keys))
+        ),
         TensorDictModule(model.reward, in_keys=_next(*LATENT), out_keys=_next("reward_logits")),
         TensorDictModule(model.two_hot, in_keys=_next("reward_logits"), out_keys=_next("reward")),
         TensorDictModule(model.cont, in_keys=_next(*LATENT), out_keys=_next("continue_pred")),

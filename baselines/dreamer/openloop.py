@@ -34,7 +34,7 @@ def openloop_frames(model: DreamerModel, sequences: TensorDictBase, context: int
         _, state, belief = model.prior(state, belief, actions[:, t])
         states.append(state.unsqueeze(1))
         beliefs.append(belief.unsqueeze(1))
-    pixel_index = model.obs_keys.index("pixels")
+    pixel_index = model.decoder.keys.index("pixels")
     predicted = model.decoder(torch.cat(states, 1), torch.cat(beliefs, 1))[pixel_index]
     truth = seq["next", "pixels"]
     return truth.cpu(), (predicted.float().clamp(0, 1) * 255).round().to(torch.uint8).cpu()
@@ -63,7 +63,7 @@ def save_openloop(model: DreamerModel, replay: SequenceReplay, cfg: DictConfig, 
     """An open-loop picture of ``cfg.openloop.sequences`` random replayed sequences (``context`` filtered steps,
     then ``horizon`` imagined ones) as a PNG; drawn on its own RNG stream, so training does not depend on it."""
     length = cfg.openloop.context + cfg.openloop.horizon
-    if "pixels" not in model.obs_keys or replay.rows < length:
+    if "pixels" not in model.decoder.keys or replay.rows < length:
         return None
     import matplotlib.image
 
