@@ -6,8 +6,12 @@ not done; a tiny real protocol runs end to end into a report and a second run do
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
+import subprocess
+import time
+from datetime import datetime, timezone
 from pathlib import Path
 
 import pytest
@@ -490,6 +494,10 @@ def _fake(tmp_path: Path, fail_train: bool = False):
     return lay, [train, ev, rep]
 
 
+def _episodes(cell: Cell) -> Path:
+    return cell.commands[0].out / "episodes.csv"
+
+
 def _scheduler(lay, cells, **kw):
     p = load_protocol("smoke")
     return Runner(p, cells, lay, progress=False, echo=lambda s: None, **kw)
@@ -529,9 +537,36 @@ def test_a_report_made_after_every_cell_stays_done_whatever_order_a_clone_wrote_
 def test_a_report_is_out_of_date_where_a_cell_without_a_marker_was_written_after_it(tmp_path):
     lay, cells = _fake(tmp_path)
     assert _scheduler(lay, cells).run(cells) == 0
-    lay.marker("eval/a").unlink()  # an evaluation made by hand: done by its episodes.csv alone, which is newer
+    lay.marker("eval/a").unlink()  # an evaluation made by hand: done by its episodes.csv alone, dated by its file
+    report_made = math.floor(time.time()) + 3600  # later than the training's own stamp
+    _stamp(lay, "report", datetime.fromtimestamp(report_made, timezone.utc).strftime("%Y%m%dT%H%M%SZ"))
     os.utime(lay.marker("report"), (1_000_000, 1_000_000))
-    assert status(cells[1], lay, cells) == "done" and status(cells[2], lay, cells) == "partial"
+    for written, state in ((report_made + 2, "partial"), (report_made + 0.9, "done"), (report_made - 60, "done")):
+        os.utime(_episodes(cells[1]), (written, written))  # the report's stamp is cut to its second
+        assert status(cells[1], lay, cells) == "done" and status(cells[2], lay, cells) == state, written
+
+
+def test_a_clone_dates_a_cell_without_a_marker_by_the_commit_of_its_files(tmp_path):
+    # issue 64: on a fresh clone `reproduce.py plan=true` said "172 done, 1 partial": two evaluations of the committed
+    # record have no done-marker, and the clone had written their episodes.csv after the report's marker
+    lay, cells = _fake(tmp_path / "repo")
+    assert _scheduler(lay, cells).run(cells) == 0
+    lay.marker("eval/a").unlink()
+    git = ["git", "-c", "user.name=t", "-c", "user.email=t@t", "-C", str(tmp_path / "repo")]
+    subprocess.run([*git, "init", "-q"], check=True)
+    subprocess.run([*git, "add", "-A"], check=True)
+    subprocess.run([*git, "commit", "-q", "-m", "record"], check=True)
+    committed = float(subprocess.run([*git, "log", "-1", "--format=%ct"], capture_output=True, text=True).stdout)
+    _stamp(lay, "report", datetime.fromtimestamp(committed + 60, timezone.utc).strftime("%Y%m%dT%H%M%SZ"))
+    subprocess.run([*git, "commit", "-q", "-am", "report"], check=True)
+    later = committed + 3600  # as a clone leaves it: checked out after the report's marker
+    os.utime(_episodes(cells[1]), (later, later))
+    assert status(cells[2], lay, cells) == "done"
+    _episodes(cells[1]).write_text(
+        _episodes(cells[1]).read_text() + "\n"
+    )  # redone by hand since: newer than the report
+    os.utime(_episodes(cells[1]), (later, later))
+    assert status(cells[2], lay, cells) == "partial"
 
 
 def test_an_evaluation_runs_as_soon_as_its_model_exists_before_later_trainings(tmp_path):

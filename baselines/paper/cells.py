@@ -7,9 +7,11 @@ import json
 import math
 import os
 import shlex
+import subprocess
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from datetime import datetime, timezone
 from functools import cache
 from pathlib import Path
 from typing import Literal
@@ -594,8 +596,28 @@ def world_seeds_text(p: Protocol) -> str:
 
 
 # ------------------------------------------------------------------------------------------------ status
+def _written(path: Path) -> float:
+    """When ``path`` was last written: the time of the commit that last changed it where git tracks it unchanged (a
+    clone writes every file at checkout, in its own order, so there its modification time says nothing), otherwise
+    its modification time."""
+    git = ["git", "-C", str(path.parent)]
+    try:
+        dirty = subprocess.run([*git, "status", "--porcelain", "--", path.name], capture_output=True, text=True)
+        committed = subprocess.run([*git, "log", "-1", "--format=%ct", "--", path.name], capture_output=True, text=True)
+    except OSError:  # no git on this machine
+        return path.stat().st_mtime
+    if dirty.returncode or committed.returncode or dirty.stdout.strip() or not committed.stdout.strip():
+        return path.stat().st_mtime  # not in a work tree, not committed, or changed since its commit
+    return float(committed.stdout.strip())
+
+
 def _newest(paths: Sequence[Path]) -> float:
-    return max((q.stat().st_mtime for q in paths if q.exists()), default=0.0)
+    return max((_written(q) for q in paths if q.exists()), default=0.0)
+
+
+def _stamp_time(stamp: str) -> float:
+    """A done-marker's finished stamp (``YYYYmmddTHHMMSSZ``, UTC) in seconds since the epoch."""
+    return datetime.strptime(stamp, "%Y%m%dT%H%M%SZ").replace(tzinfo=timezone.utc).timestamp()
 
 
 def _finished(cell: Cell, lay: Layout) -> str | None:
@@ -610,12 +632,15 @@ def _finished(cell: Cell, lay: Layout) -> str | None:
 
 def _newer(cell: Cell, report: Cell, lay: Layout) -> bool:
     """Whether ``cell`` was (re)done after ``report`` was made.  The done-markers' finished stamps decide where both
-    have one: git keeps no modification times, so a clone writes the record's files in its own order; a cell without
-    a stamp (an evaluation made by hand), or one stamped in the report's second, is compared by its files' times."""
+    have one: git keeps no modification times, so a clone writes the record's files in its own order.  A cell without
+    a stamp (an evaluation made by hand) is compared by when its files were written (their commit's time where git
+    has them unchanged) with the report's stamp; one stamped in the report's second, with the report's marker."""
     mine, theirs = _finished(cell, lay), _finished(report, lay)
     if mine is not None and theirs is not None and mine != theirs:
         return mine > theirs  # YYYYmmddTHHMMSSZ: in time order as text
-    return _newest(outputs(cell, lay)) > lay.marker(report.name).stat().st_mtime
+    if theirs is not None and mine is None:  # the stamp is cut to its second: a file within it came before
+        return _newest(outputs(cell, lay)) >= _stamp_time(theirs) + 1
+    return _newest(outputs(cell, lay)) > _written(lay.marker(report.name))
 
 
 def outputs(cell: Cell, lay: Layout) -> list[Path]:
