@@ -22,8 +22,8 @@ from typing import Any
 from pydantic import BaseModel
 
 import evaaa
+from evaaa.level import MAX_INTEGER, MAX_MAGNITUDE, Level, load_level
 from evaaa.physiology import REWARDS
-from evaaa.spec import MAX_INTEGER, MAX_MAGNITUDE, Level, load_level
 
 BASES = evaaa.LEVELS + evaaa.TESTBEDS
 

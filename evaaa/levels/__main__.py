@@ -18,7 +18,7 @@ import sys
 
 import yaml
 
-from ..spec import LEVELS, TESTBEDS, LevelError, load_level, registered_levels
+from ..level import LEVELS, TESTBEDS, LevelError, load_level, registered_levels
 
 
 def _override(text: str) -> tuple[str, object]:

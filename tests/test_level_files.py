@@ -1,4 +1,4 @@
-"""Level loading, inheritance, overrides and validation errors (evaaa.spec)."""
+"""Level loading, inheritance, overrides and validation errors (evaaa.level)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 import evaaa
-from evaaa.spec import Level, LevelError, level_names, load_level
+from evaaa.level import Level, LevelError, level_names, load_level
 
 
 # ------------------------------------------------------------------------------------------------ loading
