@@ -17,7 +17,8 @@ from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from .backends import check_backend, make_simulator
-from .level import Level, load_level
+from .level import Level
+from .level_files import load_level
 from .sim import ACTION_NAMES, NUM_ACTIONS
 
 _TORCH_DTYPE = {np.dtype(np.float32): torch.float32, np.dtype(np.uint8): torch.uint8}

@@ -119,7 +119,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from evaaa.env import EvaaaEnv, make_env  # noqa: E402
-from evaaa.level import load_level  # noqa: E402
+from evaaa.level_files import load_level  # noqa: E402
 from evaaa.render import BatchRenderer  # noqa: E402
 from evaaa.scene import GROUP_AGENT  # noqa: E402
 from evaaa.sim import Simulator, default_threads  # noqa: E402

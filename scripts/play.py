@@ -22,7 +22,8 @@ from collections.abc import Mapping
 from dataclasses import replace
 from typing import Any
 
-from evaaa.level import LevelError, load_level
+from evaaa.level import LevelError
+from evaaa.level_files import load_level
 from evaaa.play import PlaySettings, register_level_dir, serve
 from evaaa_baselines import cli
 

@@ -27,7 +27,8 @@ import pytest
 from fuzz_levels import AUDIT_FAMILIES, YAML11_ONLY, audit_case, draw_case, hostile_file
 
 import evaaa
-from evaaa.level import LevelError, load_level
+from evaaa.level import LevelError
+from evaaa.level_files import load_level
 from evaaa.sim import Simulator
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from evaaa.level import load_level
+from evaaa.level_files import load_level
 from evaaa.physiology import (
     DAMAGE,
     DEATHS,

@@ -17,7 +17,7 @@ from torchrl.envs.utils import check_env_specs
 import evaaa
 from evaaa import mjwarp
 from evaaa.backends import make_simulator
-from evaaa.level import load_level
+from evaaa.level_files import load_level
 from evaaa.sim import SUBSTEPS, Simulator
 
 needs_warp = pytest.mark.skipif(
