@@ -21,10 +21,11 @@ import logging  # noqa: E402
 import mujoco  # noqa: E402
 
 from .backends import BACKENDS  # noqa: E402
+from .level import Level, LevelError  # noqa: E402
+from .level_files import LEVELS, TESTBEDS, load_level, register_level  # noqa: E402
 from .physiology import END_TYPES, EV_NAMES, REWARDS  # noqa: E402
 from .sensors import MODALITIES  # noqa: E402
 from .sim import ACTION_NAMES  # noqa: E402
-from .spec import LEVELS, TESTBEDS, Level, LevelError, load_level, register_level  # noqa: E402
 from .worlds import WORLD_SETS  # noqa: E402
 
 __version__ = "0.1.0"

@@ -7,8 +7,8 @@ when asked for).
 
 from __future__ import annotations
 
+from .level import Level
 from .sim import Simulator
-from .spec import Level
 
 #: the backends :func:`make_simulator` knows
 BACKENDS: tuple[str, ...] = ("cpu", "warp")

@@ -8,7 +8,7 @@ import mujoco
 import numpy as np
 
 from . import physiology as phys
-from .spec import Level
+from .level import Level
 
 
 class ContactDamage:

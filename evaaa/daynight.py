@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 
 if TYPE_CHECKING:
-    from .spec import DayNight as DayNightSpec
+    from .level import DayNight as DayNightSpec
     from .state import WorldState
 
 PHASES: tuple[str, ...] = ("Day", "Sunset", "Night", "DeepNight", "Dawn")

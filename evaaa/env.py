@@ -17,8 +17,9 @@ from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from .backends import check_backend, make_simulator
+from .level import Level
+from .level_files import load_level
 from .sim import ACTION_NAMES, NUM_ACTIONS
-from .spec import Level, load_level
 
 _TORCH_DTYPE = {np.dtype(np.float32): torch.float32, np.dtype(np.uint8): torch.uint8}
 
@@ -48,7 +49,7 @@ class EvaaaEnv(EnvBase):
 
     Args:
         level: a level name (``evaaa.LEVELS`` / ``evaaa.TESTBEDS``), the path of a level's ``.yaml`` file (see
-            :func:`evaaa.load_level`) or a loaded :class:`~evaaa.spec.Level`.
+            :func:`evaaa.load_level`) or a loaded :class:`~evaaa.level.Level`.
         num_envs: independent worlds stepped together in this process (the env's batch size).
         seed: seed for the worlds' generators; same seed and actions give the same trajectories.
         worlds: which of the seed's three disjoint sets of worlds to step (:mod:`evaaa.worlds`): ``train`` (the

@@ -17,9 +17,9 @@ import numpy as np
 from gymnasium import spaces
 
 from .backends import check_backend, make_simulator
+from .level_files import level_names, load_level
 from .physiology import END_TYPES
 from .sim import ACTION_NAMES, NUM_ACTIONS
-from .spec import level_names, load_level
 
 __all__ = ["EvaaaGymEnv", "register_envs"]
 

@@ -66,7 +66,7 @@ def contact_damage(impulse: float, constant: float, rate: float, offset: float, 
 @dataclass(frozen=True)
 class PhysiologyParams:
     """A level's physiology and reward settings as arrays, ready for the batched functions below (a level's own:
-    :meth:`evaaa.spec.Level.physiology_params`)."""
+    :meth:`evaaa.level.Level.physiology_params`)."""
 
     start: np.ndarray  # (4,)
     low: np.ndarray  # (4,)

@@ -16,9 +16,9 @@ import cv2
 import numpy as np
 from matplotlib.figure import Figure
 
+from .level import LEVEL_NAME_RULE, Level, LevelError, excerpt
 from .physiology import EV_NAMES, PhysiologyParams
 from .sim import Simulator
-from .spec import LEVEL_NAME_RULE, Level, LevelError, excerpt
 from .worldgen import AGENT_HALF, FOOD, WATER
 
 EYE_SCALE = 4
@@ -131,7 +131,7 @@ def title_of(level: Level) -> str:
 # ------------------------------------------------------------------------------------------------- one level
 def _picture_path(out: Path, level: Level, what: str) -> Path:
     """``out/<name>_<what>.png``, refused unless it lies in ``out`` itself: a loaded level's name cannot leave it
-    (spec.LEVEL_NAME), but a Level built without validation (``model_construct``) could say ``../../x``."""
+    (level.LEVEL_NAME), but a Level built without validation (``model_construct``) could say ``../../x``."""
     path = out / f"{level.name}_{what}.png"
     if path.resolve().parent != out.resolve():
         raise LevelError(f"level name {excerpt(level.name)} would write its picture outside {out}; {LEVEL_NAME_RULE}")

@@ -46,11 +46,12 @@ from urllib.parse import urlsplit
 import cv2
 import numpy as np
 
+from .level import Level, LevelError, excerpt
+from .level_files import level_names, load_level, register_level, registered_levels
 from .physiology import END_TYPES, EV_NAMES
 from .pictures import top_image
 from .records import EPISODE_FIELDS, OPTIONAL_FIELDS, DiskError, EpisodeTracker, StepLog, append_rows, new_log_path
 from .sim import ACTION_NAMES, NUM_ACTIONS, Simulator
-from .spec import Level, LevelError, excerpt, level_names, load_level, register_level, registered_levels
 
 PAGE = Path(__file__).resolve().with_name("play.html")
 RECORDS_FILE = "episodes.csv"

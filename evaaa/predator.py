@@ -20,7 +20,8 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 
 from .entities import PREDATOR
-from .spec import REPLAN_EVERY, Level  # REPLAN_EVERY: the level's planning bound counts on it
+from .level import Level
+from .level_limits import REPLAN_EVERY  # the level's planning bound counts on it
 from .worldgen import AGENT_HALF, PatrolArea
 
 RESTING, SEARCHING, CHASING, ATTACKING = range(4)

@@ -136,7 +136,7 @@ class EpisodeTracker:
         self.level, self.policy, self.participant, self.seed = level, policy, participant, seed
         self.acting, self.worlds = acting, worlds
         if judged is None:
-            from .spec import load_level
+            from .level_files import load_level
 
             judged = load_level(level).episode.success.rule != "none"
         self.judged = judged
@@ -403,7 +403,7 @@ class StepLog:
         self.policy = self.policy if policy is None else policy
         self.acting = self.acting if acting is None else acting
         if judged is None:
-            from .spec import load_level
+            from .level_files import load_level
 
             judged = load_level(level).episode.success.rule != "none"
         self.level, self.seed, self.judged = level, seed, judged

@@ -11,7 +11,7 @@ import mujoco
 import numpy as np
 
 from .entities import RESOURCE_KINDS, footprint_half
-from .spec import Level
+from .level import Level
 from .state import WorldState
 from .worldgen import AGENT_HALF, FOOD, PARKED_Z, WATER, ResourcePool, draw_grouped, place_resources, resources_present
 

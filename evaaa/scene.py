@@ -20,7 +20,7 @@ import mujoco
 import numpy as np
 
 from .entities import CANOPY, OBSTACLE_KINDS, PREDATOR, RESOURCE_KINDS, Kind
-from .spec import Level, LevelError
+from .level import Level, LevelError
 from .worldgen import AGENT_HALF, PARKED_Z, ObstaclePool, ResourcePool
 
 # Geom groups, so that cameras and rays can choose what they see.
@@ -173,7 +173,7 @@ def build_mjcf(
             '      <light name="head" directional="true" pos="0 0 0" dir="1 0 0" ambient="0.35 0.35 0.35" '
             'diffuse="0.3 0.3 0.3" specular="0 0 0" castshadow="false"/>\n'
         )
-    # the name is checked at load (spec.LEVEL_NAME), but a level's text is data: quoted as XML, it can never end
+    # the name is checked at load (level.LEVEL_NAME), but a level's text is data: quoted as XML, it can never end
     # the attribute and add elements (an <include> would make MuJoCo open any file, a FIFO hang it)
     return f"""<mujoco model={quoteattr(f"evaaa-{level.name}")}>
   <compiler angle="radian"/>

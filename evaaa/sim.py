@@ -35,13 +35,13 @@ import numpy as np
 from . import physiology as phys
 from .contact import ContactDamage
 from .daynight import DayNight
+from .level import Level
 from .obstacles import ObstacleLayout
 from .predator import PREDATOR_HALF, NavGrid, Predators
 from .render import BatchRenderer, SplitRenderer
 from .resources import Resources
 from .scene import GROUP_AGENT, build_model
 from .sensors import SENSORS, Sensor, resolve_modalities
-from .spec import Level
 from .state import StepEvents, WorldState
 from .thermal import FieldSampler, build_field, hotspot_cells
 from .triggers import Triggers

@@ -14,7 +14,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
-from .spec import Level
+from .level import Level
 
 #: Thermal sensor offsets in the agent's frame (right, forward), in the order F, B, L, R, FL, FR, BL, BR.
 SENSOR_NAMES: tuple[str, ...] = ("F", "B", "L", "R", "FL", "FR", "BL", "BR")

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .level import Level
 from .physiology import EV_NAMES, PhysiologyParams
-from .spec import Level
 from .state import WorldState
 from .worldgen import AGENT_HALF
 

@@ -14,7 +14,7 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
 from .entities import FEEDS, OBSTACLE_KINDS, RESOURCE_KINDS, centre_z, footprint_half
-from .spec import Level, LevelError
+from .level import Level, LevelError
 
 FOOD, WATER = 0, 1
 #: Where hidden or unused pooled bodies wait: far below the floor, out of sight and out of reach of rays.
@@ -208,7 +208,7 @@ def place_obstacles(pool: ObstaclePool, rng: np.random.Generator) -> tuple[np.nd
     prefab asset's collider, whose bounds Unity reports as empty, so only the padding remained.  The original
     gave up after 100 candidates and left the obstacle out; here a level always holds every obstacle it lists:
     after 100 candidates more are drawn, and after :data:`PLACEMENT_LIMIT` the episode cannot be built and a
-    :class:`~evaaa.spec.LevelError` names the group.
+    :class:`~evaaa.level.LevelError` names the group.
     """
     xy = np.zeros((pool.size_total, 2))
     present = np.zeros(pool.size_total, dtype=bool)

@@ -119,10 +119,10 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from evaaa.env import EvaaaEnv, make_env  # noqa: E402
+from evaaa.level_files import load_level  # noqa: E402
 from evaaa.render import BatchRenderer  # noqa: E402
 from evaaa.scene import GROUP_AGENT  # noqa: E402
 from evaaa.sim import Simulator, default_threads  # noqa: E402
-from evaaa.spec import load_level  # noqa: E402
 from evaaa_baselines.machine import processor  # noqa: E402
 
 torch.set_num_threads(1)

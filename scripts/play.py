@@ -22,8 +22,9 @@ from collections.abc import Mapping
 from dataclasses import replace
 from typing import Any
 
+from evaaa.level import LevelError
+from evaaa.level_files import load_level
 from evaaa.play import PlaySettings, register_level_dir, serve
-from evaaa.spec import LevelError, load_level
 from evaaa_baselines import cli
 
 

@@ -22,8 +22,10 @@ from typing import Any
 from pydantic import BaseModel
 
 import evaaa
+from evaaa.level import Level
+from evaaa.level_files import load_level
+from evaaa.level_limits import MAX_INTEGER, MAX_MAGNITUDE
 from evaaa.physiology import REWARDS
-from evaaa.spec import MAX_INTEGER, MAX_MAGNITUDE, Level, load_level
 
 BASES = evaaa.LEVELS + evaaa.TESTBEDS
 

@@ -104,9 +104,9 @@ def _prose(page: str) -> str:
 
 
 def test_the_level_name_rule_is_where_level_files_are_documented():
-    """docs/levels.md ("A level of your own") states the rule evaaa.spec enforces, word for word, so the page cannot
+    """docs/levels.md ("A level of your own") states the rule evaaa.level enforces, word for word, so the page cannot
     drift from the code (issue 65)."""
-    from evaaa.spec import LEVEL_NAME_RULE
+    from evaaa.level import LEVEL_NAME_RULE
 
     section = _prose("levels.md").split("## A level of your own", 1)[1].split("## ", 1)[0]
     assert LEVEL_NAME_RULE in section

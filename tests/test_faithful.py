@@ -15,6 +15,7 @@ from helpers import load_script
 
 import evaaa
 from evaaa import daynight
+from evaaa.level import LevelError
 from evaaa.physiology import (
     END_DAMAGE,
     END_FOOD,
@@ -31,7 +32,6 @@ from evaaa.physiology import (
 from evaaa.records import EPISODE_FIELDS, STEP_FIELDS, EpisodeTracker, StepLog, append_rows, new_log_path, read_rows
 from evaaa.sensors import SENSORS
 from evaaa.sim import EAT, FORWARD, LEFT, NONE, RIGHT, Simulator
-from evaaa.spec import LevelError
 from evaaa.worldgen import ObstaclePool, place_obstacles
 
 

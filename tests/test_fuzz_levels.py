@@ -27,8 +27,9 @@ import pytest
 from fuzz_levels import AUDIT_FAMILIES, YAML11_ONLY, audit_case, draw_case, hostile_file
 
 import evaaa
+from evaaa.level import LevelError
+from evaaa.level_files import load_level
 from evaaa.sim import Simulator
-from evaaa.spec import LevelError, load_level
 
 ROOT = Path(__file__).resolve().parents[1]
 STEPS = 50

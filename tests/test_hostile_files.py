@@ -17,8 +17,9 @@ import torch
 from helpers import load_script
 
 import evaaa
+from evaaa.level import LevelError
+from evaaa.level_files import load_level
 from evaaa.records import DiskError, StepLog, append_rows, read_rows
-from evaaa.spec import LevelError, load_level
 from evaaa_baselines import checkpoint
 from evaaa_baselines import run as run_loop
 from evaaa_baselines.checkpoint import load_checkpoint, save_checkpoint

@@ -23,9 +23,10 @@ from omegaconf import OmegaConf
 
 import evaaa
 from evaaa import play
+from evaaa.level import LevelError
+from evaaa.level_files import load_level, register_level, registered_levels
 from evaaa.pictures import render_level
 from evaaa.scene import build_mjcf
-from evaaa.spec import LevelError, load_level, register_level, registered_levels
 from evaaa.worldgen import ResourcePool
 from evaaa_baselines import checkpoint, load_policy, training
 from evaaa_baselines.algos import algorithm
@@ -433,7 +434,7 @@ def test_a_level_whose_predators_would_plan_for_seconds_a_step_is_refused_at_loa
 
 
 def test_every_packaged_level_and_testbed_plans_within_the_bound():
-    from evaaa.spec import MAX_PLANNING_WORK, REPLAN_EVERY
+    from evaaa.level_limits import MAX_PLANNING_WORK, REPLAN_EVERY
 
     for name in evaaa.LEVELS + evaaa.TESTBEDS:
         level = load_level(name)
@@ -465,7 +466,7 @@ def test_yaml_1_1_forms_huge_integers_and_repeated_merge_keys_are_refused_naming
 
 
 def test_yaml_1_2_forms_and_quoted_text_still_read():
-    from evaaa.spec import parse_level_text
+    from evaaa.level_files import parse_level_text
 
     text = b"a: 10\nb: 0x1f\nc: 1_000\nd: '010'\ne: '1:30'\nf: true\ng: 1.5e3\nh: 0\ni: [0, 7]\nj: 'yes'\n"
     assert parse_level_text(text, "f.yaml") == {

@@ -32,7 +32,7 @@ HOT = 'extends: "1-1"\nepisode: {max_steps: 20}\n'
 def hot(tmp_path, monkeypatch) -> Path:
     """``hot.yaml``: level 1-1 with 20-decision episodes; registered names are forgotten after each test (a name is
     one file's in a process)."""
-    monkeypatch.setattr(evaaa.spec, "_USER_FILES", {})
+    monkeypatch.setattr(evaaa.level_files, "_USER_FILES", {})
     path = tmp_path / "mine" / "hot.yaml"
     path.parent.mkdir()
     path.write_text(HOT)

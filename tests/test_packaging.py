@@ -57,7 +57,7 @@ WITHOUT_A_CLONE = textwrap.dedent(
 
     import evaaa
     import evaaa_baselines
-    from evaaa.spec import load_level
+    from evaaa.level_files import load_level
     from evaaa_baselines import zoo
 
     here = Path(sys.argv[1]).resolve()

@@ -11,6 +11,7 @@ import math
 import numpy as np
 import pytest
 
+from evaaa.level_files import load_level
 from evaaa.physiology import (
     DAMAGE,
     DEATHS,
@@ -31,7 +32,6 @@ from evaaa.physiology import (
     reward,
     step_evs,
 )
-from evaaa.spec import load_level
 
 N_SENSORS = 8
 

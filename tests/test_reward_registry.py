@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 import evaaa
+from evaaa.level import LevelError
 from evaaa.physiology import REWARD_FUNCTIONS, REWARDS, register_reward, reward_reads
 from evaaa.sensors import SENSORS
 from evaaa.sim import NONE, Simulator
-from evaaa.spec import LevelError
 
 
 @pytest.fixture

@@ -27,7 +27,7 @@ FINAL = ("final_satiation", "final_hydration", "final_temperature", "final_damag
 @pytest.fixture
 def short(tmp_path, monkeypatch) -> Path:
     """``short.yaml``: level 1-1 with 12-decision episodes (registered names are forgotten after each test)."""
-    monkeypatch.setattr(evaaa.spec, "_USER_FILES", {})
+    monkeypatch.setattr(evaaa.level_files, "_USER_FILES", {})
     path = tmp_path / "levels" / "short.yaml"
     path.parent.mkdir()
     path.write_text(SHORT)

@@ -17,8 +17,8 @@ from torchrl.envs.utils import check_env_specs
 import evaaa
 from evaaa import mjwarp
 from evaaa.backends import make_simulator
+from evaaa.level_files import load_level
 from evaaa.sim import SUBSTEPS, Simulator
-from evaaa.spec import load_level
 
 needs_warp = pytest.mark.skipif(
     not mjwarp.available(), reason="mujoco-warp and warp-lang are not installed (the optional extra 'warp')"

@@ -59,7 +59,7 @@ CAPPED_SHARE = 0.25
 @cache
 def level_cap(level: str) -> float:
     """The step cap (``episode.max_steps``) of ``level``; NaN for a name that is no level."""
-    from evaaa.spec import load_level
+    from evaaa.level_files import load_level
 
     try:
         return float(load_level(level).episode.max_steps)

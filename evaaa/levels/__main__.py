@@ -18,7 +18,8 @@ import sys
 
 import yaml
 
-from ..spec import LEVELS, TESTBEDS, LevelError, load_level, registered_levels
+from ..level import LevelError
+from ..level_files import LEVELS, TESTBEDS, load_level, registered_levels
 
 
 def _override(text: str) -> tuple[str, object]:

@@ -7,9 +7,9 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 import numpy as np
 
 if TYPE_CHECKING:  # types only: the simulator imports the sensors, never the other way round
+    from ..level import Level
     from ..physiology import PhysiologyParams
     from ..predator import Predators
-    from ..spec import Level
     from ..worldgen import ObstaclePool, ResourcePool
 
 

@@ -1,4 +1,4 @@
-"""Level loading, inheritance, overrides and validation errors (evaaa.spec)."""
+"""Level loading, inheritance, overrides and validation errors (evaaa.level_files, evaaa.level)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,8 @@ import pytest
 import yaml
 
 import evaaa
-from evaaa.spec import Level, LevelError, level_names, load_level
+from evaaa.level import Level, LevelError
+from evaaa.level_files import level_names, load_level
 
 
 # ------------------------------------------------------------------------------------------------ loading
