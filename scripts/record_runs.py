@@ -13,7 +13,8 @@ every checkpoint and model file (weights, optimiser and replay state, counters, 
 ``compare=`` trains the recording's runs again (in a temporary folder) and prints one line per run: ``identical``
 or the first difference (file, row and column, or checkpoint leaf and index; recorded and new value); exit status
 1 when a run differs.  Everything compares exactly but the clock columns and scalars named in :data:`CLOCKS`
-(when a row was written, CPU and wall seconds, speeds), whose rows must still be there.
+(when a row was written, CPU and wall seconds, speeds), whose rows must still be there, and the rows of a replay
+storage beyond those written (memory left uninitialised, saved as found).
 """
 
 from __future__ import annotations
@@ -67,6 +68,8 @@ CLOCKS = {
         "*.pt:logs/eval_csv",  # where eval.csv ended: its cpu_seconds column's text varies in width
     ),
 }
+#: where a checkpoint holds a replay buffer's storage: only its first ``_len`` rows were written (:func:`written`)
+STORAGE = "/_storage/_storage/"
 #: the files of a run recorded verbatim (checkpoints are read leaf by leaf)
 TEXTS = ("*.csv", "*.txt")
 
@@ -198,6 +201,15 @@ def text_difference(name: str, recorded: list[list[str]], now: list[list[str]]) 
     return None
 
 
+def written(key: str, array: np.ndarray, plain: dict) -> np.ndarray:
+    """The rows of a replay storage that were written (its ``_len`` beside it); the rest is memory torch left
+    uninitialised (``torch.empty``), which a checkpoint saves as it found it.  Other arrays whole."""
+    if STORAGE not in key:
+        return array
+    length = plain.get(key.split(STORAGE)[0] + "/_storage/_len")
+    return array[:length] if isinstance(length, int) else array
+
+
 def same(a, b) -> bool:
     """Equal plain values, NaN equal to NaN."""
     return a == b or (isinstance(a, float) and isinstance(b, float) and a != a and b != b)
@@ -218,7 +230,8 @@ def difference(recorded: tuple, now: tuple) -> str | None:
         if not is_clock_leaf(key) and not same(plain_a.get(key, "<missing>"), plain_b.get(key, "<missing>")):
             return f"{key}: recorded {plain_a.get(key, '<missing>')!r}, now {plain_b.get(key, '<missing>')!r}"
     for key in sorted(arrays_a):
-        diff = None if is_clock_leaf(key) else first_difference(arrays_a[key], arrays_b[key])
+        a, b = written(key, arrays_a[key], plain_a), written(key, arrays_b[key], plain_b)
+        diff = None if is_clock_leaf(key) else first_difference(a, b)
         if diff is not None:
             return f"{key} {diff}"
     return None
