@@ -128,3 +128,17 @@ def test_a_run_recording_equals_a_rerun_and_a_difference_is_named(tmp_path, caps
     assert run(script, f"compare={rec}", f"keep={kept}") == 1
     out = capsys.readouterr().out
     assert out.startswith(f"ppo: {weights[0]} at [") and "recorded" in out, out
+
+
+def test_a_replay_storage_is_compared_in_the_rows_written():
+    """A checkpoint saves a replay storage whole; past its ``_len`` the rows are uninitialised memory."""
+    script = load_script("record_runs")
+    key = "checkpoint.pt:components/buffer/_storage/_storage/action"
+    plain = {"checkpoint.pt:components/buffer/_storage/_len": 4}
+    recorded = np.arange(8)
+    now = recorded.copy()
+    now[6] = 12345  # never written
+    assert script.difference(({}, {key: recorded}, plain), ({}, {key: now}, plain)) is None
+    now[2] = -1
+    found = script.difference(({}, {key: recorded}, plain), ({}, {key: now}, plain))
+    assert found == f"{key} at [2]: recorded 2, now -1"
