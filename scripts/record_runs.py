@@ -42,6 +42,10 @@ from evaaa_baselines.recordings import (
     write_manifest,
 )
 
+EXAMPLES = [
+    "out=../recordings/main-ce12fe5/runs",
+    "compare=../recordings/main-ce12fe5/runs runs=[ppo] keep=../kept-runs",
+]
 PROG = "record_runs.py"
 TOOL = "record_runs"
 #: every run recorded: name -> train.py overrides (beside :data:`COMMON`)
@@ -261,7 +265,9 @@ def load(folder: Path) -> tuple:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    cfg, plan = check(cli.parse(RunsConfig, argv, prog=PROG, description=__doc__.split("\n\n")[0]), argv)
+    cfg, plan = check(
+        cli.parse(RunsConfig, argv, prog=PROG, description=__doc__.split("\n\n")[0], examples=EXAMPLES), argv
+    )
     os.environ.setdefault("EVAAA_THREADS", "1")  # the worlds stepped in the calling thread, as the learner
 
     from tqdm import tqdm

@@ -42,6 +42,10 @@ from evaaa_baselines.recordings import (
     write_manifest,
 )
 
+EXAMPLES = [
+    "out=../recordings/main-ce12fe5/trajectories",
+    "compare=../recordings/main-ce12fe5/trajectories levels=[4-2] atol=1e-6",
+]
 PROG = "record_trajectories.py"
 TOOL = "record_trajectories"
 #: the keys whose values a comparison takes from the recording's manifest, not from the command line
@@ -223,7 +227,7 @@ def coverage(steps: dict[str, np.ndarray]) -> dict[str, float]:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    cfg = check(cli.parse(RecordConfig, argv, prog=PROG, description=__doc__.split("\n\n")[0]), argv)
+    cfg = check(cli.parse(RecordConfig, argv, prog=PROG, description=__doc__.split("\n\n")[0], examples=EXAMPLES), argv)
 
     from tqdm import tqdm
 
