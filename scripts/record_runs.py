@@ -1,7 +1,7 @@
 """Record seeded short training runs of every algorithm on this code, and compare a later code with the recording.
 
-    python scripts/record_runs.py out=/work/recordings/main-ce12fe5/runs
-    python scripts/record_runs.py compare=/work/recordings/main-ce12fe5/runs
+    python scripts/record_runs.py out=../recordings/main-ce12fe5/runs
+    python scripts/record_runs.py compare=../recordings/main-ce12fe5/runs
 
 Each run of :data:`RUNS` (every algorithm with ``preset=debug`` on 1-1: 256 env steps in 2 worlds, gradient steps,
 checkpoints every 64 steps, evaluations at 128 and 256; and a two-stage curriculum of PPO) trains with ``seed`` on

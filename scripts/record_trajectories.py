@@ -1,7 +1,7 @@
 """Record what every level does on this code, step by step, and compare a later code with the recording.
 
-    python scripts/record_trajectories.py out=/work/recordings/main-ce12fe5/trajectories
-    python scripts/record_trajectories.py compare=/work/recordings/main-ce12fe5/trajectories
+    python scripts/record_trajectories.py out=../recordings/main-ce12fe5/trajectories
+    python scripts/record_trajectories.py compare=../recordings/main-ce12fe5/trajectories
 
 For every level and testbed (``levels``): ``num_envs`` worlds on the CPU backend, seeded with ``seed``, all senses
 on and every ``info`` field, episodes capped at ``max_steps`` (so that truncations and partial resets happen within
