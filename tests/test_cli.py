@@ -42,6 +42,8 @@ SCHEMAS = {
     "pack_record": "PackConfig",
     "choose_acting": "ChooseConfig",
     "zoo": "ZooConfig",
+    "record_trajectories": "RecordConfig",
+    "record_runs": "RunsConfig",
 }
 
 
@@ -338,6 +340,15 @@ BAD_VALUES = [
     ("reproduce", "plan=on", "plan=on: expected true or false"),
     ("wall_hits", "angles=[-5]", "angles=[-5]: expected angles in [0, 90)"),
     ("wall_hits", "angles=on", "angles=on: expected"),
+    ("record_trajectories", "levels=[3_2]", "levels=[3_2]: '3_2' is not allowed"),
+    ("record_trajectories", "steps=-5", "steps=-5: expected a positive integer"),
+    ("record_trajectories", "atol=-1", "atol=-1: expected a number >= 0"),
+    ("record_trajectories", "atol=0.1", "atol= is for compare="),
+    ("record_trajectories", "compare=nowhere", "compare=nowhere: no manifest.json there"),
+    ("record_runs", "runs=[a2c]", "runs=[a2c]: 'a2c' is not allowed"),
+    ("record_runs", "seed=-1", "seed=-1: expected an integer >= 0"),
+    ("record_runs", "keep=kept", "keep= is for compare="),
+    ("record_runs", "compare=nowhere", "compare=nowhere: no manifest.json there"),
     ("zoo", "replace=on", "replace=on: expected true or false"),
     ("zoo", "name=ppo-x", "name= and model= go together"),
     ("zoo", "model=nowhere.pt", "name= and model= go together"),
