@@ -153,8 +153,9 @@ def ray_head(temp: Path, cpus: int = 2, start_timeout: float = 300) -> Iterator[
             time.sleep(0.5)
         yield f"127.0.0.1:{port}"
     finally:
-        # SIGTERM: ray start stops the processes it started; SIGKILL: whatever of its session is left
-        for sig, wait in ((signal.SIGTERM, 60), (signal.SIGKILL, 30)):
+        # SIGTERM: ray start stops the processes it started; SIGKILL: whatever of its session is left. A graceful stop
+        # took 35 s (its raylet waits for its workers), idle time of a test worker: this throwaway cluster gets 5 s
+        for sig, wait in ((signal.SIGTERM, 5), (signal.SIGKILL, 30)):
             try:
                 os.killpg(head.pid, sig)
             except ProcessLookupError:

@@ -43,7 +43,8 @@ def make_cfg(*overrides: str):
 
 
 def debug_cfg(*extra: str):
-    return make_cfg("algo=ppo", "preset=debug", "logger=csv", "progress=false", "total_steps=64", *extra)
+    # one torch thread, as tests/test_dreamer.py: tiny networks, and the suite's workers share the cores
+    return make_cfg("algo=ppo", "preset=debug", "logger=csv", "progress=false", "threads=1", "total_steps=64", *extra)
 
 
 def snapshot(folder: Path) -> dict[str, bytes]:
@@ -148,7 +149,8 @@ def test_a_crafted_checkpoint_cannot_run_code(tmp_path, capsys):
 def finished(tmp_path_factory):
     """A finished smoke run (64 env steps) made by scripts/train.py, so that Hydra's own files are there too."""
     root = tmp_path_factory.mktemp("runs")
-    cmd = [*TRAIN, "algo=ppo", "preset=debug", "logger=csv", "progress=false", "total_steps=64", f"run.root={root}"]
+    cmd = [*TRAIN, "algo=ppo", "preset=debug", "logger=csv", "progress=false", "total_steps=64", "threads=1"]
+    cmd.append(f"run.root={root}")
     done = subprocess.run(cmd, cwd=root, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-3000:]
     run_dir = root / "1-1" / "ppo" / "all-squared-debug" / "seed0"
@@ -229,6 +231,7 @@ def test_ctrl_c_while_training_leaves_a_checkpoint_that_resume_continues(tmp_pat
         "logger=csv",
         "progress=false",
         "total_steps=100000",
+        "threads=1",
         f"run.root={tmp_path}",
     ]
     run_dir = tmp_path / "1-1" / "ppo" / "all-squared-debug" / "seed0"

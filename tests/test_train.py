@@ -63,8 +63,16 @@ def make_cfg(*overrides: str):
 
 
 def debug_cfg(algo: str, *extra: str, total_steps: int = TOTAL):
+    # one torch thread, as tests/test_dreamer.py: these tiny networks gain nothing from more, and the suite's workers
+    # share the cores (two threads each beside another worker cost more CPU for the same run)
     return make_cfg(
-        f"algo={algo}", "preset=debug", "logger=csv", "progress=false", f"total_steps={total_steps}", *extra
+        f"algo={algo}",
+        "preset=debug",
+        "logger=csv",
+        "progress=false",
+        "threads=1",
+        f"total_steps={total_steps}",
+        *extra,
     )
 
 
@@ -510,6 +518,7 @@ def test_train_script_multirun_sweeps_seeds(tmp_path):
         "logger=csv",
         "progress=false",
         "total_steps=64",
+        "threads=1",
         "seed=0,1",
         f"run.root={tmp_path}",
     ]
@@ -724,6 +733,7 @@ def test_a_level_from_the_users_own_file_trains(tmp_path):
         "logger=csv",
         "progress=false",
         "total_steps=64",
+        "threads=1",
         "level=file",
         f"level.file={level_file}",
         f"run.root={tmp_path}",
