@@ -21,7 +21,7 @@ demo: setup
 # the suite on every core (pytest-xdist: one worker per core, each test file on one worker, so a file's shared
 # fixtures are built once); add -n 0 to a pytest call to run it in one process. The 30 slowest tests of over 20 s are
 # listed at the end, so that CI's log shows where its time goes
-XDIST := -n auto --dist loadfile
+XDIST := -n auto --dist loadfile --no-loadscope-reorder
 DURATIONS := --durations=30 --durations-min=20
 
 test: setup
