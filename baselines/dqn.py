@@ -27,8 +27,9 @@ from torchrl.objectives import DQNLoss, HardUpdate
 
 from evaaa import ACTION_NAMES
 
+from .logs import Counters
 from .nets import MultimodalEncoder, compile_networks, head, stacked_shapes
-from .run import Counters, Run
+from .run import Run
 
 #: Q-values are no distribution to sample from: asked to sample, the policy still acts greedily, and evaluations
 #: say so (``mode``)

@@ -24,10 +24,8 @@ owed.
 
 from __future__ import annotations
 
-import csv
 import logging
 import math
-import os
 import time
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
@@ -48,43 +46,20 @@ from tqdm import tqdm
 
 import evaaa
 from evaaa import END_TYPES, EV_NAMES
-from evaaa.records import TRAINING_EPISODE_FIELDS, DiskError
+from evaaa.records import TRAINING_EPISODE_FIELDS
 
 from .checkpoint import CHECKPOINT, CHECKPOINT_FORMAT, CheckpointError, rng_state, save_checkpoint, set_rng_state
 from .config import COMPUTE_BOUND_STEPS, Stage, env_overrides, observation_keys
 from .devices import OnDevice, autocast, resolve_device
+from .logs import Counters, CsvLog, eval_columns, timestamp
 from .rollout import EVALUATION_INFO, EvalResult, acting_mode, evaluate, samples_actions, wrap_env
-from .timing import TimeSplit
+from .stage import Progress, TimeSplit, about, duration, rate_text
 
 log = logging.getLogger(__name__)
 
 #: the diagnostics the training env emits (``make_env(info=...)``): episode logging reads the first six, the
 #: DreamerV3 replay's consumed flag the last two; the rest would cost every step and be read by no one
 TRAINING_INFO = ("step_count", "end_type", *EV_NAMES, "food_eaten", "water_eaten")
-#: Columns of ``eval.csv``: one row per episode of every periodic evaluation, on the run's validation worlds
-#: (``worlds``), acting as ``acting`` says (:func:`~.rollout.acting_mode`).  Files written before held one row per
-#: evaluation (``episodes, survival_mean, survival_min, survival_max, return_mean, end_types``): reports read both.
-#: ``cpu_seconds``: the CPU seconds the stage had taken when the evaluation ended (its earlier sessions included, as
-#: ``max_cpu_minutes`` counts them), so that curves can be drawn against compute as well as env steps.
-EVAL_COLUMNS = (
-    "env_steps",
-    "stage",
-    "level",
-    "worlds",
-    "acting",
-    "episode",
-    "steps",
-    "return",
-    "end_type",
-    "food_eaten",
-    "water_eaten",
-    "collisions",
-    "damage_taken",
-    "wall_time",
-    "cpu_seconds",
-)
-#: the columns of ``eval.csv`` files begun before ``cpu_seconds``: a run begun so goes on without it
-EVAL_COLUMNS_BEFORE_CPU = EVAL_COLUMNS[:-1]
 
 
 class Interrupted(KeyboardInterrupt):
@@ -96,195 +71,6 @@ class Interrupted(KeyboardInterrupt):
 
 def parameter_count(model: nn.Module) -> int:
     return sum(p.numel() for p in model.parameters())
-
-
-# ------------------------------------------------------------------------------------------------ progress
-def _duration(seconds: float) -> str:
-    if not math.isfinite(seconds):
-        return "?"
-    seconds = max(0.0, seconds)
-    if seconds >= 2 * 86400:
-        return f"{seconds / 86400:.1f} d"
-    if seconds >= 3600:
-        return f"{int(seconds // 3600)}:{int(seconds % 3600 // 60):02d} h"
-    return f"{int(seconds // 60)}:{int(seconds % 60):02d}"
-
-
-def _about(seconds: float) -> str:
-    """A duration in words for a log line: "about 14 minutes", "about 2.3 hours", "about 3.1 days"."""
-    if not math.isfinite(seconds):
-        return "an unknown time"
-    if seconds < 90:
-        return f"about {seconds:.0f} seconds"
-    if seconds < 5400:
-        return f"about {seconds / 60:.0f} minutes"
-    if seconds < 2 * 86400:
-        return f"about {seconds / 3600:.1f} hours"
-    return f"about {seconds / 86400:.1f} days"
-
-
-def _rate(x: float) -> str:
-    return f"{x:.3g}" if x < 100 else f"{x:.0f}"
-
-
-class Progress:
-    """What the progress bar says about speed, from the times the loop reports.
-
-    Every report adds the env steps, gradient steps and seconds since the previous one to sums that decay with a
-    time constant of ``window`` seconds: the rates are over roughly the last ``window`` seconds of the whole loop, so
-    PPO's alternation of fast collection and slow updates, or DreamerV3's few long gradient steps, do not make the
-    rate swing.  The session's average (env steps / seconds since :meth:`__init__`) is given beside it.
-
-    The ETA adds the two costs of what is left: env steps still to take times the time one takes outside gradient
-    steps (acting, logging, evaluation), and gradient steps still owed times the time one takes.
-    """
-
-    def __init__(self, window: float, steps: int, now: float | None = None):
-        self.window = float(window)
-        now = time.perf_counter() if now is None else now
-        self.start, self.start_steps, self.last, self.steps = now, steps, now, steps
-        self.sums = {"seconds": 0.0, "steps": 0.0, "update_seconds": 0.0, "updates": 0.0}
-
-    def add(self, steps: int, updates: int = 0, update_seconds: float = 0.0, now: float | None = None) -> None:
-        """The loop is at ``steps`` env steps and made ``updates`` gradient steps, taking ``update_seconds``, since
-        the last report."""
-        now = time.perf_counter() if now is None else now
-        elapsed = max(now - self.last, 0.0)
-        decay = math.exp(-elapsed / self.window)
-        increments = {
-            "seconds": elapsed,
-            "steps": steps - self.steps,
-            "update_seconds": min(update_seconds, elapsed),
-            "updates": updates,
-        }
-        for key, value in increments.items():
-            self.sums[key] = self.sums[key] * decay + value
-        self.last, self.steps = now, steps
-
-    @property
-    def env_rate(self) -> float:
-        """Env steps per second of the whole loop over the window."""
-        return self.sums["steps"] / self.sums["seconds"] if self.sums["seconds"] > 0 else math.nan
-
-    @property
-    def session_rate(self) -> float:
-        """Env steps per second of the whole loop since the session began."""
-        seconds = self.last - self.start
-        return (self.steps - self.start_steps) / seconds if seconds > 0 else math.nan
-
-    @property
-    def update_rate(self) -> float:
-        return self.sums["updates"] / self.sums["seconds"] if self.sums["seconds"] > 0 else math.nan
-
-    @property
-    def seconds_per_update(self) -> float:
-        return self.sums["update_seconds"] / self.sums["updates"] if self.sums["updates"] > 0 else math.nan
-
-    @property
-    def seconds_per_step(self) -> float:
-        """Seconds of one env step outside gradient steps (acting, logging, evaluation)."""
-        acting = self.sums["seconds"] - self.sums["update_seconds"]
-        return acting / self.sums["steps"] if self.sums["steps"] > 0 else math.nan
-
-    def eta(self, steps_left: int, updates_left: int | None) -> float:
-        """Seconds until the stage ends: the steps left at the acting cost, plus the gradient steps still owed at
-        their cost (``updates_left=None``: an algorithm without gradient steps to count, only the whole-loop rate)."""
-        if steps_left <= 0:
-            return 0.0
-        if updates_left is None:
-            return steps_left / self.env_rate if self.env_rate > 0 else math.nan
-        cost = steps_left * self.seconds_per_step
-        if updates_left > 0:
-            cost += updates_left * self.seconds_per_update
-        return cost
-
-
-# ------------------------------------------------------------------------------------------------ files
-def _now() -> str:
-    return time.strftime("%Y-%m-%dT%H:%M:%S")
-
-
-class CsvLog:
-    """A CSV file written one flushed row at a time, appending; :meth:`size` / ``truncate_to`` let a resumed run cut
-    it back to what it held at the checkpoint."""
-
-    def __init__(self, path: Path, columns: Sequence[str], truncate_to: int | None = None):
-        self.path, self.columns = Path(path), tuple(columns)
-        self._failed_at: int | None = None
-        try:
-            self._file = open(path, "a+", newline="")
-            if truncate_to is not None:
-                self._file.truncate(truncate_to)
-            self._file.seek(0, os.SEEK_END)
-            self._writer = csv.writer(self._file)
-            if self._file.tell() == 0:
-                self._writer.writerow(self.columns)
-                self._file.flush()
-        except OSError as exc:
-            raise DiskError(path, exc) from None
-
-    def write(self, row: Mapping[str, Any]) -> None:
-        """Append one row; a disk that refuses it raises :class:`DiskError`, the file keeping its earlier rows whole."""
-        size = self._file.tell()
-        try:
-            self._writer.writerow([f"{v:.6g}" if isinstance(v, float) else v for v in (row[c] for c in self.columns)])
-            self._file.flush()
-        except OSError as exc:
-            self._discard(size)
-            raise DiskError(self.path, exc) from None
-
-    def _discard(self, size: int) -> None:
-        """Drop what a failed write left, in the file and in its buffer (a later flush would write it again); the
-        log stays closed, at ``size``."""
-        try:
-            self._file.close()
-        except OSError:
-            pass
-        try:
-            os.truncate(self.path, size)
-        except OSError:
-            pass
-        self._failed_at = size
-
-    def size(self) -> int:
-        return self._failed_at if self._failed_at is not None else self._file.tell()
-
-    def close(self) -> None:
-        if self._file.closed:
-            return
-        try:
-            self._file.close()
-        except OSError as exc:
-            raise DiskError(self.path, exc) from None
-
-
-def _eval_columns(path: Path) -> tuple[str, ...]:
-    """The columns a stage goes on writing ``eval.csv`` with: the file's own where it was begun before
-    ``cpu_seconds`` (one header per file), else :data:`EVAL_COLUMNS`.  A run begun before evaluations were written
-    one row per episode cannot go on in the same file."""
-    header: tuple[str, ...] = ()
-    if path.is_file():
-        with open(path, newline="") as f:
-            header = tuple(next(csv.reader(f), []))
-    if header == EVAL_COLUMNS_BEFORE_CPU:
-        return header
-    if header and header != EVAL_COLUMNS:
-        raise ValueError(
-            f"{path} holds one row per evaluation (written by an earlier evaaa), and this version "
-            f"writes one row per episode on validation worlds: finish that run with the version "
-            f"that began it, or train it again (start_over=true keeps the old run aside)"
-        )
-    return EVAL_COLUMNS
-
-
-class Counters(dict):
-    """Plain integer counters of an algorithm's loop, checkpointed like any stateful component."""
-
-    def state_dict(self) -> dict:
-        return dict(self)
-
-    def load_state_dict(self, state: Mapping) -> None:
-        self.update(state)
 
 
 # ------------------------------------------------------------------------------------------------ one stage
@@ -363,7 +149,7 @@ class Run:
         self.episodes_csv = CsvLog(
             self.dir / "episodes.csv", TRAINING_EPISODE_FIELDS, 0 if fresh_logs else offsets.get("episodes_csv")
         )
-        columns = EVAL_COLUMNS if fresh_logs else _eval_columns(self.dir / "eval.csv")
+        columns = eval_columns(self.dir / "eval.csv", fresh=fresh_logs)
         self.eval_csv = CsvLog(self.dir / "eval.csv", columns, 0 if fresh_logs else offsets.get("eval_csv"))
         self.env: TransformedEnv | None = None
         self.model: nn.Module | None = None
@@ -382,7 +168,7 @@ class Run:
         self.stops_between_updates = False
         self._ratio: float | None = None
         self._shown = 0.0
-        #: wall-clock and CPU seconds per phase of this session (:mod:`.timing`), logged under ``time/cpu/*``
+        #: wall-clock and CPU seconds per phase of this session (:mod:`.stage`), logged under ``time/cpu/*``
         self.split = TimeSplit()
 
     # -------------------------------------------------------------------------------------------- set-up
@@ -513,10 +299,10 @@ class Run:
                 # are a prefill without gradient steps, ten times faster than what follows
                 reach = self.steps + (self.trained_steps - self.steps) * wall_left / left
                 capped += (
-                    f"; max_cpu_minutes={cpu_limit:g} ends it sooner: in {_about(wall_left)}, near "
+                    f"; max_cpu_minutes={cpu_limit:g} ends it sooner: in {about(wall_left)}, near "
                     f"{reach:,.0f} env steps"
                 )
-        speed = f"{_rate(self.meter.env_rate)} env steps/s"
+        speed = f"{rate_text(self.meter.env_rate)} env steps/s"
         if self.meter.sums["updates"] > 0:
             speed += f", {self.meter.seconds_per_update:.3g} s per gradient step"
         log.info(
@@ -524,7 +310,7 @@ class Run:
             "its first %.0f s here (%s)%s",
             self.cfg.algo.name,
             self.stage.level,
-            _about(left),
+            about(left),
             f"{self.trained_steps:,}",
             f"{self.steps:,}",
             elapsed,
@@ -541,7 +327,7 @@ class Run:
         return autocast(self.device, self.cfg.get("bf16", False))
 
     def timed(self, phase: str):
-        """Counts the time of the ``with`` block to ``phase`` of the session's time split (:mod:`.timing`)."""
+        """Counts the time of the ``with`` block to ``phase`` of the session's time split (:mod:`.stage`)."""
         return self.split(phase)
 
     def updated(self, count: int, seconds: float, total: int, ratio: float | None = None) -> None:
@@ -610,7 +396,7 @@ class Run:
                 "return": float(nxt["episode_reward"][world]),
                 "end_type": END_TYPES[int(info["end_type"][world])],
                 **{f"final_{ev}": float(info[ev][world]) for ev in EV_NAMES},
-                "wall_time": _now(),
+                "wall_time": timestamp(),
             }
             self.episodes_csv.write(row)
             self.logger.log_metrics(
@@ -691,10 +477,10 @@ class Run:
         """What a first Ctrl-C waits for, in words, with how long it takes here when that is known."""
         if self.stops_between_updates and self.phase != "prefill":
             seconds = self.meter.seconds_per_update if self.meter is not None else math.nan
-            known = f" ({_about(seconds)} each here)" if math.isfinite(seconds) else ""
+            known = f" ({about(seconds)} each here)" if math.isfinite(seconds) else ""
             return f"the gradient step under way{known}"
         rate = self.meter.session_rate if self.meter is not None else math.nan
-        known = f" (one takes {_about(self.iteration[0] / rate)} here)" if math.isfinite(rate) and rate > 0 else ""
+        known = f" (one takes {about(self.iteration[0] / rate)} here)" if math.isfinite(rate) and rate > 0 else ""
         return f"the iteration under way{known}"
 
     @property
@@ -760,7 +546,7 @@ class Run:
             "stage": self.stage.index,
             "level": self.stage.level,
             "worlds": "validation",
-            "wall_time": _now(),
+            "wall_time": timestamp(),
             "cpu_seconds": round(self.seconds_spent()[1], 2),
         }
         metrics = {"eval/survival_mean": result.survival_mean, "eval/return_mean": result.return_mean}
@@ -788,18 +574,18 @@ class Run:
         """The bar's text after the step counter: smoothed and session env steps/s, gradient steps (count, rate,
         seconds each, replay ratio kept), the ETA, the mean survival of recent episodes and the last evaluation."""
         m = self.meter
-        parts = [f"env {_rate(m.env_rate)}/s (avg {_rate(m.session_rate)})"]
+        parts = [f"env {rate_text(m.env_rate)}/s (avg {rate_text(m.session_rate)})"]
         if self.planned_updates is not None or self.updates:
             grad = f"grad {self.updates:,}"
             if m.sums["updates"] > 0:
-                grad += f" {_rate(m.update_rate)}/s {m.seconds_per_update:.3g} s/update"
+                grad += f" {rate_text(m.update_rate)}/s {m.seconds_per_update:.3g} s/update"
             if self._ratio is not None:
                 grad += f" ratio {self._ratio:.3g}"
             parts.append(grad)
         planned = None
         if self.planned_updates is not None:
             planned = max(self.planned_updates(self.stage.budget) - self.updates, 0)
-        parts.append(f"ETA {_duration(m.eta(self.stage.budget - self.steps, planned))}")
+        parts.append(f"ETA {duration(m.eta(self.stage.budget - self.steps, planned))}")
         parts.append(f"surv {np.mean(self.recent):.0f}" if self.recent else "surv -")
         if self.last_eval is not None:
             parts.append(f"eval {self.last_eval:.0f}")
@@ -900,7 +686,7 @@ class Run:
                     asked,
                     self.steps_per_second(),
                     f"{self.updates:,}",
-                    _duration(time.perf_counter() - self._session[0]),
+                    duration(time.perf_counter() - self._session[0]),
                 )
         self.episodes_csv.close()
         self.eval_csv.close()

@@ -23,7 +23,7 @@ from evaaa.records import DiskError, StepLog, append_rows, read_rows
 from evaaa_baselines import checkpoint
 from evaaa_baselines import run as run_loop
 from evaaa_baselines.checkpoint import load_checkpoint, save_checkpoint
-from evaaa_baselines.run import CsvLog
+from evaaa_baselines.logs import CsvLog
 
 #: a hang, not a slow machine
 HANG_SECONDS = 10

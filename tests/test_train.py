@@ -28,7 +28,7 @@ from hydra import compose, initialize_config_dir
 
 import evaaa
 from evaaa.records import TRAINING_EPISODE_FIELDS
-from evaaa_baselines import algos, checkpoint, devices, evaluate, load_policy, training
+from evaaa_baselines import algos, checkpoint, devices, evaluate, load_policy, logs, stage, training
 from evaaa_baselines import run as run_loop
 from evaaa_baselines.config import (
     COMPUTE_BOUND_STEPS,
@@ -41,7 +41,7 @@ from evaaa_baselines.config import (
 from evaaa_baselines.devices import DeviceError, resolve_device
 from evaaa_baselines.evaluation import EvaluatedPolicy, EvaluationError
 from evaaa_baselines.paths import CONF_DIR
-from evaaa_baselines.run import Progress
+from evaaa_baselines.stage import Progress
 from evaaa_baselines.training import make_logger, summary, train
 
 register_levels()
@@ -574,13 +574,13 @@ def test_evaluations_record_the_cpu_time_of_the_stage_so_far(tmp_path, monkeypat
 def test_a_run_begun_before_the_cpu_column_goes_on_without_it(tmp_path, monkeypatch):
     cfg = debug_cfg("ppo", "eval.every=64", "checkpoint.every=64", total_steps=3 * 64)
     with monkeypatch.context() as patch:  # the version before: eval.csv without cpu_seconds
-        patch.setattr(run_loop, "EVAL_COLUMNS", run_loop.EVAL_COLUMNS_BEFORE_CPU)
+        patch.setattr(logs, "EVAL_COLUMNS", logs.EVAL_COLUMNS_BEFORE_CPU)
         run_killed(cfg, tmp_path / "run", 2 * 64, monkeypatch)
     train(debug_cfg("ppo", "eval.every=64", "checkpoint.every=64", "resume=true", total_steps=3 * 64), tmp_path / "run")
     with open(tmp_path / "run" / "eval.csv", newline="") as f:
         lines = list(csv.reader(f))
-    assert tuple(lines[0]) == run_loop.EVAL_COLUMNS_BEFORE_CPU  # one header per file: the file's own
-    assert {len(line) for line in lines} == {len(run_loop.EVAL_COLUMNS_BEFORE_CPU)}
+    assert tuple(lines[0]) == logs.EVAL_COLUMNS_BEFORE_CPU  # one header per file: the file's own
+    assert {len(line) for line in lines} == {len(logs.EVAL_COLUMNS_BEFORE_CPU)}
     assert sorted({int(line[0]) for line in lines[1:]}) == [64, 128, 192]
 
 
@@ -704,7 +704,7 @@ def test_progress_eta_counts_the_gradient_steps_owed():
     assert meter.seconds_per_step == pytest.approx(0.1 / 8)
     left = 2_000_000 - steps
     assert meter.eta(left, left) == pytest.approx(left * (10.0 + 0.1 / 8))
-    assert run_loop._duration(meter.eta(left, left)) == "231.6 d"  # (2,000,000 - 1,064) x 10.0125 s
+    assert stage.duration(meter.eta(left, left)) == "231.6 d"  # (2,000,000 - 1,064) x 10.0125 s
 
 
 def test_a_level_from_the_users_own_file_trains(tmp_path):
@@ -1004,7 +1004,7 @@ def test_a_compute_bound_run_states_its_cpu_budget_and_when_it_ends(caplog, monk
             run._estimate()
     (line,) = [r.getMessage() for r in caplog.records if "time estimate" in r.getMessage()]
     # 50 CPU seconds left: 100 s of wall time at half a core, 1,000 more env steps at 20 per CPU second
-    assert line.endswith(f"; max_cpu_minutes=1 ends it sooner: in {run_loop._about(100.0)}, near 1,200 env steps")
+    assert line.endswith(f"; max_cpu_minutes=1 ends it sooner: in {stage.about(100.0)}, near 1,200 env steps")
 
 
 def test_a_compute_bound_run_with_a_prefill_says_how_far_its_gradient_steps_let_it_reach(caplog, monkeypatch):
@@ -1022,7 +1022,7 @@ def test_a_compute_bound_run_with_a_prefill_says_how_far_its_gradient_steps_let_
     (line,) = [r.getMessage() for r in caplog.records if "time estimate" in r.getMessage()]
     # 49.5 CPU seconds left at t=21 s: 99 s of wall time, 900 env steps at 0.11 s each (the session's 105 env
     # steps per CPU second, prefill included, would say 6,286)
-    assert line.endswith(f"ends it sooner: in {run_loop._about(99.0)}, near 2,000 env steps"), line
+    assert line.endswith(f"ends it sooner: in {stage.about(99.0)}, near 2,000 env steps"), line
 
 
 def test_two_ctrl_c_inside_one_long_call_still_stop_the_run_at_once(tmp_path, monkeypatch, capsys):

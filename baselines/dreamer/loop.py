@@ -16,8 +16,9 @@ import time
 from omegaconf import DictConfig
 from torchrl.modules import DreamerV3MLP, RSSMPosteriorV3, RSSMPriorV3
 
+from ..logs import Counters
 from ..nets import compile_networks
-from ..run import Counters, Run, parameter_count
+from ..run import Run, parameter_count
 from .model import DreamerDecoder, DreamerEncoder, _next, acting_policy, make_model, make_transforms, prefill_policy
 from .openloop import save_openloop
 from .replay import _gb, consumed, make_replay, transition_bytes
