@@ -17,15 +17,13 @@ finishes, a checkpoint is written and :class:`Interrupted` says where, so an int
 
 Devices: the worlds live on the CPU; the networks, losses, optimisers and replay live on ``device``
 (:func:`resolve_device`).  Acting sends each step's observations to the device and brings the policy's outputs back
-(:class:`OnDevice`).  The progress bar (:class:`Progress`) shows rates smoothed over ``progress_seconds`` and the
-session's average, gradient steps and their cost, and an ETA that adds the acting time and the gradient steps still
-owed.
+(:class:`OnDevice`).  The stage's clock — its budgets, the bar's rates and ETA, the time estimate — is
+:class:`~.stage.StageClock`, started by :meth:`Run.start`.
 """
 
 from __future__ import annotations
 
 import logging
-import math
 import time
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
@@ -53,7 +51,7 @@ from .config import COMPUTE_BOUND_STEPS, Stage, env_overrides, observation_keys
 from .devices import OnDevice, autocast, resolve_device
 from .logs import Counters, CsvLog, eval_columns, timestamp
 from .rollout import EVALUATION_INFO, EvalResult, acting_mode, evaluate, samples_actions, wrap_env
-from .stage import Progress, TimeSplit, about, duration, rate_text
+from .stage import StageClock, TimeSplit, budget_text, stop_wait
 
 log = logging.getLogger(__name__)
 
@@ -142,6 +140,8 @@ class Run:
         self.counters = Counters(steps=0, episodes=0, logged=0, last_end=0)
         #: wall-clock and CPU seconds of the stage's earlier sessions (a resumed checkpoint's ``time``)
         self._spent_before = (0.0, 0.0)
+        #: this session against the stage's budgets, from :meth:`start` on
+        self.clock: StageClock | None = None
         self.recent: deque[int] = deque(maxlen=cfg.progress_window)
         self.last_eval: float | None = None
         self.best_eval: float | None = None
@@ -155,7 +155,6 @@ class Run:
         self.model: nn.Module | None = None
         self._eval_env: TransformedEnv | None = None
         self.progress: tqdm | None = None
-        self.meter: Progress | None = None
         #: shown in the bar beside the level, e.g. "prefill" while DreamerV3 or DQN fill their buffer
         self.phase: str | None = None
         #: gradient steps so far (:meth:`updated`), and a function of env steps giving those owed by then (for the ETA)
@@ -181,26 +180,16 @@ class Run:
     def done(self) -> bool:
         """The stage's env-step budget is spent, or its time budget is: ``max_minutes`` of wall-clock time or
         ``max_cpu_minutes`` of this process's CPU time (every thread), each summed over the stage's sessions."""
-        if self.steps >= self.stage.budget:
-            return True
-        # a session ends the stage only through end_iteration (final evaluation and model): one resumed with its
-        # time already spent makes one iteration first
-        if getattr(self, "_session", None) is None or self.steps == self._session[1]:
-            return False
-        spent = self.seconds_spent()
-        limits = (self.cfg.get("max_minutes"), self.cfg.get("max_cpu_minutes"))
-        return any(limit is not None and used >= 60.0 * limit for limit, used in zip(limits, spent))
+        return self.steps >= self.stage.budget or (self.clock is not None and self.clock.out_of_time(self.steps))
 
     def seconds_spent(self) -> tuple[float, float]:
         """Wall-clock and CPU seconds of this stage so far, earlier sessions included (kept in the checkpoint)."""
-        wall, cpu = getattr(self, "_spent_before", (0.0, 0.0))
-        wall0, cpu0 = getattr(self, "_clock_start", None) or (time.perf_counter(), time.process_time())
-        return wall + time.perf_counter() - wall0, cpu + time.process_time() - cpu0
+        return self.clock.seconds_spent()
 
     def session_seconds(self) -> float:
         """Wall-clock seconds since :meth:`start` began this process's session of the stage (a resumed stage's
         earlier sessions not included: :meth:`seconds_spent` counts those)."""
-        return time.perf_counter() - self._session[0]
+        return self.clock.session_seconds()
 
     def train_env(self, transforms: Sequence[Transform]) -> TransformedEnv:
         """The stage's worlds wrapped in the algorithm's transforms."""
@@ -230,7 +219,12 @@ class Run:
             "on" if self.cfg.get("bf16") else "off",
             "on" if self.cfg.get("compile") else "off",
             self.base_env.num_envs,
-            self.budget_text(),
+            budget_text(
+                self.stage.budget,
+                *self.iteration,
+                self.cfg.get("max_cpu_minutes"),
+                COMPUTE_BOUND_STEPS,
+            ),
         )
         # the bar's own rate and ETA (tqdm's) are left out: they follow the last few updates of the bar and swing
         # with the loop's phases; Progress gives smoothed ones.  disable=None: no bar where the output is not a
@@ -244,79 +238,24 @@ class Run:
             disable=None if self.cfg.progress else True,
             bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]",
         )
-        self._estimated = False
         self.split = TimeSplit()
-        self._session = (time.perf_counter(), self.steps)
-        self._clock_start = (self._session[0], time.process_time())
-        self.meter = Progress(self.cfg.get("progress_seconds", 60), self.steps, now=self._session[0])
+        self.clock = StageClock(
+            self.stage.budget,
+            self.iteration[0],
+            steps=self.steps,
+            planned_updates=self.planned_updates,
+            window=self.cfg.get("progress_seconds", 60),
+            max_minutes=self.cfg.get("max_minutes"),
+            max_cpu_minutes=self.cfg.get("max_cpu_minutes"),
+            spent_before=self._spent_before,
+        )
         return td
 
-    @property
-    def trained_steps(self) -> int:
-        """The env steps the stage will have taken at its end: its budget, rounded up to whole iterations."""
-        size = self.iteration[0]
-        return -(-self.stage.budget // size) * size
-
-    def budget_text(self) -> str:
-        """The stage's budget as asked and, where whole iterations overshoot it, as trained and why; a
-        compute-bound stage (``max_cpu_minutes`` with a step budget it never reaches) by its CPU minutes."""
-        minutes = self.cfg.get("max_cpu_minutes")
-        if minutes is not None and self.stage.budget >= COMPUTE_BOUND_STEPS:
-            return f"{minutes:g} CPU-minutes (max_cpu_minutes; the budget of {self.stage.budget:,} env steps is out of reach)"
-        text = f"{self.stage.budget:,} env steps"
-        if self.trained_steps != self.stage.budget:
-            size, how = self.iteration
-            text += (
-                f" asked: {self.trained_steps:,} trained, as the stage ends with the iteration that reaches "
-                f"its budget and one iteration is {size:,} env steps ({how})"
-            )
-        return text
-
     def _estimate(self) -> None:
-        """Log once how long the stage will take, from this session's own speed so far: after 20 s, and once
-        gradient steps (whose cost dominates) have been timed where the algorithm makes any."""
-        elapsed = time.perf_counter() - self._session[0]
-        timed = self.planned_updates is None or self.meter.sums["updates"] > 0
-        if self._estimated or elapsed < 20 or not timed or self.done:
-            return
-        self._estimated = True
-        planned = None
-        if self.planned_updates is not None:
-            planned = max(self.planned_updates(self.trained_steps) - self.updates, 0)
-        left = self.meter.eta(self.trained_steps - self.steps, planned)
-        limit = self.cfg.get("max_minutes")
-        capped = f"; max_minutes={limit:g} ends it sooner" if limit is not None and left > 60 * limit - elapsed else ""
-        cpu_limit = self.cfg.get("max_cpu_minutes")
-        start = getattr(self, "_clock_start", None)
-        session_cpu = time.process_time() - start[1] if start else 0.0
-        if cpu_limit is not None and session_cpu > 0:
-            # at this session's speed per CPU second and its share of a core
-            cpu_left = max(60.0 * cpu_limit - self.seconds_spent()[1], 0.0)
-            wall_left = cpu_left * elapsed / session_cpu
-            if wall_left < left:
-                # at the estimate's own cost per env step for the rest of the budget (acting and the gradient steps
-                # it owes), not this session's env steps per CPU second so far: DreamerV3's first 16 k env steps
-                # are a prefill without gradient steps, ten times faster than what follows
-                reach = self.steps + (self.trained_steps - self.steps) * wall_left / left
-                capped += (
-                    f"; max_cpu_minutes={cpu_limit:g} ends it sooner: in {about(wall_left)}, near "
-                    f"{reach:,.0f} env steps"
-                )
-        speed = f"{rate_text(self.meter.env_rate)} env steps/s"
-        if self.meter.sums["updates"] > 0:
-            speed += f", {self.meter.seconds_per_update:.3g} s per gradient step"
-        log.info(
-            "time estimate for %s on %s: %s more for the %s env steps (%s done), from this run's speed over "
-            "its first %.0f s here (%s)%s",
-            self.cfg.algo.name,
-            self.stage.level,
-            about(left),
-            f"{self.trained_steps:,}",
-            f"{self.steps:,}",
-            elapsed,
-            speed,
-            capped,
-        )
+        """Log once how long the stage will take (:meth:`.StageClock.estimate`)."""
+        text = self.clock.estimate(self.steps, self.updates, self.done)
+        if text is not None:
+            log.info("time estimate for %s on %s: %s", self.cfg.algo.name, self.stage.level, text)
 
     def acting(self, policy: TensorDictModuleBase) -> OnDevice:
         """``policy`` (on :attr:`device`) acting on the CPU worlds' tensordicts."""
@@ -334,7 +273,7 @@ class Run:
         """``count`` gradient steps were made in ``seconds``; ``total`` so far this stage; ``ratio``: the replay
         ratio kept (gradient steps per env step since learning began), if the algorithm keeps one."""
         self.updates, self._ratio = total, ratio
-        self.meter.add(self.steps, count, seconds)
+        self.clock.add(self.steps, count, seconds)
         self._show()
         # the first timed gradient step completes what the estimate needs: said now, not at the iteration's end
         self._estimate()
@@ -367,7 +306,7 @@ class Run:
         done = out["next", "done"].reshape(-1)
         if done.any():
             self._log_episodes(out["next"], done)
-        self.meter.add(self.steps)
+        self.clock.add(self.steps)
         self._show()
         self.progress.update(n)
         return out, td
@@ -423,15 +362,10 @@ class Run:
         if not self.log_due:
             return
         self.counters["logged"] = self.steps
-        timing = {"time/env_steps_per_s": self.steps_per_second(), **self.split.scalars()}
+        timing = {"time/env_steps_per_s": self.clock.steps_per_second(self.steps), **self.split.scalars()}
         if self.device.type == "cuda":
             timing["time/gpu_memory_peak_gb"] = torch.cuda.max_memory_allocated(self.device) / 1e9
         self.logger.log_metrics({**{f"train/{k}": float(v) for k, v in metrics.items()}, **timing}, step=self.steps)
-
-    def steps_per_second(self) -> float:
-        """Env steps per second of this session's whole loop (collection, updates, evaluation, checkpoints)."""
-        start, steps = self._session
-        return (self.steps - steps) / max(time.perf_counter() - start, 1e-9)
 
     def end_iteration(self, td: TensorDictBase) -> None:
         """Evaluate and checkpoint when due: every ``eval.every`` / ``checkpoint.every`` env steps, and at the end of
@@ -475,13 +409,8 @@ class Run:
 
     def stop_wait(self) -> str:
         """What a first Ctrl-C waits for, in words, with how long it takes here when that is known."""
-        if self.stops_between_updates and self.phase != "prefill":
-            seconds = self.meter.seconds_per_update if self.meter is not None else math.nan
-            known = f" ({about(seconds)} each here)" if math.isfinite(seconds) else ""
-            return f"the gradient step under way{known}"
-        rate = self.meter.session_rate if self.meter is not None else math.nan
-        known = f" (one takes {about(self.iteration[0] / rate)} here)" if math.isfinite(rate) and rate > 0 else ""
-        return f"the iteration under way{known}"
+        between = self.stops_between_updates and self.phase != "prefill"
+        return stop_wait(between, self.clock.meter if self.clock is not None else None, self.iteration[0])
 
     @property
     def model_path(self) -> Path:
@@ -573,19 +502,7 @@ class Run:
     def status(self) -> str:
         """The bar's text after the step counter: smoothed and session env steps/s, gradient steps (count, rate,
         seconds each, replay ratio kept), the ETA, the mean survival of recent episodes and the last evaluation."""
-        m = self.meter
-        parts = [f"env {rate_text(m.env_rate)}/s (avg {rate_text(m.session_rate)})"]
-        if self.planned_updates is not None or self.updates:
-            grad = f"grad {self.updates:,}"
-            if m.sums["updates"] > 0:
-                grad += f" {rate_text(m.update_rate)}/s {m.seconds_per_update:.3g} s/update"
-            if self._ratio is not None:
-                grad += f" ratio {self._ratio:.3g}"
-            parts.append(grad)
-        planned = None
-        if self.planned_updates is not None:
-            planned = max(self.planned_updates(self.stage.budget) - self.updates, 0)
-        parts.append(f"ETA {duration(m.eta(self.stage.budget - self.steps, planned))}")
+        parts = [self.clock.status(self.steps, self.updates, self._ratio)]
         parts.append(f"surv {np.mean(self.recent):.0f}" if self.recent else "surv -")
         if self.last_eval is not None:
             parts.append(f"eval {self.last_eval:.0f}")
@@ -672,22 +589,9 @@ class Run:
     def close(self) -> None:
         if self.progress is not None:
             self.progress.close()
-            if self.steps > self._session[1]:
-                asked = (
-                    f" ({self.stage.budget:,} asked, in whole iterations of {self.iteration[0]:,})"
-                    if self.steps != self.stage.budget and self.steps >= self.stage.budget
-                    else ""
-                )
-                log.info(
-                    "%s on %s: %s env steps%s, %.3g env steps/s this session, %s gradient steps, %s",
-                    self.cfg.algo.name,
-                    self.stage.level,
-                    f"{self.steps:,}",
-                    asked,
-                    self.steps_per_second(),
-                    f"{self.updates:,}",
-                    duration(time.perf_counter() - self._session[0]),
-                )
+            if self.steps > self.clock.start_steps:
+                summary = self.clock.summary(self.steps, self.updates)
+                log.info("%s on %s: %s", self.cfg.algo.name, self.stage.level, summary)
         self.episodes_csv.close()
         self.eval_csv.close()
         # close explicitly: an evaaa env collected later, while another env's GL context is current, frees its
