@@ -19,6 +19,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from evaaa import END_TYPES, EV_NAMES
 from evaaa.records import DiskError
 
 #: where the CSV logger writes a run's scalars, one file per tag
@@ -221,3 +222,29 @@ class Counters(dict):
 
     def load_state_dict(self, state: Mapping) -> None:
         self.update(state)
+
+
+def episode_row(nxt: Mapping, world: int, **where: Any) -> dict[str, Any]:
+    """The ``episodes.csv`` row of the episode that ended in ``world`` at a step (``nxt``: the step's ``"next"``),
+    where the stage was (``env_steps``, ``stage``, ``level``, ``episode``) first."""
+    info = nxt["info"]
+    return {
+        **where,
+        "world": world,
+        "steps": int(info["step_count"][world]),
+        "return": float(nxt["episode_reward"][world]),
+        "end_type": END_TYPES[int(info["end_type"][world])],
+        **{f"final_{ev}": float(info[ev][world]) for ev in EV_NAMES},
+        "wall_time": timestamp(),
+    }
+
+
+def episode_metrics(row: Mapping[str, Any]) -> dict[str, float]:
+    """An episode's scalars (``episode/*``) from its ``episodes.csv`` row."""
+    return {
+        "episode/survival_steps": row["steps"],
+        "episode/return": row["return"],
+        **{f"episode/{ev}": row[f"final_{ev}"] for ev in EV_NAMES},
+        # one 0/1 series per end type: its running mean is how often episodes end that way
+        **{f"episode/end/{name}": float(name == row["end_type"]) for name in END_TYPES[1:]},
+    }

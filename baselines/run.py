@@ -43,13 +43,13 @@ from torchrl.record.loggers import Logger
 from tqdm import tqdm
 
 import evaaa
-from evaaa import END_TYPES, EV_NAMES
+from evaaa import EV_NAMES
 from evaaa.records import TRAINING_EPISODE_FIELDS
 
 from .checkpoint import CHECKPOINT, CHECKPOINT_FORMAT, CheckpointError, rng_state, save_checkpoint, set_rng_state
 from .config import COMPUTE_BOUND_STEPS, Stage, env_overrides, observation_keys
 from .devices import OnDevice, autocast, resolve_device
-from .logs import Counters, CsvLog, eval_columns, timestamp
+from .logs import Counters, CsvLog, episode_metrics, episode_row, eval_columns, timestamp
 from .rollout import EVALUATION_INFO, EvalResult, acting_mode, evaluate, samples_actions, wrap_env
 from .stage import StageClock, TimeSplit, budget_text, stop_wait
 
@@ -322,32 +322,12 @@ class Run:
         return torch.stack(transitions, dim=1), td
 
     def _log_episodes(self, nxt: TensorDictBase, done: torch.Tensor) -> None:
-        info = nxt["info"]
         for world in done.nonzero().flatten().tolist():
             self.counters["episodes"] += 1
-            row = {
-                "env_steps": self.steps,
-                "stage": self.stage.index,
-                "level": self.stage.level,
-                "episode": self.counters["episodes"],
-                "world": world,
-                "steps": int(info["step_count"][world]),
-                "return": float(nxt["episode_reward"][world]),
-                "end_type": END_TYPES[int(info["end_type"][world])],
-                **{f"final_{ev}": float(info[ev][world]) for ev in EV_NAMES},
-                "wall_time": timestamp(),
-            }
+            where = {"env_steps": self.steps, "stage": self.stage.index, "level": self.stage.level}
+            row = episode_row(nxt, world, **where, episode=self.counters["episodes"])
             self.episodes_csv.write(row)
-            self.logger.log_metrics(
-                {
-                    "episode/survival_steps": row["steps"],
-                    "episode/return": row["return"],
-                    **{f"episode/{ev}": row[f"final_{ev}"] for ev in EV_NAMES},
-                    # one 0/1 series per end type: its running mean is how often episodes end that way
-                    **{f"episode/end/{name}": float(name == row["end_type"]) for name in END_TYPES[1:]},
-                },
-                step=self.steps,
-            )
+            self.logger.log_metrics(episode_metrics(row), step=self.steps)
             self.recent.append(row["steps"])
 
     # -------------------------------------------------------------------------------------------- bookkeeping
