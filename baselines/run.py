@@ -28,7 +28,6 @@ import time
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from types import ModuleType
 from typing import Any
 
 import numpy as np
@@ -80,11 +79,12 @@ class Run:
 
     1. build its networks from :attr:`obs_shapes` and :attr:`obs_keys` (config in :attr:`cfg`), on :attr:`device`;
     2. optionally say how it steps: :attr:`iteration` (env steps per iteration, and how, for the budget's
-       arithmetic), :attr:`planned_updates` (gradient steps owed by an env step, for the ETA),
-       :attr:`stops_between_updates` (it checks :attr:`stop_requested` between gradient steps);
+       arithmetic), :attr:`stops_between_updates` (it checks :attr:`stop_requested` between gradient steps);
     3. ``env = run.train_env(transforms)``: the stage's training worlds with the algorithm's transforms;
-    4. ``td = run.start(model, components)``: a fresh start, the curriculum's hand-over or an exact resume;
-       ``components`` are the stateful objects a checkpoint keeps (optimisers, buffers, counters);
+    4. ``td = run.start(model, components, policy, eval_transforms)``: a fresh start, the curriculum's hand-over or
+       an exact resume; ``components`` are the stateful objects a checkpoint keeps (optimisers, buffers, counters),
+       ``policy`` and ``eval_transforms`` what evaluations act with (its ``make_policy`` and fresh
+       ``make_transforms``), ``planned_updates`` the gradient steps owed by a number of env steps (for the ETA);
     5. while not :attr:`done`: act with :meth:`step` or :meth:`collect` (the policy wrapped by :meth:`acting`),
        update under :meth:`autocast` and report the gradient steps with :meth:`updated` (:meth:`set_phase` names a
        phase such as ``prefill``), :meth:`log` metrics when :attr:`log_due`, and end every iteration with
@@ -98,7 +98,6 @@ class Run:
         cfg: the composed config.
         run_dir: where checkpoints and CSVs go.
         stage: the level and budget of this stage.
-        algo: the algorithm's module (``make_transforms`` and ``make_policy`` build the evaluation worlds' policy).
         logger: TorchRL logger shared by the stages.
         resume: a checkpoint of this stage to continue from.
         init_weights: the previous stage's model weights (curriculum), for a fresh stage.
@@ -111,7 +110,6 @@ class Run:
         cfg: DictConfig,
         run_dir: Path,
         stage: Stage,
-        algo: ModuleType,
         logger: Logger,
         *,
         resume: dict | None = None,
@@ -119,7 +117,7 @@ class Run:
         fresh_logs: bool = False,
         stop_requested: Callable[[], bool] | None = None,
     ):
-        self.cfg, self.dir, self.stage, self.algo, self.logger = cfg, Path(run_dir), stage, algo, logger
+        self.cfg, self.dir, self.stage, self.logger = cfg, Path(run_dir), stage, logger
         self.stop_requested = stop_requested or (lambda: False)
         #: where the networks, losses, optimisers and replay live (the worlds stay on the CPU)
         self.device = resolve_device(cfg.get("device", "auto"))
@@ -157,9 +155,8 @@ class Run:
         self.progress: tqdm | None = None
         #: shown in the bar beside the level, e.g. "prefill" while DreamerV3 or DQN fill their buffer
         self.phase: str | None = None
-        #: gradient steps so far (:meth:`updated`), and a function of env steps giving those owed by then (for the ETA)
+        #: gradient steps so far (:meth:`updated`)
         self.updates = 0
-        self.planned_updates: Callable[[int], int] | None = None
         #: env steps an iteration takes (all worlds) and how, e.g. (1024, "8 worlds x 128 steps, then an update"):
         #: the stage ends with the iteration that reaches its budget; an algorithm that steps otherwise sets it
         self.iteration: tuple[int, str] = (cfg.env.num_envs, f"one step of each of the {cfg.env.num_envs} worlds")
@@ -196,14 +193,23 @@ class Run:
         self.env = wrap_env(self.base_env, transforms)
         return self.env
 
-    def start(self, model: nn.Module, components: Mapping[str, Any]) -> TensorDictBase:
+    def start(
+        self,
+        model: nn.Module,
+        components: Mapping[str, Any],
+        policy: TensorDictModuleBase,
+        eval_transforms: Sequence[Transform],
+        planned_updates: Callable[[int], int] | None = None,
+    ) -> TensorDictBase:
         """Begin or resume the stage; returns the tensordict the first step acts on.
 
         ``components`` are the loop's other stateful objects (optimiser, scheduler, loss with target network,
-        replay buffer, exploration module, counters): anything with ``state_dict`` / ``load_state_dict``.
+        replay buffer, exploration module, counters): anything with ``state_dict`` / ``load_state_dict``; the rest
+        as the class's contract says (``planned_updates`` None: no gradient steps to count).
         """
         self.model, self.components = model, dict(components)
-        self.policy = OnDevice(self.algo.make_policy(model), self.device)
+        self.policy = OnDevice(policy, self.device)
+        self._eval_transforms = list(eval_transforms)
         if self.resume_state is not None:
             td = self._restore(self.resume_state)
         else:
@@ -243,7 +249,7 @@ class Run:
             self.stage.budget,
             self.iteration[0],
             steps=self.steps,
-            planned_updates=self.planned_updates,
+            planned_updates=planned_updates,
             window=self.cfg.get("progress_seconds", 60),
             max_minutes=self.cfg.get("max_minutes"),
             max_cpu_minutes=self.cfg.get("max_cpu_minutes"),
@@ -421,7 +427,7 @@ class Run:
                 backend=self.cfg.env.get("backend", "cpu"),
                 **self.overrides,
             )
-            self._eval_env = wrap_env(base, self.algo.make_transforms(self.cfg.algo, self.obs_keys, self.model))
+            self._eval_env = wrap_env(base, self._eval_transforms)
         sample = bool(self.cfg.eval.get("sample", False))
         modes = [sample]
         if self.cfg.eval.get("both_modes", False) and samples_actions(self.cfg.algo.name):
@@ -441,15 +447,8 @@ class Run:
         self.last_eval = result.survival_mean
         if self.best_eval is None or result.survival_mean > self.best_eval:
             self.best_eval = result.survival_mean
-            save_checkpoint(
-                self._identity()
-                | {
-                    "model": self.model.state_dict(),
-                    "env_steps": self.steps,
-                    "eval_survival_mean": result.survival_mean,
-                },
-                self.best_model_path,
-            )
+            best = {"model": self.model.state_dict(), "env_steps": self.steps, "eval_survival_mean": self.best_eval}
+            save_checkpoint(self._identity() | best, self.best_model_path)
         common = {
             "env_steps": self.steps,
             "stage": self.stage.index,

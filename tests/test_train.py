@@ -750,7 +750,7 @@ def train(run):
     model = make_model(run.cfg.algo, run.obs_shapes).to(run.device)
     run.train_env(make_transforms(run.cfg.algo, run.obs_keys, model))
     policy = run.acting(make_policy(model))
-    td = run.start(model, {})
+    td = run.start(model, {}, make_policy(model), make_transforms(run.cfg.algo, run.obs_keys, model))
     while not run.done:
         _, td = run.step(policy, td)
         run.end_iteration(td)
