@@ -356,8 +356,8 @@ def test_curriculum_hands_weights_over_and_resumes_mid_curriculum(tmp_path, monk
     started: list[tuple[int, dict]] = []
     start = run_loop.Run.start
 
-    def recording_start(self, model, components):
-        td = start(self, model, components)
+    def recording_start(self, model, components, *evaluation, **planned):
+        td = start(self, model, components, *evaluation, **planned)
         started.append((self.stage.index, {k: v.clone() for k, v in model.state_dict().items()}))
         return td
 
