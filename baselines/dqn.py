@@ -27,8 +27,9 @@ from torchrl.objectives import DQNLoss, HardUpdate
 
 from evaaa import ACTION_NAMES
 
+from .logs import Counters
 from .nets import MultimodalEncoder, compile_networks, head, stacked_shapes
-from .run import Counters, Run
+from .run import Run
 
 #: Q-values are no distribution to sample from: asked to sample, the policy still acts greedily, and evaluations
 #: say so (``mode``)
@@ -91,10 +92,12 @@ def train(run: Run) -> None:
     counters = Counters(updates=0)
     num_envs = env.batch_size.numel()
     first = -(-cfg.learning_starts // num_envs)  # the first env step (of all worlds) followed by updates
-    run.planned_updates = lambda steps: max(0, steps // num_envs - first + 1) * cfg.updates_per_step
-
     td = run.start(
-        model, {"loss": loss_fn, "optimizer": optimizer, "explore": explore, "buffer": buffer, "counters": counters}
+        model,
+        {"loss": loss_fn, "optimizer": optimizer, "explore": explore, "buffer": buffer, "counters": counters},
+        make_policy(model),
+        make_transforms(cfg, run.obs_keys, model),
+        planned_updates=lambda steps: max(0, steps // num_envs - first + 1) * cfg.updates_per_step,
     )
     run.updates = counters["updates"]  # a resumed run's bar counts on from its checkpoint
     storage = buffer.storage

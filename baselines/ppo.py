@@ -260,12 +260,14 @@ def train(run: Run) -> None:
 
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, remaining if cfg.anneal_lr else lambda _: 1.0)
     per_batch = cfg.epochs * cfg.num_minibatches
-    run.planned_updates = lambda steps: -(-steps // cfg.frames_per_batch) * per_batch
+
+    def planned(steps: int) -> int:  # the gradient steps of the iterations these env steps take
+        return -(-steps // cfg.frames_per_batch) * per_batch
 
     return_scale = ReturnScale(num_envs, cfg.gamma) if cfg.normalize_reward else None
-    state = {"optimizer": optimizer, "scheduler": scheduler}
-    td = run.start(model, state | ({"return_scale": return_scale} if return_scale else {}))
-    run.updates = run.planned_updates(run.steps)  # a resumed run's bar counts on from its checkpoint
+    state = {"optimizer": optimizer, "scheduler": scheduler} | ({"return_scale": return_scale} if return_scale else {})
+    td = run.start(model, state, make_policy(model), make_transforms(cfg, run.obs_keys, model), planned)
+    run.updates = planned(run.steps)  # a resumed run's bar counts on from its checkpoint
     while not run.done:
         if cfg.anneal_clip:
             clip = cfg.clip * remaining(run.steps // cfg.frames_per_batch)

@@ -17,22 +17,17 @@ finishes, a checkpoint is written and :class:`Interrupted` says where, so an int
 
 Devices: the worlds live on the CPU; the networks, losses, optimisers and replay live on ``device``
 (:func:`resolve_device`).  Acting sends each step's observations to the device and brings the policy's outputs back
-(:class:`OnDevice`).  The progress bar (:class:`Progress`) shows rates smoothed over ``progress_seconds`` and the
-session's average, gradient steps and their cost, and an ETA that adds the acting time and the gradient steps still
-owed.
+(:class:`OnDevice`).  The stage's clock — its budgets, the bar's rates and ETA, the time estimate — is
+:class:`~.stage.StageClock`, started by :meth:`Run.start`.
 """
 
 from __future__ import annotations
 
-import csv
 import logging
-import math
-import os
 import time
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from types import ModuleType
 from typing import Any
 
 import numpy as np
@@ -47,44 +42,21 @@ from torchrl.record.loggers import Logger
 from tqdm import tqdm
 
 import evaaa
-from evaaa import END_TYPES, EV_NAMES
-from evaaa.records import TRAINING_EPISODE_FIELDS, DiskError
+from evaaa import EV_NAMES
+from evaaa.records import TRAINING_EPISODE_FIELDS
 
 from .checkpoint import CHECKPOINT, CHECKPOINT_FORMAT, CheckpointError, rng_state, save_checkpoint, set_rng_state
 from .config import COMPUTE_BOUND_STEPS, Stage, env_overrides, observation_keys
 from .devices import OnDevice, autocast, resolve_device
+from .logs import Counters, CsvLog, episode_metrics, episode_row, eval_columns, timestamp
 from .rollout import EVALUATION_INFO, EvalResult, acting_mode, evaluate, samples_actions, wrap_env
-from .timing import TimeSplit
+from .stage import StageClock, TimeSplit, budget_text, stop_wait
 
 log = logging.getLogger(__name__)
 
 #: the diagnostics the training env emits (``make_env(info=...)``): episode logging reads the first six, the
 #: DreamerV3 replay's consumed flag the last two; the rest would cost every step and be read by no one
 TRAINING_INFO = ("step_count", "end_type", *EV_NAMES, "food_eaten", "water_eaten")
-#: Columns of ``eval.csv``: one row per episode of every periodic evaluation, on the run's validation worlds
-#: (``worlds``), acting as ``acting`` says (:func:`~.rollout.acting_mode`).  Files written before held one row per
-#: evaluation (``episodes, survival_mean, survival_min, survival_max, return_mean, end_types``): reports read both.
-#: ``cpu_seconds``: the CPU seconds the stage had taken when the evaluation ended (its earlier sessions included, as
-#: ``max_cpu_minutes`` counts them), so that curves can be drawn against compute as well as env steps.
-EVAL_COLUMNS = (
-    "env_steps",
-    "stage",
-    "level",
-    "worlds",
-    "acting",
-    "episode",
-    "steps",
-    "return",
-    "end_type",
-    "food_eaten",
-    "water_eaten",
-    "collisions",
-    "damage_taken",
-    "wall_time",
-    "cpu_seconds",
-)
-#: the columns of ``eval.csv`` files begun before ``cpu_seconds``: a run begun so goes on without it
-EVAL_COLUMNS_BEFORE_CPU = EVAL_COLUMNS[:-1]
 
 
 class Interrupted(KeyboardInterrupt):
@@ -98,195 +70,6 @@ def parameter_count(model: nn.Module) -> int:
     return sum(p.numel() for p in model.parameters())
 
 
-# ------------------------------------------------------------------------------------------------ progress
-def _duration(seconds: float) -> str:
-    if not math.isfinite(seconds):
-        return "?"
-    seconds = max(0.0, seconds)
-    if seconds >= 2 * 86400:
-        return f"{seconds / 86400:.1f} d"
-    if seconds >= 3600:
-        return f"{int(seconds // 3600)}:{int(seconds % 3600 // 60):02d} h"
-    return f"{int(seconds // 60)}:{int(seconds % 60):02d}"
-
-
-def _about(seconds: float) -> str:
-    """A duration in words for a log line: "about 14 minutes", "about 2.3 hours", "about 3.1 days"."""
-    if not math.isfinite(seconds):
-        return "an unknown time"
-    if seconds < 90:
-        return f"about {seconds:.0f} seconds"
-    if seconds < 5400:
-        return f"about {seconds / 60:.0f} minutes"
-    if seconds < 2 * 86400:
-        return f"about {seconds / 3600:.1f} hours"
-    return f"about {seconds / 86400:.1f} days"
-
-
-def _rate(x: float) -> str:
-    return f"{x:.3g}" if x < 100 else f"{x:.0f}"
-
-
-class Progress:
-    """What the progress bar says about speed, from the times the loop reports.
-
-    Every report adds the env steps, gradient steps and seconds since the previous one to sums that decay with a
-    time constant of ``window`` seconds: the rates are over roughly the last ``window`` seconds of the whole loop, so
-    PPO's alternation of fast collection and slow updates, or DreamerV3's few long gradient steps, do not make the
-    rate swing.  The session's average (env steps / seconds since :meth:`__init__`) is given beside it.
-
-    The ETA adds the two costs of what is left: env steps still to take times the time one takes outside gradient
-    steps (acting, logging, evaluation), and gradient steps still owed times the time one takes.
-    """
-
-    def __init__(self, window: float, steps: int, now: float | None = None):
-        self.window = float(window)
-        now = time.perf_counter() if now is None else now
-        self.start, self.start_steps, self.last, self.steps = now, steps, now, steps
-        self.sums = {"seconds": 0.0, "steps": 0.0, "update_seconds": 0.0, "updates": 0.0}
-
-    def add(self, steps: int, updates: int = 0, update_seconds: float = 0.0, now: float | None = None) -> None:
-        """The loop is at ``steps`` env steps and made ``updates`` gradient steps, taking ``update_seconds``, since
-        the last report."""
-        now = time.perf_counter() if now is None else now
-        elapsed = max(now - self.last, 0.0)
-        decay = math.exp(-elapsed / self.window)
-        increments = {
-            "seconds": elapsed,
-            "steps": steps - self.steps,
-            "update_seconds": min(update_seconds, elapsed),
-            "updates": updates,
-        }
-        for key, value in increments.items():
-            self.sums[key] = self.sums[key] * decay + value
-        self.last, self.steps = now, steps
-
-    @property
-    def env_rate(self) -> float:
-        """Env steps per second of the whole loop over the window."""
-        return self.sums["steps"] / self.sums["seconds"] if self.sums["seconds"] > 0 else math.nan
-
-    @property
-    def session_rate(self) -> float:
-        """Env steps per second of the whole loop since the session began."""
-        seconds = self.last - self.start
-        return (self.steps - self.start_steps) / seconds if seconds > 0 else math.nan
-
-    @property
-    def update_rate(self) -> float:
-        return self.sums["updates"] / self.sums["seconds"] if self.sums["seconds"] > 0 else math.nan
-
-    @property
-    def seconds_per_update(self) -> float:
-        return self.sums["update_seconds"] / self.sums["updates"] if self.sums["updates"] > 0 else math.nan
-
-    @property
-    def seconds_per_step(self) -> float:
-        """Seconds of one env step outside gradient steps (acting, logging, evaluation)."""
-        acting = self.sums["seconds"] - self.sums["update_seconds"]
-        return acting / self.sums["steps"] if self.sums["steps"] > 0 else math.nan
-
-    def eta(self, steps_left: int, updates_left: int | None) -> float:
-        """Seconds until the stage ends: the steps left at the acting cost, plus the gradient steps still owed at
-        their cost (``updates_left=None``: an algorithm without gradient steps to count, only the whole-loop rate)."""
-        if steps_left <= 0:
-            return 0.0
-        if updates_left is None:
-            return steps_left / self.env_rate if self.env_rate > 0 else math.nan
-        cost = steps_left * self.seconds_per_step
-        if updates_left > 0:
-            cost += updates_left * self.seconds_per_update
-        return cost
-
-
-# ------------------------------------------------------------------------------------------------ files
-def _now() -> str:
-    return time.strftime("%Y-%m-%dT%H:%M:%S")
-
-
-class CsvLog:
-    """A CSV file written one flushed row at a time, appending; :meth:`size` / ``truncate_to`` let a resumed run cut
-    it back to what it held at the checkpoint."""
-
-    def __init__(self, path: Path, columns: Sequence[str], truncate_to: int | None = None):
-        self.path, self.columns = Path(path), tuple(columns)
-        self._failed_at: int | None = None
-        try:
-            self._file = open(path, "a+", newline="")
-            if truncate_to is not None:
-                self._file.truncate(truncate_to)
-            self._file.seek(0, os.SEEK_END)
-            self._writer = csv.writer(self._file)
-            if self._file.tell() == 0:
-                self._writer.writerow(self.columns)
-                self._file.flush()
-        except OSError as exc:
-            raise DiskError(path, exc) from None
-
-    def write(self, row: Mapping[str, Any]) -> None:
-        """Append one row; a disk that refuses it raises :class:`DiskError`, the file keeping its earlier rows whole."""
-        size = self._file.tell()
-        try:
-            self._writer.writerow([f"{v:.6g}" if isinstance(v, float) else v for v in (row[c] for c in self.columns)])
-            self._file.flush()
-        except OSError as exc:
-            self._discard(size)
-            raise DiskError(self.path, exc) from None
-
-    def _discard(self, size: int) -> None:
-        """Drop what a failed write left, in the file and in its buffer (a later flush would write it again); the
-        log stays closed, at ``size``."""
-        try:
-            self._file.close()
-        except OSError:
-            pass
-        try:
-            os.truncate(self.path, size)
-        except OSError:
-            pass
-        self._failed_at = size
-
-    def size(self) -> int:
-        return self._failed_at if self._failed_at is not None else self._file.tell()
-
-    def close(self) -> None:
-        if self._file.closed:
-            return
-        try:
-            self._file.close()
-        except OSError as exc:
-            raise DiskError(self.path, exc) from None
-
-
-def _eval_columns(path: Path) -> tuple[str, ...]:
-    """The columns a stage goes on writing ``eval.csv`` with: the file's own where it was begun before
-    ``cpu_seconds`` (one header per file), else :data:`EVAL_COLUMNS`.  A run begun before evaluations were written
-    one row per episode cannot go on in the same file."""
-    header: tuple[str, ...] = ()
-    if path.is_file():
-        with open(path, newline="") as f:
-            header = tuple(next(csv.reader(f), []))
-    if header == EVAL_COLUMNS_BEFORE_CPU:
-        return header
-    if header and header != EVAL_COLUMNS:
-        raise ValueError(
-            f"{path} holds one row per evaluation (written by an earlier evaaa), and this version "
-            f"writes one row per episode on validation worlds: finish that run with the version "
-            f"that began it, or train it again (start_over=true keeps the old run aside)"
-        )
-    return EVAL_COLUMNS
-
-
-class Counters(dict):
-    """Plain integer counters of an algorithm's loop, checkpointed like any stateful component."""
-
-    def state_dict(self) -> dict:
-        return dict(self)
-
-    def load_state_dict(self, state: Mapping) -> None:
-        self.update(state)
-
-
 # ------------------------------------------------------------------------------------------------ one stage
 class Run:
     """One stage of a training run as an algorithm's loop sees it.
@@ -296,11 +79,12 @@ class Run:
 
     1. build its networks from :attr:`obs_shapes` and :attr:`obs_keys` (config in :attr:`cfg`), on :attr:`device`;
     2. optionally say how it steps: :attr:`iteration` (env steps per iteration, and how, for the budget's
-       arithmetic), :attr:`planned_updates` (gradient steps owed by an env step, for the ETA),
-       :attr:`stops_between_updates` (it checks :attr:`stop_requested` between gradient steps);
+       arithmetic), :attr:`stops_between_updates` (it checks :attr:`stop_requested` between gradient steps);
     3. ``env = run.train_env(transforms)``: the stage's training worlds with the algorithm's transforms;
-    4. ``td = run.start(model, components)``: a fresh start, the curriculum's hand-over or an exact resume;
-       ``components`` are the stateful objects a checkpoint keeps (optimisers, buffers, counters);
+    4. ``td = run.start(model, components, policy, eval_transforms)``: a fresh start, the curriculum's hand-over or
+       an exact resume; ``components`` are the stateful objects a checkpoint keeps (optimisers, buffers, counters),
+       ``policy`` and ``eval_transforms`` what evaluations act with (its ``make_policy`` and fresh
+       ``make_transforms``), ``planned_updates`` the gradient steps owed by a number of env steps (for the ETA);
     5. while not :attr:`done`: act with :meth:`step` or :meth:`collect` (the policy wrapped by :meth:`acting`),
        update under :meth:`autocast` and report the gradient steps with :meth:`updated` (:meth:`set_phase` names a
        phase such as ``prefill``), :meth:`log` metrics when :attr:`log_due`, and end every iteration with
@@ -314,7 +98,6 @@ class Run:
         cfg: the composed config.
         run_dir: where checkpoints and CSVs go.
         stage: the level and budget of this stage.
-        algo: the algorithm's module (``make_transforms`` and ``make_policy`` build the evaluation worlds' policy).
         logger: TorchRL logger shared by the stages.
         resume: a checkpoint of this stage to continue from.
         init_weights: the previous stage's model weights (curriculum), for a fresh stage.
@@ -327,7 +110,6 @@ class Run:
         cfg: DictConfig,
         run_dir: Path,
         stage: Stage,
-        algo: ModuleType,
         logger: Logger,
         *,
         resume: dict | None = None,
@@ -335,7 +117,7 @@ class Run:
         fresh_logs: bool = False,
         stop_requested: Callable[[], bool] | None = None,
     ):
-        self.cfg, self.dir, self.stage, self.algo, self.logger = cfg, Path(run_dir), stage, algo, logger
+        self.cfg, self.dir, self.stage, self.logger = cfg, Path(run_dir), stage, logger
         self.stop_requested = stop_requested or (lambda: False)
         #: where the networks, losses, optimisers and replay live (the worlds stay on the CPU)
         self.device = resolve_device(cfg.get("device", "auto"))
@@ -356,6 +138,8 @@ class Run:
         self.counters = Counters(steps=0, episodes=0, logged=0, last_end=0)
         #: wall-clock and CPU seconds of the stage's earlier sessions (a resumed checkpoint's ``time``)
         self._spent_before = (0.0, 0.0)
+        #: this session against the stage's budgets, from :meth:`start` on
+        self.clock: StageClock | None = None
         self.recent: deque[int] = deque(maxlen=cfg.progress_window)
         self.last_eval: float | None = None
         self.best_eval: float | None = None
@@ -363,18 +147,16 @@ class Run:
         self.episodes_csv = CsvLog(
             self.dir / "episodes.csv", TRAINING_EPISODE_FIELDS, 0 if fresh_logs else offsets.get("episodes_csv")
         )
-        columns = EVAL_COLUMNS if fresh_logs else _eval_columns(self.dir / "eval.csv")
+        columns = eval_columns(self.dir / "eval.csv", fresh=fresh_logs)
         self.eval_csv = CsvLog(self.dir / "eval.csv", columns, 0 if fresh_logs else offsets.get("eval_csv"))
         self.env: TransformedEnv | None = None
         self.model: nn.Module | None = None
         self._eval_env: TransformedEnv | None = None
         self.progress: tqdm | None = None
-        self.meter: Progress | None = None
         #: shown in the bar beside the level, e.g. "prefill" while DreamerV3 or DQN fill their buffer
         self.phase: str | None = None
-        #: gradient steps so far (:meth:`updated`), and a function of env steps giving those owed by then (for the ETA)
+        #: gradient steps so far (:meth:`updated`)
         self.updates = 0
-        self.planned_updates: Callable[[int], int] | None = None
         #: env steps an iteration takes (all worlds) and how, e.g. (1024, "8 worlds x 128 steps, then an update"):
         #: the stage ends with the iteration that reaches its budget; an algorithm that steps otherwise sets it
         self.iteration: tuple[int, str] = (cfg.env.num_envs, f"one step of each of the {cfg.env.num_envs} worlds")
@@ -382,7 +164,7 @@ class Run:
         self.stops_between_updates = False
         self._ratio: float | None = None
         self._shown = 0.0
-        #: wall-clock and CPU seconds per phase of this session (:mod:`.timing`), logged under ``time/cpu/*``
+        #: wall-clock and CPU seconds per phase of this session (:mod:`.stage`), logged under ``time/cpu/*``
         self.split = TimeSplit()
 
     # -------------------------------------------------------------------------------------------- set-up
@@ -395,40 +177,39 @@ class Run:
     def done(self) -> bool:
         """The stage's env-step budget is spent, or its time budget is: ``max_minutes`` of wall-clock time or
         ``max_cpu_minutes`` of this process's CPU time (every thread), each summed over the stage's sessions."""
-        if self.steps >= self.stage.budget:
-            return True
-        # a session ends the stage only through end_iteration (final evaluation and model): one resumed with its
-        # time already spent makes one iteration first
-        if getattr(self, "_session", None) is None or self.steps == self._session[1]:
-            return False
-        spent = self.seconds_spent()
-        limits = (self.cfg.get("max_minutes"), self.cfg.get("max_cpu_minutes"))
-        return any(limit is not None and used >= 60.0 * limit for limit, used in zip(limits, spent))
+        return self.steps >= self.stage.budget or (self.clock is not None and self.clock.out_of_time(self.steps))
 
     def seconds_spent(self) -> tuple[float, float]:
         """Wall-clock and CPU seconds of this stage so far, earlier sessions included (kept in the checkpoint)."""
-        wall, cpu = getattr(self, "_spent_before", (0.0, 0.0))
-        wall0, cpu0 = getattr(self, "_clock_start", None) or (time.perf_counter(), time.process_time())
-        return wall + time.perf_counter() - wall0, cpu + time.process_time() - cpu0
+        return self.clock.seconds_spent()
 
     def session_seconds(self) -> float:
         """Wall-clock seconds since :meth:`start` began this process's session of the stage (a resumed stage's
         earlier sessions not included: :meth:`seconds_spent` counts those)."""
-        return time.perf_counter() - self._session[0]
+        return self.clock.session_seconds()
 
     def train_env(self, transforms: Sequence[Transform]) -> TransformedEnv:
         """The stage's worlds wrapped in the algorithm's transforms."""
         self.env = wrap_env(self.base_env, transforms)
         return self.env
 
-    def start(self, model: nn.Module, components: Mapping[str, Any]) -> TensorDictBase:
+    def start(
+        self,
+        model: nn.Module,
+        components: Mapping[str, Any],
+        policy: TensorDictModuleBase,
+        eval_transforms: Sequence[Transform],
+        planned_updates: Callable[[int], int] | None = None,
+    ) -> TensorDictBase:
         """Begin or resume the stage; returns the tensordict the first step acts on.
 
         ``components`` are the loop's other stateful objects (optimiser, scheduler, loss with target network,
-        replay buffer, exploration module, counters): anything with ``state_dict`` / ``load_state_dict``.
+        replay buffer, exploration module, counters): anything with ``state_dict`` / ``load_state_dict``; the rest
+        as the class's contract says (``planned_updates`` None: no gradient steps to count).
         """
         self.model, self.components = model, dict(components)
-        self.policy = OnDevice(self.algo.make_policy(model), self.device)
+        self.policy = OnDevice(policy, self.device)
+        self._eval_transforms = list(eval_transforms)
         if self.resume_state is not None:
             td = self._restore(self.resume_state)
         else:
@@ -444,7 +225,12 @@ class Run:
             "on" if self.cfg.get("bf16") else "off",
             "on" if self.cfg.get("compile") else "off",
             self.base_env.num_envs,
-            self.budget_text(),
+            budget_text(
+                self.stage.budget,
+                *self.iteration,
+                self.cfg.get("max_cpu_minutes"),
+                COMPUTE_BOUND_STEPS,
+            ),
         )
         # the bar's own rate and ETA (tqdm's) are left out: they follow the last few updates of the bar and swing
         # with the loop's phases; Progress gives smoothed ones.  disable=None: no bar where the output is not a
@@ -458,79 +244,24 @@ class Run:
             disable=None if self.cfg.progress else True,
             bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]",
         )
-        self._estimated = False
         self.split = TimeSplit()
-        self._session = (time.perf_counter(), self.steps)
-        self._clock_start = (self._session[0], time.process_time())
-        self.meter = Progress(self.cfg.get("progress_seconds", 60), self.steps, now=self._session[0])
+        self.clock = StageClock(
+            self.stage.budget,
+            self.iteration[0],
+            steps=self.steps,
+            planned_updates=planned_updates,
+            window=self.cfg.get("progress_seconds", 60),
+            max_minutes=self.cfg.get("max_minutes"),
+            max_cpu_minutes=self.cfg.get("max_cpu_minutes"),
+            spent_before=self._spent_before,
+        )
         return td
 
-    @property
-    def trained_steps(self) -> int:
-        """The env steps the stage will have taken at its end: its budget, rounded up to whole iterations."""
-        size = self.iteration[0]
-        return -(-self.stage.budget // size) * size
-
-    def budget_text(self) -> str:
-        """The stage's budget as asked and, where whole iterations overshoot it, as trained and why; a
-        compute-bound stage (``max_cpu_minutes`` with a step budget it never reaches) by its CPU minutes."""
-        minutes = self.cfg.get("max_cpu_minutes")
-        if minutes is not None and self.stage.budget >= COMPUTE_BOUND_STEPS:
-            return f"{minutes:g} CPU-minutes (max_cpu_minutes; the budget of {self.stage.budget:,} env steps is out of reach)"
-        text = f"{self.stage.budget:,} env steps"
-        if self.trained_steps != self.stage.budget:
-            size, how = self.iteration
-            text += (
-                f" asked: {self.trained_steps:,} trained, as the stage ends with the iteration that reaches "
-                f"its budget and one iteration is {size:,} env steps ({how})"
-            )
-        return text
-
     def _estimate(self) -> None:
-        """Log once how long the stage will take, from this session's own speed so far: after 20 s, and once
-        gradient steps (whose cost dominates) have been timed where the algorithm makes any."""
-        elapsed = time.perf_counter() - self._session[0]
-        timed = self.planned_updates is None or self.meter.sums["updates"] > 0
-        if self._estimated or elapsed < 20 or not timed or self.done:
-            return
-        self._estimated = True
-        planned = None
-        if self.planned_updates is not None:
-            planned = max(self.planned_updates(self.trained_steps) - self.updates, 0)
-        left = self.meter.eta(self.trained_steps - self.steps, planned)
-        limit = self.cfg.get("max_minutes")
-        capped = f"; max_minutes={limit:g} ends it sooner" if limit is not None and left > 60 * limit - elapsed else ""
-        cpu_limit = self.cfg.get("max_cpu_minutes")
-        start = getattr(self, "_clock_start", None)
-        session_cpu = time.process_time() - start[1] if start else 0.0
-        if cpu_limit is not None and session_cpu > 0:
-            # at this session's speed per CPU second and its share of a core
-            cpu_left = max(60.0 * cpu_limit - self.seconds_spent()[1], 0.0)
-            wall_left = cpu_left * elapsed / session_cpu
-            if wall_left < left:
-                # at the estimate's own cost per env step for the rest of the budget (acting and the gradient steps
-                # it owes), not this session's env steps per CPU second so far: DreamerV3's first 16 k env steps
-                # are a prefill without gradient steps, ten times faster than what follows
-                reach = self.steps + (self.trained_steps - self.steps) * wall_left / left
-                capped += (
-                    f"; max_cpu_minutes={cpu_limit:g} ends it sooner: in {_about(wall_left)}, near "
-                    f"{reach:,.0f} env steps"
-                )
-        speed = f"{_rate(self.meter.env_rate)} env steps/s"
-        if self.meter.sums["updates"] > 0:
-            speed += f", {self.meter.seconds_per_update:.3g} s per gradient step"
-        log.info(
-            "time estimate for %s on %s: %s more for the %s env steps (%s done), from this run's speed over "
-            "its first %.0f s here (%s)%s",
-            self.cfg.algo.name,
-            self.stage.level,
-            _about(left),
-            f"{self.trained_steps:,}",
-            f"{self.steps:,}",
-            elapsed,
-            speed,
-            capped,
-        )
+        """Log once how long the stage will take (:meth:`.StageClock.estimate`)."""
+        text = self.clock.estimate(self.steps, self.updates, self.done)
+        if text is not None:
+            log.info("time estimate for %s on %s: %s", self.cfg.algo.name, self.stage.level, text)
 
     def acting(self, policy: TensorDictModuleBase) -> OnDevice:
         """``policy`` (on :attr:`device`) acting on the CPU worlds' tensordicts."""
@@ -541,14 +272,14 @@ class Run:
         return autocast(self.device, self.cfg.get("bf16", False))
 
     def timed(self, phase: str):
-        """Counts the time of the ``with`` block to ``phase`` of the session's time split (:mod:`.timing`)."""
+        """Counts the time of the ``with`` block to ``phase`` of the session's time split (:mod:`.stage`)."""
         return self.split(phase)
 
     def updated(self, count: int, seconds: float, total: int, ratio: float | None = None) -> None:
         """``count`` gradient steps were made in ``seconds``; ``total`` so far this stage; ``ratio``: the replay
         ratio kept (gradient steps per env step since learning began), if the algorithm keeps one."""
         self.updates, self._ratio = total, ratio
-        self.meter.add(self.steps, count, seconds)
+        self.clock.add(self.steps, count, seconds)
         self._show()
         # the first timed gradient step completes what the estimate needs: said now, not at the iteration's end
         self._estimate()
@@ -581,7 +312,7 @@ class Run:
         done = out["next", "done"].reshape(-1)
         if done.any():
             self._log_episodes(out["next"], done)
-        self.meter.add(self.steps)
+        self.clock.add(self.steps)
         self._show()
         self.progress.update(n)
         return out, td
@@ -597,32 +328,12 @@ class Run:
         return torch.stack(transitions, dim=1), td
 
     def _log_episodes(self, nxt: TensorDictBase, done: torch.Tensor) -> None:
-        info = nxt["info"]
         for world in done.nonzero().flatten().tolist():
             self.counters["episodes"] += 1
-            row = {
-                "env_steps": self.steps,
-                "stage": self.stage.index,
-                "level": self.stage.level,
-                "episode": self.counters["episodes"],
-                "world": world,
-                "steps": int(info["step_count"][world]),
-                "return": float(nxt["episode_reward"][world]),
-                "end_type": END_TYPES[int(info["end_type"][world])],
-                **{f"final_{ev}": float(info[ev][world]) for ev in EV_NAMES},
-                "wall_time": _now(),
-            }
+            where = {"env_steps": self.steps, "stage": self.stage.index, "level": self.stage.level}
+            row = episode_row(nxt, world, **where, episode=self.counters["episodes"])
             self.episodes_csv.write(row)
-            self.logger.log_metrics(
-                {
-                    "episode/survival_steps": row["steps"],
-                    "episode/return": row["return"],
-                    **{f"episode/{ev}": row[f"final_{ev}"] for ev in EV_NAMES},
-                    # one 0/1 series per end type: its running mean is how often episodes end that way
-                    **{f"episode/end/{name}": float(name == row["end_type"]) for name in END_TYPES[1:]},
-                },
-                step=self.steps,
-            )
+            self.logger.log_metrics(episode_metrics(row), step=self.steps)
             self.recent.append(row["steps"])
 
     # -------------------------------------------------------------------------------------------- bookkeeping
@@ -637,15 +348,10 @@ class Run:
         if not self.log_due:
             return
         self.counters["logged"] = self.steps
-        timing = {"time/env_steps_per_s": self.steps_per_second(), **self.split.scalars()}
+        timing = {"time/env_steps_per_s": self.clock.steps_per_second(self.steps), **self.split.scalars()}
         if self.device.type == "cuda":
             timing["time/gpu_memory_peak_gb"] = torch.cuda.max_memory_allocated(self.device) / 1e9
         self.logger.log_metrics({**{f"train/{k}": float(v) for k, v in metrics.items()}, **timing}, step=self.steps)
-
-    def steps_per_second(self) -> float:
-        """Env steps per second of this session's whole loop (collection, updates, evaluation, checkpoints)."""
-        start, steps = self._session
-        return (self.steps - steps) / max(time.perf_counter() - start, 1e-9)
 
     def end_iteration(self, td: TensorDictBase) -> None:
         """Evaluate and checkpoint when due: every ``eval.every`` / ``checkpoint.every`` env steps, and at the end of
@@ -689,13 +395,8 @@ class Run:
 
     def stop_wait(self) -> str:
         """What a first Ctrl-C waits for, in words, with how long it takes here when that is known."""
-        if self.stops_between_updates and self.phase != "prefill":
-            seconds = self.meter.seconds_per_update if self.meter is not None else math.nan
-            known = f" ({_about(seconds)} each here)" if math.isfinite(seconds) else ""
-            return f"the gradient step under way{known}"
-        rate = self.meter.session_rate if self.meter is not None else math.nan
-        known = f" (one takes {_about(self.iteration[0] / rate)} here)" if math.isfinite(rate) and rate > 0 else ""
-        return f"the iteration under way{known}"
+        between = self.stops_between_updates and self.phase != "prefill"
+        return stop_wait(between, self.clock.meter if self.clock is not None else None, self.iteration[0])
 
     @property
     def model_path(self) -> Path:
@@ -726,7 +427,7 @@ class Run:
                 backend=self.cfg.env.get("backend", "cpu"),
                 **self.overrides,
             )
-            self._eval_env = wrap_env(base, self.algo.make_transforms(self.cfg.algo, self.obs_keys, self.model))
+            self._eval_env = wrap_env(base, self._eval_transforms)
         sample = bool(self.cfg.eval.get("sample", False))
         modes = [sample]
         if self.cfg.eval.get("both_modes", False) and samples_actions(self.cfg.algo.name):
@@ -746,21 +447,14 @@ class Run:
         self.last_eval = result.survival_mean
         if self.best_eval is None or result.survival_mean > self.best_eval:
             self.best_eval = result.survival_mean
-            save_checkpoint(
-                self._identity()
-                | {
-                    "model": self.model.state_dict(),
-                    "env_steps": self.steps,
-                    "eval_survival_mean": result.survival_mean,
-                },
-                self.best_model_path,
-            )
+            best = {"model": self.model.state_dict(), "env_steps": self.steps, "eval_survival_mean": self.best_eval}
+            save_checkpoint(self._identity() | best, self.best_model_path)
         common = {
             "env_steps": self.steps,
             "stage": self.stage.index,
             "level": self.stage.level,
             "worlds": "validation",
-            "wall_time": _now(),
+            "wall_time": timestamp(),
             "cpu_seconds": round(self.seconds_spent()[1], 2),
         }
         metrics = {"eval/survival_mean": result.survival_mean, "eval/return_mean": result.return_mean}
@@ -787,19 +481,7 @@ class Run:
     def status(self) -> str:
         """The bar's text after the step counter: smoothed and session env steps/s, gradient steps (count, rate,
         seconds each, replay ratio kept), the ETA, the mean survival of recent episodes and the last evaluation."""
-        m = self.meter
-        parts = [f"env {_rate(m.env_rate)}/s (avg {_rate(m.session_rate)})"]
-        if self.planned_updates is not None or self.updates:
-            grad = f"grad {self.updates:,}"
-            if m.sums["updates"] > 0:
-                grad += f" {_rate(m.update_rate)}/s {m.seconds_per_update:.3g} s/update"
-            if self._ratio is not None:
-                grad += f" ratio {self._ratio:.3g}"
-            parts.append(grad)
-        planned = None
-        if self.planned_updates is not None:
-            planned = max(self.planned_updates(self.stage.budget) - self.updates, 0)
-        parts.append(f"ETA {_duration(m.eta(self.stage.budget - self.steps, planned))}")
+        parts = [self.clock.status(self.steps, self.updates, self._ratio)]
         parts.append(f"surv {np.mean(self.recent):.0f}" if self.recent else "surv -")
         if self.last_eval is not None:
             parts.append(f"eval {self.last_eval:.0f}")
@@ -886,22 +568,9 @@ class Run:
     def close(self) -> None:
         if self.progress is not None:
             self.progress.close()
-            if self.steps > self._session[1]:
-                asked = (
-                    f" ({self.stage.budget:,} asked, in whole iterations of {self.iteration[0]:,})"
-                    if self.steps != self.stage.budget and self.steps >= self.stage.budget
-                    else ""
-                )
-                log.info(
-                    "%s on %s: %s env steps%s, %.3g env steps/s this session, %s gradient steps, %s",
-                    self.cfg.algo.name,
-                    self.stage.level,
-                    f"{self.steps:,}",
-                    asked,
-                    self.steps_per_second(),
-                    f"{self.updates:,}",
-                    _duration(time.perf_counter() - self._session[0]),
-                )
+            if self.steps > self.clock.start_steps:
+                summary = self.clock.summary(self.steps, self.updates)
+                log.info("%s on %s: %s", self.cfg.algo.name, self.stage.level, summary)
         self.episodes_csv.close()
         self.eval_csv.close()
         # close explicitly: an evaaa env collected later, while another env's GL context is current, frees its

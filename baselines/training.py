@@ -437,7 +437,6 @@ def _train(cfg: DictConfig, run_dir: Path, records: Mapping[str, Any] | None, st
                 cfg,
                 run_dir,
                 stage,
-                algo,
                 logger,
                 resume=state,
                 init_weights=weights,

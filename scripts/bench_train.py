@@ -58,9 +58,9 @@ import evaaa  # noqa: E402
 from evaaa_baselines import cli  # noqa: E402
 from evaaa_baselines.algos import names as algo_names  # noqa: E402
 from evaaa_baselines.cli import option  # noqa: E402
+from evaaa_baselines.logs import has_scalar, read_scalar, scalar_csv  # noqa: E402
 from evaaa_baselines.machine import processor  # noqa: E402
-from evaaa_baselines.scalar_log import has_scalar, read_scalar, scalar_csv  # noqa: E402
-from evaaa_baselines.timing import PHASES  # noqa: E402
+from evaaa_baselines.stage import PHASES  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_ALGOS = ("ppo", "ppo_lstm", "dqn", "dreamer_xs")
@@ -79,12 +79,12 @@ class Throughput:
     peak_rss_gb: float | None = None
     gpu_memory_gb: float | None = None
     first_gradient_step_s: float | None = None
-    #: CPU seconds per phase of the loop (evaaa_baselines.timing), ``other`` and ``total``, at the last log row
+    #: CPU seconds per phase of the loop (evaaa_baselines.stage), ``other`` and ``total``, at the last log row
     cpu_split: dict[str, float] | None = None
 
 
 def read_split(run_dir: Path) -> dict[str, float] | None:
-    """CPU seconds per phase of the loop at the run's last log row (``time/cpu/*``, :mod:`evaaa_baselines.timing`;
+    """CPU seconds per phase of the loop at the run's last log row (``time/cpu/*``, :mod:`evaaa_baselines.stage`;
     a resumed run's last session), with ``other`` (what no phase covers) and ``total``; None for a run that logged
     no split."""
     if not has_scalar(run_dir, "time/cpu/total"):

@@ -5,7 +5,7 @@ logs/scalars.csv, and the paths in its Hydra files become relative to the folder
 
 A protocol's committed record (``scripts/reproduce.py``) keeps every run's CSV logs; the CSV logger writes some
 twenty files a run, so a record of 64 runs held some 1,500 of them.  Packed, a run holds one, with every row as it
-was (``tag,step,value``); ``scripts/bench_train.py`` and ``evaaa_baselines.scalar_log.read_scalar`` read either
+was (``tag,step,value``); ``scripts/bench_train.py`` and ``evaaa_baselines.logs.read_scalar`` read either
 form, and ``scripts/report.py`` reads neither (it reads ``episodes.csv``, ``eval.csv`` and the evaluations).  Pack
 a record once its protocol has finished: a run resumed later writes per-scalar files again, which readers take after
 the packed rows, and packing again folds them in.  Run directories are those with ``.hydra/config.yaml``.
@@ -26,7 +26,7 @@ import yaml
 
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
-from evaaa_baselines.scalar_log import pack
+from evaaa_baselines.logs import pack
 
 _CWD = re.compile(r"^\s*cwd: (/.*)$", re.M)
 

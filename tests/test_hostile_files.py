@@ -20,10 +20,9 @@ import evaaa
 from evaaa.level import LevelError
 from evaaa.level_files import load_level
 from evaaa.records import DiskError, StepLog, append_rows, read_rows
-from evaaa_baselines import checkpoint
-from evaaa_baselines import run as run_loop
+from evaaa_baselines import checkpoint, logs
 from evaaa_baselines.checkpoint import load_checkpoint, save_checkpoint
-from evaaa_baselines.run import CsvLog
+from evaaa_baselines.logs import CsvLog
 
 #: a hang, not a slow machine
 HANG_SECONDS = 10
@@ -220,7 +219,7 @@ def test_a_checkpoint_the_disk_refuses_leaves_the_previous_one_and_no_temporary(
 
 def test_a_training_log_row_the_disk_refuses_leaves_the_earlier_rows_whole(tmp_path, monkeypatch):
     path = tmp_path / "episodes.csv"
-    monkeypatch.setattr(run_loop, "open", lambda *a, **k: _HalfWrites(builtins.open(*a, **k)), raising=False)
+    monkeypatch.setattr(logs, "open", lambda *a, **k: _HalfWrites(builtins.open(*a, **k)), raising=False)
     monkeypatch.setattr(_HalfWrites, "full", False)
     log = CsvLog(path, ["step", "value"])
     log.write({"step": 1, "value": 0.5})
@@ -230,9 +229,7 @@ def test_a_training_log_row_the_disk_refuses_leaves_the_earlier_rows_whole(tmp_p
         log.write({"step": 2, "value": 0.25})
     log.close()
     assert path.read_bytes() == before  # no half row
-    monkeypatch.setattr(
-        run_loop, "open", lambda *a, **k: (_ for _ in ()).throw(OSError(errno.EACCES, "Permission denied"))
-    )
+    monkeypatch.setattr(logs, "open", lambda *a, **k: (_ for _ in ()).throw(OSError(errno.EACCES, "Permission denied")))
     with pytest.raises(DiskError, match=f"^cannot write {tmp_path / 'eval.csv'}: Permission denied$"):
         CsvLog(tmp_path / "eval.csv", ["step"])
 

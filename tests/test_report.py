@@ -27,11 +27,11 @@ from omegaconf import OmegaConf
 import evaaa
 from evaaa.records import TRAINING_EPISODE_FIELDS, append_rows
 from evaaa_baselines.config import observation_keys, register_levels
+from evaaa_baselines.logs import EVAL_COLUMNS_BEFORE_CPU
 from evaaa_baselines.paper.choice import ChoiceError
 from evaaa_baselines.paths import CONF_DIR
 from evaaa_baselines.reports import ReportError, build_report
 from evaaa_baselines.reports.stats import clustered_rate, interval
-from evaaa_baselines.run import EVAL_COLUMNS_BEFORE_CPU
 
 register_levels()
 

@@ -1,4 +1,4 @@
-"""A run's scalar log packed into one file (evaaa_baselines.scalar_log, scripts/pack_record.py): every row reads
+"""A run's scalar log packed into one file (evaaa_baselines.logs, scripts/pack_record.py): every row reads
 back as it was, bench_train.py's figures do not change, a run resumed after packing adds its new rows after the
 packed ones, and a record's runs are found and packed by the script."""
 
@@ -10,7 +10,7 @@ from pathlib import Path
 import yaml
 from helpers import load_script
 
-from evaaa_baselines.scalar_log import PACKED, SCALARS, has_scalar, pack, read_scalar, tags
+from evaaa_baselines.logs import PACKED, SCALARS, has_scalar, pack, read_scalar, tags
 
 TIMES = {1000: 1.0, 2000: 11.0, 3000: 21.0, 4000: 31.0, 5000: 41.0}
 

@@ -2,8 +2,8 @@
 what a run directory holds; a run killed between checkpoints and resumed ends exactly where an uninterrupted run
 ends (parameters, optimiser state, losses, episodes, evaluations), in direct training and in a curriculum, also when
 written under ``device=auto`` and resumed under ``device=cpu``; ``device`` names only devices the machine has, and
-``scripts/train.py device=cuda`` without CUDA is one line and exit code 2; the progress bar's rates are smoothed and
-its ETA adds acting and gradient steps; the loader refuses a checkpoint trained on other observation keys;
+``scripts/train.py device=cuda`` without CUDA is one line and exit code 2 (the progress bar's rates, ETA and the
+time estimate: tests/test_stage.py); the loader refuses a checkpoint trained on other observation keys;
 ``scripts/train.py`` runs a multirun sweep."""
 
 from __future__ import annotations
@@ -28,11 +28,9 @@ from hydra import compose, initialize_config_dir
 
 import evaaa
 from evaaa.records import TRAINING_EPISODE_FIELDS
-from evaaa_baselines import algos, checkpoint, devices, evaluate, load_policy, training
+from evaaa_baselines import algos, checkpoint, devices, evaluate, load_policy, logs, training
 from evaaa_baselines import run as run_loop
 from evaaa_baselines.config import (
-    COMPUTE_BOUND_STEPS,
-    Stage,
     env_overrides,
     observation_keys,
     register_levels,
@@ -41,7 +39,6 @@ from evaaa_baselines.config import (
 from evaaa_baselines.devices import DeviceError, resolve_device
 from evaaa_baselines.evaluation import EvaluatedPolicy, EvaluationError
 from evaaa_baselines.paths import CONF_DIR
-from evaaa_baselines.run import Progress
 from evaaa_baselines.training import make_logger, summary, train
 
 register_levels()
@@ -367,8 +364,8 @@ def test_curriculum_hands_weights_over_and_resumes_mid_curriculum(tmp_path, monk
     started: list[tuple[int, dict]] = []
     start = run_loop.Run.start
 
-    def recording_start(self, model, components):
-        td = start(self, model, components)
+    def recording_start(self, model, components, *evaluation, **planned):
+        td = start(self, model, components, *evaluation, **planned)
         started.append((self.stage.index, {k: v.clone() for k, v in model.state_dict().items()}))
         return td
 
@@ -583,13 +580,13 @@ def test_evaluations_record_the_cpu_time_of_the_stage_so_far(tmp_path, monkeypat
 def test_a_run_begun_before_the_cpu_column_goes_on_without_it(tmp_path, monkeypatch):
     cfg = debug_cfg("ppo", "eval.every=64", "checkpoint.every=64", total_steps=3 * 64)
     with monkeypatch.context() as patch:  # the version before: eval.csv without cpu_seconds
-        patch.setattr(run_loop, "EVAL_COLUMNS", run_loop.EVAL_COLUMNS_BEFORE_CPU)
+        patch.setattr(logs, "EVAL_COLUMNS", logs.EVAL_COLUMNS_BEFORE_CPU)
         run_killed(cfg, tmp_path / "run", 2 * 64, monkeypatch)
     train(debug_cfg("ppo", "eval.every=64", "checkpoint.every=64", "resume=true", total_steps=3 * 64), tmp_path / "run")
     with open(tmp_path / "run" / "eval.csv", newline="") as f:
         lines = list(csv.reader(f))
-    assert tuple(lines[0]) == run_loop.EVAL_COLUMNS_BEFORE_CPU  # one header per file: the file's own
-    assert {len(line) for line in lines} == {len(run_loop.EVAL_COLUMNS_BEFORE_CPU)}
+    assert tuple(lines[0]) == logs.EVAL_COLUMNS_BEFORE_CPU  # one header per file: the file's own
+    assert {len(line) for line in lines} == {len(logs.EVAL_COLUMNS_BEFORE_CPU)}
     assert sorted({int(line[0]) for line in lines[1:]}) == [64, 128, 192]
 
 
@@ -674,46 +671,6 @@ def test_loaded_policy_moves_to_the_device_asked_for(runs, capsys):
     with pytest.raises(SystemExit) as refused:  # and on the command line, before anything runs
         script.parse([f"policy={runs('dqn')['whole'] / 'model-0-1-1.pt'}", "device=tpu"])
     assert refused.value.code == 2 and "device=tpu: expected auto, cpu, cuda or cuda:N" in capsys.readouterr().err
-
-
-# ------------------------------------------------------------------------------------------------ progress
-def test_progress_rate_is_smoothed_over_ppo_like_bursts():
-    # 1,024 env steps collected in 1.6 s (one report per 8), then 0.4 s of 12 gradient steps: 512 env steps/s
-    meter = Progress(window=60, steps=0, now=0.0)
-    now, steps, rates = 0.0, 0, []
-    for _ in range(60):  # two minutes
-        for _ in range(128):
-            now, steps = now + 1.6 / 128, steps + 8
-            meter.add(steps, now=now)
-            rates.append(meter.env_rate)
-        now += 0.4
-        meter.add(steps, updates=12, update_seconds=0.4, now=now)
-        rates.append(meter.env_rate)
-    late = rates[len(rates) // 2 :]
-    assert 0.97 * 512 < min(late) and max(late) < 1.03 * 512  # steady within 3 %, where tqdm's swung 30-fold
-    assert meter.session_rate == pytest.approx(512)
-    assert meter.seconds_per_update == pytest.approx(0.4 / 12)
-    assert meter.seconds_per_step == pytest.approx(1.6 / 1024)
-    # 10,240 env steps and 120 gradient steps left: 16 s of acting and 4 s of updates
-    assert meter.eta(10_240, 120) == pytest.approx(20.0)
-    assert meter.eta(10_240, None) == pytest.approx(20.0, rel=0.03)  # from the smoothed whole-loop rate
-
-
-def test_progress_eta_counts_the_gradient_steps_owed():
-    # DreamerV3 S on a CPU: 8 env steps in 0.1 s, then 8 gradient steps of 10 s each
-    meter = Progress(window=60, steps=1024, now=0.0)
-    now, steps = 0.0, 1024
-    for _ in range(5):
-        now, steps = now + 0.1, steps + 8
-        meter.add(steps, now=now)
-        for _ in range(8):
-            now += 10.0
-            meter.add(steps, updates=1, update_seconds=10.0, now=now)
-    assert meter.seconds_per_update == pytest.approx(10.0)
-    assert meter.seconds_per_step == pytest.approx(0.1 / 8)
-    left = 2_000_000 - steps
-    assert meter.eta(left, left) == pytest.approx(left * (10.0 + 0.1 / 8))
-    assert run_loop._duration(meter.eta(left, left)) == "231.6 d"  # (2,000,000 - 1,064) x 10.0125 s
 
 
 def test_a_level_from_the_users_own_file_trains(tmp_path):
@@ -803,7 +760,7 @@ def train(run):
     model = make_model(run.cfg.algo, run.obs_shapes).to(run.device)
     run.train_env(make_transforms(run.cfg.algo, run.obs_keys, model))
     policy = run.acting(make_policy(model))
-    td = run.start(model, {})
+    td = run.start(model, {}, make_policy(model), make_transforms(run.cfg.algo, run.obs_keys, model))
     while not run.done:
         _, td = run.step(policy, td)
         run.end_iteration(td)
@@ -935,22 +892,6 @@ def test_a_finished_run_shows_its_final_evaluation_beside_random_and_stand_still
     assert lines[3].startswith("final model:")
 
 
-def test_the_time_estimate_comes_with_the_first_timed_gradient_step(caplog, monkeypatch):
-    # PPO's shape: an iteration collects for 30 s, then makes its gradient steps; the estimate is said once the first
-    # of them is timed, not after the iteration's last
-    now = [0.0]
-    run = _estimating_run(monkeypatch, now, budget=10_000, iteration=1000)
-    run.planned_updates = lambda steps: -(-steps // 1000) * 8
-    run.progress = None
-    with caplog.at_level(logging.INFO, logger="evaaa_baselines.run"):
-        now[0], run.counters["steps"] = 30.0, 1000
-        run.meter.add(1000, now=30.0)
-        now[0] = 31.0
-        run.updated(1, 1.0, 1)
-    (line,) = [r.getMessage() for r in caplog.records if "time estimate" in r.getMessage()]
-    assert "for the 10,000 env steps (1,000 done)" in line and "1 s per gradient step" in line
-
-
 def test_ppo_reports_each_gradient_step_as_it_ends(tmp_path, monkeypatch):
     reported = []
     real = run_loop.Run.updated
@@ -964,75 +905,6 @@ def test_ppo_reports_each_gradient_step_as_it_ends(tmp_path, monkeypatch):
     train(cfg, tmp_path / "run")
     per_iteration = cfg.algo.epochs * cfg.algo.num_minibatches
     assert reported == [(1, n) for n in range(1, 2 * per_iteration + 1)]  # two iterations of 32 env steps
-
-
-def test_the_time_estimate_comes_from_the_run_s_own_speed(caplog, monkeypatch):
-    now = [0.0]
-    monkeypatch.setattr(run_loop.time, "perf_counter", lambda: now[0])
-    run = run_loop.Run.__new__(run_loop.Run)  # the estimate alone: no worlds, no networks
-    run.cfg, run.stage = debug_cfg("ppo"), Stage(0, "1-1", 1000)
-    run.iteration, run.updates, run.planned_updates = (100, "test"), 0, None
-    run.counters, run._estimated, run._session = {"steps": 0}, False, (0.0, 0)
-    run.meter = Progress(60, 0, now=0.0)
-    with caplog.at_level(logging.INFO, logger="evaaa_baselines.run"):
-        for t, steps in ((10, 100), (20, 200), (30, 300)):  # 10 env steps/s
-            now[0], run.counters["steps"] = float(t), steps
-            run.meter.add(steps)
-            run._estimate()
-    lines = [r.getMessage() for r in caplog.records if "time estimate" in r.getMessage()]
-    assert lines == [
-        "time estimate for ppo on 1-1: about 80 seconds more for the 1,000 env steps (200 done), from "
-        "this run's speed over its first 20 s here (10 env steps/s)"
-    ]
-
-
-def _estimating_run(monkeypatch, now: list[float], *overrides: str, budget: int, iteration: int = 100):
-    """A Run with only what its time estimate reads (no worlds, no networks), on a clock the test sets through
-    ``now``: its CPU clock runs at half the wall clock's rate (half a core)."""
-    monkeypatch.setattr(run_loop.time, "perf_counter", lambda: now[0])
-    monkeypatch.setattr(run_loop.time, "process_time", lambda: now[0] / 2)
-    run = run_loop.Run.__new__(run_loop.Run)
-    run.cfg, run.stage = debug_cfg("ppo", *overrides, total_steps=budget), Stage(0, "1-1", budget)
-    run.iteration, run.updates, run.planned_updates = (iteration, "test"), 0, None
-    run.counters, run._estimated, run._session = {"steps": 0}, False, (0.0, 0)
-    run._clock_start = (0.0, 0.0)
-    run.meter = Progress(60, 0, now=0.0)
-    return run
-
-
-def test_a_compute_bound_run_states_its_cpu_budget_and_when_it_ends(caplog, monkeypatch):
-    # half a core: 10 env steps per wall second, 20 per CPU second; 60 CPU seconds in all, 10 spent at t=20 s
-    now = [0.0]
-    run = _estimating_run(monkeypatch, now, "max_cpu_minutes=1", budget=COMPUTE_BOUND_STEPS)
-    assert run.budget_text() == (
-        f"1 CPU-minutes (max_cpu_minutes; the budget of {COMPUTE_BOUND_STEPS:,} env steps is out of reach)"
-    )
-    with caplog.at_level(logging.INFO, logger="evaaa_baselines.run"):
-        for t, steps in ((10, 100), (20, 200)):
-            now[0], run.counters["steps"] = float(t), steps
-            run.meter.add(steps)
-            run._estimate()
-    (line,) = [r.getMessage() for r in caplog.records if "time estimate" in r.getMessage()]
-    # 50 CPU seconds left: 100 s of wall time at half a core, 1,000 more env steps at 20 per CPU second
-    assert line.endswith(f"; max_cpu_minutes=1 ends it sooner: in {run_loop._about(100.0)}, near 1,200 env steps")
-
-
-def test_a_compute_bound_run_with_a_prefill_says_how_far_its_gradient_steps_let_it_reach(caplog, monkeypatch):
-    # DreamerV3's shape: 1,000 env steps of prefill without gradient steps (0.01 s each), then one gradient step of
-    # 1 s owed per 10 env steps: 0.11 s an env step from there on. Half a core; 60 CPU seconds in all
-    now = [0.0]
-    run = _estimating_run(monkeypatch, now, "max_cpu_minutes=1", budget=COMPUTE_BOUND_STEPS, iteration=1)
-    run.planned_updates = lambda steps: max(steps // 10 - 100, 0)
-    run.meter = Progress(1e12, 0, now=0.0)  # a window this long keeps the sums undecayed: exact rates
-    with caplog.at_level(logging.INFO, logger="evaaa_baselines.run"):
-        for t, steps, updates in ((10, 1000, 0), (21, 1100, 10)):
-            now[0], run.counters["steps"], run.updates = float(t), steps, updates
-            run.meter.add(steps, updates - run.meter.sums["updates"], float(updates), now=float(t))
-            run._estimate()
-    (line,) = [r.getMessage() for r in caplog.records if "time estimate" in r.getMessage()]
-    # 49.5 CPU seconds left at t=21 s: 99 s of wall time, 900 env steps at 0.11 s each (the session's 105 env
-    # steps per CPU second, prefill included, would say 6,286)
-    assert line.endswith(f"ends it sooner: in {run_loop._about(99.0)}, near 2,000 env steps"), line
 
 
 def test_two_ctrl_c_inside_one_long_call_still_stop_the_run_at_once(tmp_path, monkeypatch, capsys):

@@ -16,7 +16,7 @@ from torchrl.objectives.value import GAE
 from evaaa_baselines import ppo
 from evaaa_baselines.machine import keep_freed_memory
 from evaaa_baselines.paths import CONF_DIR
-from evaaa_baselines.timing import PHASES, TimeSplit, shares
+from evaaa_baselines.stage import PHASES, TimeSplit, shares
 
 SHAPES = {"pixels": (64, 64, 3), "interoception": (4,)}
 

@@ -16,9 +16,19 @@ import time
 from omegaconf import DictConfig
 from torchrl.modules import DreamerV3MLP, RSSMPosteriorV3, RSSMPriorV3
 
+from ..logs import Counters
 from ..nets import compile_networks
-from ..run import Counters, Run, parameter_count
-from .model import DreamerDecoder, DreamerEncoder, _next, acting_policy, make_model, make_transforms, prefill_policy
+from ..run import Run, parameter_count
+from .model import (
+    DreamerDecoder,
+    DreamerEncoder,
+    _next,
+    acting_policy,
+    make_model,
+    make_policy,
+    make_transforms,
+    prefill_policy,
+)
 from .openloop import save_openloop
 from .replay import _gb, consumed, make_replay, transition_bytes
 from .update import Learner, update_options
@@ -64,7 +74,6 @@ def train(run: Run) -> None:
         replay.use_own_generator(int(run.cfg.seed) * 1_000 + run.stage.index)
     counters = Counters(updates=0)
     start = max(cfg.learning_starts, cfg.sequence_length * num_envs)  # env steps before the first gradient step
-    run.planned_updates = lambda steps: _updates_due(cfg, steps, cfg.sequence_length, num_envs)
 
     def world_model_parameters() -> int:
         return sum(p.numel() for p in model.world_model_parameters())
@@ -98,6 +107,9 @@ def train(run: Run) -> None:
     td = run.start(
         model,
         {**learner.components(), "replay": replay, "counters": counters},
+        make_policy(model),
+        make_transforms(cfg, run.obs_keys, model),
+        planned_updates=lambda steps: _updates_due(cfg, steps, cfg.sequence_length, num_envs),
     )
     run.updates = counters["updates"]  # a resumed run's bar counts on from its checkpoint
     first_update = counters["updates"] == 0
