@@ -24,8 +24,6 @@ from dataclasses import dataclass
 
 from evaaa_baselines import cli  # noqa: E402
 from evaaa_baselines.cli import option  # noqa: E402
-from evaaa_baselines.paper.choice import ChoiceError, read_choice  # noqa: E402
-from evaaa_baselines.reports import ReportError, build_report  # noqa: E402
 
 
 @dataclass
@@ -108,6 +106,10 @@ def parse(argv: list[str] | None = None) -> ReportConfig:
 
 def main(argv: list[str] | None = None) -> int:
     cfg = parse(argv)
+    # after the arguments: --help and a refusal need neither scipy nor pandas (--help within 3 s of CPU)
+    from evaaa_baselines.paper.choice import ChoiceError, read_choice
+    from evaaa_baselines.reports import ReportError, build_report
+
     compare, choice = cfg.compare, None
     if cfg.compare_from is not None:
         if cfg.compare is not None:

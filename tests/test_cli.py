@@ -426,6 +426,16 @@ HELP_PROBE = (
 )
 
 
+def test_the_report_s_help_loads_neither_pandas_nor_scipy_stats():
+    # issue 64: report.py's --help took 3.2 s of CPU (over the 3 s asked), importing the report layer first
+    probe = HELP_PROBE.replace("('torch', 'torchrl', 'tensordict')", "('pandas', 'scipy.stats')")
+    out = subprocess.run(
+        [sys.executable, "-c", probe, "scripts/report.py"], cwd=ROOT, capture_output=True, text=True, timeout=120
+    )
+    assert out.returncode == 0 and "usage: " in out.stdout, out.stderr[-2000:]
+    assert out.stdout.rstrip().endswith("loaded: []"), out.stdout[-300:]
+
+
 @pytest.mark.parametrize("name", sorted({*SCHEMAS, "train"}))
 def test_help_of_every_script_imports_no_torch(name):
     """``--help`` of every script prints before torch, TorchRL and TensorDict load (issue 64: evaluate's, demo's and
