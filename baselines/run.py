@@ -140,6 +140,9 @@ class Run:
         self._spent_before = (0.0, 0.0)
         #: this session against the stage's budgets, from :meth:`start` on
         self.clock: StageClock | None = None
+        #: a time budget was found spent at an iteration's end (decided there once, so that the algorithm's loop and
+        #: :meth:`end_iteration` agree on whether the stage is over: the final evaluation and model are written)
+        self._timed_out = False
         self.recent: deque[int] = deque(maxlen=cfg.progress_window)
         self.last_eval: float | None = None
         self.best_eval: float | None = None
@@ -176,8 +179,10 @@ class Run:
     @property
     def done(self) -> bool:
         """The stage's env-step budget is spent, or its time budget is: ``max_minutes`` of wall-clock time or
-        ``max_cpu_minutes`` of this process's CPU time (every thread), each summed over the stage's sessions."""
-        return self.steps >= self.stage.budget or (self.clock is not None and self.clock.out_of_time(self.steps))
+        ``max_cpu_minutes`` of this process's CPU time (every thread), each summed over the stage's sessions.  A time
+        budget is read only at an iteration's end (:meth:`end_iteration`): the clock runs on while it evaluates, and a
+        stage that ended between that check and the loop's would have no final model."""
+        return self.steps >= self.stage.budget or self._timed_out
 
     def seconds_spent(self) -> tuple[float, float]:
         """Wall-clock and CPU seconds of this stage so far, earlier sessions included (kept in the checkpoint)."""
@@ -359,6 +364,7 @@ class Run:
         requested, after which :class:`Interrupted` is raised."""
         prev, now = self.counters["last_end"], self.steps
         self.counters["last_end"] = now
+        self._timed_out = self._timed_out or self.clock.out_of_time(now)
         self._estimate()
 
         def crossed(every: int) -> bool:

@@ -806,6 +806,29 @@ def test_a_new_algorithm_is_one_module_and_its_config(tmp_path, monkeypatch):
     env.close()
 
 
+def test_a_time_budget_spent_while_checkpointing_still_ends_with_the_final_model(tmp_path, monkeypatch):
+    # the CPU clock runs on while the run evaluates and checkpoints: here the budget is spent during the checkpoint at
+    # env step 64.  The stage must still end at an iteration's end that writes the final evaluation and model (it
+    # once ended at the loop's own check, after end_iteration had found time left: no final model, and a rerun of
+    # bench_train's learn mode trained on)
+    from evaaa_baselines import stage
+
+    spent = []
+    checkpoint_at = run_loop.Run._checkpoint
+
+    def checkpoint_and_spend(self, td):
+        checkpoint_at(self, td)
+        spent.append(self.steps)
+
+    monkeypatch.setattr(run_loop.Run, "_checkpoint", checkpoint_and_spend)
+    monkeypatch.setattr(stage.StageClock, "out_of_time", lambda self, steps: any(s >= 64 for s in spent))
+    cfg = debug_cfg("ppo", "eval.every=64", "checkpoint.every=64", "max_cpu_minutes=1000", total_steps=10**9)
+    run_dir = train(cfg, tmp_path / "run")
+    final = checkpoint.load_checkpoint(run_dir / "model-0-1-1.pt")
+    assert final["env_steps"] == 96  # the iteration after the budget ran out
+    assert {r["env_steps"] for r in read_csv(run_dir / "eval.csv")} == {"64", "96"}
+
+
 def test_a_run_states_its_budget_and_ends_with_its_folder_and_final_evaluation(tmp_path, caplog, capsys):
     # PPO's debug iteration is 32 env steps (2 worlds x 16): 100 asked is 128 trained, and the first line says why;
     # progress=true draws no bar here, where the output is not a terminal
