@@ -10,6 +10,7 @@ import math
 import os
 import re
 import subprocess
+import sys
 import time
 from datetime import datetime, timezone
 from pathlib import Path
@@ -903,6 +904,15 @@ def test_the_smoke_protocol_produces_every_kind_of_cell_and_the_report(tmp_path)
     # the direct runs trained on seed 2, worlds no curriculum stage (seeds 0, 1) trained on
     assert (root / "runs/ppo/direct-1-2/seed2/model-0-1-2.pt").is_file()
     assert "direct runs and ablations on seeds 2 (seed + direct_seed_offset 2); disjoint" in report
+    # an evaluation cell's commands ran in one process (one == line each in its log); a command of it run alone
+    # plays the same episodes
+    cell = next(c for c in cells if c.name == "eval/ppo/direct-1-1/seed2")
+    assert len(cell.commands) == 4 and lay.log(cell.name).read_text().count("\n== ") == 4
+    alone = tmp_path / "alone"
+    cmd = cell.commands[1]
+    argv = [a for a in cmd.argv[1:] if not a.startswith("out=")] + [f"out={alone}"]
+    assert load_script("evaluate").main(argv) == 0
+    assert (alone / "episodes.csv").read_text() == (cmd.out / "episodes.csv").read_text()
     for heading in (
         "Fig. 4a, left",
         "Fig. 4a, right",
@@ -912,6 +922,30 @@ def test_the_smoke_protocol_produces_every_kind_of_cell_and_the_report(tmp_path)
         "The paper's claims",
     ):
         assert heading in report
+
+
+def test_consecutive_evaluations_of_a_cell_share_one_process_and_the_first_failure_ends_it(tmp_path):
+    from evaaa_baselines.paper import evaluate_many
+    from evaaa_baselines.paper.running import _processes
+
+    ev = [Command(["scripts/evaluate.py", f"levels=[{lv}]"], tmp_path / lv) for lv in ("1-1", "1-2")]
+    train, report = Command(["scripts/train.py", "seed=0"]), Command(["scripts/report.py", "runs=[x]"])
+    procs = _processes([*ev, train, ev[0], report], threads=1)
+    assert [(c.argv[:2], own) for c, own in procs] == [
+        (["-m", "evaaa_baselines.paper.evaluate_many"], False),  # the two evaluations: their own == lines
+        (train.argv[:2], True),
+        (ev[0].argv[:2], True),  # one evaluation alone runs as itself
+        (report.argv[:2], True),
+    ]
+    assert json.loads(procs[0][0].argv[2]) == {"threads": 1, "commands": [c.argv for c in ev]}
+    # a refused command ends the batch with evaluate.py's exit status; the next is not run
+    bad = Command(["scripts/evaluate.py", "levels=[1-1]", "episode=3", f"out={tmp_path / 'a'}"])
+    spec = evaluate_many.batch_command([bad, Command([*bad.argv[:2], f"out={tmp_path / 'b'}"])], 1).argv[2]
+    run = subprocess.run(
+        [sys.executable, "-m", "evaaa_baselines.paper.evaluate_many", spec], capture_output=True, text=True
+    )
+    assert run.returncode == 2 and run.stdout.count("\n== ") == 1 and "episode" in run.stderr
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
 
 
 def test_a_failed_cell_is_tried_again_once_and_continues(tmp_path):

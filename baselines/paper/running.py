@@ -4,6 +4,7 @@ thread pool here, Ray tasks, or submitit (SLURM) jobs — behind :class:`Runner`
 from __future__ import annotations
 
 import fnmatch
+import itertools
 import json
 import os
 import signal
@@ -18,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from ..machine import processor
+from . import evaluate_many
 from .cells import (
     Cell,
     Command,
@@ -190,23 +192,41 @@ def _run_cell(task: CellTask) -> CellResult:
         if cmd.out is not None and task.redo and (cmd.out / "episodes.csv").exists():
             aside = _move_aside(cmd.out, "old")
             result.messages.append(f"{cell.name}: redo: moved the earlier evaluation {cmd.out} to {aside}")
-        if cell.kind == "report":
-            cmd = _report_command(cmd)
-        rc = _run_command(cmd, cell, lay, env, task)
+    if cell.kind == "report":
+        commands = [_report_command(cmd) for cmd in commands]
+    for cmd, own_header in _processes(commands, task.p.threads):
+        rc = _run_command(cmd, cell, lay, env, task, header=own_header)
         if rc != 0:
             raise CellFailed(f"{cell.name}: FAILED (exit status {rc}); see {lay.log(cell.name)}", rc)
     _finish(task, result)
     return result
 
 
-def _run_command(cmd: Command, cell: Cell, lay: Layout, env: dict[str, str], task: CellTask) -> int:
+def _processes(commands: list[Command], threads: int) -> list[tuple[Command, bool]]:
+    """The processes that run ``commands``, in order: consecutive evaluate.py commands share one
+    (:mod:`.evaluate_many`: the imports once), any other runs alone; each with whether the runner writes its
+    ``== <time> <command>`` line to the log (a shared process writes one per command itself)."""
+    out: list[tuple[Command, bool]] = []
+    for batchable, group in itertools.groupby(commands, key=evaluate_many.batchable):
+        group = list(group)
+        if batchable and len(group) > 1:
+            out.append((evaluate_many.batch_command(group, threads), False))
+        else:
+            out.extend((cmd, True) for cmd in group)
+    return out
+
+
+def _run_command(
+    cmd: Command, cell: Cell, lay: Layout, env: dict[str, str], task: CellTask, header: bool = True
+) -> int:
     """Run one command of ``cell`` to its end; its wall time and CPU time (its own ``rusage``: the CPU it used,
     however many processes shared the cores) are added to the cell's account (:meth:`Layout.clock`)."""
     log_path = lay.log(cell.name)
     log_path.parent.mkdir(parents=True, exist_ok=True)
     with open(log_path, "a") as log:
-        log.write(f"\n== {utc_stamp()} {cmd.text(task.p.threads)}\n")
-        log.flush()
+        if header:
+            log.write(f"\n== {utc_stamp()} {cmd.text(task.p.threads)}\n")
+            log.flush()
         # a session of its own: a Ctrl-C at the terminal reaches reproduce.py only, which passes exactly one on
         proc = subprocess.Popen(
             [task.python, *cmd.argv],
