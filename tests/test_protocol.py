@@ -931,12 +931,15 @@ def test_consecutive_evaluations_of_a_cell_share_one_process_and_the_first_failu
     ev = [Command(["scripts/evaluate.py", f"levels=[{lv}]"], tmp_path / lv) for lv in ("1-1", "1-2")]
     train, report = Command(["scripts/train.py", "seed=0"]), Command(["scripts/report.py", "runs=[x]"])
     procs = _processes([*ev, train, ev[0], report], threads=1)
-    assert [(c.argv[:2], own) for c, own in procs] == [
-        (["-m", "evaaa_baselines.paper.evaluate_many"], False),  # the two evaluations: their own == lines
-        (train.argv[:2], True),
-        (ev[0].argv[:2], True),  # one evaluation alone runs as itself
-        (report.argv[:2], True),
-    ]
+    assert (
+        [(c.argv[:2], own) for c, own in procs]
+        == [
+            (["-m", "evaaa_baselines.paper.evaluate_many"], False),  # the two evaluations: their own == lines
+            (train.argv[:2], True),
+            (ev[0].argv[:2], True),  # one evaluation alone runs as itself
+            (report.argv[:2], True),
+        ]
+    )
     assert json.loads(procs[0][0].argv[2]) == {"threads": 1, "commands": [c.argv for c in ev]}
     # a refused command ends the batch with evaluate.py's exit status; the next is not run
     bad = Command(["scripts/evaluate.py", "levels=[1-1]", "episode=3", f"out={tmp_path / 'a'}"])
