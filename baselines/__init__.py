@@ -1,6 +1,6 @@
 """Baselines for evaaa on TorchRL — DQN, PPO, PPO+LSTM and DreamerV3 — trained by ``scripts/train.py``.
 
-An algorithm is one module (``dqn.py``, ``ppo.py``, ``ppo_lstm.py``, ``dreamer_xs.py``) or package (``dreamer/``)
+An algorithm is one module (``dqn.py``, ``ppo.py``; PPO+LSTM is ``ppo.py`` with its own config) or package (``dreamer/``)
 providing ``make_model(cfg, obs_shapes)``, ``make_transforms(cfg, obs_keys, model)``, ``make_policy(model)`` and
 ``train(run)``, plus its config ``conf/algo/<name>.yaml``; :func:`~.algos.algorithm` finds it by ``algo.name``.
 :func:`load_policy` turns a checkpoint back into a policy; :func:`evaluate` runs deterministic episodes.

@@ -3,8 +3,8 @@
 An algorithm is one module and one config.  The module has the four functions of :class:`Algorithm`; the config is
 ``conf/algo/<name>.yaml``, whose ``name`` is the algorithm's name.  The module (or subpackage) of this package
 named like the algorithm is the one (``dqn.py`` for ``algo=dqn``, ``dreamer/`` for ``algo=dreamer``); a variant that
-shares another's code is a module that re-exports it (``ppo_lstm.py`` is PPO's code, the LSTM chosen by its
-config).  A module outside this package joins with :func:`register`.  Modules are imported when first asked for,
+is another's code with a config of its own is named in :data:`VARIANTS` (``ppo_lstm`` is PPO's code, the LSTM chosen
+by its config).  A module outside this package joins with :func:`register`.  Modules are imported when first asked for,
 so they may import the modules that look them up (``training``, ``policies``, ``rollout``) without an import cycle.
 """
 
@@ -48,6 +48,8 @@ class Algorithm(Protocol):
 FUNCTIONS = ("make_model", "make_transforms", "make_policy", "train")
 _NAME = re.compile(r"[a-z][a-z0-9_]*")
 _registered: dict[str, Any] = {}
+#: variants: ``algo.name`` -> the module of this package that trains it (its own config says how it differs)
+VARIANTS = {"ppo_lstm": "ppo", "dreamer_xs": "dreamer"}
 
 
 def register(name: str, module: ModuleType | Any) -> None:
@@ -73,10 +75,10 @@ def algorithm(name: str) -> Algorithm:
     if (
         not isinstance(name, str)
         or not _NAME.fullmatch(name)
-        or importlib.util.find_spec(f"{__package__}.{name}") is None
+        or importlib.util.find_spec(f"{__package__}.{VARIANTS.get(name, name)}") is None
     ):
         raise ValueError(f"unknown algo {name!r}; known: {', '.join(names())}")
-    module = importlib.import_module(f"{__package__}.{name}")
+    module = importlib.import_module(f"{__package__}.{VARIANTS.get(name, name)}")
     _check(name, module)
     return module
 

@@ -110,11 +110,6 @@ def disk_error(path: str | os.PathLike, exc: BaseException) -> DiskError | None:
     return None
 
 
-def _scalar(value) -> Any:
-    value = np.asarray(value).reshape(-1)[0]
-    return value.item() if hasattr(value, "item") else value
-
-
 class EpisodeTracker:
     """Accumulates per-world episode statistics and emits a row when a world's episode ends."""
 

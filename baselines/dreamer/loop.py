@@ -22,15 +22,15 @@ from ..run import Run, parameter_count
 from .model import (
     DreamerDecoder,
     DreamerEncoder,
-    _next,
     acting_policy,
     make_model,
     make_policy,
     make_transforms,
+    next_keys,
     prefill_policy,
 )
 from .openloop import save_openloop
-from .replay import _gb, consumed, make_replay, transition_bytes
+from .replay import consumed, gb_text, make_replay, transition_bytes
 from .update import Learner, update_options
 
 # the package's logger, not the module's: a run's train.log names DreamerV3's lines as before the package split
@@ -67,7 +67,7 @@ def train(run: Run) -> None:
         learner.compile_replay_step()
     reward_scale = float(cfg.get("reward_scale", 1.0))
 
-    stored = ["action", "is_init", *_next(*keys, "reward", "done", "terminated", "consumed")]
+    stored = ["action", "is_init", *next_keys(*keys, "reward", "done", "terminated", "consumed")]
     row_bytes = transition_bytes(env, stored)
     replay = make_replay(run, num_envs, row_bytes)
     if options["prefetch"]:
@@ -90,7 +90,7 @@ def train(run: Run) -> None:
     log.info(
         "replay: %s transitions (%s when full, %s each), %s",
         f"{cfg.buffer_size:,}",
-        _gb(cfg.buffer_size * row_bytes),
+        gb_text(cfg.buffer_size * row_bytes),
         f"{row_bytes / 1e3:.3g} kB",
         replay.place,
     )

@@ -215,11 +215,13 @@ def make_model(cfg: DictConfig, obs_shapes: Mapping[str, Sequence[int]]) -> Drea
 
 
 # ------------------------------------------------------------------------------------------------ wiring
-def _next(*keys: str) -> list[tuple[str, str]]:
+def next_keys(*keys: str) -> list[tuple[str, str]]:
+    """The ``("next", key)`` entries of ``keys``: what a step leads to."""
     return [("next", k) for k in keys]
 
 
-def _one_hot(action: torch.Tensor) -> torch.Tensor:
+def one_hot_action(action: torch.Tensor) -> torch.Tensor:
+    """The action as a one-hot float vector over the five actions."""
     return F.one_hot(action, NUM_ACTIONS).float()
 
 
@@ -231,23 +233,27 @@ def world_model(model: DreamerModel) -> TensorDictSequential:
     keys = model.obs_keys
     rollout = RSSMRolloutV3(
         TensorDictModule(
-            model.prior, in_keys=["state", "belief", "action_onehot"], out_keys=_next("prior_logits", "state", "belief")
+            model.prior,
+            in_keys=["state", "belief", "action_onehot"],
+            out_keys=next_keys("prior_logits", "state", "belief"),
         ),
         TensorDictModule(
-            model.posterior, in_keys=_next("belief", "encoded_latents"), out_keys=_next("posterior_logits", "state")
+            model.posterior,
+            in_keys=next_keys("belief", "encoded_latents"),
+            out_keys=next_keys("posterior_logits", "state"),
         ),
         reset_key="is_init",
     )
     return TensorDictSequential(
-        TensorDictModule(_one_hot, in_keys=["action"], out_keys=["action_onehot"]),
-        TensorDictModule(model.encoder, in_keys=_next(*keys), out_keys=_next("encoded_latents")),
+        TensorDictModule(one_hot_action, in_keys=["action"], out_keys=["action_onehot"]),
+        TensorDictModule(model.encoder, in_keys=next_keys(*keys), out_keys=next_keys("encoded_latents")),
         rollout,
         TensorDictModule(
-            model.decoder, in_keys=_next(*LATENT), out_keys=_next(*(f"reco_{k}" for k in model.decoder.keys))
+            model.decoder, in_keys=next_keys(*LATENT), out_keys=next_keys(*(f"reco_{k}" for k in model.decoder.keys))
         ),
-        TensorDictModule(model.reward, in_keys=_next(*LATENT), out_keys=_next("reward_logits")),
-        TensorDictModule(model.two_hot, in_keys=_next("reward_logits"), out_keys=_next("reward")),
-        TensorDictModule(model.cont, in_keys=_next(*LATENT), out_keys=_next("continue_pred")),
+        TensorDictModule(model.reward, in_keys=next_keys(*LATENT), out_keys=next_keys("reward_logits")),
+        TensorDictModule(model.two_hot, in_keys=next_keys("reward_logits"), out_keys=next_keys("reward")),
+        TensorDictModule(model.cont, in_keys=next_keys(*LATENT), out_keys=next_keys("continue_pred")),
     )
 
 
@@ -296,7 +302,7 @@ def prefill_policy(td: TensorDictBase) -> TensorDictBase:
     first gradient step: the untrained networks would act about as randomly, at the cost of a forward pass per step
     (with size S on a CPU, most of the prefill's time).  The carried latent stays zero until the policy takes over."""
     action = torch.randint(NUM_ACTIONS, td.batch_size)
-    td["action"], td["prev_action"] = action, _one_hot(action)
+    td["action"], td["prev_action"] = action, one_hot_action(action)
     return td
 
 

@@ -12,7 +12,7 @@ import torch
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
 
-from .model import DreamerModel, _next, _one_hot, world_model
+from .model import DreamerModel, next_keys, one_hot_action, world_model
 from .replay import SequenceReplay
 
 
@@ -22,14 +22,14 @@ def openloop_frames(model: DreamerModel, sequences: TensorDictBase, context: int
     first ``context`` steps (posterior), then imagines the rest from the real actions alone (prior, open loop).
     Returns uint8 ``[n, T, H, W, 3]`` truth and model."""
     n, length = sequences.shape
-    seq = sequences.select("action", "is_init", *_next(*model.obs_keys)).clone()
+    seq = sequences.select("action", "is_init", *next_keys(*model.obs_keys)).clone()
     device = next(model.parameters()).device
     seq["state"] = torch.zeros(n, length, model.state_dim, device=device)
     seq["belief"] = torch.zeros(n, length, model.belief_dim, device=device)
     filtered = world_model(model)[:3](seq[:, :context])  # one-hot, encoder, RSSM rollout
     state, belief = filtered["next", "state"][:, -1], filtered["next", "belief"][:, -1]
     states, beliefs = [filtered["next", "state"]], [filtered["next", "belief"]]
-    actions = _one_hot(seq["action"][:, context:])
+    actions = one_hot_action(seq["action"][:, context:])
     for t in range(length - context):
         _, state, belief = model.prior(state, belief, actions[:, t])
         states.append(state.unsqueeze(1))

@@ -23,7 +23,7 @@ from evaaa import ACTION_NAMES
 from ..checkpoint import CHECKPOINT, load_checkpoint
 from ..nets import symlog
 from .losses import WorldModelLoss
-from .model import LATENT, NUM_ACTIONS, DreamerModel, _one_hot, make_model, world_model
+from .model import LATENT, NUM_ACTIONS, DreamerModel, make_model, one_hot_action, world_model
 
 
 def _run_replay(run_dir: str | Path) -> tuple[dict, TensorDictBase, int, int]:
@@ -360,7 +360,7 @@ def imagine_each_action(
     read on it, averaged over the draws, as ``[N, actions, ...]``.  What imagination believes one action does."""
     out: dict[str, list[torch.Tensor]] = {name: [] for name in heads}
     for a in range(NUM_ACTIONS):
-        onehot = _one_hot(torch.full(state.shape[:-1], a, dtype=torch.long, device=state.device))
+        onehot = one_hot_action(torch.full(state.shape[:-1], a, dtype=torch.long, device=state.device))
         totals: dict[str, torch.Tensor] = {}
         for _ in range(samples):
             _, next_state, next_belief = prior(state, belief, onehot)

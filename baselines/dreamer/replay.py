@@ -320,7 +320,7 @@ def available_memory(device: torch.device) -> int | None:
         return None
 
 
-def _gb(n: float) -> str:
+def gb_text(n: float) -> str:
     return f"{n / 1e9:.3g} GB"
 
 
@@ -356,8 +356,8 @@ def make_replay(run: Run, num_envs: int, row_bytes: int) -> SequenceReplay:
                 "replay: a full buffer (algo.buffer_size=%s, %s) needs more than the %s free on the disk of "
                 "%s; lower algo.buffer_size before it fills",
                 f"{cfg.buffer_size:,}",
-                _gb(full),
-                _gb(free),
+                gb_text(full),
+                gb_text(free),
                 directory,
             )
         return SequenceReplay(
@@ -374,8 +374,8 @@ def make_replay(run: Run, num_envs: int, row_bytes: int) -> SequenceReplay:
     free = available_memory(run.device)
     if free is not None and full > free:
         raise ValueError(
-            f"algo.buffer_size={cfg.buffer_size:,} transitions need {_gb(full)} when full, but "
-            f"{run.device} has {_gb(free)} available: use algo.buffer_on_disk=true (memory-mapped under "
+            f"algo.buffer_size={cfg.buffer_size:,} transitions need {gb_text(full)} when full, but "
+            f"{run.device} has {gb_text(free)} available: use algo.buffer_on_disk=true (memory-mapped under "
             f"the run directory) or algo.buffer_size<={free // row_bytes:,}"
         )
     return SequenceReplay(

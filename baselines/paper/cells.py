@@ -615,9 +615,18 @@ def _newest(paths: Sequence[Path]) -> float:
     return max((_written(q) for q in paths if q.exists()), default=0.0)
 
 
+#: how the runner stamps a time (done-markers, logs, folders moved aside): UTC to the second
+STAMP = "%Y%m%dT%H%M%SZ"
+
+
+def utc_stamp() -> str:
+    """Now, as :data:`STAMP`."""
+    return datetime.now(timezone.utc).strftime(STAMP)
+
+
 def _stamp_time(stamp: str) -> float:
-    """A done-marker's finished stamp (``YYYYmmddTHHMMSSZ``, UTC) in seconds since the epoch."""
-    return datetime.strptime(stamp, "%Y%m%dT%H%M%SZ").replace(tzinfo=timezone.utc).timestamp()
+    """A done-marker's finished stamp (:data:`STAMP`, UTC) in seconds since the epoch."""
+    return datetime.strptime(stamp, STAMP).replace(tzinfo=timezone.utc).timestamp()
 
 
 def _finished(cell: Cell, lay: Layout) -> str | None:

@@ -16,7 +16,7 @@ import json
 import sys
 from types import ModuleType
 
-from .cells import Command
+from .cells import Command, utc_stamp
 from .protocol import REPO
 
 SCRIPT = "scripts/evaluate.py"
@@ -49,8 +49,6 @@ def _exit_status(err: SystemExit) -> int:
 
 
 def main(argv: list[str]) -> int:
-    from .running import utc_stamp
-
     spec = json.loads(argv[0])
     script = _evaluate_script()
     for args in spec["commands"]:

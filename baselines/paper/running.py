@@ -14,7 +14,6 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
@@ -31,15 +30,12 @@ from .cells import (
     read_clock,
     rounded,
     status,
+    utc_stamp,
 )
 from .protocol import CHECKPOINTS, REPO, Protocol, ProtocolError
 
 
 # ------------------------------------------------------------------------------------------------ running
-def utc_stamp() -> str:
-    return datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
-
-
 def _move_aside(out: Path, why: str) -> Path:
     """Rename an evaluation's folder to ``<out>.<why>-<UTC time>`` (kept, never deleted); returns the new path."""
     aside = out.with_name(f"{out.name}.{why}-{utc_stamp()}")
