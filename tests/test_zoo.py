@@ -5,6 +5,7 @@ depends on the shipped network's bytes: it is replaced by the final one."""
 from __future__ import annotations
 
 import fnmatch
+import re
 import shutil
 from pathlib import Path
 
@@ -35,18 +36,22 @@ def test_the_shipped_zoo_records_each_network_and_its_file_matches():
     assert "ppo-1-1" in known
     for name, e in known.items():
         assert (e.algo, e.file) == (("ppo", "ppo-1-1.pt") if name == "ppo-1-1" else (e.algo, f"{name}.pt"))
-        assert e.trained_by.startswith("python scripts/train.py ") and f"level={e.level}" in e.trained_by
+        stages = re.search(r"level\.stages=\[([^]]*)\]", e.trained_by)  # a curriculum's network: its last stage
+        level = stages.group(1).split(",")[-1] if "level=curriculum" in e.trained_by else None
+        assert e.trained_by.startswith("python scripts/train.py ") and level in (e.level, None)
+        assert level is not None or f"level={e.level}" in e.trained_by
         assert isinstance(e.env_steps, int) and e.env_steps > 0 and e.seed is not None
         assert zoo.resolve(f"zoo:{name}") == zoo.ZOO_DIR / e.file
         assert zoo.sha256(zoo.ZOO_DIR / e.file) == e.sha256
     assert known["ppo-1-1"].level == "1-1"
-    # the survival fields, filled in from an evaluation of the network on each kind of world by the command they name
-    fields = yaml.safe_load((zoo.ZOO_DIR / zoo.MANIFEST).read_text())["networks"]["ppo-1-1"]
-    assert {"validation_survival", "test_survival", "trained_by", "sha256"} <= fields.keys()
-    for worlds in ("validation", "test"):
-        survival = fields[f"{worlds}_survival"]
-        assert f"worlds={worlds}" in survival["command"] and "policy=[zoo:ppo-1-1]" in survival["command"]
-        assert survival["se"] < survival["mean"] <= 5000 and survival["episodes"] == 20
+    # the survival fields, filled in from an evaluation of each network on each kind of world by the command they name
+    for name, fields in yaml.safe_load((zoo.ZOO_DIR / zoo.MANIFEST).read_text())["networks"].items():
+        assert {"validation_survival", "test_survival", "trained_by", "sha256"} <= fields.keys()
+        for worlds in ("validation", "test"):
+            survival = fields[f"{worlds}_survival"]
+            assert f"worlds={worlds}" in survival["command"] and f"policy=[zoo:{name}]" in survival["command"]
+            assert f"levels=[{fields['level']}]" in survival["command"]
+            assert survival["se"] < survival["mean"] <= 5000 and survival["episodes"] == 20
 
 
 def test_a_survival_field_reads_as_mean_se_episodes_and_acting():
