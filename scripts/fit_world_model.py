@@ -11,7 +11,7 @@ ones means too few meals to generalise from) and where eating found nothing (sho
 how well each observation key tells a successful eat press from a fruitless one (a logistic read-out's AUC):
 whether the data hold what the model should learn; last, the same read-out from the trained latent: whether the
 model keeps it.  No env, actor or critic: world-model settings compared in minutes on the same data
-(docs/training.md, "What was tried on level 1-1").
+(docs/lab-notes.md, "What was tried on level 1-1").
 """
 
 from __future__ import annotations

@@ -6,7 +6,7 @@ Decodes the interoception from the posterior of the run's last checkpoint on rep
 eating steps its memory-mapped replay holds, and prints the mean absolute error of each EV, in raw units, on the
 eating steps and on the others; then how much of the EVs a linear read-out finds in the encoder's embedding, the
 stochastic latent, the deterministic state and both, which tells where in the model the EVs are lost
-(docs/training.md, "What was tried on level 1-1"). Then, from the same replayed states, one imagined step of every
+(docs/lab-notes.md, "What was tried on level 1-1"). Then, from the same replayed states, one imagined step of every
 action followed by the critic: each action's value against the mean of the five, the actor's probabilities and the
 decoded change of satiation and hydration, for every state, the steps that really ate or drank, the eat actions that
 found nothing, and the five steps before an eating step: whether imagination knows that eating pays where food is.

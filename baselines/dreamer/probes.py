@@ -381,7 +381,7 @@ def imagined_action_values(
     EVs decoded before and after the step.  Grouped by what really followed each state: every state, the steps that
     ate or drank, the eat actions that found nothing, and the five steps before an eating step.  Where imagination
     ranks the actions the same way in every group, and eating raises no decoded EV where real eating did, the actor
-    has nothing to learn from but a bias (docs/training.md, "What was tried on level 1-1")."""
+    has nothing to learn from but a bias (docs/lab-notes.md, "What was tried on level 1-1")."""
     from evaaa import EV_NAMES
 
     state, cfg, model, batch, steps = _probe_replay(run_dir, sequences, model_file)
