@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -219,22 +220,87 @@ def check_config(cfg: DictConfig) -> str | None:
     return None
 
 
-def train(run: Run) -> None:
-    cfg = run.cfg.algo
-    recurrent = bool(cfg.lstm)
-    model = make_model(cfg, run.obs_shapes).to(run.device)
-    if run.cfg.get("compile"):
-        compile_networks(model)
-    env = run.train_env(make_transforms(cfg, run.obs_keys, model))
-    num_envs = env.batch_size.numel()
-    problem = check_config(run.cfg)
-    if problem:
-        raise ValueError(problem)
-    rollout = cfg.frames_per_batch // num_envs
-    run.iteration = (cfg.frames_per_batch, f"{num_envs} worlds x {rollout} steps, then an update")
-    policy = make_policy(model)
-    acting = run.acting(policy)
+@dataclass
+class _Update:
+    """PPO's update of one iteration's batch: the advantage, then ``epochs`` passes of minibatch gradient steps."""
 
+    cfg: DictConfig
+    run: Run
+    model: nn.Module
+    advantage: Callable[[TensorDictBase], TensorDictBase]
+    loss_fn: ClipPPOLoss
+    optimizer: torch.optim.Optimizer
+    scheduler: torch.optim.lr_scheduler.LRScheduler
+    return_scale: ReturnScale | None
+    remaining: Callable[[int], float]  # 1 -> 0 over the stage's iterations: the annealing factor
+
+    def anneal_clip(self) -> None:
+        """The clip range at this point of the stage (``anneal_clip``)."""
+        cfg = self.cfg
+        if cfg.anneal_clip:
+            clip = cfg.clip * self.remaining(self.run.steps // cfg.frames_per_batch)
+            self.loss_fn.clip_epsilon.fill_(clip)
+            if cfg.clip_value_loss:
+                self.loss_fn.clip_value.fill_(clip)
+
+    def with_advantage(self, batch: TensorDictBase) -> TensorDictBase:
+        """The batch on the device with its advantage and value target, without the next step."""
+        run = self.run
+        with run.timed("advantage"):
+            if self.return_scale is not None:
+                self.return_scale(batch)  # the episodes' logged returns stay the env's own
+            batch = to_device(batch, run.device)  # on a GPU through pinned memory, without blocking the host
+            with torch.no_grad(), set_recurrent_mode(bool(self.cfg.lstm)), run.autocast():
+                self.advantage(batch)
+            # the loss reads the advantage, not the next step: the minibatches copy half the frames without it
+            return batch.exclude("next")
+
+    def epochs(self, batch: TensorDictBase, began: float) -> dict[str, torch.Tensor | float]:
+        """The gradient steps on ``batch`` (``began``: when the iteration's update started, for the first step's
+        time); returns the iteration's metrics."""
+        cfg, run = self.cfg, self.run
+        # summed on the device: read (one host sync) when logged
+        totals: dict[str, torch.Tensor] = {}
+        updates = 0
+        for _ in range(cfg.epochs):
+            with run.timed("replay"):
+                minibatches = list(_minibatches(batch, cfg))
+            for minibatch in minibatches:
+                stats = self._gradient_step(minibatch)
+                updates += 1
+                for key, value in stats.items():
+                    totals[key] = totals.get(key, 0.0) + value.detach().float()
+                # each gradient step reported as it ends (the first with the advantage's time): the bar moves, and
+                # the run's time estimate comes with the first one instead of after the iteration's last
+                now = time.perf_counter()
+                run.updated(1, now - began, run.updates + 1)
+                began = now
+        self.scheduler.step()
+        done_updates = -(-run.steps // cfg.frames_per_batch) * updates  # every iteration makes as many
+        return {
+            **{k: v / updates for k, v in totals.items()},
+            "lr": self.optimizer.param_groups[0]["lr"],
+            "clip": self.loss_fn.clip_epsilon,
+            "updates": done_updates,
+            **({"reward_scale": self.return_scale.scale} if self.return_scale else {}),
+        }
+
+    def _gradient_step(self, minibatch: TensorDictBase) -> dict[str, torch.Tensor]:
+        run = self.run
+        with run.timed("forward"), set_recurrent_mode(bool(self.cfg.lstm)), run.autocast():
+            losses = self.loss_fn(minibatch)
+            loss = sum(losses[k] for k in LOSS_TERMS)
+        with run.timed("backward"):
+            self.optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+        with run.timed("optimizer"):
+            grad_norm = nn.utils.clip_grad_norm_(self.model.parameters(), self.cfg.max_grad_norm)
+            self.optimizer.step()
+        return {k: losses[k] for k in (*LOSS_TERMS, *LOGGED)} | {"grad_norm": grad_norm}
+
+
+def _make_update(run: Run, cfg: DictConfig, model: nn.Module, policy: TensorDictModuleBase, num_envs: int) -> _Update:
+    """The loss, optimiser, learning-rate schedule and reward scaling of a stage."""
     advantage = make_advantage(cfg, model)
     # the loss's critic is the value head alone: it reads the trunk features the actor's pass has just written into
     # the same minibatch, so the shared trunk runs once per minibatch and receives the gradients of both losses
@@ -248,7 +314,6 @@ def train(run: Run) -> None:
         normalize_advantage=cfg.normalize_advantage,
         clip_value=cfg.clip_value_loss,
     ).to(run.device)
-
     optimizer_cls = {"adam": torch.optim.Adam, "adamw": torch.optim.AdamW}[cfg.optimizer.name]
     optimizer = optimizer_cls(
         model.parameters(), lr=cfg.lr, eps=cfg.optimizer.eps, weight_decay=cfg.optimizer.weight_decay, fused=True
@@ -259,66 +324,38 @@ def train(run: Run) -> None:
         return max(0.0, 1.0 - iteration / iterations)
 
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, remaining if cfg.anneal_lr else lambda _: 1.0)
+    return_scale = ReturnScale(num_envs, cfg.gamma) if cfg.normalize_reward else None
+    return _Update(cfg, run, model, advantage, loss_fn, optimizer, scheduler, return_scale, remaining)
+
+
+def train(run: Run) -> None:
+    cfg = run.cfg.algo
+    model = make_model(cfg, run.obs_shapes).to(run.device)
+    if run.cfg.get("compile"):
+        compile_networks(model)
+    env = run.train_env(make_transforms(cfg, run.obs_keys, model))
+    num_envs = env.batch_size.numel()
+    problem = check_config(run.cfg)
+    if problem:
+        raise ValueError(problem)
+    rollout = cfg.frames_per_batch // num_envs
+    run.iteration = (cfg.frames_per_batch, f"{num_envs} worlds x {rollout} steps, then an update")
+    policy = make_policy(model)
+    acting = run.acting(policy)
+    update = _make_update(run, cfg, model, policy, num_envs)
     per_batch = cfg.epochs * cfg.num_minibatches
 
     def planned(steps: int) -> int:  # the gradient steps of the iterations these env steps take
         return -(-steps // cfg.frames_per_batch) * per_batch
 
-    return_scale = ReturnScale(num_envs, cfg.gamma) if cfg.normalize_reward else None
-    state = {"optimizer": optimizer, "scheduler": scheduler} | ({"return_scale": return_scale} if return_scale else {})
+    state = {"optimizer": update.optimizer, "scheduler": update.scheduler}
+    state |= {"return_scale": update.return_scale} if update.return_scale else {}
     td = run.start(model, state, make_policy(model), make_transforms(cfg, run.obs_keys, model), planned)
     run.updates = planned(run.steps)  # a resumed run's bar counts on from its checkpoint
     while not run.done:
-        if cfg.anneal_clip:
-            clip = cfg.clip * remaining(run.steps // cfg.frames_per_batch)
-            loss_fn.clip_epsilon.fill_(clip)
-            if cfg.clip_value_loss:
-                loss_fn.clip_value.fill_(clip)
+        update.anneal_clip()
         batch, td = run.collect(acting, td, rollout)
         began = time.perf_counter()
-        with run.timed("advantage"):
-            if return_scale is not None:
-                return_scale(batch)  # the episodes' logged returns stay the env's own
-            batch = to_device(batch, run.device)  # on a GPU through pinned memory, without blocking the host
-            with torch.no_grad(), set_recurrent_mode(recurrent), run.autocast():
-                advantage(batch)
-            # the loss reads the advantage, not the next step: the minibatches copy half the frames without it
-            batch = batch.exclude("next")
-
-        # summed on the device: read (one host sync) when logged
-        totals: dict[str, torch.Tensor] = {}
-        updates = 0
-        for _ in range(cfg.epochs):
-            with run.timed("replay"):
-                minibatches = list(_minibatches(batch, cfg))
-            for minibatch in minibatches:
-                with run.timed("forward"), set_recurrent_mode(recurrent), run.autocast():
-                    losses = loss_fn(minibatch)
-                    loss = sum(losses[k] for k in LOSS_TERMS)
-                with run.timed("backward"):
-                    optimizer.zero_grad(set_to_none=True)
-                    loss.backward()
-                with run.timed("optimizer"):
-                    grad_norm = nn.utils.clip_grad_norm_(model.parameters(), cfg.max_grad_norm)
-                    optimizer.step()
-                updates += 1
-                stats = {k: losses[k] for k in (*LOSS_TERMS, *LOGGED)} | {"grad_norm": grad_norm}
-                for key, value in stats.items():
-                    totals[key] = totals.get(key, 0.0) + value.detach().float()
-                # each gradient step reported as it ends (the first with the advantage's time): the bar moves, and
-                # the run's time estimate comes with the first one instead of after the iteration's last
-                now = time.perf_counter()
-                run.updated(1, now - began, run.updates + 1)
-                began = now
-        scheduler.step()
-        done_updates = -(-run.steps // cfg.frames_per_batch) * updates  # every iteration makes as many
-        run.log(
-            {
-                **{k: v / updates for k, v in totals.items()},
-                "lr": optimizer.param_groups[0]["lr"],
-                "clip": loss_fn.clip_epsilon,
-                "updates": done_updates,
-                **({"reward_scale": return_scale.scale} if return_scale else {}),
-            }
-        )
+        metrics = update.epochs(update.with_advantage(batch), began)
+        run.log(metrics)
         run.end_iteration(td)

@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import dataclass
 
 from omegaconf import DictConfig
+from tensordict import TensorDictBase
 from torchrl.modules import DreamerV3MLP, RSSMPosteriorV3, RSSMPriorV3
 
 from ..logs import Counters
@@ -22,6 +24,7 @@ from ..run import Run, parameter_count
 from .model import (
     DreamerDecoder,
     DreamerEncoder,
+    DreamerModel,
     acting_policy,
     make_model,
     make_policy,
@@ -30,7 +33,7 @@ from .model import (
     prefill_policy,
 )
 from .openloop import save_openloop
-from .replay import consumed, gb_text, make_replay, transition_bytes
+from .replay import SequenceReplay, consumed, gb_text, make_replay, transition_bytes
 from .update import Learner, update_options
 
 # the package's logger, not the module's: a run's train.log names DreamerV3's lines as before the package split
@@ -44,6 +47,103 @@ def _updates_due(cfg: DictConfig, steps: int, rows: int, num_envs: int) -> int:
     if steps < start or rows < cfg.sequence_length:
         return 0
     return int(cfg.replay_ratio * (steps - start)) + 1
+
+
+def _log_sizes(
+    cfg: DictConfig, model: DreamerModel, replay: SequenceReplay, row_bytes: int, start: int, device
+) -> None:
+    """The first lines of a stage: the size and parameter counts, the replay, the prefill."""
+    log.info(
+        "DreamerV3 size %s on %s: %s parameters (world model %s, actor %s, critic %s)",
+        cfg.size,
+        device,
+        f"{parameter_count(model):,}",
+        f"{sum(p.numel() for p in model.world_model_parameters()):,}",
+        f"{parameter_count(model.actor):,}",
+        f"{parameter_count(model.value):,}",
+    )
+    log.info(
+        "replay: %s transitions (%s when full, %s each), %s",
+        f"{cfg.buffer_size:,}",
+        gb_text(cfg.buffer_size * row_bytes),
+        f"{row_bytes / 1e3:.3g} kB",
+        replay.place,
+    )
+    log.info(
+        "prefill: %s env steps of %s before the first gradient step; then %g gradient steps per env step, "
+        "each on %d sequences of %d steps",
+        f"{start:,}",
+        "random actions" if cfg.prefill_random else "the untrained policy",
+        cfg.replay_ratio,
+        cfg.batch_size,
+        cfg.sequence_length,
+    )
+
+
+@dataclass
+class _Stage:
+    """What the loop of one stage keeps between its iterations."""
+
+    run: Run
+    cfg: DictConfig
+    model: DreamerModel
+    learner: Learner
+    replay: SequenceReplay
+    counters: Counters
+    options: dict[str, bool]
+    stored: list
+    start: int  # env steps before the first gradient step
+    first_update: bool
+
+    def store(self, transition: TensorDictBase) -> None:
+        """One env step's transition into the replay (the reward scaled by ``reward_scale``)."""
+        transition["next", "consumed"] = consumed(transition)
+        stored_td = transition.select(*self.stored)
+        reward_scale = float(self.cfg.get("reward_scale", 1.0))
+        if reward_scale != 1.0:  # the world model learns the scaled reward; the episodes' returns stay the env's
+            stored_td["next", "reward"] = stored_td["next", "reward"] * reward_scale
+        with self.run.timed("replay"):
+            self.replay.extend(stored_td)
+
+    def gradient_steps(self, due: int, td: TensorDictBase) -> dict | None:
+        """Gradient steps until ``due`` are made (a stop request checkpoints between two); the last one's metrics."""
+        run, counters, replay = self.run, self.counters, self.replay
+        metrics = None
+        while counters["updates"] < due:
+            if run.stop_requested():
+                run.stop_now(td)
+            began = time.perf_counter()
+            with run.timed("replay"):
+                sample = replay.sample()
+            metrics = self.learner.update(sample)
+            if self.options["prefetch"] and counters["updates"] + 1 < due:
+                with run.timed("replay"):
+                    replay.prefetch()  # the next batch, drawn and sent while the device works on this gradient step
+            if run.log_due:  # read on the host, so only when a log is due, after the gradient step
+                metrics |= self.learner.diagnostics()
+            counters["updates"] += 1
+            seconds = time.perf_counter() - began
+            run.updated(1, seconds, counters["updates"], counters["updates"] / max(run.steps - self.start + 1, 1))
+            self._after_step(seconds)
+        return metrics
+
+    def _after_step(self, seconds: float) -> None:
+        run, cfg, updates = self.run, self.cfg, self.counters["updates"]
+        if self.first_update:
+            self.first_update = False
+            log.info(
+                "first gradient step at env step %s: %.3g s (%.0f s after the stage began)",
+                f"{run.steps:,}",
+                seconds,
+                run.session_seconds(),
+            )
+        if cfg.openloop.every and updates % cfg.openloop.every == 0:
+            save_openloop(
+                self.model,
+                self.replay,
+                cfg,
+                run.dir / "openloop" / f"openloop-{run.stage.index}-{run.stage.level}-{run.steps:09d}.png",
+            )
 
 
 def train(run: Run) -> None:
@@ -65,7 +165,6 @@ def train(run: Run) -> None:
     if run.cfg.get("compile") and not options["compile"]:
         # the replayed RSSM loop calls the prior's and posterior's methods, not the compiled modules: its step
         learner.compile_replay_step()
-    reward_scale = float(cfg.get("reward_scale", 1.0))
 
     stored = ["action", "is_init", *next_keys(*keys, "reward", "done", "terminated", "consumed")]
     row_bytes = transition_bytes(env, stored)
@@ -74,35 +173,7 @@ def train(run: Run) -> None:
         replay.use_own_generator(int(run.cfg.seed) * 1_000 + run.stage.index)
     counters = Counters(updates=0)
     start = max(cfg.learning_starts, cfg.sequence_length * num_envs)  # env steps before the first gradient step
-
-    def world_model_parameters() -> int:
-        return sum(p.numel() for p in model.world_model_parameters())
-
-    log.info(
-        "DreamerV3 size %s on %s: %s parameters (world model %s, actor %s, critic %s)",
-        cfg.size,
-        device,
-        f"{parameter_count(model):,}",
-        f"{world_model_parameters():,}",
-        f"{parameter_count(model.actor):,}",
-        f"{parameter_count(model.value):,}",
-    )
-    log.info(
-        "replay: %s transitions (%s when full, %s each), %s",
-        f"{cfg.buffer_size:,}",
-        gb_text(cfg.buffer_size * row_bytes),
-        f"{row_bytes / 1e3:.3g} kB",
-        replay.place,
-    )
-    log.info(
-        "prefill: %s env steps of %s before the first gradient step; then %g gradient steps per env step, "
-        "each on %d sequences of %d steps",
-        f"{start:,}",
-        "random actions" if cfg.prefill_random else "the untrained policy",
-        cfg.replay_ratio,
-        cfg.batch_size,
-        cfg.sequence_length,
-    )
+    _log_sizes(cfg, model, replay, row_bytes, start, device)
 
     td = run.start(
         model,
@@ -112,7 +183,7 @@ def train(run: Run) -> None:
         planned_updates=lambda steps: _updates_due(cfg, steps, cfg.sequence_length, num_envs),
     )
     run.updates = counters["updates"]  # a resumed run's bar counts on from its checkpoint
-    first_update = counters["updates"] == 0
+    stage = _Stage(run, cfg, model, learner, replay, counters, options, stored, start, counters["updates"] == 0)
     # a gradient step of size S takes a minute on a CPU: a Ctrl-C stops between two of them (Run.stop_now), and the
     # resume of such a checkpoint first makes the gradient steps its iteration still owed, as the whole run did
     run.stops_between_updates = True
@@ -120,46 +191,11 @@ def train(run: Run) -> None:
     while not run.done or owed:
         if not owed:
             transition, td = run.step(prefill_policy if cfg.prefill_random and run.steps < start else policy, td)
-            transition["next", "consumed"] = consumed(transition)
-            stored_td = transition.select(*stored)
-            if reward_scale != 1.0:  # the world model learns the scaled reward; the episodes' returns stay the env's
-                stored_td["next", "reward"] = stored_td["next", "reward"] * reward_scale
-            with run.timed("replay"):
-                replay.extend(stored_td)
+            stage.store(transition)
         owed = False
-        metrics = None
         due = _updates_due(cfg, run.steps, replay.rows, num_envs)
         run.set_phase("prefill" if due == 0 else None)
-        while counters["updates"] < due:
-            if run.stop_requested():
-                run.stop_now(td)
-            began = time.perf_counter()
-            with run.timed("replay"):
-                sample = replay.sample()
-            metrics = learner.update(sample)
-            if options["prefetch"] and counters["updates"] + 1 < due:
-                with run.timed("replay"):
-                    replay.prefetch()  # the next batch, drawn and sent while the device works on this gradient step
-            if run.log_due:  # read on the host, so only when a log is due, after the gradient step
-                metrics |= learner.diagnostics()
-            counters["updates"] += 1
-            seconds = time.perf_counter() - began
-            run.updated(1, seconds, counters["updates"], counters["updates"] / max(run.steps - start + 1, 1))
-            if first_update:
-                first_update = False
-                log.info(
-                    "first gradient step at env step %s: %.3g s (%.0f s after the stage began)",
-                    f"{run.steps:,}",
-                    seconds,
-                    run.session_seconds(),
-                )
-            if cfg.openloop.every and counters["updates"] % cfg.openloop.every == 0:
-                save_openloop(
-                    model,
-                    replay,
-                    cfg,
-                    run.dir / "openloop" / f"openloop-{run.stage.index}-{run.stage.level}-{run.steps:09d}.png",
-                )
+        metrics = stage.gradient_steps(due, td)
         if metrics is not None:
             run.log(metrics | {"updates": counters["updates"], "replay_steps": len(replay.buffer)})
         run.end_iteration(td)
