@@ -14,7 +14,8 @@ from pathlib import Path
 import pytest
 from helpers import load_script, ray_head
 
-from evaaa_baselines.paper.cells import Cell, Command, Layout, status
+from evaaa_baselines.paper.cell_status import status
+from evaaa_baselines.paper.cells import Cell, Command, Layout
 from evaaa_baselines.paper.protocol import load_protocol
 from evaaa_baselines.paper.running import Runner
 

@@ -22,8 +22,10 @@ from helpers import load_script
 import evaaa
 from evaaa.records import append_rows
 from evaaa_baselines.machine import processor
-from evaaa_baselines.paper.cells import Cell, Command, Layout, build_cells, plan_text, provenance, status
+from evaaa_baselines.paper.cell_status import status
+from evaaa_baselines.paper.cells import Cell, Command, Layout, build_cells
 from evaaa_baselines.paper.choice import choice_text
+from evaaa_baselines.paper.plan import plan_text, provenance
 from evaaa_baselines.paper.protocol import ProtocolError, load_protocol
 from evaaa_baselines.paper.running import Runner
 
@@ -644,7 +646,7 @@ def test_an_unfinished_evaluation_is_moved_aside_and_run_again(tmp_path):
 def test_a_started_training_run_continues_with_resume_and_redo_starts_over(tmp_path):
     lay, cells = _fake(tmp_path)
     train = cells[0]
-    from evaaa_baselines.paper.cells import command_now
+    from evaaa_baselines.paper.cell_status import command_now
 
     assert command_now(train, lay)[0].argv == train.commands[0].argv
     train.run_dir.mkdir(parents=True)
@@ -974,7 +976,7 @@ def test_a_failed_cell_is_tried_again_once_and_continues(tmp_path):
 
 # ------------------------------------------------------------------------------------------------ committed results
 def test_a_finished_training_whose_models_are_gone_is_trained_again_only_for_evaluations_left(tmp_path):
-    from evaaa_baselines.paper.cells import command_now
+    from evaaa_baselines.paper.cell_status import command_now
 
     lay, cells = _fake(tmp_path)
     train, ev, _ = cells
@@ -1235,7 +1237,7 @@ def test_paper_learned_compares_sampled_actions_and_its_done_evaluations_stay_do
 
 
 def test_paper_gpu_s_cpu_bound_cells_request_no_gpu_and_its_gpu_plan_names_its_rate_and_card(tmp_path):
-    from evaaa_baselines.paper.cells import cell_resources, gpu_plan
+    from evaaa_baselines.paper.plan import cell_resources, gpu_plan
 
     p = load_protocol("paper_gpu")
     cells = build_cells(p, tmp_path)

@@ -16,7 +16,8 @@ import json
 import sys
 from types import ModuleType
 
-from .cells import Command, utc_stamp
+from .cell_status import utc_stamp
+from .cells import Command
 from .protocol import REPO
 
 SCRIPT = "scripts/evaluate.py"

@@ -19,19 +19,9 @@ from typing import Any
 
 from ..machine import processor
 from . import evaluate_many
-from .cells import (
-    Cell,
-    Command,
-    Layout,
-    cell_resources,
-    command_now,
-    minutes_left,
-    provenance,
-    read_clock,
-    rounded,
-    status,
-    utc_stamp,
-)
+from .cell_status import command_now, status, utc_stamp
+from .cells import Cell, Command, Layout, read_clock, rounded
+from .plan import cell_resources, minutes_left, provenance
 from .protocol import CHECKPOINTS, REPO, Protocol, ProtocolError
 
 
