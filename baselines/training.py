@@ -146,7 +146,16 @@ def _aside(run_dir: Path) -> Path:
     raise RunExists(f"{run_dir}: no free name to move the old run to")
 
 
-def _decide(cfg: DictConfig, run_dir: Path, plan: list) -> tuple[dict | None, list[tuple[int, str]], Path | None]:
+#: what a refusal of an occupied run folder offers instead
+START_OVER = (
+    "start_over=true moves it aside (to a hidden folder beside it, which reports skip) and trains from "
+    "zero; or choose another run.name / run.root"
+)
+#: what :func:`_decide` returns: the checkpoint state to resume (or None), the lines to log, where to move an old run
+Decision = tuple[dict | None, list[tuple[int, str]], Path | None]
+
+
+def _decide(cfg: DictConfig, run_dir: Path, plan: list) -> Decision:
     """What to do with ``run_dir``, decided before anything is written: the checkpoint state to resume (or None),
     the lines to log (level, message) once the run goes ahead, and where an old run is to be moved first (or None).
 
@@ -155,82 +164,80 @@ def _decide(cfg: DictConfig, run_dir: Path, plan: list) -> tuple[dict | None, li
         raise RunRefused("resume=true and start_over=true contradict each other: choose one")
     contents = run_contents(run_dir)
     has_checkpoint = any(name in contents for name in (CHECKPOINT, PREVIOUS))
-    start_over = (
-        "start_over=true moves it aside (to a hidden folder beside it, which reports skip) and trains from "
-        "zero; or choose another run.name / run.root"
-    )
     if cfg.get("start_over"):
-        if not contents:
-            return None, [(logging.INFO, f"start_over=true: {run_dir} holds no run; starting from zero")], None
-        target = _aside(run_dir)
-        return (
-            None,
-            [
-                (
-                    logging.WARNING,
-                    f"start_over=true: the run that was in {run_dir} ({', '.join(contents)}) "
-                    f"is now in {target}; starting from zero",
-                )
-            ],
-            target,
-        )
+        return _start_over(run_dir, contents)
     if not cfg.resume:
         if has_checkpoint:
             raise RunExists(
                 f"{run_dir} already holds a run (checkpoint.pt); nothing was changed. resume=true "
-                f"continues it; {start_over}"
+                f"continues it; {START_OVER}"
             )
         if contents:
             raise RunExists(
-                f"{run_dir} already holds a run's results ({', '.join(contents)}); nothing was changed. {start_over}"
+                f"{run_dir} already holds a run's results ({', '.join(contents)}); nothing was changed. {START_OVER}"
             )
         return None, [], None
     if has_checkpoint:
-        try:
-            found = load_latest(run_dir)
-        except CheckpointError as err:
-            raise CheckpointError(f"cannot resume {run_dir}: {err}; nothing was changed. {start_over}") from None
-        assert found is not None
-        state, path, note = found
-        try:
-            changed = _check_same_run(state, cfg, plan)
-            notes = [(logging.WARNING, note)] if note else []  # a damaged latest checkpoint: said once the run goes on
-            # "resuming ... env step <digits>": scripts/bench_train.py finds a run's sessions by it in train.log
-            notes.append(
-                (
-                    logging.INFO,
-                    f"resuming {run_dir} from {path.name} at stage {state['stage']} "
-                    f"({state['level']}), env step {state['counters']['steps']}",
-                )
+        return _resume(cfg, run_dir, plan)
+    return _resume_without_checkpoint(run_dir, contents)
+
+
+def _start_over(run_dir: Path, contents: list[str]) -> Decision:
+    """``start_over=true``: the run there (if any) moved aside, training from zero."""
+    if not contents:
+        return None, [(logging.INFO, f"start_over=true: {run_dir} holds no run; starting from zero")], None
+    target = _aside(run_dir)
+    message = (
+        f"start_over=true: the run that was in {run_dir} ({', '.join(contents)}) is now in {target}; starting from zero"
+    )
+    return None, [(logging.WARNING, message)], target
+
+
+def _resume(cfg: DictConfig, run_dir: Path, plan: list) -> Decision:
+    """``resume=true`` where a checkpoint is: its state, checked to be this command's run."""
+    try:
+        found = load_latest(run_dir)
+    except CheckpointError as err:
+        raise CheckpointError(f"cannot resume {run_dir}: {err}; nothing was changed. {START_OVER}") from None
+    assert found is not None
+    state, path, note = found
+    try:
+        changed = _check_same_run(state, cfg, plan)
+        notes = [(logging.WARNING, note)] if note else []  # a damaged latest checkpoint: said once the run goes on
+        # "resuming ... env step <digits>": scripts/bench_train.py finds a run's sessions by it in train.log
+        notes.append(
+            (
+                logging.INFO,
+                f"resuming {run_dir} from {path.name} at stage {state['stage']} "
+                f"({state['level']}), env step {state['counters']['steps']}",
             )
-        except (KeyError, TypeError, AttributeError, IndexError) as err:  # a crafted file, its checksum valid
-            raise CheckpointError(
-                f"cannot resume {run_dir}: {path} is malformed: its record of the run is incomplete "
-                f"({type(err).__name__}: {' '.join(str(err).split())[:200]}); nothing was changed. {start_over}"
-            ) from None
-        if changed:
-            notes.append((logging.WARNING, "resuming with changed settings in: " + ", ".join(changed)))
-        return state, notes, None
+        )
+    except (KeyError, TypeError, AttributeError, IndexError) as err:  # a crafted file, its checksum valid
+        raise CheckpointError(
+            f"cannot resume {run_dir}: {path} is malformed: its record of the run is incomplete "
+            f"({type(err).__name__}: {' '.join(str(err).split())[:200]}); nothing was changed. {START_OVER}"
+        ) from None
+    if changed:
+        notes.append((logging.WARNING, "resuming with changed settings in: " + ", ".join(changed)))
+    return state, notes, None
+
+
+def _resume_without_checkpoint(run_dir: Path, contents: list[str]) -> Decision:
+    """``resume=true`` where no checkpoint is: from zero, unless a finished run's results are there."""
     if not contents:
         return None, [(logging.WARNING, f"resume=true: {run_dir} holds no checkpoint yet: starting from zero")], None
     if any(name.startswith("model-") for name in contents):
         raise RunExists(
             f"cannot resume {run_dir}: it holds a trained run's results ({', '.join(contents)}) but "
-            f"no checkpoint (checkpoint.pt was deleted or lost); nothing was changed. {start_over}"
+            f"no checkpoint (checkpoint.pt was deleted or lost); nothing was changed. {START_OVER}"
         )
     # a run stopped before its first checkpoint: nothing to continue, and nothing finished to keep in place
     target = _aside(run_dir)
-    return (
-        None,
-        [
-            (
-                logging.WARNING,
-                f"resume=true: {run_dir} stopped before its first checkpoint, so it starts from "
-                f"zero; what it had written ({', '.join(contents)}) is now in {target}",
-            )
-        ],
-        target,
+    message = (
+        f"resume=true: {run_dir} stopped before its first checkpoint, so it starts from zero; what it had written "
+        f"({', '.join(contents)}) is now in {target}"
     )
+    return None, [(logging.WARNING, message)], target
 
 
 def _write_records(run_dir: Path, records: Mapping[str, Any] | None, resumed: bool) -> None:

@@ -584,16 +584,6 @@ class Runner:
 
     def run(self, todo: Sequence[Cell]) -> int:
         """Run ``todo`` (in its order, as their needs allow); returns 0 when every one finished, else 1."""
-        selected = {c.name for c in todo}
-        by_name = {c.name: c for c in self.cells}
-        waiting = list(todo)
-        running: dict[Any, str] = {}
-        finished: set[str] = set()
-        failed: set[str] = set()
-        late: set[str] = set()
-        queued: set[str] = set()
-        blocked: list[str] = []
-        tries: dict[str, int] = {}
         deadline = None if self.max_minutes is None else time.time() + 60 * self.max_minutes
         # end_minutes: every cell must end by then (a machine that keeps no files past a session: a cell cut short
         # there would start over next time), so a cell starts only while its estimate fits in the minutes left
@@ -603,107 +593,132 @@ class Runner:
             from tqdm import tqdm
 
             bar = tqdm(total=len(todo), desc="cells", unit="cell", dynamic_ncols=True)
-
+        sched = _Schedule(self, todo, bar, deadline, end)
         previous = signal.signal(signal.SIGTERM, _interrupt)
         engine = self._engine()
         try:
-            while waiting or running:
-                release = []
-                free = None if engine.capacity is None else engine.capacity - len(running)
-                for cell in list(waiting):
-                    ready = self._ready(cell, finished, failed, selected)
-                    if self._left_for_later(cell, ready, late, end, engine.capacity if cell.name in queued else None):
-                        waiting.remove(cell)
-                        late.add(cell.name)
-                        if bar is not None:
-                            bar.update(1)
-                    elif ready is None:
-                        waiting.remove(cell)
-                        blocked.append(cell.name)
-                        failed.add(cell.name)
-                        if bar is not None:
-                            bar.update(1)
-                    elif ready and free is not None and len(release) >= free:
-                        queued.add(cell.name)  # ready, every slot taken
-                    elif ready:
-                        waiting.remove(cell)
-                        # a retry continues what the first try began
-                        release.append(
-                            CellTask(
-                                self.p,
-                                self.cells,
-                                cell.name,
-                                self.lay.root,
-                                self.redo and cell.name not in tries,
-                                self.selects,
-                                self.python,
-                                deadline,
-                            )
-                        )
+            while sched.waiting or sched.running:
+                release = sched.release(engine.capacity)
                 if release:
-                    running.update(zip(engine.submit(release), (t.name for t in release)))
-                if not running:
-                    if waiting:  # nothing runs and nothing could start: nothing ever will
-                        blocked += [c.name for c in waiting]
-                        failed.update(c.name for c in waiting)
+                    sched.running.update(zip(engine.submit(release), (t.name for t in release)))
+                if not sched.running:
+                    sched.block_waiting()  # nothing runs and nothing could start: nothing ever will
                     break
-                for handle, outcome in engine.wait(list(running), timeout=0.5):
-                    name = running.pop(handle)
-                    if isinstance(outcome, KeyboardInterrupt):
-                        raise outcome
-                    if isinstance(outcome, BaseException):
-                        rc = getattr(outcome, "rc", None)
-                        if tries.get(name, 0) < self.retries and rc not in (130, -signal.SIGINT):
-                            # e.g. the renderer's crash: the same cell again, continuing from what it left
-                            tries[name] = tries.get(name, 0) + 1
-                            self.echo(
-                                f"{name}: exit status {rc}; trying again ({tries[name]} of {self.retries}); "
-                                f"see {self.lay.log(name)}"
-                            )
-                            waiting.insert(0, by_name[name])
-                            continue
-                        failed.add(name)
-                        self.echo(str(outcome))
-                    elif outcome.late:
-                        late.add(name)
-                    else:
-                        for m in outcome.messages:
-                            self.echo(m)
-                        finished.add(name)
-                        for dep in outcome.outdated:  # evaluations of old models: made again
-                            if dep not in selected:
-                                selected.add(dep)
-                                waiting.append(by_name[dep])
-                                if bar is not None:
-                                    bar.total += 1
-                    if bar is not None:
-                        bar.update(1)
-                if deadline is not None and time.time() > deadline and waiting:
-                    self.echo(
-                        f"max_minutes={self.max_minutes:g} reached: no new cell starts; the {len(running)} "
-                        "running finish"
-                    )
-                    late.update(c.name for c in waiting)
-                    waiting = []
-                if bar is not None:
-                    bar.set_postfix_str(", ".join(running.values())[:80])
+                for handle, outcome in engine.wait(list(sched.running), timeout=0.5):
+                    sched.receive(handle, outcome)
+                sched.check_deadline()
         except KeyboardInterrupt:
             self.echo(
-                f"reproduce: stopping: {len(running)} running cell(s) asked to stop (training writes a "
+                f"reproduce: stopping: {len(sched.running)} running cell(s) asked to stop (training writes a "
                 "checkpoint; an evaluation stops and is run again next time)"
             )
-            engine.stop(list(running))
+            engine.stop(list(sched.running))
             raise
         finally:
             engine.close()
             signal.signal(signal.SIGTERM, previous)
             if bar is not None:
                 bar.close()
-        if blocked:
-            self.echo(
-                "not started (a cell they need failed or was not selected, and its files are missing): "
-                + ", ".join(blocked)
+        return sched.summary()
+
+
+class _Schedule:
+    """The state of one :meth:`Runner.run`: which cells wait, run, finished, failed, were left for later."""
+
+    def __init__(self, runner: Runner, todo: Sequence[Cell], bar: Any, deadline: float | None, end: float | None):
+        self.r, self.bar, self.deadline, self.end = runner, bar, deadline, end
+        self.selected = {c.name for c in todo}
+        self.by_name = {c.name: c for c in runner.cells}
+        self.waiting = list(todo)
+        self.running: dict[Any, str] = {}
+        self.finished: set[str] = set()
+        self.failed: set[str] = set()
+        self.late: set[str] = set()
+        self.queued: set[str] = set()
+        self.blocked: list[str] = []
+        self.tries: dict[str, int] = {}
+
+    def _count(self) -> None:
+        if self.bar is not None:
+            self.bar.update(1)
+
+    def release(self, capacity: int | None) -> list[CellTask]:
+        """The waiting cells that may start now, as many as the engine has free slots for."""
+        r, release = self.r, []
+        free = None if capacity is None else capacity - len(self.running)
+        for cell in list(self.waiting):
+            ready = r._ready(cell, self.finished, self.failed, self.selected)
+            if r._left_for_later(cell, ready, self.late, self.end, capacity if cell.name in self.queued else None):
+                self.waiting.remove(cell)
+                self.late.add(cell.name)
+                self._count()
+            elif ready is None:
+                self.waiting.remove(cell)
+                self.blocked.append(cell.name)
+                self.failed.add(cell.name)
+                self._count()
+            elif ready and free is not None and len(release) >= free:
+                self.queued.add(cell.name)  # ready, every slot taken
+            elif ready:
+                self.waiting.remove(cell)
+                # a retry continues what the first try began
+                redo = r.redo and cell.name not in self.tries
+                release.append(CellTask(r.p, r.cells, cell.name, r.lay.root, redo, r.selects, r.python, self.deadline))
+        return release
+
+    def block_waiting(self) -> None:
+        self.blocked += [c.name for c in self.waiting]
+        self.failed.update(c.name for c in self.waiting)
+
+    def receive(self, handle: Any, outcome: CellResult | BaseException) -> None:
+        """What an engine reports of a cell: failed (tried again while retries are left), late or finished."""
+        r, name = self.r, self.running.pop(handle)
+        if isinstance(outcome, KeyboardInterrupt):
+            raise outcome
+        if isinstance(outcome, BaseException):
+            rc = getattr(outcome, "rc", None)
+            if self.tries.get(name, 0) < r.retries and rc not in (130, -signal.SIGINT):
+                # e.g. the renderer's crash: the same cell again, continuing from what it left
+                self.tries[name] = self.tries.get(name, 0) + 1
+                r.echo(
+                    f"{name}: exit status {rc}; trying again ({self.tries[name]} of {r.retries}); see {r.lay.log(name)}"
+                )
+                self.waiting.insert(0, self.by_name[name])
+                return
+            self.failed.add(name)
+            r.echo(str(outcome))
+        elif outcome.late:
+            self.late.add(name)
+        else:
+            for m in outcome.messages:
+                r.echo(m)
+            self.finished.add(name)
+            for dep in outcome.outdated:  # evaluations of old models: made again
+                if dep not in self.selected:
+                    self.selected.add(dep)
+                    self.waiting.append(self.by_name[dep])
+                    if self.bar is not None:
+                        self.bar.total += 1
+        self._count()
+
+    def check_deadline(self) -> None:
+        """Past ``max_minutes``: no new cell starts; the bar names the running ones."""
+        if self.deadline is not None and time.time() > self.deadline and self.waiting:
+            self.r.echo(
+                f"max_minutes={self.r.max_minutes:g} reached: no new cell starts; the {len(self.running)} running finish"
             )
-        if late:
-            self.echo(f"{len(late)} cell(s) not started (max_minutes, end_minutes); the same command continues")
-        return 0 if len(finished) == len(selected) else 1
+            self.late.update(c.name for c in self.waiting)
+            self.waiting = []
+        if self.bar is not None:
+            self.bar.set_postfix_str(", ".join(self.running.values())[:80])
+
+    def summary(self) -> int:
+        """What did not start and why; 0 when every selected cell finished, else 1."""
+        if self.blocked:
+            self.r.echo(
+                "not started (a cell they need failed or was not selected, and its files are missing): "
+                + ", ".join(self.blocked)
+            )
+        if self.late:
+            self.r.echo(f"{len(self.late)} cell(s) not started (max_minutes, end_minutes); the same command continues")
+        return 0 if len(self.finished) == len(self.selected) else 1
