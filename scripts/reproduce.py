@@ -24,9 +24,10 @@ from evaaa_baselines import cli
 from evaaa_baselines.cli import option
 from evaaa_baselines.paper.cell_status import status
 from evaaa_baselines.paper.cells import Layout, build_cells, keep_out_of_git
+from evaaa_baselines.paper.engines import STOP_GRACE_SECONDS
 from evaaa_baselines.paper.plan import plan_text
 from evaaa_baselines.paper.protocol import REPO, ProtocolError, load_protocol
-from evaaa_baselines.paper.running import EXECUTORS, STOP_GRACE_SECONDS, Runner, select
+from evaaa_baselines.paper.running import EXECUTORS, Runner, select
 
 
 @dataclass

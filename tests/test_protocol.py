@@ -930,7 +930,7 @@ def test_the_smoke_protocol_produces_every_kind_of_cell_and_the_report(tmp_path)
 
 def test_consecutive_evaluations_of_a_cell_share_one_process_and_the_first_failure_ends_it(tmp_path):
     from evaaa_baselines.paper import evaluate_many
-    from evaaa_baselines.paper.running import _processes
+    from evaaa_baselines.paper.engines import _processes
 
     ev = [Command(["scripts/evaluate.py", f"levels=[{lv}]"], tmp_path / lv) for lv in ("1-1", "1-2")]
     train, report = Command(["scripts/train.py", "seed=0"]), Command(["scripts/report.py", "runs=[x]"])
