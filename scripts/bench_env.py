@@ -49,6 +49,7 @@ Arguments are ``key=value``, the keys of :class:`BenchConfig`; ``--help`` lists 
 
 from __future__ import annotations
 
+import gc
 import json
 import multiprocessing as mp
 import os
@@ -505,6 +506,7 @@ def host_only_warp(level, n: int, modalities: list[str], seed: int):
                 "mocap_quat": zeros((n, m.nmocap, 4)),
             }
             self.torch_device = torch.device("cpu")
+            self._predator_mocap = torch.as_tensor(self.index.predator_mocap)
             self.seconds = {"sync": 0.0, "physics": 0.0, "camera": 0.0}
             self.wait_for_device = False
             self._dev = True
@@ -601,6 +603,7 @@ def measure_host_cost(args) -> dict:
         for n in args.worlds:
             for backend in ("cpu", "warp"):
                 row = time_host(level, n, backend, args.host_steps, warmup=3, seed=n)
+                gc.collect()  # its wrapped methods held the simulator in cycles: free its worlds before the next
                 results["rows"].append(row)
                 split = ", ".join(f"{k} {v:.2f}" for k, v in row["phases_us"].items())
                 print(f"{level:<8}{n:>8}{backend:>9}{row['us_per_world_decision']:>19.2f}   {split}", flush=True)
