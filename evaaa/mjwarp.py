@@ -162,6 +162,7 @@ class WarpSimulator(Simulator):
         }
         tdev = self._t["qpos"].device
         self.torch_device = tdev
+        self._predator_mocap = torch.as_tensor(self.index.predator_mocap, device=tdev)
         self._geom_body = torch.as_tensor(mjm.geom_bodyid, dtype=torch.int64, device=tdev)
         self._nbody = mjm.nbody
         self._dt = float(mjm.opt.timestep)
@@ -246,6 +247,10 @@ class WarpSimulator(Simulator):
                 rows = torch.from_numpy(moved).to(dev)
                 t["mocap_pos"][rows] = pos
                 t["mocap_quat"][rows] = quat
+        if self.predators.k:  # the predators of every world, from their arrays (the host MjData's may be stale)
+            pose = torch.from_numpy(self.predators.poses()).to(dev, torch.float32)
+            t["mocap_pos"][:, self._predator_mocap] = pose[..., :3]
+            t["mocap_quat"][:, self._predator_mocap] = pose[..., 3:]
         if self._moved is not None:
             self._moved[:] = False
             self._posed[:] = False
@@ -256,7 +261,6 @@ class WarpSimulator(Simulator):
         self._posed = np.ones(self.n, dtype=bool)  # pose or velocity set since the last push (besides the actions)
         moved = self._moved
         write_items, write_obstacles = self.resources.write, self.obstacle_layout.write
-        write_predators = self.predators.write
 
         def items(state, w, data):
             write_items(state, w, data)
@@ -266,11 +270,7 @@ class WarpSimulator(Simulator):
             write_obstacles(state, w, data)
             moved[w] = True
 
-        def predators(w, data, mocap):
-            write_predators(w, data, mocap)
-            moved[w] = True
-
-        self.resources.write, self.obstacle_layout.write, self.predators.write = items, obstacles, predators
+        self.resources.write, self.obstacle_layout.write = items, obstacles
 
     def _pull(self) -> None:
         """Pose and velocity of every world from the device into its host ``MjData`` and the state."""
@@ -347,12 +347,16 @@ class WarpSimulator(Simulator):
         hit |= hits > 0
 
     def _predators_act(self) -> np.ndarray:
-        """4. As on the CPU, without the host kinematics: the device computes them before drawing."""
+        """4. As on the CPU, without writing the host scenes: the next push sends every world's predators from
+        their arrays, and the device computes the kinematics before drawing."""
         attack = self.predators.step(self.state.pos, self.is_night(), self.rngs)
         self.state.attacked = attack != 0
-        for w, data in enumerate(self.datas):
-            self.predators.write(w, data, self.index.predator_mocap)
         return attack
+
+    def _write_predators(self, worlds) -> None:
+        """The predators of ``worlds`` into their host ``MjData`` (which the decisions leave behind)."""
+        for w in worlds:
+            self.predators.write(w, self.datas[w], self.index.predator_mocap)
 
     # ------------------------------------------------------------------------------------------------ camera
     def render_eye(self, worlds: np.ndarray, before_draw=None) -> torch.Tensor:
@@ -447,8 +451,13 @@ class WarpSimulator(Simulator):
 
     def render_top(self, world: int = 0, size: int = 512) -> np.ndarray:
         """A top-down picture of one world (OpenGL, from the host ``MjData``, as on the CPU backend)."""
+        self._write_predators([world])
         mujoco.mj_kinematics(self.model, self.datas[world])
         return super().render_top(world, size)
+
+    def physics_states(self) -> np.ndarray:
+        self._write_predators(range(self.n))
+        return super().physics_states()
 
     # ------------------------------------------------------------------------------------------------ snapshots
     def restore(self, snapshot: dict) -> None:

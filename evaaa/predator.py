@@ -260,13 +260,20 @@ class Predators:
         """Put world ``w``'s predators into its scene (``data``, an ``MjData``) at mocap indices ``mocap``."""
         if not self.k:
             return
-        pose = np.empty((self.k, 7))
-        pose[:, :2] = self.xy[w]
-        pose[:, 2] = PREDATOR.base[2] / 2
-        half = -self.heading[w] / 2  # a body at compass heading h is turned by -h about z
-        pose[:, 3], pose[:, 4:6], pose[:, 6] = np.cos(half), 0.0, np.sin(half)
+        pose = self.poses(w)
         data.mocap_pos[mocap] = pose[:, :3]
         data.mocap_quat[mocap] = pose[:, 3:]
+
+    def poses(self, worlds=slice(None)) -> np.ndarray:
+        """(..., K, 7) the predators of ``worlds`` (an index or slice; all by default) as mocap poses: position and
+        quaternion."""
+        xy, heading = self.xy[worlds], self.heading[worlds]
+        pose = np.empty((*heading.shape, 7))
+        pose[..., :2] = xy
+        pose[..., 2] = PREDATOR.base[2] / 2
+        half = -heading / 2  # a body at compass heading h is turned by -h about z
+        pose[..., 3], pose[..., 4:6], pose[..., 6] = np.cos(half), 0.0, np.sin(half)
+        return pose
 
     # ------------------------------------------------------------------------------------------ decisions
     def sees(self, agent_xy: np.ndarray) -> np.ndarray:

@@ -98,10 +98,8 @@ class Resources:
             return None
         consumed = np.zeros(state.res_present.shape, dtype=bool)
         consumed[worlds] = hits
-        for row, w in enumerate(worlds):
-            slots = np.flatnonzero(hits[row])
-            if len(slots):
-                self._regrow(state, w, slots, rngs[w])
+        for w in worlds[hits.any(axis=1)]:  # the worlds that ate (each draws from its own generator)
+            self._regrow(state, w, np.flatnonzero(consumed[w]), rngs[w])
         return consumed
 
     def _regrow(self, state: WorldState, w: int, slots: np.ndarray, rng: np.random.Generator) -> None:

@@ -62,11 +62,9 @@ class Triggers:
         fire = entered & (state.trigger_count < self.max_count)
         fired = fire.any(axis=1)
         low, high = self.params.low, self.params.high
-        for w in np.flatnonzero(fired):
-            for e in np.flatnonzero(fire[w]):
-                values = self.sets[e]
-                chosen = ~np.isnan(values)
-                state.ev[w, chosen] = np.clip(values[chosen], low[chosen], high[chosen])
-                state.trigger_count[w, e] += 1
+        for e in np.flatnonzero(fire.any(axis=0)):  # in trigger order: a later one sets an EV over an earlier one
+            chosen = ~np.isnan(self.sets[e])
+            state.ev[np.ix_(fire[:, e], chosen)] = np.clip(self.sets[e, chosen], low[chosen], high[chosen])
+        state.trigger_count += fire
         state.triggered |= fired
         return fired

@@ -34,11 +34,22 @@ default threads) at the counts up to ``cpu_max_worlds``, through the same TorchR
 
 and on a CPU, where Warp's CPU device is for development (tiny counts): ``backend=warp counts=[2,8]``.
 
+With ``host_cost=true`` it measures the host CPU time per world-decision of the game logic alone, for the CPU
+backend and for the Warp backend's host side, at each of ``worlds`` on each of ``levels`` (the issue's sizes: 1,024
+and 4,096 worlds, levels 1-1 and 4-2), split by phase.  Stubbed: the physics (no ``mj_step``, no contact damage, no
+per-world pose read-back: a stand-in moves each body by its commanded velocity, in arrays, clipped to the arena) and
+the camera (every sense but pixels is read); on the Warp backend Warp itself (its device data is torch CPU tensors of
+the device's shapes: the push and pull run for real against them; no kernel is compiled or launched).  Partial
+resets are timed apart (``reset_us_per_world_decision``), outside the decision's figure:
+
+    python scripts/bench_env.py host_cost=true json=docs/bench/host_cost.json
+
 Arguments are ``key=value``, the keys of :class:`BenchConfig`; ``--help`` lists them.
 """
 
 from __future__ import annotations
 
+import gc
 import json
 import multiprocessing as mp
 import os
@@ -81,7 +92,7 @@ class BenchConfig:
         "cpu", "cpu: the settings above; warp: the MuJoCo Warp backend beside the CPU one", choices=("cpu", "warp")
     )
     levels: list[str] = option(
-        ["1-1", "4-2"], "backend=warp: levels measured", choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS]
+        ["1-1", "4-2"], "backend=warp and host_cost: levels measured", choices=lambda: [*evaaa.LEVELS, *evaaa.TESTBEDS]
     )
     counts: list[int] = option(
         [],
@@ -98,6 +109,17 @@ class BenchConfig:
         "backend=warp: the CPU backend is measured at the counts up to this",
         check=(lambda v: v >= 0, "an integer >= 0"),
     )
+    host_cost: bool = option(
+        False, "host CPU time per world-decision of both backends' game logic, physics and camera stubbed"
+    )
+    worlds: list[int] = option(
+        [1024, 4096], "host_cost: numbers of worlds", check=(lambda v: v >= 1, "positive integers")
+    )
+    host_steps: int = option(
+        20,
+        "host_cost: decisions timed per setting (after 3 warming up)",
+        check=(lambda v: v >= 1, "a positive integer"),
+    )
 
 
 HELP = {
@@ -107,6 +129,7 @@ HELP = {
         "",
         "level=4-2 steps=1500 skip_parallel=true json=docs/bench_env_4-2.json",
         "backend=warp json=docs/bench/bench_env_warp_h100.json",
+        "host_cost=true json=docs/bench/host_cost.json",
     ],
 }
 if __name__ == "__main__":
@@ -122,7 +145,8 @@ from evaaa.env import EvaaaEnv, make_env  # noqa: E402
 from evaaa.level_files import load_level  # noqa: E402
 from evaaa.render import BatchRenderer  # noqa: E402
 from evaaa.scene import GROUP_AGENT  # noqa: E402
-from evaaa.sim import Simulator, default_threads  # noqa: E402
+from evaaa.sim import FORWARD, SUBSTEPS, Simulator, default_threads  # noqa: E402
+from evaaa.worldgen import AGENT_HALF  # noqa: E402
 from evaaa_baselines.machine import processor  # noqa: E402
 
 torch.set_num_threads(1)
@@ -408,6 +432,185 @@ def measure_backends(args) -> dict:
     return results
 
 
+# ------------------------------------------------------------------------------------------------- host cost
+HOST_STUBS = (
+    "physics: no mj_step, no contact damage, no per-world pose read-back (mj_kinematics, mj_camlight); a stand-in "
+    "moves each body by its commanded velocity for the decision (arrays over worlds, clipped to the arena, no "
+    "collisions); camera: not drawn (every sense but pixels is read); Warp: no Warp call at all (the device data "
+    "is torch CPU tensors of the device's shapes: the push and pull run for real against them, mjw.step, the "
+    "contact forces, the overflow read and the render do not; Warp kernels are not compiled)"
+)
+
+
+class Phases:
+    """CPU seconds of the process per phase of a decision, each phase's own (what it calls that is a phase too is
+    counted there)."""
+
+    def __init__(self):
+        self.seconds: dict[str, float] = {}
+        self._open: list[float] = []
+
+    def wrap(self, name: str, fn):
+        self.seconds.setdefault(name, 0.0)
+
+        def timed(*args, **kwargs):
+            self._open.append(0.0)
+            start = time.process_time()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                spent = time.process_time() - start
+                inner = self._open.pop()
+                self.seconds[name] += spent - inner
+                if self._open:
+                    self._open[-1] += spent
+
+        return timed
+
+
+def _stand_in_move(sim, actions: np.ndarray, pos: np.ndarray) -> None:
+    """The physics' stand-in: ``pos`` (N, 2) moved by each body's commanded velocity over a decision, in the arena."""
+    seconds = SUBSTEPS * sim.model.opt.timestep
+    speed = sim._move_speed * (actions == FORWARD) * seconds
+    heading = sim.state.heading_rad
+    step = np.stack([speed * np.sin(heading), speed * np.cos(heading)], axis=1)
+    half = np.asarray(sim.level.arena.size) / 2 - AGENT_HALF
+    pos[:] = np.clip(pos + step, -half, half)
+
+
+def host_only_warp(level, n: int, modalities: list[str], seed: int):
+    """A :class:`~evaaa.mjwarp.WarpSimulator` without Warp: its device data is torch CPU tensors of the device's
+    shapes and its physics the stand-in, so that what it times is the backend's host-side Python."""
+    from evaaa.mjwarp import WarpSimulator
+
+    class HostOnlyWarp(WarpSimulator):
+        def __init__(self):
+            self.wp = self.mjw = None
+            self.device = "cpu"
+            self._dev = None
+            self._moved = self._posed = None
+            Simulator.__init__(self, level, n, modalities, seed=seed, threads=1)
+            self._setup_device()
+            self._track_writes()
+
+        def _setup_device(self):
+            if self._dev is not None:
+                return
+            m = self.model
+            zeros = partial(torch.zeros, dtype=torch.float32)
+            self._t = {
+                "qpos": zeros((n, m.nq)),
+                "qvel": zeros((n, m.nv)),
+                "qacc_warmstart": zeros((n, m.nv)),
+                "mocap_pos": zeros((n, m.nmocap, 3)),
+                "mocap_quat": zeros((n, m.nmocap, 4)),
+            }
+            self.torch_device = torch.device("cpu")
+            self._predator_mocap = torch.as_tensor(self.index.predator_mocap)
+            self.seconds = {"sync": 0.0, "physics": 0.0, "camera": 0.0}
+            self.wait_for_device = False
+            self._dev = True
+
+        def _physics(self, worlds, damage, collided):
+            self._push(all_poses=True)
+            qpos = self._t["qpos"]
+            pos = qpos[:, :2].double().numpy()
+            _stand_in_move(self, self._actions, pos)
+            qpos[:, :2] = torch.from_numpy(pos)
+            self._pull()
+
+    return HostOnlyWarp()
+
+
+def time_host(level: str, n: int, backend: str, decisions: int, warmup: int, seed: int) -> dict:
+    """Host CPU microseconds per world-decision of one backend's game logic on ``level`` with ``n`` worlds (physics
+    and camera stubbed: :data:`HOST_STUBS`), in all and per phase."""
+    from evaaa.sensors import SENSORS
+
+    spec = load_level(level)
+    modalities = [k for k in SENSORS if k != "pixels"]
+    start = time.perf_counter()
+    if backend == "cpu":
+        sim = Simulator(spec, n, modalities=modalities, seed=seed, threads=1)
+
+        def stand_in(worlds, damage, collided):
+            _stand_in_move(sim, sim._actions, sim.state.pos)
+
+        sim._physics = stand_in
+    else:
+        sim = host_only_warp(spec, n, modalities, seed)
+    sim.reset()
+    made = time.perf_counter() - start
+    phases = Phases()
+    names = {"apply_actions": "apply actions", "_physics": "physics stand-in", "_eat": "eat"}
+    names |= {"_predators_act": "predators", "_conclude": "physiology and senses"}
+    if backend == "warp":
+        names |= {"_push": "push", "_pull": "pull"}
+    for attr, name in names.items():
+        setattr(sim, attr, phases.wrap(name, getattr(sim, attr)))
+    sim.triggers.cross = phases.wrap("triggers", sim.triggers.cross)
+    sim.daynight.advance = phases.wrap("sun", sim.daynight.advance)
+    reset = phases.wrap("reset", sim.reset)
+    actions = random_actions(warmup + decisions, n, seed)
+    total = 0.0
+    for t in range(warmup + decisions):
+        if t == warmup:
+            for key in phases.seconds:
+                phases.seconds[key] = 0.0
+            total = 0.0
+        sim._actions = actions[t]
+        begin = time.process_time()
+        sim.apply_actions(actions[t])
+        _, _, terminated, truncated, _ = sim.advance(actions[t])
+        total += time.process_time() - begin
+        done = terminated | truncated
+        if done.any():
+            reset(done)
+    sim.close()
+    per = 1e6 / (decisions * n)
+    split = {k: v * per for k, v in phases.seconds.items() if k != "reset"}
+    split["other"] = total * per - sum(split.values())
+    return {
+        "level": level,
+        "worlds": n,
+        "backend": backend,
+        "us_per_world_decision": total * per,
+        "phases_us": split,
+        "reset_us_per_world_decision": phases.seconds["reset"] * per,
+        "make_seconds": made,
+    }
+
+
+def measure_host_cost(args) -> dict:
+    """``host_cost=true``: the game logic's host CPU time per world-decision with the physics and camera stubbed."""
+    results: dict = {
+        "host_cost": True,
+        "levels": list(args.levels),
+        "worlds": list(args.worlds),
+        "decisions": args.host_steps,
+        "warmup": 3,
+        "stubbed": HOST_STUBS,
+        "clock": "process CPU time (time.process_time), one thread (torch 1 thread, Simulator threads=1)",
+        "processor": processor(),
+        "machine": f"{platform.machine()}, {os.cpu_count()} cores",
+        "load_average": os.getloadavg(),
+        "rows": [],
+    }
+    print(f"evaaa bench_env host_cost: {results['processor']}, {args.host_steps} decisions, load {os.getloadavg()}")
+    print(f"stubbed: {HOST_STUBS}")
+    print(f"{'level':<8}{'worlds':>8}{'backend':>9}{'us/world-decision':>19}   per phase (us)")
+    for level in args.levels:
+        for n in args.worlds:
+            for backend in ("cpu", "warp"):
+                row = time_host(level, n, backend, args.host_steps, warmup=3, seed=n)
+                gc.collect()  # its wrapped methods held the simulator in cycles: free its worlds before the next
+                results["rows"].append(row)
+                split = ", ".join(f"{k} {v:.2f}" for k, v in row["phases_us"].items())
+                print(f"{level:<8}{n:>8}{backend:>9}{row['us_per_world_decision']:>19.2f}   {split}", flush=True)
+    results["load_average_after"] = os.getloadavg()
+    return results
+
+
 def _version(package: str) -> str | None:
     from importlib.metadata import PackageNotFoundError, version
 
@@ -569,7 +772,10 @@ def measure(args) -> dict:
 
 def main(argv=None) -> int:
     args = cli.parse(BenchConfig, argv, **HELP)
-    results = measure_backends(args) if args.backend == "warp" else measure(args)
+    if args.host_cost:
+        results = measure_host_cost(args)
+    else:
+        results = measure_backends(args) if args.backend == "warp" else measure(args)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         with open(args.json, "w") as f:

@@ -128,3 +128,26 @@ def test_profile_lists_the_render_and_the_physics_among_the_costliest_calls(caps
     with pytest.raises(SystemExit) as exit_:
         load_script("profile_env").main(["level=9-9"])
     assert exit_.value.code == 2 and "level=9-9: '9-9' is not allowed" in capsys.readouterr().err
+
+
+def test_bench_host_cost_reports_each_backend_level_and_size(tmp_path):
+    out = tmp_path / "host.json"
+    code = load_bench().main(["host_cost=true", "worlds=[8]", "host_steps=3", "levels=[1-1,4-2]", f"json={out}"])
+    assert code == 0
+    figures = json.loads(out.read_text())
+    assert figures["processor"] and "physics" in figures["stubbed"] and len(figures["load_average"]) == 3
+    rows = figures["rows"]
+    assert [(r["level"], r["worlds"], r["backend"]) for r in rows] == [
+        ("1-1", 8, "cpu"),
+        ("1-1", 8, "warp"),
+        ("4-2", 8, "cpu"),
+        ("4-2", 8, "warp"),
+    ]
+    for row in rows:
+        assert row["us_per_world_decision"] > 0
+        phases = row["phases_us"]
+        assert phases["apply actions"] > 0 and phases["physiology and senses"] > 0
+        if row["backend"] == "warp":
+            assert phases["push"] > 0 and phases["pull"] > 0
+        assert sum(phases.values()) == pytest.approx(row["us_per_world_decision"])
+    assert next(r for r in rows if r["level"] == "4-2")["phases_us"]["predators"] > 0
