@@ -108,7 +108,8 @@ def main(argv: list[str] | None = None) -> int:
     cfg = parse(argv)
     # after the arguments: --help and a refusal need neither scipy nor pandas (--help within 3 s of CPU)
     from evaaa_baselines.paper.choice import ChoiceError, read_choice
-    from evaaa_baselines.reports import ReportError, build_report
+    from evaaa_baselines.paper.report import build_report
+    from evaaa_baselines.reports import ReportError
 
     compare, choice = cfg.compare, None
     if cfg.compare_from is not None:

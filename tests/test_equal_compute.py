@@ -12,8 +12,8 @@ from evaaa.records import TRAINING_EPISODE_FIELDS, append_rows
 from evaaa_baselines.config import COMPUTE_BOUND_STEPS
 from evaaa_baselines.logs import EVAL_COLUMNS
 from evaaa_baselines.paper import claims as rules
-from evaaa_baselines.reports import build_report
-from evaaa_baselines.reports.sections import claim_verdicts, read_inputs
+from evaaa_baselines.paper.report import build_report
+from evaaa_baselines.paper.verdicts import claim_verdicts, read_inputs
 
 MINUTES = 10  # the compute-matched runs' CPU budget
 EVERY = 10_000  # their evaluation interval

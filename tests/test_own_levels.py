@@ -18,8 +18,8 @@ from omegaconf import OmegaConf
 
 import evaaa
 from evaaa_baselines.config import ConfigError, compose_checked, register_levels
+from evaaa_baselines.paper.report import build_report
 from evaaa_baselines.paths import CONF_DIR
-from evaaa_baselines.reports import build_report
 from evaaa_baselines.training import summary
 
 register_levels()

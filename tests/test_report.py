@@ -29,8 +29,9 @@ from evaaa.records import TRAINING_EPISODE_FIELDS, append_rows
 from evaaa_baselines.config import observation_keys, register_levels
 from evaaa_baselines.logs import EVAL_COLUMNS_BEFORE_CPU
 from evaaa_baselines.paper.choice import ChoiceError
+from evaaa_baselines.paper.report import build_report
 from evaaa_baselines.paths import CONF_DIR
-from evaaa_baselines.reports import ReportError, build_report
+from evaaa_baselines.reports import ReportError
 from evaaa_baselines.reports.stats import clustered_rate, interval
 
 register_levels()
@@ -569,9 +570,9 @@ def test_missing_partial_and_orphaned_inputs_are_listed(world):
 def test_the_testbed_figures_show_the_curriculum_agents_with_every_sense_and_the_tables_every_run(
     world, tmp_path, monkeypatch
 ):
-    from evaaa_baselines.reports import sections
+    from evaaa_baselines.reports import testbeds
 
-    drawn, original = {}, sections.plot_bars
+    drawn, original = {}, testbeds.plot_bars
 
     def spy(stats, path, **kw):
         drawn[path.name] = set(stats["label"])
@@ -581,9 +582,9 @@ def test_the_testbed_figures_show_the_curriculum_agents_with_every_sense_and_the
         drawn[path.name] = set(stats["label"])
         return lines(stats, path, **kw)
 
-    lines = sections.plot_lines
-    monkeypatch.setattr(sections, "plot_bars", spy)
-    monkeypatch.setattr(sections, "plot_lines", spy_lines)
+    lines = testbeds.plot_lines
+    monkeypatch.setattr(testbeds, "plot_bars", spy)
+    monkeypatch.setattr(testbeds, "plot_lines", spy_lines)
     report = build_report([world["base"] / "runs"], [world["base"] / "eval"], tmp_path)
     shown = drawn["fig4b_success_per_testbed.png"]
     text = report.markdown.read_text()
@@ -599,9 +600,9 @@ def test_the_testbed_figures_show_the_curriculum_agents_with_every_sense_and_the
 
 
 def test_the_ablation_figures_have_a_panel_only_where_several_modality_sets_were_trained(world, tmp_path, monkeypatch):
-    from evaaa_baselines.reports import sections
+    from evaaa_baselines.reports import ablations
 
-    drawn, bars, lines = {}, sections.plot_bars, sections.plot_lines
+    drawn, bars, lines = {}, ablations.plot_bars, ablations.plot_lines
 
     def spy(original):
         def draw(stats, path, **kw):
@@ -610,8 +611,8 @@ def test_the_ablation_figures_have_a_panel_only_where_several_modality_sets_were
 
         return draw
 
-    monkeypatch.setattr(sections, "plot_bars", spy(bars))
-    monkeypatch.setattr(sections, "plot_lines", spy(lines))
+    monkeypatch.setattr(ablations, "plot_bars", spy(bars))
+    monkeypatch.setattr(ablations, "plot_lines", spy(lines))
     report = build_report([world["base"] / "runs"], [world["base"] / "eval"], tmp_path)
     # ppo's curriculum has all and no_vision; dqn's curriculum and ppo's direct runs have every sense only
     assert drawn["fig25_ablation_curves.png"] == drawn["fig26_ablation_success.png"] == {"ppo · curriculum"}
@@ -1047,7 +1048,7 @@ def test_training_writes_the_episode_fields_of_evaluations():
 # ------------------------------------------------------------------------------------------------ the claims
 def test_the_claims_are_judged_on_the_numbers_of_the_report(world):
     from evaaa_baselines.paper import claims as rules
-    from evaaa_baselines.reports.sections import claim_verdicts, read_inputs
+    from evaaa_baselines.paper.verdicts import claim_verdicts, read_inputs
 
     text = world["text"]
     claims = text[text.index("## The paper's claims") :]
@@ -1353,7 +1354,7 @@ def test_curriculum_and_direct_are_shown_with_the_env_steps_each_has_seen(world,
     equal = table(text, "Curriculum vs direct at equal env steps per stage")
     assert equal["1-2"]["ppo · direct"] == expect([[other.runs[d]["final"]["1-2"]] for d in short], per_seed=2)
     from evaaa_baselines.paper import claims as rules
-    from evaaa_baselines.reports.sections import claim_verdicts, read_inputs
+    from evaaa_baselines.paper.verdicts import claim_verdicts, read_inputs
 
     (b,) = [v for v in claim_verdicts(read_inputs([tmp_path / "runs"], [])) if v.claim.startswith("(b)")]
     matched_stats = pd.read_csv(tmp_path / "out" / "data" / "curriculum_vs_direct_matched.csv")
@@ -1465,7 +1466,7 @@ def test_a_folder_of_evaluations_is_searched_for_their_episode_files(world, tmp_
 
 
 def test_the_claims_compare_agents_in_the_acting_mode_they_all_have():
-    from evaaa_baselines.reports.sections import _one_mode
+    from evaaa_baselines.reports.document import one_mode
 
     rows = pd.DataFrame(
         {
@@ -1474,12 +1475,12 @@ def test_the_claims_compare_agents_in_the_acting_mode_they_all_have():
             "steps": [1, 2, 3, 4, 5],
         }
     )
-    assert _one_mode(rows)["acting"].tolist() == ["mode"] * 3  # the deterministic action: every agent has it
+    assert one_mode(rows)["acting"].tolist() == ["mode"] * 3  # the deterministic action: every agent has it
     apart = pd.DataFrame(
         {"run": ["a", "a", "b", "c", "c", "c"], "acting": ["sample", "sample", "mode", "sample", "mode", "mode"]}
     )
     # no mode shared by every run: each run's most frequent (such agents are then not compared)
-    assert _one_mode(apart)["acting"].tolist() == ["sample", "sample", "mode", "mode", "mode"]
+    assert one_mode(apart)["acting"].tolist() == ["sample", "sample", "mode", "mode", "mode"]
 
 
 def _learned_only_when_sampling(tmp_path: Path) -> tuple[list[Path], Path]:
@@ -1502,7 +1503,7 @@ def _learned_only_when_sampling(tmp_path: Path) -> tuple[list[Path], Path]:
 
 
 def _dqn_vs_ppo(inp):
-    from evaaa_baselines.reports.sections import claim_verdicts
+    from evaaa_baselines.paper.verdicts import claim_verdicts
 
     (c,) = [v for v in claim_verdicts(inp) if v.claim.startswith("(c)")]
     return next(p for p in c.parts if p.claim == "dqn > ppo in survival")
@@ -1511,7 +1512,7 @@ def _dqn_vs_ppo(inp):
 def test_a_sample_comparison_takes_each_agent_s_sampled_rows_and_dqn_s_greedy_ones(tmp_path):
     # PPO learned only when sampling, DQN is greedy: compared in `sample`, PPO's sampled rows face DQN's greedy ones
     # (labelled so) and DQN is below; compared in `mode` (or as before, without `compare`), PPO's standing still
-    from evaaa_baselines.reports.sections import read_inputs
+    from evaaa_baselines.paper.verdicts import read_inputs
 
     runs, evals = _learned_only_when_sampling(tmp_path)
     sampled = read_inputs(runs, [evals], compare="sample")

@@ -10,8 +10,15 @@ The package reads top to bottom:
 * :mod:`.aggregate` — a report's numbers: survival per stage from per-episode evaluations, training curves, a table
   cell's statistics over seeds (its points where there are fewer than three);
 * :mod:`.tables` and :mod:`.figures` — Markdown tables and PNG figures of those numbers;
-* :mod:`.claims` — the paper's claims (a)–(e) judged on those numbers (none from fewer than three seeds);
-* :mod:`.sections` — one function per section of the report, and :func:`build_report`, which writes it.
+* :mod:`.document` — the report being written and the inputs it is about, read once (:func:`read_inputs`), with
+  the runs and what is missing;
+* the sections, one room each: :mod:`.survival` (Fig. 4a), :mod:`.testbeds` (Fig. 4b), :mod:`.learned` (what each
+  agent learned), :mod:`.equal_compute` (Fig. 20), :mod:`.curves` (training and in-training evaluation curves),
+  :mod:`.ablations` (Figs. 25 and 26).
+
+This layer draws; it imports nothing from :mod:`..paper`.  The paper's claims judged on these numbers
+(:mod:`..paper.verdicts`) and the full report, sections and claims together (:func:`..paper.report.build_report`,
+what ``scripts/report.py`` calls), are in the paper layer.
 
 Runs that differ only in their seed (and in bookkeeping: logger, evaluation and checkpoint cadence, threads, run
 directory) are pooled; anything else that differs (modality, reward, a hyperparameter, steps per stage, curriculum
@@ -21,6 +28,7 @@ agents acted and on which worlds.  See docs/reports.md.
 """
 
 from .aggregate import STAT_COLUMNS, across_seeds, curves, estimate, final_survival, mean_se, per_run, reference_stats
+from .document import Report
 from .figures import OUTCOMES, outcome, plot_bars, plot_lines, plot_outcomes, plot_summary, short_labels
 from .load import (
     REFERENCES,
@@ -38,13 +46,11 @@ from .load import (
     read_episodes,
     select_acting,
 )
-from .sections import SECTIONS, Report, build_report
 from .tables import SUMMARY_NOTE, cell, markdown_table, pivot_table, sample_size, summarize
 
 __all__ = [
     "OUTCOMES",
     "REFERENCES",
-    "SECTIONS",
     "STAT_COLUMNS",
     "SUMMARY_NOTE",
     "Evaluations",
@@ -53,7 +59,6 @@ __all__ = [
     "RunRecord",
     "across_seeds",
     "attach",
-    "build_report",
     "cell",
     "curves",
     "describe_extras",
