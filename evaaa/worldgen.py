@@ -11,7 +11,6 @@ import zlib
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import ConvexHull, QhullError
 
 from .entities import FEEDS, OBSTACLE_KINDS, RESOURCE_KINDS, centre_z, footprint_half
 from .level import Level, LevelError
@@ -327,6 +326,8 @@ class PatrolArea:
     """The convex hull of the landmarks: predators keep inside it."""
 
     def __init__(self, points: np.ndarray):
+        from scipy.spatial import ConvexHull, QhullError  # here: `import evaaa` need not load scipy.spatial
+
         self.points = points
         try:
             hull = ConvexHull(points)

@@ -41,7 +41,6 @@ from tqdm import tqdm
 
 import evaaa  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
 from evaaa import END_TYPES, EV_NAMES
-from evaaa.pictures import PANEL_WIDTH, FrameDrawer, plot_traces
 from evaaa_baselines import cli
 from evaaa_baselines.cli import option
 
@@ -85,6 +84,7 @@ def main(argv=None) -> int:
     # the env, torch and the video writer load once --help and the command line have passed
     import torch
 
+    from evaaa.pictures import PANEL_WIDTH, FrameDrawer, plot_traces
     from evaaa.video import VideoSink
     from evaaa_baselines.evaluation import EvaluatedPolicy, EvaluationError
 

@@ -436,6 +436,17 @@ def test_the_report_s_help_loads_neither_pandas_nor_scipy_stats():
     assert out.stdout.rstrip().endswith("loaded: []"), out.stdout[-300:]
 
 
+def test_the_demo_s_help_loads_neither_matplotlib_nor_scipy_spatial():
+    # issue 64: demo.py's --help took 3.2 CPU-s beside a training run (over the 3 s asked): the pictures module (and
+    # matplotlib) loaded before the arguments were read, and `import evaaa` loaded scipy.spatial for the patrol hull
+    probe = HELP_PROBE.replace("('torch', 'torchrl', 'tensordict')", "('matplotlib', 'scipy.spatial')")
+    out = subprocess.run(
+        [sys.executable, "-c", probe, "scripts/demo.py"], cwd=ROOT, capture_output=True, text=True, timeout=120
+    )
+    assert out.returncode == 0 and "usage: " in out.stdout, out.stderr[-2000:]
+    assert out.stdout.rstrip().endswith("loaded: []"), out.stdout[-300:]
+
+
 @pytest.mark.parametrize("name", sorted({*SCHEMAS, "train"}))
 def test_help_of_every_script_imports_no_torch(name):
     """``--help`` of every script prints before torch, TorchRL and TensorDict load (issue 64: evaluate's, demo's and
